@@ -1,0 +1,61 @@
+"""What every dataset parser returns: cameras, image files and the split."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..cameras import Camera
+
+
+class DataError(ValueError):
+    """Bad input data. The message is one line naming the file and the problem.
+
+    The CLIs print it without a traceback and exit with code 2.
+    """
+
+
+@dataclass
+class SceneData:
+    """A parsed dataset, before any image is decoded.
+
+    Attributes:
+        root: the dataset folder.
+        format: parser name ("llff", "blender", "dtu", "colmap").
+        cameras: one Camera per image, already matching the size at which the
+            images will be decoded (after ``image_scale``).
+        image_paths: one image file per camera.
+        train_indices: indices into ``cameras`` used for training.
+        test_indices: indices into ``cameras`` held out for evaluation.
+        image_scale: resize factor applied when decoding (1.0 = as stored).
+        white_background: composite RGBA images on white (Blender) instead of black.
+        mask_paths: optional per-image foreground masks (DTU); None where absent.
+        depth_paths: optional per-image ground-truth depth maps (``.npy``,
+            float32 [H, W] camera z at stored resolution; 0 = no surface).
+        scene_center: [3] centre of the region of interest (world).
+        scene_radius: radius of that region (used for random init and lr scaling).
+        masked_metrics: compute PSNR/SSIM on mask pixels only (DTU protocol).
+    """
+
+    root: Path
+    format: str
+    cameras: list[Camera]
+    image_paths: list[Path]
+    train_indices: list[int]
+    test_indices: list[int]
+    image_scale: float = 1.0
+    white_background: bool = False
+    mask_paths: list[Path] | None = None
+    depth_paths: list[Path] | None = None
+    scene_center: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    scene_radius: float = 1.0
+    masked_metrics: bool = False
+    extras: dict = field(default_factory=dict)
+
+    @property
+    def train_cameras(self) -> list[Camera]:
+        return [self.cameras[i] for i in self.train_indices]
+
+    @property
+    def test_cameras(self) -> list[Camera]:
+        return [self.cameras[i] for i in self.test_indices]
