@@ -8,11 +8,7 @@ from pathlib import Path
 from ..cameras import Camera
 
 
-class DataError(ValueError):
-    """Bad input data. The message is one line naming the file and the problem.
-
-    The CLIs print it without a traceback and exit with code 2.
-    """
+from ..errors import DataError  # noqa: F401  (re-exported)
 
 
 @dataclass

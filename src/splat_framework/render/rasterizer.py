@@ -1,14 +1,25 @@
-"""The shared differentiable Gaussian rasterizer (contract; implementation in progress).
+"""The shared differentiable Gaussian rasterizer (pure PyTorch, device-agnostic).
 
-See ``rasterize`` for the full contract.
+See ``rasterize`` for the full contract. Implementation: EWA projection with
+plain autograd (``_project.py``), tile binning with an opacity-aware footprint
+and front-to-back compositing in rounds with a hand-written backward
+(``_composite.py``).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
+import torch
 from torch import Tensor
+
+from ._composite import bin_gaussians, composite, pair_coefficients, pixel_basis, tiles_to_image
+from ._project import footprint, project_gaussians, reference_radii
+from .sh import sh_to_color
+
+__all__ = ["RenderOutput", "rasterize"]
 
 
 @dataclass
@@ -49,5 +60,151 @@ def rasterize(
     far_plane: float = 1e10,
     depth_mode: Literal["accumulated", "expected"] = "accumulated",
     eps2d: float = 0.3,
+    tile_size: int = 16,
+    block: int = 32,
 ) -> RenderOutput:
-    raise NotImplementedError
+    """Render 3D Gaussians into one pinhole camera (3DGS reference semantics).
+
+    Camera convention (``splat_framework.cameras``): OpenCV axes (x right,
+    y down, z forward); a Gaussian projected to continuous pixel position
+    (u, v) = (fx x/z + cx, fy y/z + cy) is evaluated at pixel (px, py) at the
+    pixel centre (px + 0.5, py + 0.5).
+
+    Pipeline:
+      1. Projection (EWA): camera-space mean p = R mean + t; Gaussians with
+         z outside [near_plane, far_plane] are culled. 2D covariance
+         J W Sigma W^T J^T + eps2d * I, with the 3D covariance
+         Sigma = R(q) S S^T R(q)^T and the Jacobian J evaluated at x/z, y/z
+         clamped to 1.3x the field of view (asymmetric for an off-centre
+         principal point, as in gsplat), so huge off-screen Gaussians stay
+         finite. No opacity compensation for the eps2d dilation (like 3DGS).
+      2. Colours: ``colors`` [N, 3] are used as they are; SH coefficients
+         [N, K, 3] are evaluated at the unit direction camera centre -> mean
+         with ``sh_degree`` (default: the largest degree K allows), and the
+         colour is max(SH + 0.5, 0).
+      3. Compositing, per pixel, front to back in order of camera z:
+         alpha_i = min(0.99, o_i exp(-q_i / 2)) with q_i the Mahalanobis
+         distance under the 2D covariance; Gaussians with alpha_i < 1/255
+         are skipped; a Gaussian whose inclusion would bring the
+         transmittance below 1e-4 is not included and compositing stops
+         for that pixel. w_i = alpha_i T_i, T_i = prod_{j<i} (1 - alpha_j).
+         Gaussians whose opacity-aware footprint (where alpha >= 1/255)
+         misses the image are not rendered at all.
+
+    Gradients flow to every floating-point input (means, quats, scales,
+    opacities, colours / SH coefficients, also background) from rgb, depth
+    and alpha. The hard thresholds (1/255 skip, termination) have zero
+    gradient; where the 0.99 clamp is active alpha has zero gradient
+    (as in gsplat; the 3DGS CUDA backward ignores the clamp).
+
+    Args:
+        means: [N, 3] world-space centres.
+        quats: [N, 4] rotations as (w, x, y, z) quaternions, not necessarily
+            normalised.
+        scales: [N, 3] standard deviations along the local axes (activated,
+            i.e. already exp'd).
+        opacities: [N] opacities in [0, 1] (activated).
+        colors: [N, 3] RGB colours, or [N, K, 3] SH coefficients
+            (K >= (sh_degree + 1)^2, 3DGS ordering).
+        viewmat: [4, 4] world-to-camera transform.
+        K: [3, 3] intrinsics (fx, fy, cx, cy; any principal point).
+        width: image width W in pixels.
+        height: image height H in pixels.
+        sh_degree: active SH degree 0..3 when ``colors`` is [N, K, 3]
+            (None: sqrt(K) - 1). Must be None for [N, 3] colours.
+        background: [3] colour blended in as background * (1 - alpha)
+            (default black).
+        near_plane: Gaussians with camera z < near_plane are culled.
+        far_plane: Gaussians with camera z > far_plane are culled.
+        depth_mode: "accumulated" -> depth = sum_i w_i z_i;
+            "expected" -> that divided by alpha (0 where alpha == 0).
+        eps2d: low-pass dilation added to the 2D covariance diagonal (px^2).
+        tile_size: tile edge in pixels used for binning (performance only).
+        block: pairs per tile evaluated per compositing round (performance
+            only; early termination drops finished tiles between rounds).
+
+    Returns:
+        RenderOutput with
+            rgb: [H, W, 3] sum_i w_i c_i + background * (1 - alpha).
+            depth: [H, W, 1] see ``depth_mode`` (camera z, not ray length).
+            alpha: [H, W, 1] sum_i w_i = 1 - final transmittance.
+            meta: dict with
+                "means2d": [N, 2] projected centres in pixels (u, v); part of
+                    the graph, ``retain_grad()`` is called on it when grad is
+                    enabled, so after backward ``meta["means2d"].grad`` is the
+                    screen-space positional gradient (pixel units), summed over
+                    all pixels (zero for Gaussians that were not rendered).
+                "radii": [N] int32, ceil(3 sqrt(largest eigenvalue of the 2D
+                    covariance)) like the 3DGS reference for rendered
+                    Gaussians, 0 for culled ones.
+                "visible": [N] bool, the Gaussian was rendered (inside
+                    near/far, opacity >= 1/255, footprint touches the image).
+                "depths": [N] camera-space z of every mean (also culled ones).
+                "conics": [N, 3] inverse 2D covariance (a, b, c).
+                "width", "height": ints.
+                "n_pairs": number of (tile, Gaussian) pairs (diagnostics).
+    """
+    if depth_mode not in ("accumulated", "expected"):
+        raise ValueError(f"depth_mode must be 'accumulated' or 'expected', got {depth_mode!r}")
+    device, dtype = means.device, means.dtype
+    n = means.shape[0]
+    width = int(width)
+    height = int(height)
+
+    # ------------------------------------------------------------ colours
+    viewmat = viewmat.to(device=device, dtype=dtype)
+    K = K.to(device=device, dtype=dtype)
+    if colors.dim() == 3:
+        k = colors.shape[1]
+        deg = int(math.isqrt(k)) - 1 if sh_degree is None else int(sh_degree)
+        R = viewmat[:3, :3]
+        cam_center = -R.T @ viewmat[:3, 3]
+        dirs = means - cam_center
+        dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+        rgb_g = sh_to_color(deg, colors, dirs)
+    elif colors.dim() == 2 and colors.shape[-1] == 3:
+        if sh_degree is not None:
+            raise ValueError("sh_degree given but colors is [N, 3]; pass SH as [N, K, 3]")
+        rgb_g = colors
+    else:
+        raise ValueError(f"colors must be [N, 3] or [N, K, 3], got {tuple(colors.shape)}")
+    if background is None:
+        background = torch.zeros(3, device=device, dtype=dtype)
+    else:
+        background = background.to(device=device, dtype=dtype)
+
+    # --------------------------------------------------------- projection
+    proj = project_gaussians(
+        means, quats, scales, viewmat, K, width, height, near_plane, far_plane, eps2d
+    )
+    means2d = proj.means2d
+    if torch.is_grad_enabled() and means2d.requires_grad:
+        means2d.retain_grad()
+    ext_x, ext_y, ok = footprint(proj.cov2d, opacities, proj.valid)
+    bins = bin_gaussians(means2d, ext_x, ext_y, ok, proj.depths, width, height, tile_size)
+
+    # --------------------------------------------------------- compositing
+    coef = pair_coefficients(means2d, proj.conics, opacities.to(dtype), bins)
+    ones = torch.ones(n, 1, device=device, dtype=dtype)
+    feats = torch.cat([rgb_g.to(dtype), proj.depths[:, None], ones], dim=-1)  # [N, 5]
+    basis = pixel_basis(tile_size, device, dtype)
+    out = composite(coef, feats, bins, basis, block)
+    img = tiles_to_image(out, bins, width, height)  # [H, W, 5]
+
+    alpha = img[..., 4:5]
+    rgb = img[..., 0:3] + (1.0 - alpha) * background
+    depth = img[..., 3:4]
+    if depth_mode == "expected":
+        depth = torch.where(alpha > 0, depth / alpha.clamp_min(1e-12), torch.zeros_like(depth))
+
+    meta = {
+        "means2d": means2d,
+        "radii": reference_radii(proj.cov2d, bins.hit),
+        "visible": bins.hit,
+        "depths": proj.depths,
+        "conics": proj.conics,
+        "width": width,
+        "height": height,
+        "n_pairs": int(bins.pair_gid.numel()),
+    }
+    return RenderOutput(rgb=rgb, depth=depth, alpha=alpha, meta=meta)

@@ -1,0 +1,105 @@
+"""Dataset parsers: folder -> :class:`SceneData` (cameras, image paths, split).
+
+``load_scene`` detects the format from the folder contents:
+
+- ``poses_bounds.npy``                     -> llff
+- ``transforms_train.json``                -> blender
+- ``cameras_sphere.npz``                   -> dtu
+- ``sparse/0/`` or ``sparse/`` with ``cameras.bin|txt`` -> colmap
+
+Every failure is a :class:`DataError` with a one-line message naming the file.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable, Literal
+
+from ..scene import DataError, SceneData
+from ..splits import check_views
+
+FORMATS = ("llff", "blender", "dtu", "colmap")
+
+
+def _loader(fmt: str) -> Callable[..., SceneData]:
+    if fmt == "llff":
+        from .llff import load_llff
+
+        return load_llff
+    if fmt == "blender":
+        from .blender import load_blender
+
+        return load_blender
+    if fmt == "dtu":
+        from .dtu import load_dtu
+
+        return load_dtu
+    if fmt == "colmap":
+        from .colmap import load_colmap
+
+        return load_colmap
+    raise DataError(f"unknown dataset format {fmt!r} (choose auto, {', '.join(FORMATS)})")
+
+
+def detect_format(path: Path) -> str:
+    """The dataset format of folder ``path`` (raises DataError when unknown)."""
+    path = Path(path)
+    if not path.exists():
+        raise DataError(f"{path}: no such dataset folder")
+    if not path.is_dir():
+        raise DataError(f"{path}: not a folder")
+    if (path / "poses_bounds.npy").is_file():
+        return "llff"
+    if (path / "transforms_train.json").is_file():
+        return "blender"
+    if (path / "cameras_sphere.npz").is_file():
+        return "dtu"
+    from .colmap import find_sparse_dir
+
+    if find_sparse_dir(path) is not None:
+        return "colmap"
+    try:
+        empty = not any(path.iterdir())
+    except OSError as e:
+        raise DataError(f"{path}: cannot list folder ({e.strerror or e})") from None
+    if empty:
+        raise DataError(f"{path}: empty folder, no dataset found")
+    raise DataError(
+        f"{path}: unknown dataset format (expected poses_bounds.npy, transforms_train.json, "
+        "cameras_sphere.npz or sparse/0/cameras.bin|txt)"
+    )
+
+
+def load_scene(
+    path: Path | str,
+    *,
+    format: str = "auto",
+    views: int | Literal["all"] = "all",
+    downscale: float | None = None,
+) -> SceneData:
+    """Parse a dataset folder.
+
+    Args:
+        path: dataset folder.
+        format: "auto" (detect), "llff", "blender", "dtu" or "colmap".
+        views: number of training views under the dataset's few-shot
+            protocol (see :mod:`splat_framework.data.splits`), or "all".
+        downscale: image downscale factor relative to full resolution.
+            Defaults: llff 8 (when ``images_8/`` exists), blender 2, dtu 4
+            (when ``images_4/`` exists), otherwise 1. A folder
+            ``images_F/`` is used when present, else ``images/`` is resized
+            on load (``SceneData.image_scale``).
+
+    Raises:
+        DataError: for any problem with the folder or its files.
+    """
+    path = Path(path)
+    views = check_views(views)
+    fmt = detect_format(path) if format == "auto" else format
+    loader = _loader(fmt)
+    if format != "auto" and not path.is_dir():
+        raise DataError(f"{path}: no such dataset folder")
+    return loader(path, views=views, downscale=downscale)
+
+
+__all__ = ["FORMATS", "detect_format", "load_scene"]

@@ -1,0 +1,145 @@
+"""``splat-match``: compute the SCGaussian matching prior for a scene's training views.
+
+Example::
+
+    splat-match --data llff/fern --views 3 --matcher dense --out runs/fern_matches
+
+writes ``matches.npz`` (a :class:`scg_plugin.matching.MatchSet`) and one picture
+``matches_i_j.png`` per pair into ``--out``, and prints the counts per pair.
+Heavy imports (torch, cv2, kornia, the data loaders) happen inside functions so
+``--help`` is fast.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any
+
+import tyro
+
+from .matching import MatchConfig
+
+if TYPE_CHECKING:  # pragma: no cover
+    from splat_framework.cameras import Camera
+
+    from .matching import MatchSet
+
+
+@dataclass
+class MatchArgs:
+    """Compute verified pixel matches between every pair of training views."""
+
+    data: str
+    """Dataset folder, or a name such as "llff/fern" resolved under $SPLAT_DATA."""
+
+    out: Path
+    """Output folder: matches.npz and one matches_i_j.png per pair."""
+
+    views: int | None = 3
+    """Number of training views (few-shot split); None keeps the parser's default split."""
+
+    cache_dir: Path | None = None
+    """Match cache folder (default: <out>/cache)."""
+
+    no_cache: bool = False
+    """Do not read or write the match cache."""
+
+    max_lines: int = 200
+    """Match lines drawn per picture."""
+
+    config: Annotated[MatchConfig, tyro.conf.arg(name="")] = field(default_factory=MatchConfig)
+    """Matching settings."""
+
+
+def _image_to_numpy(img: Any) -> Any:
+    import numpy as np
+
+    if hasattr(img, "detach"):
+        img = img.detach().cpu().numpy()
+    a = np.asarray(img)
+    if a.ndim == 3 and a.shape[0] in (3, 4) and a.shape[-1] not in (3, 4):
+        a = a.transpose(1, 2, 0)
+    return a
+
+
+def run_matching(
+    images: list[Any],
+    cameras: list["Camera"] | None,
+    view_ids: list[int],
+    config: MatchConfig,
+    out_dir: Path,
+    cache_dir: Path | None = None,
+    max_lines: int = 200,
+    console: Any = None,
+) -> "MatchSet":
+    """Compute matches, print a table, write ``matches.npz`` and ``matches_i_j.png`` files."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from .matching import compute_matches, draw_matches
+
+    console = console or Console()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    images = [_image_to_numpy(im) for im in images]
+    t0 = time.perf_counter()
+    ms = compute_matches(images, cameras, view_ids, config, cache_dir)
+    dt = time.perf_counter() - t0
+    ms.save(out_dir / "matches.npz")
+    by_id = {int(v): im for v, im in zip(view_ids, images)}
+    for i, j in ms.pairs():
+        pa, pb = ms.get(i, j)
+        draw_matches(by_id[i], by_id[j], pa, pb, out_dir / f"matches_{i}_{j}.png", max_lines=max_lines, seed=config.seed)
+
+    cached = " (cached)" if ms.meta.get("cache_hit") else ""
+    table = Table(title=f"{config.matcher} matches, views {ms.view_ids}{cached}")
+    for col in ("pair", "raw", "MAGSAC", "epipolar", "final"):
+        table.add_column(col, justify="right")
+    for p in ms.pairs():
+        s = ms.stats.get(p, {})
+        note = f" [yellow]{ms.warnings[p]}[/]" if p in ms.warnings else ""
+        table.add_row(f"{p[0]}-{p[1]}", *(str(s.get(k, "-")) for k in ("raw", "magsac", "epipolar")),
+                      f"{len(ms.get(*p)[0])}{note}")
+    table.add_row("total", "", "", "", str(ms.total()), end_section=True)
+    console.print(table)
+    console.print(f"{ms.total()} matches in {dt:.2f} s -> {out_dir / 'matches.npz'}")
+    return ms
+
+
+def main(args: MatchArgs) -> int:
+    from rich.console import Console
+
+    from splat_framework.data.images import load_image
+    from splat_framework.data.parsers import load_scene
+    from splat_framework.data.resolve import resolve_data_path
+    from splat_framework.data.scene import DataError
+
+    from .matching import MissingWeightsError
+
+    console = Console()
+    try:
+        root = resolve_data_path(args.data)
+        scene = load_scene(root, views=args.views)
+        ids = [int(i) for i in scene.train_indices]
+        images = [
+            load_image(scene.image_paths[i], scale=scene.image_scale, white_background=scene.white_background)
+            for i in ids
+        ]
+        cameras = [scene.cameras[i] for i in ids]
+        cache = None if args.no_cache else (args.cache_dir or Path(args.out) / "cache")
+        run_matching(images, cameras, ids, args.config, Path(args.out), cache, args.max_lines, console)
+    except (DataError, MissingWeightsError) as e:
+        console.print(f"[red]error:[/] {e}", highlight=False)
+        return 2
+    return 0
+
+
+def entrypoint() -> None:
+    sys.exit(main(tyro.cli(MatchArgs)))
+
+
+if __name__ == "__main__":
+    entrypoint()

@@ -1,0 +1,100 @@
+"""SCGaussian configuration (torch-free: read when building ``--help``)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from splat_framework.config import GaussianModelConfig, SplatConfig, Steps, TrainConfig
+
+
+class MatchConfig(SplatConfig):
+    """Matching prior: which matcher, how many matches, how they are verified."""
+
+    matcher: Literal["dense", "sift", "loftr", "disk-lightglue"] = "dense"
+    """Matcher: dense (DIS optical flow, forward-backward checked), sift, or the kornia learned matchers (need local weights)."""
+    max_matches: int = Field(4000, gt=0)
+    """Matches kept per pair of views after verification (spatially balanced sample)."""
+    ratio: float = Field(0.8, gt=0, le=1)
+    """Lowe ratio for SIFT."""
+    sift_features: int = Field(8000, gt=0)
+    """SIFT keypoints per image."""
+    fb_threshold: float = Field(1.0, gt=0)
+    """Forward-backward consistency threshold of the dense matcher (pixels)."""
+    dis_preset: Literal["ultrafast", "fast", "medium"] = "medium"
+    """OpenCV DIS optical-flow preset of the dense matcher."""
+    magsac_threshold: float = Field(1.0, gt=0)
+    """MAGSAC fundamental-matrix inlier threshold (pixels)."""
+    epipolar_check: bool = True
+    """Also reject matches far from the epipolar lines of the known poses."""
+    epipolar_threshold: float = Field(2.0, gt=0)
+    """Symmetric epipolar distance threshold of that check (pixels)."""
+    seed: int = 0
+    """Seed of the spatially balanced sampler."""
+    weights: str | None = None
+    """Local weights file of a learned matcher (never downloaded)."""
+    cache: bool = True
+    """Cache matches on disk (keyed by matcher, views and image content)."""
+
+
+class SCGModelConfig(GaussianModelConfig):
+    """SCGaussian: hybrid ray-based + ordinary Gaussians with matching-prior losses."""
+
+    init: Literal["random", "points", "matches"] = "matches"
+    """Initialisation: ray-based Gaussians on matched rays (SCGaussian)."""
+    init_num_points: int = 0
+    """Extra random ordinary Gaussians at start (0 = ordinary ones come only from densification)."""
+    matching: MatchConfig = Field(default_factory=MatchConfig)
+    """Matching prior."""
+    ray_binding: bool = True
+    """Keep ray-based Gaussians bound to their rays during training (False = they become ordinary Gaussians after the warm-up: the 'only non-structure' ablation)."""
+    schedule: Literal["two-stage", "single-stage"] = "two-stage"
+    """two-stage: z warm-up with L_gp, then L_photo + delta*L_rg (public code); single-stage: L_photo + beta*L_gp + delta*L_rg from the start (paper text)."""
+    warmup_steps: Steps = 2000
+    """Iterations of the z warm-up (two-stage schedule; 0 = no warm-up)."""
+    warmup_lr: float = 0.03
+    """Warm-up step size of z as a fraction of each view's depth range (Adam lr), halved every warmup_lr_halve_every."""
+    warmup_lr_halve_every: Steps = 500
+    """Halve the warm-up learning rate every this many warm-up iterations."""
+    lambda_gp: float = Field(0.0, ge=0)
+    """beta: weight of the Gaussian-position loss during main training."""
+    lambda_rg: float = Field(0.3, ge=0)
+    """delta: weight of the rendering-geometry loss."""
+    rg_start: Steps = 0
+    """Main-training iteration from which the rendering-geometry loss is on."""
+    cache_filter: bool = True
+    """Cache per match the z with the lowest position error and drop matches whose best error stays above filter_eta_px."""
+    cache_until: Steps = 0
+    """Single-stage: cache during main iterations [0, cache_until), then apply (two-stage caches during the warm-up)."""
+    filter_eta_px: float = Field(2.0, gt=0)
+    """eta: drop matches whose best reprojection error (pixels, worse of both directions) exceeds this."""
+    z_lr: float = 1.6e-4
+    """Learning rate of ray depths during main training, times the scene scale (decays like the position lr)."""
+    min_matches: int = 50
+    """Below this many verified matches the run warns and falls back to random ordinary Gaussians."""
+
+
+class SCGTrainConfig(TrainConfig):
+    """Training options of SCGaussian."""
+
+    model: SCGModelConfig = Field(default_factory=SCGModelConfig)
+    """Model options."""
+
+
+class TriangModelConfig(GaussianModelConfig):
+    """3DGS initialised from matches triangulated with the known poses."""
+
+    init: Literal["random", "points", "matches"] = "points"
+    """Initialisation: the triangulated match points."""
+    matching: MatchConfig = Field(default_factory=MatchConfig)
+    """Matching prior used for triangulation."""
+    max_reprojection_px: float = Field(2.0, gt=0)
+    """Drop triangulated points whose reprojection error exceeds this (pixels)."""
+
+
+class TriangTrainConfig(TrainConfig):
+    """Training options of the triangulation-initialised 3DGS baseline."""
+
+    model: TriangModelConfig = Field(default_factory=TriangModelConfig)
+    """Model options."""

@@ -1,0 +1,39 @@
+"""SCGaussian's method specs, registered through the ``splat_framework.methods`` entry point.
+
+Kept torch-free: the CLI reads it to build ``--help``. Paper ablation rows are
+TOML variants in the repository's ``configs/`` folder.
+"""
+
+from splat_framework.registry import MethodSpec
+
+from .config import SCGModelConfig, SCGTrainConfig, TriangTrainConfig
+from splat_framework.config import DensifyConfig
+
+
+def config_scgaussian() -> SCGTrainConfig:
+    """SCGaussian as in the public code: z warm-up with L_gp (cache and filter), then L_photo + 0.3 L_rg."""
+    return SCGTrainConfig(
+        method="scgaussian",
+        model=SCGModelConfig(),
+        strategy=DensifyConfig(never_prune_key="is_match", child_defaults={"is_ray": 0.0, "is_match": 0.0}),
+    )
+
+
+def config_3dgs_triang() -> TriangTrainConfig:
+    """3DGS initialised from the matching prior triangulated with the known poses."""
+    return TriangTrainConfig(method="3dgs-triang")
+
+
+spec_scgaussian = MethodSpec(
+    name="scgaussian",
+    description="SCGaussian: hybrid ray-based Gaussians from a matching prior (NeurIPS 2024)",
+    config_factory=config_scgaussian,
+    model="scg_plugin.model:SCGaussianModel",
+)
+
+spec_3dgs_triang = MethodSpec(
+    name="3dgs-triang",
+    description="3DGS initialised from matches triangulated with the known poses",
+    config_factory=config_3dgs_triang,
+    model="scg_plugin.model:TriangulatedGaussianModel",
+)

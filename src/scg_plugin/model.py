@@ -1,0 +1,334 @@
+"""SCGaussian model: hybrid ray-based + ordinary Gaussians with matching-prior losses.
+
+Rows ``[0, G)`` of the parameter dict are the Gaussians of matches (two per
+match, rows 2m and 2m+1). They are never pruned (``is_match`` is the strategy's
+``never_prune_key``) and densification appends children at the end, so these
+rows keep their order for the whole run. While ``is_ray`` is set a row's
+position is ``ray_o + z * ray_d`` and only ``z`` moves it; children of such
+rows are ordinary Gaussians (the strategy's ``child_defaults``).
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from splat_framework.cameras import Camera
+from splat_framework.model.gaussians import GaussianModel, knn_scale, rgb_to_sh0, sample_frustum_points
+from splat_framework.model.ops import remove
+
+from .losses import rendering_geometry_loss
+from .ray_gaussians import (
+    MatchCache,
+    RayBundle,
+    build_ray_bundle,
+    gaussian_position_loss,
+    pixel_errors,
+    warm_up,
+)
+
+RAY_KEYS = ("z", "ray_o", "ray_d", "is_ray", "is_match")
+
+
+def compute_match_set(config, datamanager):
+    """Matches between all pairs of training views (cached on disk)."""
+    from .matching import compute_matches
+
+    views = datamanager.train_views()
+    images = [b["image"].cpu().numpy() for _, b in views]
+    cameras = [c.to("cpu") for c, _ in views]
+    ids = [int(b["index"]) for _, b in views]
+    cache_dir = datamanager.scene.root / ".splat_cache" if config.model.matching.cache else None
+    try:
+        if cache_dir is not None:
+            cache_dir.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        cache_dir = None
+    return compute_matches(images, cameras, ids, config.model.matching, cache_dir)
+
+
+def match_pairs(match_set, view_ids: list[int]):
+    """(i, j, uv_i, uv_j) with i, j positions in the training-view list."""
+    pos = {v: k for k, v in enumerate(view_ids)}
+    for pair in match_set.pairs():
+        yield pos[pair.view_a], pos[pair.view_b], pair.pts_a, pair.pts_b
+
+
+class SCGaussianModel(GaussianModel):
+    """SCGaussian (NeurIPS 2024): structure-consistent Gaussians from a matching prior."""
+
+    def __init__(
+        self, config, scene_scale, points, colors, bundle: RayBundle | None, cameras: list[Camera], images: list[Tensor]
+    ):
+        self.bundle = bundle if bundle is not None and len(bundle) > 0 else None
+        self.train_cameras = cameras
+        self.train_images = images
+        self.cache: MatchCache | None = None
+        super().__init__(config, scene_scale, points, colors)
+        cfg = config.model
+        if self.bundle is not None and config.model.schedule == "single-stage" and cfg.cache_filter and cfg.cache_until > 0:
+            self.cache = MatchCache(self.bundle)
+
+    # ------------------------------------------------------------------ build
+    @classmethod
+    def from_data(cls, config, datamanager, generator):
+        cfg = config.model
+        views = datamanager.train_views()
+        cameras = [c for c, _ in views]
+        images = [b["image"] for _, b in views]
+        ids = [int(b["index"]) for _, b in views]
+        timing = {}
+        t0 = time.perf_counter()
+        match_set = compute_match_set(config, datamanager)
+        timing["matching_s"] = time.perf_counter() - t0
+        cpu_cams = [c.to("cpu") for c in cameras]
+        bundle = build_ray_bundle(match_pairs(match_set, ids), cpu_cams, generator)
+        n_matches = len(bundle) // 2
+        if n_matches < cfg.min_matches:
+            warnings.warn(
+                f"only {n_matches} verified matches between the {len(ids)} training views "
+                f"(fewer than min_matches={cfg.min_matches}): falling back to {max(cfg.init_num_points, 10000)} random ordinary Gaussians",
+                stacklevel=2,
+            )
+            bundle = None
+        t0 = time.perf_counter()
+        if bundle is not None and cfg.schedule == "two-stage" and cfg.warmup_steps > 0:
+            cache = MatchCache(bundle) if cfg.cache_filter else None
+            z = warm_up(bundle, cpu_cams, cfg.warmup_steps, cfg.warmup_lr, cfg.warmup_lr_halve_every, cache)
+            if cache is not None:
+                bundle.z = cache.best_z
+                keep = cache.keep_mask(cfg.filter_eta_px)
+                timing["filtered_matches"] = int((~keep).sum()) // 2
+                bundle = bundle.select(keep)
+            else:
+                bundle.z = z
+        timing["warmup_s"] = time.perf_counter() - t0
+        # ordinary Gaussians at start (none for SCGaussian's default)
+        n_rand = cfg.init_num_points if bundle is not None else max(cfg.init_num_points, 10000)
+        if n_rand > 0:
+            pts, cols = sample_frustum_points(cameras, images, n_rand, generator)
+        else:
+            pts = torch.zeros(0, 3, device=images[0].device)
+            cols = torch.zeros(0, 3, device=images[0].device)
+        model = cls(config, datamanager.scene.scene_radius, pts, cols, bundle, cameras, images)
+        model.init_timing = timing
+        model.init_timing["num_matches"] = len(bundle) // 2 if bundle is not None else 0
+        return model
+
+    def init_params(self, points: Tensor, colors: Tensor) -> dict[str, nn.Parameter]:
+        dev = points.device
+        b = self.bundle
+        n_free = points.shape[0]
+        if b is not None:
+            b = self.bundle = RayBundle(**{k: v.to(dev) for k, v in b.to_dict().items()})
+            ray_pos = b.positions()
+            ray_cols = self._pixel_colours(b)
+            all_pts = torch.cat([ray_pos, points.float()])
+            all_cols = torch.cat([ray_cols, colors.float()])
+        else:
+            all_pts, all_cols = points.float(), colors.float()
+        params = super().init_params(all_pts, all_cols)
+        g = len(b) if b is not None else 0
+        n = g + n_free
+        flag = torch.zeros(n, device=dev)
+        flag[:g] = 1.0
+        z = torch.zeros(n, device=dev)
+        o = torch.zeros(n, 3, device=dev)
+        d = torch.zeros(n, 3, device=dev)
+        if g:
+            z[:g], o[:g], d[:g] = b.z, b.origins, b.dirs
+        ray_bound = flag if self.config.model.ray_binding else torch.zeros_like(flag)
+        params.update(
+            z=nn.Parameter(z),
+            ray_o=nn.Parameter(o, requires_grad=False),
+            ray_d=nn.Parameter(d, requires_grad=False),
+            is_ray=nn.Parameter(ray_bound, requires_grad=False),
+            is_match=nn.Parameter(flag, requires_grad=False),
+        )
+        return params
+
+    def _pixel_colours(self, b: RayBundle) -> Tensor:
+        cols = torch.empty(len(b), 3, device=b.uv.device)
+        for v in torch.unique(b.view).tolist():
+            sel = b.view == v
+            img = self.train_images[v]
+            uv = b.uv[sel]
+            x = uv[:, 0].long().clamp(0, img.shape[1] - 1)
+            y = uv[:, 1].long().clamp(0, img.shape[0] - 1)
+            cols[sel] = img[y, x].to(cols)
+        return cols
+
+    @property
+    def num_match_gaussians(self) -> int:
+        return 0 if self.bundle is None else len(self.bundle)
+
+    # --------------------------------------------------------------- optimise
+    def learning_rates(self) -> dict[str, float]:
+        lrs = super().learning_rates()
+        lrs["z"] = self.config.model.z_lr * self.scene_scale
+        return lrs
+
+    def update_learning_rates(self, optimizers: dict, step: int, total_steps: int) -> None:
+        super().update_learning_rates(optimizers, step, total_steps)
+        if "z" not in optimizers or self.bundle is None:
+            return
+        cfg = self.config.model
+        if cfg.schedule == "single-stage" and step < max(cfg.cache_until, 1):
+            # the paper's single stage: z moves with the warm-up step size while caching
+            depth_range = float((self.bundle.far - self.bundle.near).median())
+            lr = cfg.warmup_lr * depth_range * 0.5 ** (step // max(cfg.warmup_lr_halve_every, 1))
+        else:
+            ratio = optimizers["means"].param_groups[0]["lr"] / max(self.config.optim.means_lr * self.scene_scale, 1e-30)
+            lr = cfg.z_lr * self.scene_scale * ratio
+        for g in optimizers["z"].param_groups:
+            g["lr"] = lr
+
+    def prepare_for_strategy(self) -> None:
+        p = self.params
+        bound = p["is_ray"] > 0.5
+        if bound.any():
+            p["means"].data[bound] = (p["ray_o"] + p["z"][:, None] * p["ray_d"])[bound]
+
+    def positions(self) -> Tensor:
+        p = self.params
+        if self.bundle is None:
+            return p["means"]
+        ray_pos = p["ray_o"] + p["z"][:, None] * p["ray_d"]
+        return torch.where(p["is_ray"][:, None] > 0.5, ray_pos, p["means"])
+
+    def get_loss_dict(self, outputs, batch, camera: Camera, step: int) -> dict[str, Tensor]:
+        losses = super().get_loss_dict(outputs, batch, camera, step)
+        if self.bundle is None:
+            return losses
+        cfg = self.config.model
+        g = len(self.bundle)
+        if cfg.lambda_gp > 0:
+            pos = self.positions()[:g]
+            losses["gp"] = cfg.lambda_gp * gaussian_position_loss(pos, self.bundle, self.train_cameras)
+        if cfg.lambda_rg > 0 and step >= cfg.rg_start:
+            losses["rg"] = cfg.lambda_rg * self._rg_loss(outputs, camera)
+        return losses
+
+    def _rg_loss(self, outputs, camera: Camera) -> Tensor:
+        """L_rg for the matches seen from the rendered training view."""
+        b = self.bundle
+        view = self._view_position(camera)
+        total, count = outputs.depth.sum() * 0.0, 0
+        if view is None:
+            return total
+        depth = outputs.depth
+        if self.config.model.depth_mode != "expected":
+            depth = depth / outputs.alpha.clamp_min(1e-6)
+        sel_view = b.view == view
+        for partner in torch.unique(b.partner_view[sel_view]).tolist():
+            sel = sel_view & (b.partner_view == partner)
+            total = total + rendering_geometry_loss(
+                depth, camera, b.uv[sel], self.train_cameras[partner], b.partner_uv[sel]
+            )
+            count += 1
+        return total / max(count, 1)
+
+    def _view_position(self, camera: Camera) -> int | None:
+        for k, c in enumerate(self.train_cameras):
+            if c.name == camera.name and torch.equal(c.world_to_cam, camera.world_to_cam):
+                return k
+        return None
+
+    def after_optimizer_step(self, step: int, losses, optimizers=None, strategy_state=None) -> None:
+        cfg = self.config.model
+        if self.cache is None or self.bundle is None:
+            return
+        g = len(self.bundle)
+        z = self.params["z"][:g].detach().cpu()
+        if step < cfg.cache_until:
+            self.cache.update(z, RayBundle(**{k: v.cpu() for k, v in self.bundle.to_dict().items()}), [c.to("cpu") for c in self.train_cameras])
+        if step == cfg.cache_until - 1:
+            self._apply_cache(optimizers, strategy_state)
+
+    @torch.no_grad()
+    def _apply_cache(self, optimizers, strategy_state) -> None:
+        """Move every match to its best cached z and drop matches above eta (single-stage)."""
+        cfg = self.config.model
+        g = len(self.bundle)
+        dev = self.params["z"].device
+        self.params["z"].data[:g] = self.cache.best_z.to(dev)
+        keep = self.cache.keep_mask(cfg.filter_eta_px).to(dev)
+        drop = torch.zeros(self.num_gaussians, dtype=torch.bool, device=dev)
+        drop[:g] = ~keep
+        if drop.any():
+            remove(self.params, optimizers or {}, strategy_state if strategy_state is not None else {}, drop)
+        self.bundle = self.bundle.select(keep)
+        self.bundle.z = self.params["z"].data[: len(self.bundle)].clone()
+        self.cache = None
+
+    # ---------------------------------------------------------------- report
+    def extra_state(self) -> dict:
+        state = {"bundle": {k: v.cpu() for k, v in self.bundle.to_dict().items()} if self.bundle is not None else None}
+        if self.cache is not None:
+            state["cache"] = {"best_err": self.cache.best_err, "best_z": self.cache.best_z}
+        return state
+
+    def load_extra_state(self, state: dict) -> None:
+        self.train_cameras = getattr(self, "train_cameras", [])
+        dev = self.params["means"].device
+        b = state.get("bundle")
+        self.bundle = RayBundle(**{k: v.to(dev) for k, v in b.items()}) if b is not None else None
+        c = state.get("cache")
+        if c is not None and self.bundle is not None:
+            self.cache = MatchCache(self.bundle)
+            self.cache.best_err, self.cache.best_z = c["best_err"], c["best_z"]
+        else:
+            self.cache = None
+
+    @torch.no_grad()
+    def report(self, datamanager) -> dict:
+        """Structure statistics: match count and, with GT depth, the ray Gaussians' distance to the surface."""
+        out = {"num_match_gaussians": self.num_match_gaussians}
+        if self.bundle is None:
+            return out
+        pos = self.positions()[: len(self.bundle)]
+        err = pixel_errors(pos, self.bundle, self.train_cameras)
+        out["match_reprojection_px_median"] = float(err.median())
+        return out
+
+
+class TriangulatedGaussianModel(GaussianModel):
+    """3DGS initialised from matches triangulated with the known poses (the paper's 3DGS-triang baseline)."""
+
+    @classmethod
+    def from_data(cls, config, datamanager, generator):
+        from .ray_gaussians import triangulate
+
+        views = datamanager.train_views()
+        cameras = [c.to("cpu") for c, _ in views]
+        images = [b["image"] for _, b in views]
+        ids = [int(b["index"]) for _, b in views]
+        t0 = time.perf_counter()
+        match_set = compute_match_set(config, datamanager)
+        timing = {"matching_s": time.perf_counter() - t0}
+        pts, cols = [], []
+        for i, j, uv_i, uv_j in match_pairs(match_set, ids):
+            uv_i = torch.as_tensor(uv_i, dtype=torch.float32)
+            uv_j = torch.as_tensor(uv_j, dtype=torch.float32)
+            if uv_i.shape[0] == 0:
+                continue
+            p, err = triangulate(cameras[i], cameras[j], uv_i, uv_j)
+            ok = err <= config.model.max_reprojection_px
+            img = images[i].cpu()
+            x = uv_i[ok, 0].long().clamp(0, img.shape[1] - 1)
+            y = uv_i[ok, 1].long().clamp(0, img.shape[0] - 1)
+            pts.append(p[ok])
+            cols.append(img[y, x])
+        dev = images[0].device
+        if not pts or sum(len(p) for p in pts) < 50:
+            warnings.warn("too few triangulated matches: falling back to random initialisation", stacklevel=2)
+            points, colors = sample_frustum_points([c for c, _ in views], images, max(config.model.init_num_points, 10000), generator)
+        else:
+            points, colors = torch.cat(pts).to(dev), torch.cat(cols).to(dev)
+        model = cls(config, datamanager.scene.scene_radius, points, colors)
+        model.init_timing = timing | {"num_points": int(points.shape[0])}
+        return model

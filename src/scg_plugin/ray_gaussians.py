@@ -1,0 +1,215 @@
+"""Ray-based Gaussians bound to matched rays, and the position warm-up.
+
+Each match (pixel p_a in view a, p_b in view b) gives two ray-based Gaussians,
+one on each view's ray: position = o + z * d with o the camera centre, d the
+unit ray direction through the pixel and z (the distance along the ray) the
+only learnable coordinate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from splat_framework.cameras import Camera
+
+from .losses import reprojection_error
+
+
+@dataclass
+class RayBundle:
+    """The ray-based Gaussians of a MatchSet (2 per match, match m -> rows 2m and 2m+1).
+
+    Attributes:
+        origins: [G, 3] camera centres.
+        dirs: [G, 3] unit ray directions.
+        z: [G] distance along the ray.
+        view: [G] training-view position (index into the training cameras) of each Gaussian's own view.
+        partner_view: [G] the other view of its match.
+        uv: [G, 2] its pixel in its own view.
+        partner_uv: [G, 2] the matched pixel in the partner view.
+        near, far: [G] depth bounds of its own view (camera z).
+    """
+
+    origins: Tensor
+    dirs: Tensor
+    z: Tensor
+    view: Tensor
+    partner_view: Tensor
+    uv: Tensor
+    partner_uv: Tensor
+    near: Tensor
+    far: Tensor
+
+    def __len__(self) -> int:
+        return self.z.shape[0]
+
+    def positions(self, z: Tensor | None = None) -> Tensor:
+        z = self.z if z is None else z
+        return self.origins + z[:, None] * self.dirs
+
+    def select(self, keep: Tensor) -> "RayBundle":
+        return RayBundle(**{k: getattr(self, k)[keep] for k in self.__dataclass_fields__})
+
+    def to_dict(self) -> dict[str, Tensor]:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+def build_ray_bundle(match_pairs, cameras: list[Camera], generator: torch.Generator) -> RayBundle:
+    """Two ray-based Gaussians per match, z drawn so that camera depth is uniform in [near, far].
+
+    Args:
+        match_pairs: iterable of (i, j, uv_i [M, 2], uv_j [M, 2]) with i, j positions in ``cameras``.
+        cameras: the training cameras.
+    """
+    cols = {k: [] for k in RayBundle.__dataclass_fields__}
+    for i, j, uv_i, uv_j in match_pairs:
+        uv_i = torch.as_tensor(uv_i, dtype=torch.float32)
+        uv_j = torch.as_tensor(uv_j, dtype=torch.float32)
+        m = uv_i.shape[0]
+        if m == 0:
+            continue
+        # interleave: row 2k is view i's Gaussian of match k, row 2k+1 view j's
+        own = torch.stack([uv_i, uv_j], 1).reshape(-1, 2)
+        other = torch.stack([uv_j, uv_i], 1).reshape(-1, 2)
+        views = torch.tensor([i, j]).repeat(m)
+        partners = torch.tensor([j, i]).repeat(m)
+        for v in (i, j):
+            pass
+        o = torch.empty(2 * m, 3)
+        d = torch.empty(2 * m, 3)
+        near = torch.empty(2 * m)
+        far = torch.empty(2 * m)
+        for v in (i, j):
+            sel = views == v
+            cam = cameras[v].to("cpu")
+            o[sel], d[sel] = cam.pixel_rays(own[sel])
+            near[sel], far[sel] = cam.near, cam.far
+        # camera-z uniform in [near, far]; convert to distance along the ray
+        fwd = torch.stack([cameras[int(v)].to("cpu").world_to_cam[2, :3] for v in views]).float()
+        cos = (d * fwd).sum(-1).clamp_min(1e-3)
+        t = torch.rand(2 * m, generator=generator)
+        z = (near + t * (far - near)) / cos
+        for k, val in zip(
+            ("origins", "dirs", "z", "view", "partner_view", "uv", "partner_uv", "near", "far"),
+            (o, d, z, views, partners, own, other, near, far),
+        ):
+            cols[k].append(val)
+    if not cols["z"]:
+        empty = {k: torch.zeros(0, 3) for k in ("origins", "dirs")}
+        return RayBundle(
+            **empty, z=torch.zeros(0), view=torch.zeros(0, dtype=torch.long),
+            partner_view=torch.zeros(0, dtype=torch.long), uv=torch.zeros(0, 2), partner_uv=torch.zeros(0, 2),
+            near=torch.zeros(0), far=torch.zeros(0),
+        )
+    return RayBundle(**{k: torch.cat(v) for k, v in cols.items()})
+
+
+def position_errors(positions: Tensor, bundle: RayBundle, cameras: list[Camera]) -> Tensor:
+    """[G] normalised L1 reprojection error of each Gaussian in its partner view (the L_gp terms)."""
+    err = torch.empty(positions.shape[0], dtype=positions.dtype, device=positions.device)
+    for v in torch.unique(bundle.partner_view).tolist():
+        sel = bundle.partner_view == v
+        err[sel] = reprojection_error(positions[sel], cameras[v], bundle.partner_uv[sel].to(positions))
+    return err
+
+
+def gaussian_position_loss(positions: Tensor, bundle: RayBundle, cameras: list[Camera]) -> Tensor:
+    """L_gp: mean over both directions of every match of the normalised reprojection error."""
+    if positions.shape[0] == 0:
+        return positions.sum() * 0.0
+    return position_errors(positions, bundle, cameras).mean()
+
+
+def pixel_errors(positions: Tensor, bundle: RayBundle, cameras: list[Camera]) -> Tensor:
+    """[M] worse-of-both-directions reprojection error in pixels for each match (rows 2m, 2m+1)."""
+    err = torch.empty(positions.shape[0], device=positions.device)
+    for v in torch.unique(bundle.partner_view).tolist():
+        sel = bundle.partner_view == v
+        uv, z = cameras[v].project(positions[sel])
+        e = (uv - bundle.partner_uv[sel].to(uv)).norm(dim=-1)
+        err[sel] = torch.where(z > 0, e, torch.full_like(e, float("inf")))
+    return err.view(-1, 2).amax(dim=1)
+
+
+class MatchCache:
+    """Per match, the z pair with the lowest reprojection error seen so far (cache-and-filter)."""
+
+    def __init__(self, bundle: RayBundle):
+        m = len(bundle) // 2
+        self.best_err = torch.full((m,), float("inf"))
+        self.best_z = bundle.z.detach().clone()
+
+    @torch.no_grad()
+    def update(self, z: Tensor, bundle: RayBundle, cameras: list[Camera]) -> None:
+        err = pixel_errors(bundle.positions(z.detach()), bundle, cameras).cpu()
+        better = err < self.best_err
+        self.best_err = torch.where(better, err, self.best_err)
+        rows = better.repeat_interleave(2)
+        self.best_z = torch.where(rows, z.detach().cpu(), self.best_z)
+
+    def keep_mask(self, eta_px: float) -> Tensor:
+        """[G] rows whose match's best error is within ``eta_px``."""
+        return (self.best_err <= eta_px).repeat_interleave(2)
+
+
+def warm_up(
+    bundle: RayBundle,
+    cameras: list[Camera],
+    steps: int,
+    lr_fraction: float,
+    halve_every: int,
+    cache: MatchCache | None,
+) -> Tensor:
+    """Stage 1 of the public code: optimise only z with L_gp.
+
+    The Adam step size is ``lr_fraction`` of the median depth range, halved every
+    ``halve_every`` iterations. Returns the final z [G] (the cache, when given,
+    holds the best z per match).
+    """
+    z = torch.nn.Parameter(bundle.z.clone())
+    if steps <= 0 or len(bundle) == 0:
+        return z.detach()
+    depth_range = float((bundle.far - bundle.near).median())
+    lr = lr_fraction * depth_range
+    opt = torch.optim.Adam([z], lr=lr)
+    sched = torch.optim.lr_scheduler.StepLR(opt, step_size=max(halve_every, 1), gamma=0.5)
+    for _ in range(steps):
+        loss = gaussian_position_loss(bundle.positions(z), bundle, cameras)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        sched.step()
+        with torch.no_grad():
+            z.clamp_(min=1e-3)
+        if cache is not None:
+            cache.update(z, bundle, cameras)
+    return z.detach()
+
+
+def triangulate(cam_a: Camera, cam_b: Camera, uv_a: Tensor, uv_b: Tensor) -> tuple[Tensor, Tensor]:
+    """Midpoint triangulation of matched pixels with known poses.
+
+    Returns:
+        points [M, 3] and the worse-of-both reprojection error [M] in pixels.
+    """
+    oa, da = cam_a.pixel_rays(uv_a.double())
+    ob, db = cam_b.pixel_rays(uv_b.double())
+    w0 = oa - ob
+    a = (da * da).sum(-1)
+    b = (da * db).sum(-1)
+    c = (db * db).sum(-1)
+    d = (da * w0).sum(-1)
+    e = (db * w0).sum(-1)
+    den = (a * c - b * b).clamp_min(1e-12)
+    s = (b * e - c * d) / den
+    t = (a * e - b * d) / den
+    pts = 0.5 * ((oa + s[:, None] * da) + (ob + t[:, None] * db))
+    err = torch.zeros(pts.shape[0], dtype=pts.dtype)
+    for cam, uv in ((cam_a, uv_a), (cam_b, uv_b)):
+        p, z = cam.project(pts)
+        e_ = (p - uv.double()).norm(dim=-1)
+        err = torch.maximum(err, torch.where(z > 0, e_, torch.full_like(e_, float("inf"))))
+    return pts.float(), err.float()

@@ -1,0 +1,52 @@
+"""``splat-eval RUN_DIR``: recompute a run's test metrics from its newest checkpoint."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass
+class EvalArgs:
+    run_dir: Path
+    """Run folder written by splat-train."""
+    device: str | None = None
+    """Torch device (default: the run's)."""
+    renders: bool = True
+    """Rewrite the test-view pictures into RUN_DIR/renders."""
+
+
+def main(args: EvalArgs) -> dict:
+    import json
+
+    from ..evaluation import evaluate
+    from ..io import atomic_write_text
+    from ..run import background_for, load_run
+    from ..trainer import print_summary
+
+    config, dm, model = load_run(args.run_dir, args.device)
+    results = evaluate(model, dm, background_for(dm.scene, config.device), args.run_dir / "renders" if args.renders else None)
+    path = args.run_dir / "metrics.json"
+    metrics = json.loads(path.read_text()) if path.is_file() else {"method": config.method, "data": config.data, "timing": {}}
+    metrics.update(
+        mean=results["mean"], per_view=results["per_view"], render_fps=results["fps"],
+        num_gaussians=model.num_gaussians, lpips_note=results["lpips_note"],
+    )
+    metrics.setdefault("steps", config.total_steps)
+    atomic_write_text(path, json.dumps(metrics, indent=2))
+    print_summary(metrics, args.run_dir)
+    return metrics
+
+
+def entrypoint() -> None:
+    import tyro
+
+    from .common import run_cli
+
+    args = tyro.cli(EvalArgs, args=sys.argv[1:], prog="splat-eval")
+    run_cli(lambda: main(args))
+
+
+if __name__ == "__main__":
+    entrypoint()

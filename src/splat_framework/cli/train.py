@@ -1,0 +1,45 @@
+"""``splat-train METHOD --data PATH [options]``: train a registered method.
+
+Every registered method (entry points of group ``splat_framework.methods``) and
+every config variant in ``configs/`` is a subcommand. Heavy modules (torch,
+cv2) are imported only after the arguments are parsed, so ``--help`` is fast.
+"""
+
+from __future__ import annotations
+
+import sys
+
+
+def build_parser_type():
+    import tyro
+
+    from ..registry import discover_methods
+
+    methods = discover_methods()
+    defaults = {name: spec.default_config() for name, spec in methods.items()}
+    descriptions = {name: spec.description for name, spec in methods.items()}
+    return tyro.extras.subcommand_type_from_defaults(defaults, descriptions)
+
+
+def main(args: list[str] | None = None) -> dict:
+    import tyro
+
+    config = tyro.cli(
+        build_parser_type(),
+        args=args,
+        prog="splat-train",
+        description="Train a Gaussian-splatting method. Run 'splat-train METHOD --help' for its options.",
+    )
+    from ..trainer import train
+
+    return train(config)
+
+
+def entrypoint() -> None:
+    from .common import run_cli
+
+    run_cli(lambda: main(sys.argv[1:]))
+
+
+if __name__ == "__main__":
+    entrypoint()

@@ -1,0 +1,238 @@
+"""Typed run configuration shared by every method.
+
+Importing this module must stay cheap (no torch, no cv2): the CLIs build
+their ``--help`` from these classes. Every field carries a docstring right
+below it; tyro shows it as the flag's help.
+
+A method's config is a subclass of :class:`TrainConfig` whose ``model`` field
+holds the method-specific part. Variants (paper ablation rows) are a base
+config plus a few overrides, see :func:`apply_overrides`. Fields whose value is
+an iteration count are annotated with :data:`Steps`, so that ``--steps N``
+can rescale the whole schedule proportionally.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import tyro
+from pydantic import BaseModel, ConfigDict, Field
+
+SCHEMA_VERSION = 1
+"""Version of the saved ``config.json`` layout; bump on incompatible change."""
+
+
+class _StepsMarker:
+    """Annotation marker: this int field counts optimisation iterations."""
+
+    def __repr__(self) -> str:  # pragma: no cover - cosmetic
+        return "Steps"
+
+
+STEPS_MARKER = _StepsMarker()
+Steps = Annotated[int, STEPS_MARKER]
+"""An iteration count that ``--steps`` rescales with the schedule."""
+
+
+class SplatConfig(BaseModel):
+    """Base for every config: strict (unknown fields are errors), documented fields."""
+
+    model_config = ConfigDict(
+        use_attribute_docstrings=True, extra="forbid", validate_assignment=True
+    )
+
+
+class DensifyConfig(SplatConfig):
+    """Adaptive density control of 3DGS (clone, split, prune, opacity reset)."""
+
+    enabled: bool = True
+    """Run densification at all (False keeps the initial Gaussians only)."""
+    prune_opa: float = 0.005
+    """Prune Gaussians whose opacity falls below this."""
+    grow_grad2d: float = 0.0002
+    """Grow Gaussians whose mean screen-space gradient (NDC units) exceeds this."""
+    grow_scale3d: float = 0.01
+    """Clone below / split above this largest scale, relative to the scene scale."""
+    grow_scale2d: float = 0.05
+    """Also split Gaussians whose screen radius / image size exceeds this (only before refine_scale2d_stop_iter)."""
+    prune_scale3d: float = 0.1
+    """After the first opacity reset, prune Gaussians larger than this (relative to the scene scale)."""
+    prune_scale2d: float = 0.15
+    """Prune Gaussians whose screen radius exceeds this fraction of the image size (until refine_scale2d_stop_iter)."""
+    refine_scale2d_stop_iter: Steps = 0
+    """Stop the 2D-size pruning after this iteration (0 = never use it)."""
+    refine_start_iter: Steps = 500
+    """First iteration at which densification runs."""
+    refine_stop_iter: Steps = 2500
+    """Last iteration at which densification runs."""
+    reset_every: Steps = 3000
+    """Reset opacities to 2*prune_opa every this many iterations."""
+    refine_every: Steps = 100
+    """Densify every this many iterations."""
+    pause_refine_after_reset: Steps = 0
+    """Skip densification for this many iterations after an opacity reset."""
+    absgrad: bool = False
+    """Use the absolute-gradient criterion (AbsGS); raise grow_grad2d accordingly."""
+    revised_opacity: bool = False
+    """Use the revised opacity for cloned/split Gaussians (Rota Bulo et al. 2024)."""
+    never_prune_key: str | None = None
+    """Parameter key of a 0/1 flag; rows whose flag is set are never pruned."""
+    child_defaults: dict[str, float] = Field(default_factory=dict)
+    """Values given to newly created (cloned or split) rows for these parameter keys."""
+
+
+class OptimConfig(SplatConfig):
+    """Learning rates of the Gaussian parameters (Adam, one optimizer per group)."""
+
+    means_lr: float = 1.6e-4
+    """Initial position learning rate, multiplied by the scene scale."""
+    means_lr_final: float = 1.6e-6
+    """Final position learning rate (exponential decay over the run), times the scene scale."""
+    scales_lr: float = 5e-3
+    """Log-scale learning rate."""
+    quats_lr: float = 1e-3
+    """Rotation learning rate."""
+    opacities_lr: float = 5e-2
+    """Opacity-logit learning rate."""
+    sh0_lr: float = 2.5e-3
+    """Base colour (SH degree 0) learning rate."""
+    shN_lr: float = 2.5e-3 / 20
+    """Higher SH coefficients learning rate."""
+
+
+class GaussianModelConfig(SplatConfig):
+    """The 3DGS Gaussian model."""
+
+    init: Literal["random", "points"] = "random"
+    """Initialisation: random points in the training frusta, or a point cloud (matches triangulated with the known poses)."""
+    init_num_points: int = 10_000
+    """Number of random initial Gaussians."""
+    init_opacity: float = 0.1
+    """Initial opacity of every Gaussian."""
+    init_scale: float = 1.0
+    """Multiplier of the initial scale (mean distance to the 3 nearest neighbours)."""
+    sh_degree: int = Field(3, ge=0, le=3)
+    """Highest spherical-harmonics degree."""
+    sh_degree_interval: Steps = 500
+    """Raise the active SH degree by one every this many iterations."""
+    lambda_dssim: float = 0.2
+    """Weight of the D-SSIM term in the photometric loss."""
+    depth_mode: Literal["accumulated", "expected"] = "expected"
+    """Depth reported in outputs and renders."""
+
+
+class TrainConfig(SplatConfig):
+    """Options every training command accepts (the command-line contract)."""
+
+    method: tyro.conf.Suppress[str] = "3dgs"
+    """Method name (set by the subcommand)."""
+    data: str = "synthetic/forward"
+    """Dataset folder; a relative path that does not exist is looked up under $SPLAT_DATA; synthetic/forward and synthetic/object are generated on first use."""
+    format: Literal["auto", "llff", "blender", "dtu", "colmap"] = "auto"
+    """Dataset format; auto detects it from the folder's contents."""
+    views: int | Literal["all"] = 3
+    """Number of training views (few-shot split rules of the dataset), or all."""
+    downscale: float | None = None
+    """Image downscale factor (default: the dataset's protocol, e.g. 8 for LLFF, 2 for Blender)."""
+    steps: int | None = None
+    """Total optimisation iterations; rescales the method's whole schedule proportionally (default: the method's)."""
+    default_steps: tyro.conf.Suppress[int] = 3000
+    """The method's own total iterations, which its schedule fields are written for."""
+    output: Path | None = None
+    """Run folder (default outputs/<scene>/<method>/<timestamp>)."""
+    seed: int = 0
+    """Random seed for everything (initialisation, view order, matching)."""
+    device: str = "cpu"
+    """Torch device, e.g. cpu or cuda."""
+    resume: bool = False
+    """Continue the run in --output from its last good checkpoint."""
+    overwrite: bool = False
+    """Allow writing into an existing non-empty --output folder."""
+    eval_every: Steps = 0
+    """Evaluate the test views every this many iterations (0 = only at the end)."""
+    checkpoint_every: Steps = 1000
+    """Write a checkpoint every this many iterations (and always at the end)."""
+    save_renders: bool = True
+    """Write test-view renders (render, ground truth, depth) into the run folder."""
+    progress: bool = True
+    """Show the rich progress bar."""
+    model: GaussianModelConfig = Field(default_factory=GaussianModelConfig)
+    """Model options."""
+    strategy: DensifyConfig = Field(default_factory=DensifyConfig)
+    """Densification options."""
+    optim: OptimConfig = Field(default_factory=OptimConfig)
+    """Learning rates."""
+
+    @property
+    def total_steps(self) -> int:
+        return self.steps if self.steps is not None else self.default_steps
+
+
+# ----------------------------------------------------------------- helpers
+def _is_steps_field(info) -> bool:
+    return any(m is STEPS_MARKER for m in info.metadata)
+
+
+def scale_schedule(config: SplatConfig, factor: float) -> SplatConfig:
+    """A copy of ``config`` with every :data:`Steps` field multiplied by ``factor`` (recursively)."""
+    updates: dict[str, Any] = {}
+    for name, info in type(config).model_fields.items():
+        value = getattr(config, name)
+        if isinstance(value, SplatConfig):
+            updates[name] = scale_schedule(value, factor)
+        elif _is_steps_field(info) and isinstance(value, int) and value > 0:
+            updates[name] = max(1, int(round(value * factor)))
+    return config.model_copy(update=updates)
+
+
+def resolve_steps(config: TrainConfig) -> TrainConfig:
+    """Apply ``--steps``: rescale the schedule so it fits the requested total."""
+    if config.steps is None or config.steps == config.default_steps:
+        return config
+    scaled = scale_schedule(config, config.steps / config.default_steps)
+    return scaled.model_copy(update={"default_steps": config.steps})
+
+
+def apply_overrides(config: SplatConfig, overrides: dict[str, Any]) -> SplatConfig:
+    """A validated copy of ``config`` with nested ``overrides`` applied.
+
+    ``overrides`` mirrors the config's nesting, e.g. ``{"model": {"use_rg": False}}``.
+    Unknown keys raise ``pydantic.ValidationError`` naming the field.
+    """
+    data = config.model_dump()
+
+    def merge(dst: dict, src: dict) -> None:
+        for k, v in src.items():
+            if isinstance(v, dict) and isinstance(dst.get(k), dict):
+                merge(dst[k], v)
+            else:
+                dst[k] = v
+
+    merge(data, overrides)
+    return type(config).model_validate(data)
+
+
+def save_config(config: TrainConfig, path: Path) -> None:
+    """Write the resolved config as JSON with a schema version (atomic)."""
+    from .io import atomic_write_text
+
+    payload = {"schema_version": SCHEMA_VERSION, "config": json.loads(config.model_dump_json())}
+    atomic_write_text(path, json.dumps(payload, indent=2))
+
+
+def read_config_json(path: Path) -> tuple[str, dict]:
+    """(method name, raw config dict) of a saved run; never executes code."""
+    from .data.scene import DataError
+
+    try:
+        payload = json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise DataError(f"{path}: cannot read run config ({e})") from None
+    if payload.get("schema_version") != SCHEMA_VERSION:
+        raise DataError(
+            f"{path}: config schema version {payload.get('schema_version')} is not {SCHEMA_VERSION}"
+        )
+    cfg = payload["config"]
+    return cfg["method"], cfg

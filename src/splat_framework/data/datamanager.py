@@ -1,0 +1,171 @@
+"""Decoded images on the device, and the order in which training sees them.
+
+``DataManager`` decodes every image used by the split (train and test only)
+once, into float32 tensors on the device:
+
+- ``image`` [H, W, 3] in [0, 1] (RGBA composited per ``scene.white_background``),
+- ``mask`` [H, W, 1] in {0, 1} when the scene has masks,
+- ``depth`` [H, W, 1] camera z (0 = no surface) when the scene has depth maps.
+
+Training order: shuffled epochs over the training views. The permutation of
+epoch ``e`` is drawn from a ``torch.Generator`` seeded from ``(seed, e)``
+only, so ``next_train(step)`` is a pure function of ``(seed, step)`` and a
+run resumed at step ``s`` sees exactly the views it would have seen.
+
+Memory: when ``memory_budget_bytes`` is given and the decoded tensors would
+exceed it, images are not cached; each request decodes the file again (slower
+but bounded memory). Image sizes are still checked up front from headers.
+
+Batches share the cached tensors: treat them as read-only.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..cameras import Camera
+from .images import load_depth, load_image, load_mask, read_image_size, scaled_size
+from .scene import DataError, SceneData
+
+Batch = dict
+
+
+class DataManager:
+    """Cached training / evaluation views of a :class:`SceneData`.
+
+    Args:
+        scene: parsed dataset.
+        device: where images, masks, depths and cameras live.
+        seed: seed of the training-view order.
+        memory_budget_bytes: optional cap on decoded tensor memory; above it
+            images are decoded on demand instead of cached.
+    """
+
+    def __init__(
+        self,
+        scene: SceneData,
+        device: str | torch.device = "cpu",
+        seed: int = 0,
+        memory_budget_bytes: int | None = None,
+    ):
+        self.scene = scene
+        self.device = torch.device(device)
+        self.seed = int(seed)
+        n = len(scene.cameras)
+        if len(scene.image_paths) != n:
+            raise DataError(f"{scene.root}: {n} cameras but {len(scene.image_paths)} image paths")
+        for name, extra in (("mask_paths", scene.mask_paths), ("depth_paths", scene.depth_paths)):
+            if extra is not None and len(extra) != n:
+                raise DataError(f"{scene.root}: {n} cameras but {len(extra)} {name}")
+        for idx in (*scene.train_indices, *scene.test_indices):
+            if not 0 <= idx < n:
+                raise DataError(f"{scene.root}: split index {idx} out of range for {n} cameras")
+        if not scene.train_indices:
+            raise DataError(f"{scene.root}: no training views")
+        self.train_indices = list(scene.train_indices)
+        self.test_indices = list(scene.test_indices)
+        self.cameras: list[Camera] = [c.to(self.device) for c in scene.cameras]
+
+        used = sorted(set(self.train_indices) | set(self.test_indices))
+        for i in used:
+            self._check_size(i)
+        nbytes = 0
+        for i in used:
+            cam = scene.cameras[i]
+            per_pixel = 3 + (scene.mask_paths is not None) + (scene.depth_paths is not None)
+            nbytes += cam.width * cam.height * per_pixel * 4
+        self.estimated_bytes = nbytes
+        self.lazy = memory_budget_bytes is not None and nbytes > memory_budget_bytes
+        self._cache: dict[int, Batch] = {}
+        if not self.lazy:
+            for i in used:
+                self._cache[i] = self._decode(i)
+        self._perm_epoch = -1
+        self._perm: list[int] = []
+
+    # ------------------------------------------------------------ decoding
+    def _check_size(self, i: int) -> None:
+        cam = self.scene.cameras[i]
+        path = Path(self.scene.image_paths[i])
+        w, h = read_image_size(path)
+        size = scaled_size(w, h, self.scene.image_scale)
+        if size != (cam.width, cam.height):
+            raise DataError(
+                f"{path}: image decodes to {size[0]}x{size[1]} but its camera is "
+                f"{cam.width}x{cam.height} (mixed image sizes?)"
+            )
+
+    def _decode(self, i: int) -> Batch:
+        scene = self.scene
+        cam = scene.cameras[i]
+        path = Path(scene.image_paths[i])
+        img = load_image(path, scale=scene.image_scale, white_background=scene.white_background)
+        if img.shape[:2] != (cam.height, cam.width):
+            raise DataError(
+                f"{path}: image is {img.shape[1]}x{img.shape[0]} but its camera is {cam.width}x{cam.height}"
+            )
+        batch: Batch = {"image": self._tensor(img), "index": i}
+        size = (cam.width, cam.height)
+        if scene.mask_paths is not None:
+            batch["mask"] = self._tensor(load_mask(scene.mask_paths[i], size)[:, :, None])
+        if scene.depth_paths is not None:
+            batch["depth"] = self._tensor(load_depth(scene.depth_paths[i], size)[:, :, None])
+        return batch
+
+    def _tensor(self, a: np.ndarray) -> Tensor:
+        return torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32)).to(self.device)
+
+    def batch(self, index: int) -> Batch:
+        """The batch of camera ``index`` (a fresh dict; tensors are shared)."""
+        if index in self._cache:
+            return dict(self._cache[index])
+        if not self.lazy:
+            raise KeyError(f"camera {index} is in neither the training nor the test split")
+        return self._decode(index)
+
+    # ------------------------------------------------------------ training
+    def epoch_permutation(self, epoch: int) -> list[int]:
+        """Order of the training views (positions into ``train_indices``) in ``epoch``."""
+        state = np.random.SeedSequence([self.seed % 2**64, int(epoch)]).generate_state(1, dtype=np.uint64)[0]
+        g = torch.Generator().manual_seed(int(state) % 2**63)
+        return torch.randperm(len(self.train_indices), generator=g).tolist()
+
+    def next_train(self, step: int) -> tuple[Camera, Batch]:
+        """The training view for ``step`` (0-based): shuffled epochs, seeded."""
+        if step < 0:
+            raise ValueError(f"step must be >= 0, got {step}")
+        n = len(self.train_indices)
+        epoch, pos = divmod(int(step), n)
+        if epoch != self._perm_epoch:
+            self._perm = self.epoch_permutation(epoch)
+            self._perm_epoch = epoch
+        idx = self.train_indices[self._perm[pos]]
+        return self.cameras[idx], self.batch(idx)
+
+    def train_views(self) -> list[tuple[Camera, Batch]]:
+        """All training views, in split order."""
+        return [(self.cameras[i], self.batch(i)) for i in self.train_indices]
+
+    def eval_views(self) -> list[tuple[Camera, Batch]]:
+        """All held-out views, in split order."""
+        return [(self.cameras[i], self.batch(i)) for i in self.test_indices]
+
+    @property
+    def train_cameras(self) -> list[Camera]:
+        return [self.cameras[i] for i in self.train_indices]
+
+    @property
+    def eval_cameras(self) -> list[Camera]:
+        return [self.cameras[i] for i in self.test_indices]
+
+    @property
+    def num_train(self) -> int:
+        return len(self.train_indices)
+
+    @property
+    def num_eval(self) -> int:
+        return len(self.test_indices)

@@ -1,0 +1,241 @@
+"""Image, mask and depth-map decoding (OpenCV), with one-line DataErrors.
+
+Every function here raises :class:`DataError` ("<path>: <problem>") for a
+missing, unreadable, truncated or otherwise undecodable file; nothing else
+escapes. ``cv2`` is imported lazily so that importing the data package stays
+cheap for CLIs that only parse arguments.
+"""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import numpy as np
+
+from .scene import DataError
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".exr")
+
+
+def scaled_size(width: int, height: int, scale: float) -> tuple[int, int]:
+    """(width, height) of an image of ``width`` x ``height`` resized by ``scale``.
+
+    The single rounding rule shared by parsers (camera sizes) and decoders.
+    """
+    if scale == 1.0:
+        return int(width), int(height)
+    return max(1, int(round(width * scale))), max(1, int(round(height * scale)))
+
+
+def _read_bytes(path: Path) -> bytes:
+    path = Path(path)
+    if not path.exists():
+        raise DataError(f"{path}: image file not found")
+    if not path.is_file():
+        raise DataError(f"{path}: not a file")
+    try:
+        return path.read_bytes()
+    except OSError as e:
+        raise DataError(f"{path}: cannot read ({e.strerror or e})") from None
+
+
+def _header_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) from a PNG or JPEG header, or None if not recognised."""
+    if data[:8] == b"\x89PNG\r\n\x1a\n":
+        if len(data) < 24 or data[12:16] != b"IHDR":
+            return None
+        w, h = struct.unpack(">II", data[16:24])
+        return int(w), int(h)
+    if data[:2] == b"\xff\xd8":
+        i = 2
+        n = len(data)
+        while i + 4 <= n:
+            if data[i] != 0xFF:
+                return None
+            marker = data[i + 1]
+            if marker == 0xFF:  # fill byte
+                i += 1
+                continue
+            if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
+                i += 2
+                continue
+            (seglen,) = struct.unpack(">H", data[i + 2 : i + 4])
+            # SOF0..SOF15 except DHT (C4), JPG (C8), DAC (CC)
+            if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+                if i + 9 > n:
+                    return None
+                h, w = struct.unpack(">HH", data[i + 5 : i + 9])
+                return int(w), int(h)
+            i += 2 + seglen
+        return None
+    return None
+
+
+def read_image_size(path: Path | str) -> tuple[int, int]:
+    """(width, height) of an image file as stored.
+
+    Reads only the header for PNG and JPEG; other formats are decoded.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise DataError(f"{path}: image file not found")
+    try:
+        with open(path, "rb") as f:
+            head = f.read(65536)
+    except OSError as e:
+        raise DataError(f"{path}: cannot read ({e.strerror or e})") from None
+    size = _header_size(head)
+    if size is not None:
+        if size[0] <= 0 or size[1] <= 0:
+            raise DataError(f"{path}: image header gives an empty size {size[0]}x{size[1]}")
+        return size
+    if len(head) == 0:
+        raise DataError(f"{path}: empty image file")
+    arr = _decode(path, _read_bytes(path))
+    return int(arr.shape[1]), int(arr.shape[0])
+
+
+def _decode(path: Path, data: bytes) -> np.ndarray:
+    import cv2
+
+    if len(data) == 0:
+        raise DataError(f"{path}: empty image file")
+    if data[:2] == b"\xff\xd8":
+        # libjpeg decodes a truncated file with a grey tail and only a warning.
+        tail = data[-4096:] if len(data) > 8192 else data[len(data) // 2 :]
+        if b"\xff\xd9" not in tail:
+            raise DataError(f"{path}: truncated JPEG (no end-of-image marker)")
+    if data[:8] == b"\x89PNG\r\n\x1a\n" and b"IEND" not in data[-64:]:
+        raise DataError(f"{path}: truncated PNG (no IEND chunk)")
+    buf = np.frombuffer(data, dtype=np.uint8)
+    try:
+        arr = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    except cv2.error as e:  # pragma: no cover - depends on codec
+        raise DataError(f"{path}: cannot decode image ({str(e).strip().splitlines()[-1]})") from None
+    if arr is None or arr.size == 0:
+        raise DataError(f"{path}: cannot decode image (corrupt or unsupported format)")
+    return arr
+
+
+def _to_float(path: Path, arr: np.ndarray) -> np.ndarray:
+    if arr.dtype == np.uint8:
+        return arr.astype(np.float32) / 255.0
+    if arr.dtype == np.uint16:
+        return arr.astype(np.float32) / 65535.0
+    if arr.dtype in (np.float32, np.float64, np.float16):
+        out = arr.astype(np.float32)
+        if not np.isfinite(out).all():
+            raise DataError(f"{path}: image contains non-finite values")
+        return out
+    raise DataError(f"{path}: unsupported pixel type {arr.dtype}")
+
+
+def load_image(
+    path: Path | str, *, scale: float = 1.0, white_background: bool = False
+) -> np.ndarray:
+    """Decode an image to float32 RGB in [0, 1].
+
+    Args:
+        path: image file (PNG, JPEG, ...; 8- or 16-bit; gray, RGB or RGBA).
+        scale: resize factor (INTER_AREA when shrinking); the output size is
+            :func:`scaled_size` of the stored size.
+        white_background: composite an alpha channel on white (else black).
+            Compositing happens before resizing.
+
+    Returns:
+        [H, W, 3] float32 array in [0, 1].
+    """
+    import cv2
+
+    path = Path(path)
+    if not (scale > 0 and np.isfinite(scale)):
+        raise DataError(f"{path}: invalid image scale {scale!r}")
+    arr = _decode(path, _read_bytes(path))
+    img = _to_float(path, arr)
+    if img.ndim == 2:
+        img = np.repeat(img[:, :, None], 3, axis=2)
+    elif img.ndim == 3:
+        c = img.shape[2]
+        if c == 1:
+            img = np.repeat(img, 3, axis=2)
+        elif c == 2:
+            gray, alpha = img[:, :, :1], img[:, :, 1:2]
+            bg = 1.0 if white_background else 0.0
+            img = np.repeat(gray * alpha + bg * (1.0 - alpha), 3, axis=2)
+        elif c == 3:
+            img = img[:, :, ::-1]
+        elif c == 4:
+            rgb, alpha = img[:, :, 2::-1], img[:, :, 3:4]
+            bg = 1.0 if white_background else 0.0
+            img = rgb * alpha + bg * (1.0 - alpha)
+        else:
+            raise DataError(f"{path}: unsupported channel count {c}")
+    else:
+        raise DataError(f"{path}: unsupported image shape {arr.shape}")
+    img = np.ascontiguousarray(img, dtype=np.float32)
+    if scale != 1.0:
+        h, w = img.shape[:2]
+        size = scaled_size(w, h, scale)
+        if size != (w, h):
+            interp = cv2.INTER_AREA if scale < 1.0 else cv2.INTER_LINEAR
+            img = cv2.resize(img, size, interpolation=interp)
+    return np.clip(img, 0.0, 1.0)
+
+
+def load_mask(path: Path | str, size: tuple[int, int]) -> np.ndarray:
+    """Decode a foreground mask to float32 [H, W] in {0, 1} at ``size`` = (W, H).
+
+    Any channel layout works; a pixel is foreground when its mean value > 0.5.
+    Masks at another resolution are resized (area) before thresholding.
+    """
+    import cv2
+
+    path = Path(path)
+    img = load_image(path)
+    m = img.mean(axis=2)
+    w, h = size
+    if m.shape != (h, w):
+        m = cv2.resize(m, (w, h), interpolation=cv2.INTER_AREA)
+    return (m > 0.5).astype(np.float32)
+
+
+def load_depth(path: Path | str, size: tuple[int, int]) -> np.ndarray:
+    """Load a ``.npy`` depth map (camera z, 0 = no surface) as float32 [H, W] at ``size``.
+
+    Maps stored at another resolution are resized with nearest-neighbour
+    sampling (depth is not averaged across edges).
+    """
+    import cv2
+
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: depth file not found")
+    try:
+        d = np.load(path, allow_pickle=False)
+    except Exception as e:  # noqa: BLE001 - any decoding failure is bad input
+        raise DataError(f"{path}: cannot read depth map ({type(e).__name__}: {e})".splitlines()[0]) from None
+    if not isinstance(d, np.ndarray) or d.dtype.kind not in "fiu":
+        raise DataError(f"{path}: depth map must be a numeric array")
+    if d.ndim == 3 and d.shape[2] == 1:
+        d = d[:, :, 0]
+    if d.ndim != 2 or d.shape[0] == 0 or d.shape[1] == 0:
+        raise DataError(f"{path}: depth map must have shape [H, W], got {list(d.shape)}")
+    d = d.astype(np.float32)
+    d[~np.isfinite(d)] = 0.0
+    w, h = size
+    if d.shape != (h, w):
+        d = cv2.resize(d, (w, h), interpolation=cv2.INTER_NEAREST)
+    return d
+
+
+def list_images(folder: Path) -> list[Path]:
+    """Image files directly in ``folder``, sorted by name (hidden files skipped)."""
+    if not folder.is_dir():
+        raise DataError(f"{folder}: image folder not found")
+    files = [
+        p
+        for p in folder.iterdir()
+        if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in IMAGE_SUFFIXES
+    ]
+    return sorted(files, key=lambda p: p.name)

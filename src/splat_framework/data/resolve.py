@@ -1,0 +1,40 @@
+"""Turn a user's ``--data`` argument into a dataset folder."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from .scene import DataError
+
+SYNTHETIC_PREFIX = "synthetic/"
+
+
+def resolve_data_path(spec: str | Path) -> Path:
+    """Resolve a dataset spec to an existing folder.
+
+    Order: the path as given; ``synthetic/<name>`` -> the generated scene from
+    :func:`splat_framework.data.synthetic.ensure_scene`; a relative path under
+    ``$SPLAT_DATA``. Raises DataError when none exists.
+    """
+    text = str(spec)
+    if not text.strip():
+        raise DataError("data: empty dataset path")
+    path = Path(text).expanduser()
+    if path.exists():
+        return path
+    posix = text.replace("\\", "/")
+    if posix.startswith(SYNTHETIC_PREFIX):
+        name = posix[len(SYNTHETIC_PREFIX) :].strip("/")
+        if not name:
+            raise DataError(f"{text}: missing synthetic scene name (synthetic/<name>)")
+        from . import synthetic  # lazy: written separately, heavy
+
+        return Path(synthetic.ensure_scene(name))
+    env = os.environ.get("SPLAT_DATA")
+    if env and not path.is_absolute():
+        candidate = Path(env).expanduser() / path
+        if candidate.exists():
+            return candidate
+    where = f"$SPLAT_DATA={env}" if env else "$SPLAT_DATA, which is not set"
+    raise DataError(f"{text}: no such dataset folder (also looked in {where})")

@@ -1,0 +1,146 @@
+"""Procedural textures for the synthetic scenes, and mip-mapped texture lookup.
+
+A texture is built from seeded fractal value noise, checkers and stripes at
+several scales, random discs and bars, and text drawn with ``cv2.putText``,
+so that it has corners and blobs at many scales for feature matching. It is
+stored as a mip pyramid (float32 [h, w, 3] levels in [0, 1]) and sampled
+trilinearly with a level chosen from the pixel footprint, which keeps
+distant surfaces free of aliasing without supersampling.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+_WORDS = [
+    "SPLAT", "GAUSS", "RAY", "FERN", "LEGO", "NERF", "VIEW", "DEPTH", "MATCH", "POSE",
+    "ALPHA", "SCENE", "CAMERA", "PIXEL", "FOCAL", "EPIPOLE", "TORCH", "OPENCV", "42", "2024",
+    "A1", "B7", "Z9", "XYZ", "UV", "K-3", "N=8", "SIFT", "ORB", "PLY",
+]
+_FONTS = [cv2.FONT_HERSHEY_SIMPLEX, cv2.FONT_HERSHEY_DUPLEX, cv2.FONT_HERSHEY_COMPLEX,
+          cv2.FONT_HERSHEY_TRIPLEX, cv2.FONT_HERSHEY_PLAIN]
+
+
+def value_noise(rng: np.random.Generator, h: int, w: int, cells: int = 4, octaves: int = 5) -> np.ndarray:
+    """Fractal value noise [h, w] float32 in [0, 1] (bicubic-upsampled random lattices)."""
+    out = np.zeros((h, w), np.float32)
+    amp, total = 1.0, 0.0
+    for k in range(octaves):
+        c = cells * 2**k
+        gh = max(2, int(round(c * h / max(h, w))) + 1)
+        gw = max(2, int(round(c * w / max(h, w))) + 1)
+        grid = rng.random((gh, gw)).astype(np.float32)
+        out += amp * cv2.resize(grid, (w, h), interpolation=cv2.INTER_CUBIC)
+        total += amp
+        amp *= 0.5
+    out /= total
+    lo, hi = np.percentile(out, [1, 99])
+    return np.clip((out - lo) / max(hi - lo, 1e-6), 0, 1)
+
+
+def _c8(rng: np.random.Generator) -> tuple:
+    return tuple(int(x) for x in np.round(_color(rng, 0.0, 1.0) * 255))
+
+
+def _color(rng: np.random.Generator, lo: float = 0.1, hi: float = 0.95) -> np.ndarray:
+    hsv = np.array([[[rng.uniform(0, 180), rng.uniform(90, 255), rng.uniform(lo * 255, hi * 255)]]], np.uint8)
+    return cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)[0, 0].astype(np.float32) / 255.0
+
+
+def make_texture(rng: np.random.Generator, h: int, w: int, *, text: bool = True, density: float = 1.0) -> np.ndarray:
+    """A rich seeded texture [h, w, 3] float32 in [0, 1].
+
+    ``density`` scales the number of overlay elements (discs, bars, words).
+    """
+    base_a, base_b, base_c = _color(rng), _color(rng), _color(rng)
+    n1 = value_noise(rng, h, w, cells=int(rng.integers(2, 6)))[..., None]
+    n2 = value_noise(rng, h, w, cells=int(rng.integers(8, 20)), octaves=3)[..., None]
+    img = base_a * (1 - n1) + base_b * n1
+    img = img * (0.75 + 0.5 * n2) + 0.0
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    # checker at a random scale, blended through a noise mask
+    cs = float(rng.uniform(8, 40)) * max(h, w) / 256.0
+    chk = ((np.floor(xx / cs) + np.floor(yy / cs)) % 2)[..., None]
+    mask = (value_noise(rng, h, w, cells=3, octaves=2) > 0.55).astype(np.float32)[..., None]
+    img = img * (1 - 0.6 * mask) + 0.6 * mask * (chk * base_c + (1 - chk) * (1 - base_c))
+    # stripes at another angle and frequency
+    ang = rng.uniform(0, np.pi)
+    period = float(rng.uniform(6, 24)) * max(h, w) / 256.0
+    st = 0.5 + 0.5 * np.sin(2 * np.pi * (xx * np.cos(ang) + yy * np.sin(ang)) / period)
+    smask = (value_noise(rng, h, w, cells=3, octaves=2) > 0.6).astype(np.float32)[..., None]
+    img = img * (1 - 0.5 * smask * st[..., None])
+    img = np.round(np.clip(img, 0, 1) * 255).astype(np.uint8)  # cv2 drawing (putText) needs 8-bit
+    scale = max(h, w) / 256.0
+    # discs and bars
+    for _ in range(int(density * rng.integers(6, 14))):
+        c = _c8(rng)
+        if rng.random() < 0.5:
+            cv2.circle(img, (int(rng.integers(0, w)), int(rng.integers(0, h))),
+                       int(rng.uniform(3, 18) * scale), c, -1, cv2.LINE_AA)
+        else:
+            x0, y0 = int(rng.integers(0, w)), int(rng.integers(0, h))
+            cv2.rectangle(img, (x0, y0), (x0 + int(rng.uniform(4, 40) * scale), y0 + int(rng.uniform(4, 40) * scale)),
+                          c, -1, cv2.LINE_AA)
+    for _ in range(int(density * rng.integers(3, 8))):
+        c = _c8(rng)
+        p0 = (int(rng.integers(0, w)), int(rng.integers(0, h)))
+        p1 = (int(rng.integers(0, w)), int(rng.integers(0, h)))
+        cv2.line(img, p0, p1, c, max(1, int(rng.uniform(1, 4) * scale)), cv2.LINE_AA)
+    if text:
+        for _ in range(int(density * rng.integers(4, 9))):
+            word = _WORDS[int(rng.integers(len(_WORDS)))]
+            font = _FONTS[int(rng.integers(len(_FONTS)))]
+            fs = float(rng.uniform(0.5, 2.2)) * scale
+            th = max(1, int(round(fs * rng.uniform(1.0, 2.5))))
+            lum = img.mean() / 255.0
+            c = (12, 12, 12) if lum > 0.45 else (248, 248, 230)
+            if rng.random() < 0.4:
+                c = _c8(rng)
+            cv2.putText(img, word, (int(rng.integers(0, max(1, w - 40 * scale))), int(rng.integers(int(20 * scale), h))),
+                        font, fs, c, th, cv2.LINE_AA)
+    return img.astype(np.float32) / 255.0
+
+
+def mip_pyramid(img: np.ndarray) -> list[np.ndarray]:
+    """Mip levels (level 0 = ``img``), halving until the short side is < 4 texels."""
+    levels = [np.ascontiguousarray(img, dtype=np.float32)]
+    while min(levels[-1].shape[:2]) >= 8:
+        levels.append(cv2.pyrDown(levels[-1]))
+    return levels
+
+
+def _bilinear(tex: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    h, w = tex.shape[:2]
+    x = uv[:, 0] * w - 0.5
+    y = uv[:, 1] * h - 0.5
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    fx = (x - x0)[:, None].astype(np.float32)
+    fy = (y - y0)[:, None].astype(np.float32)
+    x0 = x0.astype(np.int64)
+    y0 = y0.astype(np.int64)
+    x1 = np.mod(x0 + 1, w)  # wrap in u (spheres, cylinder sides)
+    x0 = np.mod(x0, w)
+    y1 = np.clip(y0 + 1, 0, h - 1)
+    y0 = np.clip(y0, 0, h - 1)
+    top = tex[y0, x0] * (1 - fx) + tex[y0, x1] * fx
+    bot = tex[y1, x0] * (1 - fx) + tex[y1, x1] * fx
+    return top * (1 - fy) + bot * fy
+
+
+def sample(pyramid: list[np.ndarray], uv: np.ndarray, lod: np.ndarray) -> np.ndarray:
+    """Trilinear lookup: [n, 2] uv in [0, 1]^2, [n] level of detail (0 = finest) -> [n, 3]."""
+    lod = np.clip(lod, 0, len(pyramid) - 1)
+    lo = np.floor(lod).astype(np.int64)
+    frac = (lod - lo).astype(np.float32)[:, None]
+    out = np.zeros((len(uv), 3), np.float32)
+    for level in np.unique(lo):
+        sel = np.nonzero(lo == level)[0]
+        a = _bilinear(pyramid[level], uv[sel])
+        if level + 1 < len(pyramid):
+            b = _bilinear(pyramid[level + 1], uv[sel])
+            f = frac[sel]
+            a = a * (1 - f) + b * f
+        out[sel] = a
+    return out

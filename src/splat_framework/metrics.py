@@ -1,0 +1,134 @@
+"""Evaluation metrics: PSNR, SSIM, LPIPS (VGG) and the RegNeRF AVG score.
+
+Images are [H, W, 3] (or [B, H, W, 3]) in [0, 1]; masks [H, W] / [H, W, 1],
+bool or float (DTU protocol: 1 = object).
+
+PSNR of identical images is ``math.inf`` (MSE 0), not a clipped constant, so
+it never silently enters a table as a plausible number; ``avg_metric`` turns
+it into an MSE of 0 (AVG 0).
+
+LPIPS never downloads anything: ``LPIPSMetric.available()`` checks that the
+``lpips`` and ``torchvision`` packages are importable and that both weight
+files (lpips' linear layers, shipped inside the package, and torchvision's
+VGG16 backbone in the torch hub cache) exist on disk before anything is built.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from splat_framework.losses import _mask_bhw1, ssim
+
+VGG16_FILE = "vgg16-397923af.pth"  # torchvision VGG16_Weights.IMAGENET1K_V1
+
+
+def _composite_white(pred: Tensor, gt: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
+    m = _mask_bhw1(mask, pred)
+    if pred.dim() == 3:
+        m = m[0]
+    return pred * m + (1 - m), gt * m + (1 - m)
+
+
+@torch.no_grad()
+def psnr(pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> float:
+    """PSNR in dB for images in [0, 1]; with ``mask``, MSE over masked pixels only. inf when MSE is 0."""
+    pred, gt = pred.double(), gt.double()
+    if mask is None:
+        mse = ((pred - gt) ** 2).mean()
+    else:
+        m = _mask_bhw1(mask, pred)
+        se = ((pred - gt) ** 2).reshape(m.shape[0], *pred.shape[-3:]) * m
+        denom = m.sum() * pred.shape[-1]
+        if denom <= 0:
+            raise ValueError("psnr: mask selects no pixels")
+        mse = se.sum() / denom
+    mse = float(mse)
+    return math.inf if mse == 0.0 else -10.0 * math.log10(mse)
+
+
+@torch.no_grad()
+def ssim_metric(pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> float:
+    """SSIM as in training; with ``mask``, both images get a white background first."""
+    if mask is not None:
+        pred, gt = _composite_white(pred, gt, mask)
+    return float(ssim(pred.float(), gt.float()))
+
+
+class LPIPSMetric:
+    """LPIPS with the VGG backbone (the 3DGS/RegNeRF evaluation choice), if available offline."""
+
+    def __init__(self, net: str = "vgg", device: torch.device | str | None = None) -> None:
+        self.net_name = net
+        self.device = device
+        self._net: Any = None
+
+    @staticmethod
+    def available(net: str = "vgg") -> tuple[bool, str]:
+        """(True, "") when LPIPS can be built without any download, else (False, reason)."""
+        for pkg in ("lpips", "torchvision"):
+            if importlib.util.find_spec(pkg) is None:
+                return False, f"package {pkg!r} is not installed"
+        spec = importlib.util.find_spec("lpips")
+        lin = Path(spec.origin).parent / "weights" / "v0.1" / f"{net}.pth"
+        if not lin.is_file():
+            return False, f"lpips linear weights not found at {lin}"
+        if net != "vgg":
+            return False, f"only net='vgg' is supported offline, got {net!r}"
+        backbone = Path(torch.hub.get_dir()) / "checkpoints" / VGG16_FILE
+        if not backbone.is_file():
+            return False, f"VGG16 backbone weights not found at {backbone} (no download is attempted)"
+        return True, ""
+
+    def _build(self, device: torch.device) -> Any:
+        ok, why = self.available(self.net_name)
+        if not ok:
+            raise RuntimeError(f"LPIPS unavailable: {why}")
+        if self._net is None:
+            import lpips  # noqa: PLC0415  (heavy, optional)
+
+            self._net = lpips.LPIPS(net=self.net_name, verbose=False).eval()
+        return self._net.to(device)
+
+    @torch.no_grad()
+    def compute(self, pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> float:
+        """LPIPS distance (lower is better); with ``mask``, white background as for SSIM.
+
+        Raises RuntimeError with the reason when LPIPS is unavailable.
+        """
+        net = self._build(pred.device if self.device is None else torch.device(self.device))
+        pred, gt = pred.to(next(net.parameters()).device), gt.to(next(net.parameters()).device)
+        if mask is not None:
+            pred, gt = _composite_white(pred, gt, mask)
+        x = pred.float().reshape(-1, *pred.shape[-3:]).permute(0, 3, 1, 2)
+        y = gt.float().reshape(-1, *gt.shape[-3:]).permute(0, 3, 1, 2)
+        return float(net(x, y, normalize=True).mean())
+
+
+def avg_metric(psnr: float, ssim: float, lpips: float | None) -> float | None:
+    """RegNeRF AVG: geometric mean of (MSE = 10^(-PSNR/10), sqrt(1 - SSIM), LPIPS); None without LPIPS."""
+    if lpips is None:
+        return None
+    mse = 10.0 ** (-psnr / 10.0)
+    dssim = math.sqrt(max(1.0 - ssim, 0.0))
+    vals = (mse, dssim, lpips)
+    if min(vals) <= 0.0:
+        return 0.0
+    return math.exp(sum(math.log(v) for v in vals) / 3.0)
+
+
+def evaluate_images(
+    pred: Tensor, gt: Tensor, mask: Tensor | None = None, lpips: LPIPSMetric | None = None
+) -> dict[str, float | None]:
+    """{"psnr", "ssim", "lpips", "avg"}; lpips and avg are None when LPIPS is not given or unavailable."""
+    p = psnr(pred, gt, mask)
+    s = ssim_metric(pred, gt, mask)
+    lp = None
+    if lpips is not None and lpips.available(lpips.net_name)[0]:
+        lp = lpips.compute(pred, gt, mask)
+    return {"psnr": p, "ssim": s, "lpips": lp, "avg": avg_metric(p, s, lp)}

@@ -1,0 +1,227 @@
+"""The 3DGS Gaussian model: parameters, activations, optimizers, outputs, loss.
+
+Parameters live in one ``nn.ParameterDict`` with N rows each:
+
+- ``means`` [N, 3] world positions,
+- ``quats`` [N, 4] rotations (wxyz, unnormalised),
+- ``scales`` [N, 3] log-scales,
+- ``opacities`` [N] opacity logits,
+- ``sh0`` [N, 1, 3] and ``shN`` [N, K-1, 3] spherical-harmonics coefficients.
+
+Subclasses may add keys (one leading dimension N); the densification strategy
+handles them generically. Methods customise training through the hooks
+``positions``, ``get_loss_dict``, ``trainable_keys``, ``densify_now`` and
+``after_optimizer_step`` instead of forking the trainer.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor, nn
+
+from ..cameras import Camera
+from ..config import TrainConfig
+from ..losses import photometric_loss
+from ..render import RenderOutput, rasterize
+
+SH_C0 = 0.28209479177387814
+
+
+def rgb_to_sh0(rgb: Tensor) -> Tensor:
+    """[..., 3] colour in [0, 1] -> [..., 3] degree-0 SH coefficient."""
+    return (rgb - 0.5) / SH_C0
+
+
+def knn_scale(points: Tensor, k: int = 3, chunk: int = 4096) -> Tensor:
+    """[N] root-mean-square distance of each point to its ``k`` nearest neighbours (3DGS init scale)."""
+    n = points.shape[0]
+    if n <= 1:
+        return torch.full((n,), 0.01, device=points.device, dtype=points.dtype)
+    k = min(k, n - 1)
+    out = torch.empty(n, device=points.device, dtype=points.dtype)
+    for s in range(0, n, chunk):
+        d2 = torch.cdist(points[s : s + chunk], points).square()
+        vals = d2.topk(k + 1, dim=1, largest=False).values[:, 1:]
+        out[s : s + chunk] = vals.mean(dim=1).sqrt()
+    return out.clamp_min(1e-7)
+
+
+def sample_frustum_points(
+    cameras: list[Camera], images: list[Tensor], n: int, generator: torch.Generator
+) -> tuple[Tensor, Tensor]:
+    """Random points inside the training frusta, with the colour of the pixel they lie on.
+
+    A camera is picked uniformly, then a pixel, then a depth uniform in inverse
+    depth between the camera's near and far (so that near content is not starved).
+
+    Returns:
+        points [n, 3], colors [n, 3].
+    """
+    device = images[0].device
+    cam_ids = torch.randint(len(cameras), (n,), generator=generator)
+    pts, cols = [], []
+    for ci, (cam, img) in enumerate(zip(cameras, images)):
+        m = int((cam_ids == ci).sum())
+        if m == 0:
+            continue
+        u = torch.rand(m, generator=generator) * cam.width
+        v = torch.rand(m, generator=generator) * cam.height
+        t = torch.rand(m, generator=generator)
+        inv = 1.0 / cam.near + t * (1.0 / cam.far - 1.0 / cam.near)
+        z = 1.0 / inv
+        uv = torch.stack([u, v], -1).to(device)
+        pts.append(cam.unproject_depth(uv, z.to(device)))
+        cols.append(img[v.long().clamp_max(cam.height - 1), u.long().clamp_max(cam.width - 1)])
+    return torch.cat(pts), torch.cat(cols)
+
+
+class GaussianModel(nn.Module):
+    """Vanilla 3D Gaussian Splatting.
+
+    Args:
+        config: the run config (``config.model`` is a GaussianModelConfig).
+        scene_scale: spatial scale of the scene (position lr and size thresholds).
+        points: [M, 3] initial positions, or None for random initialisation.
+        colors: [M, 3] initial colours in [0, 1].
+    """
+
+    def __init__(self, config: TrainConfig, scene_scale: float, points: Tensor, colors: Tensor):
+        super().__init__()
+        self.config = config
+        self.scene_scale = float(scene_scale)
+        self.active_sh_degree = 0
+        self.params = nn.ParameterDict(self.init_params(points, colors))
+
+    # ------------------------------------------------------------------ build
+    @classmethod
+    def from_data(cls, config: TrainConfig, datamanager, generator: torch.Generator) -> "GaussianModel":
+        """Build the model for a dataset (random init inside the training frusta by default)."""
+        cams, imgs = zip(*[(c, b["image"]) for c, b in datamanager.train_views()])
+        points, colors = sample_frustum_points(list(cams), list(imgs), config.model.init_num_points, generator)
+        return cls(config, datamanager.scene.scene_radius, points, colors)
+
+    def init_params(self, points: Tensor, colors: Tensor) -> dict[str, nn.Parameter]:
+        cfg = self.config.model
+        n = points.shape[0]
+        dev = points.device
+        scales = torch.log(knn_scale(points) * cfg.init_scale)[:, None].repeat(1, 3)
+        quats = torch.zeros(n, 4, device=dev)
+        quats[:, 0] = 1.0
+        k = (cfg.sh_degree + 1) ** 2
+        sh0 = rgb_to_sh0(colors.clamp(0, 1))[:, None, :]
+        shN = torch.zeros(n, k - 1, 3, device=dev)
+        opac = torch.logit(torch.full((n,), cfg.init_opacity, device=dev))
+        return {
+            "means": nn.Parameter(points.float().contiguous()),
+            "quats": nn.Parameter(quats),
+            "scales": nn.Parameter(scales.float()),
+            "opacities": nn.Parameter(opac),
+            "sh0": nn.Parameter(sh0.float()),
+            "shN": nn.Parameter(shN),
+        }
+
+    @property
+    def num_gaussians(self) -> int:
+        return self.params["means"].shape[0]
+
+    # --------------------------------------------------------------- optimise
+    def learning_rates(self) -> dict[str, float]:
+        o = self.config.optim
+        return {
+            "means": o.means_lr * self.scene_scale,
+            "quats": o.quats_lr,
+            "scales": o.scales_lr,
+            "opacities": o.opacities_lr,
+            "sh0": o.sh0_lr,
+            "shN": o.shN_lr,
+        }
+
+    def make_optimizers(self) -> dict[str, torch.optim.Optimizer]:
+        """One Adam per trainable parameter key."""
+        lrs = self.learning_rates()
+        return {
+            k: torch.optim.Adam([{"params": [p], "lr": lrs[k], "name": k}], lr=lrs[k], eps=1e-15)
+            for k, p in self.params.items()
+            if p.requires_grad and k in lrs
+        }
+
+    def update_learning_rates(self, optimizers: dict, step: int, total_steps: int) -> None:
+        """Exponential decay of the position lr over the run (3DGS schedule)."""
+        if "means" not in optimizers:
+            return
+        o = self.config.optim
+        t = min(max(step / max(total_steps, 1), 0.0), 1.0)
+        lr = math.exp(math.log(o.means_lr) * (1 - t) + math.log(o.means_lr_final) * t) * self.scene_scale
+        for g in optimizers["means"].param_groups:
+            g["lr"] = lr
+
+    def trainable_keys(self, step: int) -> set[str] | None:
+        """Parameter keys to update at ``step`` (None = all)."""
+        return None
+
+    def densify_now(self, step: int) -> bool:
+        """Whether the densification strategy runs at ``step``."""
+        return self.config.strategy.enabled
+
+    def on_step_start(self, step: int) -> None:
+        interval = max(self.config.model.sh_degree_interval, 1)
+        self.active_sh_degree = min(step // interval, self.config.model.sh_degree)
+
+    def prepare_for_strategy(self) -> None:
+        """Make ``params['means']`` hold every row's true position (subclasses with
+        other parameterisations override this)."""
+
+    def after_optimizer_step(self, step: int, losses: dict[str, Tensor], optimizers: dict, strategy_state: dict) -> None:
+        """Hook after the optimizers stepped (caching, filtering). A hook that adds or
+        removes rows must resize ``optimizers`` and ``strategy_state`` with ``model.ops``."""
+
+    # ---------------------------------------------------------------- render
+    def positions(self) -> Tensor:
+        """[N, 3] world positions of all Gaussians."""
+        return self.params["means"]
+
+    def get_outputs(self, camera: Camera, background: Tensor | None = None) -> RenderOutput:
+        p = self.params
+        d = self.active_sh_degree
+        coeffs = torch.cat([p["sh0"], p["shN"]], dim=1)[:, : (d + 1) ** 2]
+        return rasterize(
+            self.positions(),
+            p["quats"],
+            torch.exp(p["scales"]),
+            torch.sigmoid(p["opacities"]),
+            coeffs,
+            camera.world_to_cam.float(),
+            camera.K.float(),
+            camera.width,
+            camera.height,
+            sh_degree=d,
+            background=background,
+            near_plane=0.01,
+            depth_mode=self.config.model.depth_mode,
+        )
+
+    def get_loss_dict(
+        self, outputs: RenderOutput, batch: dict, camera: Camera, step: int
+    ) -> dict[str, Tensor]:
+        """Loss terms; the trainer minimises their sum."""
+        gt = batch["image"]
+        return {
+            "photometric": photometric_loss(outputs.rgb, gt, lambda_dssim=self.config.model.lambda_dssim)
+        }
+
+    @classmethod
+    def from_checkpoint(cls, config: TrainConfig, scene_scale: float, checkpoint: dict) -> "GaussianModel":
+        """Rebuild a trained model from a checkpoint payload (no initialisation work)."""
+        model = cls.__new__(cls)
+        nn.Module.__init__(model)
+        model.config = config
+        model.scene_scale = float(scene_scale)
+        model.active_sh_degree = config.model.sh_degree
+        model.params = nn.ParameterDict(
+            {k: nn.Parameter(v, requires_grad=v.is_floating_point()) for k, v in checkpoint["params"].items()}
+        )
+        if checkpoint.get("model_state") and hasattr(model, "load_extra_state"):
+            model.load_extra_state(checkpoint["model_state"])
+        return model

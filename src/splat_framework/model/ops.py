@@ -1,0 +1,205 @@
+"""Parameter + optimizer surgery for densification (after gsplat ``strategy/ops.py``).
+
+Every operation here goes through ONE helper, ``_update_param_with_optimizer``,
+which replaces each parameter and moves its Adam state along with it. The
+per-row operations are:
+
+- ``duplicate``: append copies of the masked rows (3DGS "clone").
+- ``split``: the masked row stays in place and becomes the first child (new
+  sampled mean, scales / 1.6); the second child is appended.
+- ``remove``: drop the masked rows.
+- ``reset_opa``: clamp opacities to at most ``value`` and zero their moments.
+
+Conventions:
+
+- ``params`` is a ``torch.nn.ParameterDict`` or a plain dict of tensors, every
+  entry with leading dim N. Entries without an optimizer must not require grad
+  (e.g. a float flag ``"is_ray"``); they are resized like the others.
+- ``optimizers`` maps a key of ``params`` to an optimizer (Adam) with a single
+  param group holding exactly that parameter.
+- ``state`` is the strategy's dict; every tensor in it with leading dim N
+  (grad2d, count, radii) is resized along. Other entries are left alone.
+- Adam moments (every optimizer-state tensor shaped like the parameter) of new
+  rows are zero; moments of removed rows are dropped; ``step`` is kept.
+- ``child_values`` (``duplicate``/``split``): ``{key: value}`` written into the
+  appended rows of ``params[key]`` only, e.g. ``{"is_ray": 0.0}``.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Mapping, MutableMapping
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+Params = MutableMapping[str, Tensor]
+Optimizers = Mapping[str, torch.optim.Optimizer]
+
+
+def quat_to_rotmat(quats: Tensor) -> Tensor:
+    """[..., 4] quaternions (w, x, y, z), any norm -> [..., 3, 3] rotation matrices."""
+    w, x, y, z = F.normalize(quats, dim=-1).unbind(-1)
+    return torch.stack(
+        [
+            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+        ],
+        dim=-1,
+    ).reshape(quats.shape[:-1] + (3, 3))
+
+
+def _rewrap(old: Tensor, new: Tensor) -> Tensor:
+    if isinstance(old, torch.nn.Parameter):
+        return torch.nn.Parameter(new, requires_grad=old.requires_grad)
+    return new
+
+
+@torch.no_grad()
+def _update_param_with_optimizer(
+    param_fn: Callable[[str, Tensor], Tensor],
+    optimizer_fn: Callable[[str, Tensor], Tensor],
+    params: Params,
+    optimizers: Optimizers,
+    names: list[str] | None = None,
+) -> None:
+    """Replace ``params[name]`` by ``param_fn(name, p)`` and remap its optimizer state.
+
+    ``param_fn`` returns the new tensor data (wrapped here as a Parameter with the
+    old ``requires_grad`` when the old entry was one). ``optimizer_fn(key, v)``
+    maps each optimizer-state tensor shaped like the old parameter (``exp_avg``,
+    ``exp_avg_sq``, ...) to the new one; scalar state such as ``step`` is kept.
+    """
+    names = list(params.keys()) if names is None else names
+    for name in names:
+        old = params[name]
+        new = _rewrap(old, param_fn(name, old))
+        params[name] = new
+        opt = optimizers.get(name)
+        if opt is None:
+            if old.requires_grad:
+                raise ValueError(f"params[{name!r}] requires grad but has no optimizer")
+            continue
+        if len(opt.param_groups) != 1 or len(opt.param_groups[0]["params"]) != 1:
+            raise ValueError(f"optimizer {name!r} must hold exactly one param group with one parameter")
+        if opt.param_groups[0]["params"][0] is not old:
+            raise ValueError(f"optimizer {name!r} does not hold params[{name!r}]")
+        pstate = opt.state.pop(old, None)
+        opt.param_groups[0]["params"] = [new]
+        if pstate is not None:
+            for key, v in list(pstate.items()):
+                if isinstance(v, Tensor) and v.shape == old.shape:
+                    pstate[key] = optimizer_fn(key, v)
+            opt.state[new] = pstate
+
+
+def _resize_state(state: MutableMapping, n_old: int, fn: Callable[[Tensor], Tensor]) -> None:
+    for k, v in state.items():
+        if isinstance(v, Tensor) and v.dim() > 0 and v.shape[0] == n_old:
+            state[k] = fn(v)
+
+
+def _num_rows(params: Params) -> int:
+    return next(iter(params.values())).shape[0]
+
+
+def _apply_child_values(name: str, rows: Tensor, child_values: Mapping[str, float] | None) -> Tensor:
+    if child_values and name in child_values:
+        return torch.full_like(rows, float(child_values[name]))
+    return rows
+
+
+@torch.no_grad()
+def duplicate(
+    params: Params,
+    optimizers: Optimizers,
+    state: MutableMapping,
+    mask: Tensor,
+    child_values: Mapping[str, float] | None = None,
+) -> None:
+    """Append a copy of every row where ``mask`` [N] is True (new moments zero)."""
+    sel = torch.where(mask)[0]
+    n = _num_rows(params)
+
+    def param_fn(name: str, p: Tensor) -> Tensor:
+        return torch.cat([p, _apply_child_values(name, p[sel], child_values)])
+
+    def optimizer_fn(key: str, v: Tensor) -> Tensor:
+        return torch.cat([v, v.new_zeros((len(sel), *v.shape[1:]))])
+
+    _update_param_with_optimizer(param_fn, optimizer_fn, params, optimizers)
+    _resize_state(state, n, lambda v: torch.cat([v, v[sel]]))
+
+
+@torch.no_grad()
+def split(
+    params: Params,
+    optimizers: Optimizers,
+    state: MutableMapping,
+    mask: Tensor,
+    revised_opacity: bool = False,
+    child_values: Mapping[str, float] | None = None,
+    generator: torch.Generator | None = None,
+) -> None:
+    """Split every row where ``mask`` [N] is True into two children.
+
+    As in 3DGS, each child's mean is sampled from N(mean, R diag(s)^2 R^T) and
+    its scales are the parent's / 1.6 (opacity kept, or 1 - sqrt(1 - o) with
+    ``revised_opacity``). Unlike 3DGS the parent row is not removed: it is
+    overwritten in place with the first child, so any identity it carries in
+    other keys is kept; the second child is appended (and gets
+    ``child_values``). The Adam moments of both children are zero. State rows
+    are copied to the appended child.
+    """
+    sel = torch.where(mask)[0]
+    n = _num_rows(params)
+    scales = torch.exp(params["scales"][sel])
+    rotmats = quat_to_rotmat(params["quats"][sel])
+    noise = torch.randn(
+        (2, len(sel), 3), generator=generator, device=scales.device, dtype=scales.dtype
+    )
+    samples = torch.einsum("nij,nj,bnj->bni", rotmats, scales, noise)  # [2, M, 3]
+
+    def param_fn(name: str, p: Tensor) -> Tensor:
+        if name == "means":
+            first, second = p[sel] + samples[0], p[sel] + samples[1]
+        elif name == "scales":
+            first = second = torch.log(scales / 1.6).to(p.dtype)
+        elif name == "opacities" and revised_opacity:
+            first = second = torch.logit(1.0 - torch.sqrt(1.0 - torch.sigmoid(p[sel])))
+        else:
+            first, second = p[sel], p[sel]
+        out = p.clone()
+        out[sel] = first
+        return torch.cat([out, _apply_child_values(name, second, child_values)])
+
+    def optimizer_fn(key: str, v: Tensor) -> Tensor:
+        out = v.clone()
+        out[sel] = 0
+        return torch.cat([out, v.new_zeros((len(sel), *v.shape[1:]))])
+
+    _update_param_with_optimizer(param_fn, optimizer_fn, params, optimizers)
+    _resize_state(state, n, lambda v: torch.cat([v, v[sel]]))
+
+
+@torch.no_grad()
+def remove(params: Params, optimizers: Optimizers, state: MutableMapping, mask: Tensor) -> None:
+    """Drop every row where ``mask`` [N] is True, with its moments and state."""
+    keep = torch.where(~mask)[0]
+    n = _num_rows(params)
+    _update_param_with_optimizer(lambda _, p: p[keep], lambda _, v: v[keep], params, optimizers)
+    _resize_state(state, n, lambda v: v[keep])
+
+
+@torch.no_grad()
+def reset_opa(params: Params, optimizers: Optimizers, state: MutableMapping, value: float) -> None:
+    """Clamp ``sigmoid(opacities)`` to at most ``value`` and zero the opacity moments."""
+    max_logit = torch.logit(torch.tensor(value, dtype=torch.float64)).item()
+
+    def param_fn(name: str, p: Tensor) -> Tensor:
+        return torch.clamp(p, max=max_logit)
+
+    _update_param_with_optimizer(
+        param_fn, lambda _, v: torch.zeros_like(v), params, optimizers, names=["opacities"]
+    )

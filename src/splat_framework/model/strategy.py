@@ -1,0 +1,205 @@
+"""Densification (clone / split / prune / opacity reset) as a policy over plain dicts.
+
+Modelled on gsplat's ``strategy/default.py``: the strategy sees only
+``(params, optimizers, state, info)`` and never the model.
+
+Typical loop::
+
+    strategy = DefaultStrategy(DensifyConfig())
+    strategy.check_sanity(params, optimizers)
+    state = strategy.initialize_state(scene_scale)
+    for step in range(max_steps):
+        out = rasterize(...)                       # out.meta is ``info``
+        strategy.step_pre_backward(params, optimizers, state, step, out.meta)
+        loss.backward()
+        # params["means"] must now hold the true positions of ALL rows (a
+        # model whose positions are computed, e.g. ray-bound Gaussians, writes
+        # them into params["means"] before this call).
+        counts = strategy.step_post_backward(params, optimizers, state, step, out.meta)
+        for opt in optimizers.values(): opt.step(); opt.zero_grad(set_to_none=True)
+
+Extension points (SCGaussian): ``never_prune_key`` names a per-row flag in
+``params``; flagged rows (> 0.5) are never pruned. ``child_defaults`` gives
+values that rows newly created by clone/split take for the named keys (e.g.
+``{"is_ray": 0.0}``); a split parent stays in its row (keeping its flag) and
+only the appended child is new.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Mapping, MutableMapping
+
+import torch
+from torch import Tensor
+
+from splat_framework.config import DensifyConfig
+from splat_framework.model.ops import duplicate, remove, reset_opa, split
+
+__all__ = ["DefaultStrategy", "DensifyConfig"]
+
+
+class DefaultStrategy:
+    """3DGS adaptive density control with gsplat's interface.
+
+    ``info`` is the rasterizer's meta dict: "means2d" [N, 2] (or [C, N, 2])
+    pixel-space centres whose ``.grad`` is the positional gradient, "radii" [N]
+    (or [N, 2] / [C, N] / [C, N, 2]) pixel radius, 0 when not visible,
+    "width", "height" ints. The caller must make ``params["means"]`` hold the
+    true current positions of all rows before ``step_post_backward``.
+    """
+
+    REQUIRED_KEYS = ("means", "quats", "scales", "opacities")
+
+    def __init__(self, config: DensifyConfig | None = None) -> None:
+        self.config = config if config is not None else DensifyConfig()
+
+    # ----------------------------------------------------------------- setup
+    def initialize_state(self, scene_scale: float = 1.0) -> dict[str, Any]:
+        """Fresh running state; per-Gaussian tensors are created lazily at the first step."""
+        return {"grad2d": None, "count": None, "radii": None, "scene_scale": float(scene_scale)}
+
+    def check_sanity(self, params: Mapping[str, Tensor], optimizers: Mapping[str, torch.optim.Optimizer]) -> None:
+        """Raise ValueError if params/optimizers do not follow the conventions of ``ops``."""
+        for key in self.REQUIRED_KEYS:
+            if key not in params:
+                raise ValueError(f"params is missing {key!r}")
+        n = params["means"].shape[0]
+        for key, p in params.items():
+            if p.dim() == 0 or p.shape[0] != n:
+                raise ValueError(f"params[{key!r}] has shape {tuple(p.shape)}, expected leading dim {n}")
+            if p.requires_grad and key not in optimizers:
+                raise ValueError(f"params[{key!r}] requires grad but has no optimizer")
+        for key, opt in optimizers.items():
+            if key not in params:
+                raise ValueError(f"optimizer {key!r} has no matching params entry")
+            groups = opt.param_groups
+            if len(groups) != 1 or len(groups[0]["params"]) != 1 or groups[0]["params"][0] is not params[key]:
+                raise ValueError(f"optimizer {key!r} must hold exactly params[{key!r}] in one param group")
+        cfg = self.config
+        if cfg.never_prune_key is not None and cfg.never_prune_key not in params:
+            raise ValueError(f"never_prune_key {cfg.never_prune_key!r} is not in params")
+        for key in cfg.child_defaults:
+            if key not in params:
+                raise ValueError(f"child_defaults key {key!r} is not in params")
+
+    # ----------------------------------------------------------------- steps
+    def step_pre_backward(
+        self,
+        params: Mapping[str, Tensor],
+        optimizers: Mapping[str, torch.optim.Optimizer],
+        state: MutableMapping[str, Any],
+        step: int,
+        info: Mapping[str, Any],
+    ) -> None:
+        """Ask autograd to keep the gradient of ``info["means2d"]``."""
+        means2d = info["means2d"]
+        if means2d.requires_grad:
+            means2d.retain_grad()
+
+    def step_post_backward(
+        self,
+        params: MutableMapping[str, Tensor],
+        optimizers: Mapping[str, torch.optim.Optimizer],
+        state: MutableMapping[str, Any],
+        step: int,
+        info: Mapping[str, Any],
+    ) -> dict[str, int]:
+        """Accumulate gradient statistics, densify/prune and reset opacities on schedule.
+
+        Modifies ``params``, ``optimizers`` and ``state`` in place. Returns
+        ``{"n_clone", "n_split", "n_prune"}`` (zeros when nothing ran).
+        """
+        cfg = self.config
+        counts = {"n_clone": 0, "n_split": 0, "n_prune": 0}
+        if step >= cfg.refine_stop_iter:
+            return counts
+        self._update_state(params, state, info)
+        if (
+            step > cfg.refine_start_iter
+            and step % cfg.refine_every == 0
+            and step % cfg.reset_every >= cfg.pause_refine_after_reset
+        ):
+            counts["n_clone"], counts["n_split"] = self._grow(params, optimizers, state, step)
+            counts["n_prune"] = self._prune(params, optimizers, state, step)
+            state["grad2d"].zero_()
+            state["count"].zero_()
+            state["radii"].zero_()
+        if step % cfg.reset_every == 0 and step > 0:
+            reset_opa(params, optimizers, state, value=cfg.prune_opa * 2.0)
+        return counts
+
+    # ------------------------------------------------------------- internals
+    def _update_state(self, params: Mapping[str, Tensor], state: MutableMapping[str, Any], info: Mapping[str, Any]) -> None:
+        means2d = info["means2d"]
+        grad = getattr(means2d, "absgrad", None) if self.config.absgrad else means2d.grad
+        if grad is None:
+            what = "means2d.absgrad" if self.config.absgrad else "means2d.grad"
+            raise RuntimeError(f"info[{what!r}] is None: call step_pre_backward before backward()")
+        n = params["means"].shape[0]
+        radii = info["radii"].detach()
+        if radii.dim() == grad.dim():  # per-axis radii [..., N, 2] -> max
+            radii = radii.max(dim=-1).values
+        grads = grad.detach().clone()
+        if grads.dim() == 2:  # single camera: [N, 2] -> [1, N, 2]
+            grads, radii = grads[None], radii[None]
+        if grads.shape[1] != n or radii.shape != grads.shape[:2]:
+            raise ValueError(
+                f"info['means2d'] {tuple(grad.shape)} / info['radii'] {tuple(info['radii'].shape)} "
+                f"do not match {n} Gaussians"
+            )
+        radii = radii.to(grads.dtype)  # [C, N]
+        n_cams = grads.shape[0]
+        grads[..., 0] *= info["width"] / 2.0 * n_cams
+        grads[..., 1] *= info["height"] / 2.0 * n_cams
+
+        for key in ("grad2d", "count", "radii"):
+            if state[key] is None:
+                state[key] = torch.zeros(n, device=grads.device, dtype=grads.dtype)
+            elif state[key].shape[0] != n:
+                raise RuntimeError(
+                    f"strategy state has {state[key].shape[0]} rows but params have {n}: "
+                    "rows were added/removed outside the strategy; call initialize_state() again"
+                )
+        cam_ids, gs_ids = torch.where(radii > 0)
+        state["grad2d"].index_add_(0, gs_ids, grads[cam_ids, gs_ids].norm(dim=-1))
+        state["count"].index_add_(0, gs_ids, torch.ones_like(gs_ids, dtype=grads.dtype))
+        rel = radii[cam_ids, gs_ids] / float(max(info["width"], info["height"]))
+        state["radii"].scatter_reduce_(0, gs_ids, rel, reduce="amax")
+
+    @torch.no_grad()
+    def _grow(self, params, optimizers, state, step: int) -> tuple[int, int]:
+        cfg = self.config
+        grads = state["grad2d"] / state["count"].clamp_min(1)
+        is_grad_high = grads > cfg.grow_grad2d
+        max_scale = torch.exp(params["scales"]).max(dim=-1).values
+        is_small = max_scale <= cfg.grow_scale3d * state["scene_scale"]
+        is_clone = is_grad_high & is_small
+        is_split = is_grad_high & ~is_small
+        if step < cfg.refine_scale2d_stop_iter:
+            is_split |= state["radii"] > cfg.grow_scale2d
+        n_clone, n_split = int(is_clone.sum()), int(is_split.sum())
+        children = dict(cfg.child_defaults)
+        if n_clone > 0:
+            duplicate(params, optimizers, state, is_clone, child_values=children)
+        # clones are appended after all original rows and are not split
+        is_split = torch.cat([is_split, is_split.new_zeros(n_clone)])
+        if n_split > 0:
+            split(params, optimizers, state, is_split, revised_opacity=cfg.revised_opacity, child_values=children)
+        return n_clone, n_split
+
+    @torch.no_grad()
+    def _prune(self, params, optimizers, state, step: int) -> int:
+        cfg = self.config
+        is_prune = torch.sigmoid(params["opacities"].flatten()) < cfg.prune_opa
+        if step > cfg.reset_every:
+            max_scale = torch.exp(params["scales"]).max(dim=-1).values
+            is_prune |= max_scale > cfg.prune_scale3d * state["scene_scale"]
+            if step < cfg.refine_scale2d_stop_iter:
+                is_prune |= state["radii"] > cfg.prune_scale2d
+        if cfg.never_prune_key is not None:
+            flag = params[cfg.never_prune_key].detach()
+            is_prune &= ~(flag.reshape(flag.shape[0]) > 0.5)
+        n_prune = int(is_prune.sum())
+        if n_prune > 0:
+            remove(params, optimizers, state, is_prune)
+        return n_prune

@@ -1,0 +1,167 @@
+"""Method registry: built-ins and plugins register the same way.
+
+A package declares methods in the entry-point group ``splat_framework.methods``;
+each entry point names a :class:`MethodSpec`. Named config variants (paper
+ablation rows) are TOML files::
+
+    # configs/scgaussian-no-rg.toml
+    base = "scgaussian"
+    description = "SCGaussian without the rendering-geometry loss"
+    [overrides.model]
+    lambda_rg = 0.0
+
+found in the repository's ``configs/`` folder and in any folder listed in
+``$SPLAT_CONFIG_PATH`` (os.pathsep-separated). A variant keeps its own name, so
+runs of different variants never share an output folder.
+
+Importing this module and listing methods never imports torch.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import sys
+import tomllib
+import warnings
+from dataclasses import dataclass, field
+from importlib.metadata import entry_points
+from pathlib import Path
+from typing import Any, Callable
+
+ENTRY_POINT_GROUP = "splat_framework.methods"
+
+
+@dataclass(frozen=True)
+class MethodSpec:
+    """What the framework needs to know about a method.
+
+    Attributes:
+        name: the subcommand name, e.g. "3dgs".
+        description: one line shown by ``splat-train --help``.
+        config_factory: returns the method's default config (a TrainConfig subclass).
+            Must not import torch.
+        model: "module:Class" of the model (imported only when training starts).
+        overrides: nested overrides applied on top of config_factory() (variants).
+    """
+
+    name: str
+    description: str
+    config_factory: Callable[[], Any]
+    model: str
+    overrides: dict = field(default_factory=dict)
+
+    def default_config(self):
+        from .config import apply_overrides
+
+        cfg = self.config_factory()
+        if self.overrides:
+            cfg = apply_overrides(cfg, self.overrides)
+        return cfg.model_copy(update={"method": self.name})
+
+    def model_class(self) -> type:
+        module, _, attr = self.model.partition(":")
+        return getattr(importlib.import_module(module), attr)
+
+
+def default_config_dirs() -> list[Path]:
+    dirs = []
+    env = os.environ.get("SPLAT_CONFIG_PATH")
+    if env:
+        dirs += [Path(p) for p in env.split(os.pathsep) if p]
+    repo_configs = Path(__file__).resolve().parents[2] / "configs"
+    if repo_configs.is_dir():
+        dirs.append(repo_configs)
+    return dirs
+
+
+def _load_entry_points(group: str) -> dict[str, MethodSpec]:
+    specs: dict[str, MethodSpec] = {}
+    for ep in entry_points(group=group):
+        try:
+            spec = ep.load()
+        except Exception as e:  # a broken plugin must not kill the CLI
+            warnings.warn(f"method plugin '{ep.name}' ({ep.value}) failed to import: {e}", stacklevel=2)
+            continue
+        if not isinstance(spec, MethodSpec):
+            warnings.warn(f"method plugin '{ep.name}' ({ep.value}) is not a MethodSpec; ignored", stacklevel=2)
+            continue
+        if spec.name in specs:
+            warnings.warn(f"method '{spec.name}' registered twice; keeping the first", stacklevel=2)
+            continue
+        specs[spec.name] = spec
+    return specs
+
+
+def _load_variants(base: dict[str, MethodSpec], dirs: list[Path]) -> dict[str, MethodSpec]:
+    variants: dict[str, MethodSpec] = {}
+    files = sorted(f for d in dirs for f in d.glob("*.toml"))
+    pending = {f.stem: f for f in files}
+    resolved = dict(base)
+    progress = True
+    while pending and progress:  # variants may build on other variants
+        progress = False
+        for name, f in list(pending.items()):
+            try:
+                doc = tomllib.loads(f.read_text())
+            except (OSError, tomllib.TOMLDecodeError) as e:
+                warnings.warn(f"{f}: unreadable config variant ({e}); ignored", stacklevel=2)
+                del pending[name]
+                continue
+            parent = doc.get("base")
+            if parent not in resolved:
+                if parent in pending:
+                    continue
+                warnings.warn(f"{f}: base method '{parent}' is not registered; ignored", stacklevel=2)
+                del pending[name]
+                continue
+            p = resolved[parent]
+
+            spec = MethodSpec(
+                name=name,
+                description=doc.get("description", f"{parent} variant"),
+                config_factory=p.config_factory,
+                model=p.model,
+                overrides=_merge(p.overrides, doc.get("overrides", {})),
+            )
+            resolved[name] = variants[name] = spec
+            del pending[name]
+            progress = True
+    for name, f in pending.items():
+        warnings.warn(f"{f}: variant '{name}' has a base that does not resolve (missing or circular); ignored", stacklevel=2)
+    return variants
+
+
+def _merge(a: dict, b: dict) -> dict:
+    out = {k: (dict(v) if isinstance(v, dict) else v) for k, v in a.items()}
+    for k, v in b.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = _merge(out[k], v)
+        else:
+            out[k] = v
+    return out
+
+
+def discover_methods(config_dirs: list[Path] | None = None) -> dict[str, MethodSpec]:
+    """All registered methods and config variants, by name (entry points first)."""
+    specs = _load_entry_points(ENTRY_POINT_GROUP)
+    dirs = default_config_dirs() if config_dirs is None else config_dirs
+    for name, spec in _load_variants(specs, dirs).items():
+        if name in specs:
+            warnings.warn(f"config variant '{name}' shadows a registered method; ignored", stacklevel=2)
+            continue
+        specs[name] = spec
+    return specs
+
+
+def get_method(name: str) -> MethodSpec:
+    methods = discover_methods()
+    if name not in methods:
+        known = ", ".join(sorted(methods))
+        raise KeyError(f"unknown method '{name}' (registered: {known})")
+    return methods[name]
+
+
+if __name__ == "__main__":  # pragma: no cover
+    for n, s in discover_methods().items():
+        print(f"{n:28s} {s.description}", file=sys.stdout)

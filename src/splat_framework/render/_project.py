@@ -1,0 +1,139 @@
+"""EWA projection of 3D Gaussians to screen space (differentiable, plain torch autograd)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+# A pixel receives a Gaussian only if opacity * exp(-q / 2) >= 1/255.
+ALPHA_MIN = 1.0 / 255.0
+
+
+@dataclass
+class Projected:
+    means2d: Tensor  # [N, 2] pixel coordinates (graph tensor)
+    conics: Tensor  # [N, 3] inverse 2D covariance (a, b, c): q = a dx^2 + 2 b dx dy + c dy^2
+    cov2d: Tensor  # [N, 3] 2D covariance (xx, xy, yy), dilated by eps2d
+    depths: Tensor  # [N] camera z
+    valid: Tensor  # [N] bool, inside [near, far] and non-degenerate
+
+
+def quat_to_rotmat(quats: Tensor) -> Tensor:
+    """[N, 4] (w, x, y, z), not necessarily normalised -> [N, 3, 3] rotation matrices."""
+    q = quats / quats.norm(dim=-1, keepdim=True)
+    w, x, y, z = q.unbind(-1)
+    return torch.stack(
+        [
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - w * z),
+            2 * (x * z + w * y),
+            2 * (x * y + w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - w * x),
+            2 * (x * z - w * y),
+            2 * (y * z + w * x),
+            1 - 2 * (x * x + y * y),
+        ],
+        dim=-1,
+    ).reshape(q.shape[:-1] + (3, 3))
+
+
+def project_gaussians(
+    means: Tensor,
+    quats: Tensor,
+    scales: Tensor,
+    viewmat: Tensor,
+    K: Tensor,
+    width: int,
+    height: int,
+    near_plane: float,
+    far_plane: float,
+    eps2d: float,
+) -> Projected:
+    """Project Gaussians with the EWA local affine approximation (3DGS / gsplat)."""
+    dtype = means.dtype
+    viewmat = viewmat.to(dtype)
+    K = K.to(dtype)
+    Rw = viewmat[:3, :3]
+    tw = viewmat[:3, 3]
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+
+    p = means @ Rw.T + tw  # [N, 3] camera space
+    x, y, z = p.unbind(-1)
+    valid = (z >= near_plane) & (z <= far_plane)
+    zs = torch.where(valid, z, torch.ones_like(z))  # keeps culled entries finite
+
+    # Clamp the position used in the Jacobian (gsplat's asymmetric version of the
+    # reference's 1.3 * tan_fov; identical when the principal point is centred).
+    tan_fovx = 0.5 * width / fx
+    tan_fovy = 0.5 * height / fy
+    lim_x_pos = (width - cx) / fx + 0.3 * tan_fovx
+    lim_x_neg = cx / fx + 0.3 * tan_fovx
+    lim_y_pos = (height - cy) / fy + 0.3 * tan_fovy
+    lim_y_neg = cy / fy + 0.3 * tan_fovy
+    txz = torch.minimum(torch.maximum(x / zs, -lim_x_neg), lim_x_pos)
+    tyz = torch.minimum(torch.maximum(y / zs, -lim_y_neg), lim_y_pos)
+
+    inv_z = 1.0 / zs
+    zero = torch.zeros_like(zs)
+    # J = [[fx/z, 0, -fx tx/z^2], [0, fy/z, -fy ty/z^2]] with tx = z * txz
+    J = torch.stack(
+        [fx * inv_z, zero, -fx * txz * inv_z, zero, fy * inv_z, -fy * tyz * inv_z], dim=-1
+    ).reshape(-1, 2, 3)
+
+    R = quat_to_rotmat(quats)
+    M = R * scales[:, None, :]  # R diag(s)
+    T = J @ Rw @ M  # [N, 2, 3]  (J W R S)
+    cov = T @ T.transpose(1, 2)  # [N, 2, 2]
+    cxx = cov[:, 0, 0] + eps2d
+    cxy = cov[:, 0, 1]
+    cyy = cov[:, 1, 1] + eps2d
+    det = cxx * cyy - cxy * cxy
+    valid = valid & (det > 0)
+    det_s = torch.where(valid, det, torch.ones_like(det))
+    conics = torch.stack([cyy / det_s, -cxy / det_s, cxx / det_s], dim=-1)
+    means2d = torch.stack([fx * x * inv_z + cx, fy * y * inv_z + cy], dim=-1)
+    cov2d = torch.stack([cxx, cxy, cyy], dim=-1)
+    return Projected(means2d=means2d, conics=conics, cov2d=cov2d, depths=z, valid=valid)
+
+
+def footprint(
+    cov2d: Tensor, opacities: Tensor, valid: Tensor
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Opacity-aware half extents of the region where alpha >= 1/255.
+
+    The region is the ellipse d^T cov^-1 d <= 2 ln(255 opacity); its axis-aligned
+    half extents are sqrt(q_max * cov_xx), sqrt(q_max * cov_yy). Returned with a
+    small safety margin (the per-pixel test is exact).
+
+    Returns:
+        (ext_x [N], ext_y [N], ok [N] bool) -- ok is False where the Gaussian can
+        never reach 1/255.
+    """
+    with torch.no_grad():
+        o = opacities.detach().to(cov2d.dtype)
+        qmax = 2.0 * torch.log(torch.clamp_min(o * 255.0, 1e-30))
+        ok = valid & (o >= ALPHA_MIN)
+        qmax = torch.clamp_min(qmax, 0.0)
+        c = cov2d.detach()
+        ext_x = torch.sqrt(qmax * c[:, 0]) * (1.0 + 1e-4) + 1e-3
+        ext_y = torch.sqrt(qmax * c[:, 2]) * (1.0 + 1e-4) + 1e-3
+    return ext_x, ext_y, ok
+
+
+def reference_radii(cov2d: Tensor, active: Tensor) -> Tensor:
+    """[N] int32 radius as in the 3DGS reference: ceil(3 sqrt(lambda_max)), 0 where inactive."""
+    with torch.no_grad():
+        c = cov2d.detach()
+        mid = 0.5 * (c[:, 0] + c[:, 2])
+        disc = torch.sqrt(torch.clamp_min(mid * mid - (c[:, 0] * c[:, 2] - c[:, 1] ** 2), 0.1))
+        lam = mid + disc
+        r = torch.ceil(3.0 * torch.sqrt(torch.clamp_min(lam, 0.0)))
+        r = torch.where(active, r, torch.zeros_like(r))
+        r = torch.nan_to_num(r, nan=0.0, posinf=float(2**30), neginf=0.0).clamp(0, 2**30)
+    return r.to(torch.int32)
+
+
+__all__ = ["ALPHA_MIN", "Projected", "footprint", "project_gaussians", "quat_to_rotmat", "reference_radii"]

@@ -1,0 +1,40 @@
+"""Re-open a finished (or interrupted) run folder: config, data and trained model."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+from .checkpoint import CheckpointError, load_latest
+from .config import read_config_json
+from .data import DataError, DataManager, load_scene, resolve_data_path
+from .registry import get_method
+
+
+def load_run(run_dir: Path, device: str | None = None):
+    """(config, datamanager, model) of ``run_dir``, the model holding the newest good checkpoint."""
+    run_dir = Path(run_dir)
+    cfg_path = run_dir / "config.json"
+    if not cfg_path.is_file():
+        raise DataError(f"{cfg_path}: not a run folder (config.json missing)")
+    method, raw = read_config_json(cfg_path)
+    try:
+        spec = get_method(method)
+    except KeyError as e:
+        raise DataError(f"{cfg_path}: {e.args[0]}") from None
+    config = type(spec.default_config()).model_validate(raw)
+    if device is not None:
+        config = config.model_copy(update={"device": device})
+    found = load_latest(run_dir / "checkpoints")
+    if found is None:
+        raise CheckpointError(f"{run_dir / 'checkpoints'}: no valid checkpoint")
+    _, ck = found
+    scene = load_scene(resolve_data_path(config.data), format=config.format, views=config.views, downscale=config.downscale)
+    dm = DataManager(scene, device=config.device, seed=config.seed)
+    model = spec.model_class().from_checkpoint(config, scene.scene_radius, ck).to(config.device)
+    return config, dm, model
+
+
+def background_for(scene, device) -> torch.Tensor:
+    return torch.full((3,), 1.0 if scene.white_background else 0.0, device=device)

@@ -1,0 +1,181 @@
+"""Losses (L1, 3DGS SSIM, photometric) and metrics (PSNR, SSIM, LPIPS, AVG)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from splat_framework import metrics
+from splat_framework.losses import l1_loss, photometric_loss, ssim, ssim_map
+from splat_framework.metrics import LPIPSMetric, avg_metric, evaluate_images, psnr, ssim_metric
+
+
+def naive_ssim(x: torch.Tensor, y: torch.Tensor, window: int = 11, sigma: float = 1.5) -> float:
+    """Direct loops, zero padding outside the image (3DGS reference semantics)."""
+    h, w, c = x.shape
+    r = window // 2
+    g = [math.exp(-((i - r) ** 2) / (2 * sigma**2)) for i in range(window)]
+    s = sum(g)
+    g = [v / s for v in g]
+    x, y = x.double().tolist(), y.double().tolist()
+    total = 0.0
+    for ch in range(c):
+        for i in range(h):
+            for j in range(w):
+                m1 = m2 = e11 = e22 = e12 = 0.0
+                for di in range(-r, r + 1):
+                    for dj in range(-r, r + 1):
+                        ii, jj = i + di, j + dj
+                        if 0 <= ii < h and 0 <= jj < w:
+                            wt = g[di + r] * g[dj + r]
+                            a, b = x[ii][jj][ch], y[ii][jj][ch]
+                            m1 += wt * a
+                            m2 += wt * b
+                            e11 += wt * a * a
+                            e22 += wt * b * b
+                            e12 += wt * a * b
+                s1, s2, s12 = e11 - m1 * m1, e22 - m2 * m2, e12 - m1 * m2
+                c1, c2 = 0.01**2, 0.03**2
+                total += ((2 * m1 * m2 + c1) * (2 * s12 + c2)) / ((m1 * m1 + m2 * m2 + c1) * (s1 + s2 + c2))
+    return total / (h * w * c)
+
+
+def images(seed=0, h=16, w=20, noise=0.1):
+    g = torch.Generator().manual_seed(seed)
+    a = torch.rand(h, w, 3, generator=g)
+    b = (a + noise * torch.randn(h, w, 3, generator=g)).clamp(0, 1)
+    return a, b
+
+
+# ------------------------------------------------------------------ losses
+def test_l1_and_mask():
+    a = torch.zeros(4, 4, 3)
+    b = torch.zeros(4, 4, 3)
+    b[:2] = 1.0
+    assert l1_loss(a, b).item() == pytest.approx(0.5)
+    mask = torch.zeros(4, 4, 1, dtype=torch.bool)
+    mask[2:] = True
+    assert l1_loss(a, b, mask).item() == 0.0
+    assert l1_loss(a, b, ~mask[..., 0]).item() == pytest.approx(1.0)
+
+
+def test_ssim_identical_and_noise_monotone():
+    a, _ = images()
+    assert ssim(a, a).item() == pytest.approx(1.0, abs=1e-6)
+    vals = [ssim(a, images(noise=n)[1]).item() for n in (0.02, 0.1, 0.3)]
+    assert vals[0] > vals[1] > vals[2]
+
+
+def test_ssim_matches_naive():
+    a, b = images(h=9, w=13, noise=0.2)
+    assert ssim(a.double(), b.double()).item() == pytest.approx(naive_ssim(a, b), abs=1e-9)
+    assert ssim(a, b).item() == pytest.approx(naive_ssim(a, b), abs=1e-5)
+
+
+def test_ssim_batched_and_grad():
+    a, b = images()
+    a2, b2 = images(seed=1)
+    batch = ssim(torch.stack([a, a2]), torch.stack([b, b2]))
+    assert batch.item() == pytest.approx((ssim(a, b).item() + ssim(a2, b2).item()) / 2, abs=1e-6)
+    assert ssim_map(a, b).shape == (1, 16, 20, 3)
+    p = a.clone().requires_grad_(True)
+    photometric_loss(p, b).backward()
+    assert p.grad is not None and torch.isfinite(p.grad).all()
+
+
+def test_photometric_loss_formula():
+    a, b = images()
+    lam = 0.2
+    expect = (1 - lam) * (a - b).abs().mean() + lam * (1 - ssim(a, b))
+    assert photometric_loss(a, b, lam).item() == pytest.approx(expect.item(), rel=1e-6)
+    assert photometric_loss(a, a).item() == pytest.approx(0.0, abs=1e-6)
+    mask = torch.ones(16, 20, 1)
+    assert photometric_loss(a, b, lam, mask).item() == pytest.approx(expect.item(), rel=1e-5)
+
+
+# ------------------------------------------------------------------ metrics
+def test_psnr_identical_is_inf_and_known_mse():
+    a, _ = images()
+    assert psnr(a, a) == math.inf
+    b = (a + 0.1).clamp(max=10)  # MSE exactly 0.01
+    assert psnr(a, b) == pytest.approx(20.0, abs=1e-4)
+
+
+def test_masked_psnr_ignores_background():
+    a = torch.full((8, 8, 3), 0.5)
+    b = a.clone()
+    b[:, 4:] = 0.0  # background differs wildly
+    b[:, :4] += 0.1  # foreground MSE 0.01
+    mask = torch.zeros(8, 8, 1, dtype=torch.bool)
+    mask[:, :4] = True
+    assert psnr(a, b, mask) == pytest.approx(20.0, abs=1e-4)
+    assert psnr(a, b) < 20.0
+    with pytest.raises(ValueError):
+        psnr(a, b, torch.zeros(8, 8, 1))
+
+
+def test_masked_ssim_composites_white():
+    a, b = images()
+    mask = torch.zeros(16, 20, 1)
+    mask[4:12, 5:15] = 1
+    b2 = b.clone()
+    b2[mask[..., 0] == 0] = torch.rand(int((mask == 0).sum()), 3)  # background noise ignored
+    assert ssim_metric(a, b, mask) == pytest.approx(ssim_metric(a, b2, mask), abs=1e-7)
+    assert ssim_metric(a, a, mask) == pytest.approx(1.0, abs=1e-6)
+    assert ssim_metric(a, b) == pytest.approx(ssim(a, b).item(), abs=1e-7)
+
+
+def test_avg_metric_formula():
+    # psnr 20 -> mse 0.01; ssim 0.96 -> sqrt(0.04) = 0.2; lpips 0.5 -> geometric mean (0.001)^(1/3) = 0.1
+    assert avg_metric(20.0, 0.96, 0.5) == pytest.approx(0.1)
+    assert avg_metric(20.0, 0.96, None) is None
+    assert avg_metric(math.inf, 1.0, 0.0) == 0.0
+
+
+def test_lpips_availability_reported():
+    ok, why = LPIPSMetric.available()
+    if ok:
+        a, b = images(h=64, w=64)
+        m = LPIPSMetric()
+        assert m.compute(a, a) == pytest.approx(0.0, abs=1e-4)
+        assert m.compute(a, b) > m.compute(a, a)
+        out = evaluate_images(a, b, lpips=m)
+        assert out["lpips"] is not None and out["avg"] is not None
+    else:
+        assert why
+        with pytest.raises(RuntimeError, match="LPIPS unavailable"):
+            LPIPSMetric().compute(*images())
+        out = evaluate_images(*images(), lpips=LPIPSMetric())
+        assert out["lpips"] is None and out["avg"] is None
+
+
+def test_lpips_unavailable_without_backbone(monkeypatch, tmp_path):
+    """Even with both packages importable, a missing VGG file means unavailable (no download)."""
+    real = metrics.importlib.util.find_spec
+    pkg = tmp_path / "lpips"
+    (pkg / "weights" / "v0.1").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("raise ImportError('must not be imported')")
+    (pkg / "weights" / "v0.1" / "vgg.pth").write_bytes(b"")
+
+    class Spec:
+        origin = str(pkg / "__init__.py")
+
+    monkeypatch.setattr(
+        metrics.importlib.util, "find_spec", lambda n: Spec() if n in ("lpips", "torchvision") else real(n)
+    )
+    monkeypatch.setattr(metrics.torch.hub, "get_dir", lambda: str(tmp_path / "hub"))
+    ok, why = LPIPSMetric.available()
+    assert not ok and "VGG16" in why
+    (tmp_path / "hub" / "checkpoints").mkdir(parents=True)
+    (tmp_path / "hub" / "checkpoints" / metrics.VGG16_FILE).write_bytes(b"")
+    assert LPIPSMetric.available() == (True, "")
+
+
+def test_evaluate_images_keys():
+    a, b = images()
+    out = evaluate_images(a, b)
+    assert set(out) == {"psnr", "ssim", "lpips", "avg"}
+    assert out["lpips"] is None and out["avg"] is None
+    assert out["psnr"] == pytest.approx(psnr(a, b)) and out["ssim"] == pytest.approx(ssim_metric(a, b))

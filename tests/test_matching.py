@@ -1,0 +1,394 @@
+"""Tests of the SCGaussian matching prior (src/scg_plugin/matching.py, cli_match.py)."""
+
+from __future__ import annotations
+
+import time
+import warnings
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from scg_plugin import matching as M
+from scg_plugin.matching import (
+    MATCHERS,
+    MatchConfig,
+    MatchSet,
+    MissingWeightsError,
+    balanced_sample,
+    compute_matches,
+    draw_matches,
+    epipolar_distance,
+    fundamental_from_cameras,
+    get_matcher,
+    magsac_inliers,
+)
+from splat_framework.cameras import Camera, intrinsics, look_at
+
+W, H = 320, 240
+FERN = Path(__file__).resolve().parents[2] / "shared" / "data" / "llff" / "fern"
+
+
+# ------------------------------------------------------------ synthetic scene
+def _texture(tw: int, th: int, seed: int = 0) -> np.ndarray:
+    """Fractal noise + checker + text, float32 RGB [th, tw, 3] in [0, 1]."""
+    rng = np.random.default_rng(seed)
+    img = np.zeros((th, tw, 3), np.float32)
+    amp = 1.0
+    for octave in range(2, 8):
+        n = 2**octave
+        small = rng.random((n, n, 3)).astype(np.float32)
+        img += amp * cv2.resize(small, (tw, th), interpolation=cv2.INTER_CUBIC)
+        amp *= 0.6
+    img = (img - img.min()) / (img.max() - img.min())
+    ys, xs = np.mgrid[0:th, 0:tw]
+    checker = (((xs // 24) + (ys // 24)) % 2).astype(np.float32)
+    img8 = np.clip((0.6 * img + 0.25 * checker[..., None]) * 255, 0, 255).astype(np.uint8)
+    for k in range(14):  # OpenCV 5 draws text on 8-bit images only
+        org = (int(rng.integers(0, tw - 120)), int(rng.integers(20, th)))
+        col = tuple(int(c) for c in rng.integers(0, 256, 3))
+        cv2.putText(img8, f"SCG{k}", org, cv2.FONT_HERSHEY_SIMPLEX, 0.9, col, 2, cv2.LINE_AA)
+    return img8.astype(np.float32) / 255.0
+
+
+def _tex_to_image(cam: Camera, tw: int, th: int, s: float, d: float) -> np.ndarray:
+    """Homography (continuous coords) from texture pixels to image pixels; plane z = d."""
+    Mw = np.array([[s, 0, -s * tw / 2], [0, s, -s * th / 2], [0, 0, d]])  # texture (u, v, 1) -> world
+    T = cam.world_to_cam.double().numpy()
+    R, t = T[:3, :3], T[:3, 3]
+    return cam.K.double().numpy() @ (R @ Mw + np.outer(t, [0, 0, 1]))
+
+
+def _render(tex: np.ndarray, Hc: np.ndarray) -> np.ndarray:
+    shift = lambda a: np.array([[1, 0, a], [0, 1, a], [0, 0, 1]], np.float64)  # noqa: E731
+    Hi = shift(-0.5) @ Hc @ shift(0.5)  # OpenCV pixel centres are integers
+    return cv2.warpPerspective(tex, Hi, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+
+
+def _camera(eye, d: float) -> Camera:
+    w2c = look_at(torch.tensor(eye, dtype=torch.float64), torch.tensor([0.1, 0.05, d]), torch.tensor([0.0, -1.0, 0.0]))
+    return Camera(K=intrinsics(280.0, 280.0, W / 2, H / 2), world_to_cam=w2c.float(), width=W, height=H, near=1.0, far=10.0)
+
+
+@pytest.fixture(scope="module")
+def plane_scene():
+    d, tw, th = 4.0, 900, 700
+    s = d / 280.0  # ~1 texture pixel per image pixel
+    tex = _texture(tw, th)
+    cam_a, cam_b = _camera([0.0, 0.0, 0.0], d), _camera([0.45, -0.12, 0.3], d)
+    Ha, Hb = _tex_to_image(cam_a, tw, th, s, d), _tex_to_image(cam_b, tw, th, s, d)
+    img_a, img_b = _render(tex, Ha), _render(tex, Hb)
+    H_ab = Hb @ np.linalg.inv(Ha)
+    return img_a, img_b, cam_a, cam_b, H_ab
+
+
+def _apply_h(Hm: np.ndarray, p: np.ndarray) -> np.ndarray:
+    x = np.c_[p, np.ones(len(p))] @ Hm.T
+    return x[:, :2] / x[:, 2:]
+
+
+def _two_view_cloud(n: int = 600, seed: int = 1):
+    """Non-planar random points seen by two cameras: exact correspondences + F."""
+    rng = np.random.default_rng(seed)
+    cam_a, cam_b = _camera([0.0, 0.0, 0.0], 4.0), _camera([0.5, -0.1, 0.2], 4.0)
+    pts = torch.tensor(np.c_[rng.uniform(-1.5, 1.5, (n, 2)), rng.uniform(3.0, 6.0, n)])
+    pa, _ = cam_a.project(pts)
+    pb, _ = cam_b.project(pts)
+    pa, pb = pa.numpy().astype(np.float32), pb.numpy().astype(np.float32)
+    ok = (pa[:, 0] > 0) & (pa[:, 0] < W) & (pa[:, 1] > 0) & (pa[:, 1] < H)
+    ok &= (pb[:, 0] > 0) & (pb[:, 0] < W) & (pb[:, 1] > 0) & (pb[:, 1] < H)
+    return pa[ok], pb[ok], cam_a, cam_b
+
+
+# ------------------------------------------------------------ matchers
+@pytest.mark.parametrize("name", ["sift", "dense"])
+def test_matcher_accuracy_on_plane(plane_scene, name):
+    img_a, img_b, cam_a, cam_b, H_ab = plane_scene
+    cfg = MatchConfig(matcher=name, max_matches=2000)
+    ms = compute_matches([img_a, img_b], [cam_a, cam_b], [0, 1], cfg)
+    pa, pb = ms.get(0, 1)
+    assert pa.dtype == np.float32 and pa.shape == pb.shape and pa.shape[1] == 2
+    assert len(pa) >= 100, ms.stats
+    err = np.linalg.norm(_apply_h(H_ab, pa.astype(np.float64)) - pb, axis=1)
+    assert np.median(err) < 1.5, (name, np.median(err))
+    assert np.mean(err < 3.0) > 0.95
+    assert ms.stats[(0, 1)]["final"] == len(pa) <= 2000
+
+
+def test_raw_matcher_output_convention(plane_scene):
+    """Raw matcher outputs obey the +0.5 convention (error small without any offset)."""
+    img_a, img_b, *_, H_ab = plane_scene
+    for name in ["sift", "dense"]:
+        pa, pb = get_matcher(name).match(img_a, (img_b * 255).astype(np.uint8))
+        assert pa.dtype == np.float32 and pb.dtype == np.float32
+        err = np.linalg.norm(_apply_h(H_ab, pa.astype(np.float64)) - pb, axis=1)
+        assert np.median(err) < 0.6, (name, np.median(err))
+
+
+def test_registry_and_config():
+    assert {"sift", "dense", "loftr", "disk-lightglue"} <= set(MATCHERS)
+    assert MatchConfig().matcher == "dense"
+    with pytest.raises(KeyError):
+        get_matcher("nope")
+    with pytest.raises(ValueError):
+        MatchConfig(matcher="nope")
+    with pytest.raises(ValueError):
+        MatchConfig(bogus=1)
+    assert all(f.description for f in MatchConfig.model_fields.values())
+
+
+# ------------------------------------------------------------ verification
+def test_magsac_removes_injected_outliers():
+    pa, pb, *_ = _two_view_cloud()
+    rng = np.random.default_rng(3)
+    pa = pa + rng.normal(0, 0.2, pa.shape).astype(np.float32)
+    n_out = len(pa) // 3
+    oa = rng.uniform([0, 0], [W, H], (n_out, 2)).astype(np.float32)
+    ob = rng.uniform([0, 0], [W, H], (n_out, 2)).astype(np.float32)
+    mask, F = magsac_inliers(np.r_[pa, oa], np.r_[pb, ob], threshold=1.0)
+    assert F is not None
+    assert mask[: len(pa)].mean() > 0.9
+    assert mask[len(pa):].mean() < 0.05
+
+
+def test_too_few_matches_is_graceful():
+    mask, F = magsac_inliers(np.zeros((5, 2)), np.zeros((5, 2)))
+    assert F is None and mask.shape == (5,) and not mask.any()
+    pa, pb, counts, warn = M.verify_pair(np.ones((3, 2)), np.ones((3, 2)), MatchConfig())
+    assert pa.shape == (0, 2) and warn and counts["raw"] == 3
+
+
+def test_empty_pair_in_matchset(monkeypatch):
+    class Few:
+        name = "few"
+
+        @classmethod
+        def from_config(cls, config):
+            return cls()
+
+        def match(self, a, b):
+            return np.ones((4, 2), np.float32), np.ones((4, 2), np.float32)
+
+    monkeypatch.setitem(MATCHERS, "few", Few)
+    img = np.zeros((16, 16, 3), np.float32)
+    with pytest.warns(UserWarning, match="pair left empty"):
+        ms = compute_matches([img, img, img], None, [5, 2, 9], MatchConfig(matcher="few"))
+    assert ms.pairs() == [(2, 5), (2, 9), (5, 9)]
+    assert ms.total() == 0 and ms.n_warnings == 3
+
+
+def test_fundamental_from_cameras_is_consistent():
+    pa, pb, cam_a, cam_b = _two_view_cloud()
+    F = fundamental_from_cameras(cam_a, cam_b)
+    assert np.max(epipolar_distance(pa, pb, F)) < 1e-3
+
+
+def test_epipolar_check_rejects_off_line_matches():
+    pa, pb, cam_a, cam_b = _two_view_cloud()
+    F = fundamental_from_cameras(cam_a, cam_b)
+    lines = np.c_[pa, np.ones(len(pa))] @ F.T
+    nrm = lines[:, :2] / np.linalg.norm(lines[:, :2], axis=1, keepdims=True)
+    along = np.c_[-nrm[:, 1], nrm[:, 0]]
+    k = len(pa) // 2
+    pb2 = pb.copy()
+    pb2[:k] += 6.0 * nrm[:k]  # off the epipolar line: must go
+    pb2[k:] += 6.0 * along[k:]  # along it: must stay
+    d = epipolar_distance(pa, pb2, F)
+    assert np.all(d[:k] > 2.0) and np.all(d[k:] < 0.1)
+    cfg = MatchConfig(magsac_threshold=50.0, epipolar_threshold=2.0)  # MAGSAC ~ keeps all
+    out_a, out_b, counts, warn = M.verify_pair(pa, pb2, cfg, F)
+    kept = {tuple(p) for p in np.round(out_a, 3)}
+    assert not any(tuple(p) in kept for p in np.round(pa[:k], 3))
+    assert counts["epipolar"] <= len(pa) - k
+    off = M.verify_pair(pa, pb2, cfg.model_copy(update={"epipolar_check": False}), F)
+    assert off[2]["epipolar"] == off[2]["magsac"]
+
+
+# ------------------------------------------------------------ sampler
+def test_balanced_sample_deterministic_and_balanced():
+    rng = np.random.default_rng(0)
+    cluster = rng.normal([50, 50], 3, (5000, 2))
+    uniform = rng.uniform([0, 0], [W, H], (2000, 2))
+    pts = np.r_[cluster, uniform].clip(0, [W - 1e-3, H - 1e-3])
+    a = balanced_sample(pts, 1000, W, H, cell=16, seed=4)
+    b = balanced_sample(pts, 1000, W, H, cell=16, seed=4)
+    c = balanced_sample(pts, 1000, W, H, cell=16, seed=5)
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+    assert len(a) == 1000 and len(np.unique(a)) == 1000
+    cid = lambda p: (p[:, 1] // 16).astype(int) * 100 + (p[:, 0] // 16).astype(int)  # noqa: E731
+    _, counts_all = np.unique(cid(pts), return_counts=True)
+    k = next(k for k in range(1, 10000) if np.minimum(counts_all, k).sum() >= 1000)
+    _, counts_sel = np.unique(cid(pts[a]), return_counts=True)
+    assert counts_sel.max() <= k
+    assert np.mean(a < 5000) < 0.2  # the cluster (71% of points) no longer dominates
+    assert np.array_equal(balanced_sample(pts[:10], 1000), np.arange(10))
+
+
+# ------------------------------------------------------------ MatchSet + cache
+def _toy_set() -> MatchSet:
+    rng = np.random.default_rng(0)
+    m = {(1, 10): (rng.random((5, 2), np.float32), rng.random((5, 2), np.float32)),
+         (1, 19): (np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32)),
+         (10, 19): (rng.random((3, 2), np.float32), rng.random((3, 2), np.float32))}
+    return MatchSet(view_ids=[1, 10, 19], matches=m, image_sizes={1: (8, 6), 10: (8, 6), 19: (8, 6)},
+                    warnings={(1, 19): "only 2 raw matches"}, stats={(1, 10): {"raw": 9, "final": 5}},
+                    meta={"x": 1})
+
+
+def test_matchset_roundtrip(tmp_path):
+    ms = _toy_set()
+    ms.save(tmp_path / "m.npz")
+    assert [p.name for p in tmp_path.iterdir()] == ["m.npz"]  # no temp file left
+    ld = MatchSet.load(tmp_path / "m.npz")
+    assert ld.view_ids == [1, 10, 19] and ld.pairs() == ms.pairs()
+    for p in ms.pairs():
+        for x, y in zip(ms.matches[p], ld.matches[p]):
+            assert x.dtype == y.dtype == np.float32 and np.array_equal(x, y)
+    assert ld.summary() == {(1, 10): 5, (1, 19): 0, (10, 19): 3} and ld.total() == 8
+    assert ld.warnings == ms.warnings and ld.stats == ms.stats and ld.image_sizes == ms.image_sizes
+    b, a = ld.get(10, 1)
+    assert np.array_equal(a, ms.matches[(1, 10)][0]) and np.array_equal(b, ms.matches[(1, 10)][1])
+    flat = ld.concatenated()
+    assert flat["pix_a"].shape == (8, 2) and list(flat["view_b"]) == [10] * 5 + [19] * 3
+
+
+def test_cache_hit_invalidation_and_corruption(tmp_path, monkeypatch, plane_scene):
+    img_a, img_b, cam_a, cam_b, _ = plane_scene
+    calls = []
+
+    class Counting(M.SiftMatcher):
+        def match(self, a, b):
+            calls.append(1)
+            return super().match(a, b)
+
+    monkeypatch.setitem(MATCHERS, "sift", Counting)
+    cfg = MatchConfig(matcher="sift", max_matches=500)
+    ms1 = compute_matches([img_a, img_b], [cam_a, cam_b], [0, 1], cfg, cache_dir=tmp_path)
+    ms2 = compute_matches([img_a, img_b], [cam_a, cam_b], [0, 1], cfg, cache_dir=tmp_path)
+    assert len(calls) == 1 and ms2.meta["cache_hit"] and not ms1.meta["cache_hit"]
+    assert np.array_equal(ms1.get(0, 1)[0], ms2.get(0, 1)[0])
+    changed = img_b.copy()
+    changed[0, 0, 0] += 0.01
+    compute_matches([img_a, changed], [cam_a, cam_b], [0, 1], cfg, cache_dir=tmp_path)
+    assert len(calls) == 2
+    compute_matches([img_a, img_b], [cam_a, cam_b], [0, 1], cfg.model_copy(update={"seed": 3}), cache_dir=tmp_path)
+    assert len(calls) == 3
+    # corrupt the first cache file: ignored with a warning, recomputed and rewritten
+    path = tmp_path / f"matches-{M.cache_key([img_a, img_b], [cam_a, cam_b], [0, 1], cfg)[:24]}.npz"
+    path.write_bytes(b"not an npz")
+    with pytest.warns(UserWarning, match="unreadable match cache"):
+        ms3 = compute_matches([img_a, img_b], [cam_a, cam_b], [0, 1], cfg, cache_dir=tmp_path)
+    assert len(calls) == 4 and ms3.total() == ms1.total()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        compute_matches([img_a, img_b], [cam_a, cam_b], [0, 1], cfg, cache_dir=tmp_path)
+    assert len(calls) == 4
+
+
+def test_draw_matches(tmp_path, plane_scene):
+    img_a, img_b, *_ = plane_scene
+    pts = np.random.default_rng(0).uniform([0, 0], [W, H], (500, 2)).astype(np.float32)
+    out = draw_matches(img_a, img_b, pts, pts, tmp_path / "sub" / "m.png", max_lines=50)
+    pic = cv2.imread(str(out))
+    assert pic.shape == (H, 2 * W, 3)
+    draw_matches(img_a, img_b, pts[:0], pts[:0], tmp_path / "empty.png")
+
+
+# ------------------------------------------------------------ learned matchers
+def test_missing_weights_errors(tmp_path, monkeypatch):
+    monkeypatch.setattr(M, "hub_checkpoint_dir", lambda: tmp_path / "hub")
+    with pytest.raises(MissingWeightsError, match="loftr_outdoor.ckpt") as e:
+        get_matcher("loftr")
+    assert "\n" not in str(e.value) and "--weights" in str(e.value)
+    with pytest.raises(MissingWeightsError, match="nope.ckpt"):
+        get_matcher("loftr", weights=tmp_path / "nope.ckpt")
+    with pytest.raises(MissingWeightsError, match="depth-save.pth"):
+        get_matcher("disk-lightglue", weights=tmp_path)
+    with pytest.raises(MissingWeightsError, match="loftr_outdoor.ckpt"):
+        compute_matches([np.zeros((8, 8, 3))] * 2, None, [0, 1], MatchConfig(matcher="loftr"))
+
+
+def _tiny_pair() -> tuple[np.ndarray, np.ndarray]:
+    tex = _texture(160, 120, seed=2)
+    return tex[20:84, 30:94].copy(), tex[24:88, 34:98].copy()
+
+
+def test_loftr_plumbing_random_weights(tmp_path):
+    import kornia.feature as KF
+
+    torch.manual_seed(0)
+    torch.save({"state_dict": KF.LoFTR(pretrained=None).state_dict()}, tmp_path / "loftr_outdoor.ckpt")
+    t0 = time.perf_counter()
+    m = get_matcher("loftr", weights=tmp_path)  # folder holding the file
+    a, b = _tiny_pair()
+    pa, pb = m.match(a, b)
+    if time.perf_counter() - t0 > 20:
+        pytest.skip("LoFTR too slow on this CPU")
+    assert pa.dtype == pb.dtype == np.float32 and pa.shape == pb.shape and pa.ndim == 2 and pa.shape[1] == 2
+    assert np.all((pa >= 0) & (pa <= 64))
+
+
+def test_disk_lightglue_plumbing_random_weights(tmp_path):
+    import kornia.feature as KF
+
+    torch.manual_seed(0)
+    torch.save({"extractor": KF.DISK().state_dict()}, tmp_path / "depth-save.pth")
+    torch.save(KF.LightGlue(None, input_dim=128).state_dict(), tmp_path / "disk_lightglue.pth")
+    t0 = time.perf_counter()
+    m = get_matcher("disk-lightglue", weights=tmp_path, max_keypoints=128)
+    a, b = _tiny_pair()
+    pa, pb = m.match(a, b)
+    if time.perf_counter() - t0 > 20:
+        pytest.skip("DISK + LightGlue too slow on this CPU")
+    assert pa.dtype == pb.dtype == np.float32 and pa.shape == pb.shape and pa.ndim == 2 and pa.shape[1] == 2
+
+
+# ------------------------------------------------------------ CLI logic
+def test_cli_run_matching(tmp_path, plane_scene):
+    from scg_plugin.cli_match import run_matching
+
+    img_a, img_b, cam_a, cam_b, _ = plane_scene
+    ms = run_matching([img_a, img_b, img_a], [cam_a, cam_b, cam_a], [3, 7, 9],
+                      MatchConfig(matcher="sift", max_matches=300), tmp_path / "out")
+    names = sorted(p.name for p in (tmp_path / "out").iterdir() if p.is_file())
+    assert names == ["matches.npz", "matches_3_7.png", "matches_3_9.png", "matches_7_9.png"]
+    assert MatchSet.load(tmp_path / "out" / "matches.npz").summary() == ms.summary()
+
+
+# ------------------------------------------------------------ fern integration
+def _fern_views(ids: list[int]):
+    pb = np.load(FERN / "poses_bounds.npy")
+    files = sorted((FERN / "images_8").glob("*.png"))
+    images, cams = [], []
+    for i in ids:
+        img = cv2.cvtColor(cv2.imread(str(files[i])), cv2.COLOR_BGR2RGB).astype(np.float32) / 255.0
+        h, w = img.shape[:2]
+        P = pb[i, :15].reshape(3, 5)
+        f = P[2, 4] * w / P[1, 4]
+        c2w = np.eye(4)
+        c2w[:3, :3] = np.stack([P[:, 1], P[:, 0], -P[:, 2]], axis=1)
+        c2w[:3, 3] = P[:, 3]
+        cams.append(Camera(K=intrinsics(f, f, w / 2, h / 2), world_to_cam=torch.tensor(np.linalg.inv(c2w), dtype=torch.float32),
+                           width=w, height=h, near=float(pb[i, 15]), far=float(pb[i, 16])))
+        images.append(img)
+    return images, cams
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize("name,minimum", [("dense", 500), ("sift", 200)])
+def test_fern_integration(name, minimum):
+    if not (FERN / "images_8").is_dir() or not (FERN / "poses_bounds.npy").is_file():
+        pytest.skip(f"fern data absent at {FERN}")
+    ids = [1, 10, 19]
+    images, cams = _fern_views(ids)
+    t0 = time.perf_counter()
+    ms = compute_matches(images, cams, ids, MatchConfig(matcher=name))
+    dt = time.perf_counter() - t0
+    print(f"\nfern {name}: {ms.summary()} in {dt:.2f} s; stages {ms.stats}")
+    for p, n in ms.summary().items():
+        assert n >= minimum, (p, n, ms.stats[p])
+        pa, pb = ms.get(*p)
+        F = fundamental_from_cameras(cams[ids.index(p[0])], cams[ids.index(p[1])])
+        assert np.median(epipolar_distance(pa, pb, F)) < 1.0

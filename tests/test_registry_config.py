@@ -1,0 +1,142 @@
+"""Method registry, config variants and the training CLI's argument handling (no training)."""
+
+import subprocess
+import sys
+import time
+import warnings
+from importlib.metadata import EntryPoint
+from pathlib import Path
+
+import pytest
+from pydantic import ValidationError
+
+from splat_framework import registry
+from splat_framework.config import (
+    DensifyConfig,
+    SplatConfig,
+    TrainConfig,
+    apply_overrides,
+    read_config_json,
+    resolve_steps,
+    save_config,
+)
+from splat_framework.errors import DataError
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _fake_eps(monkeypatch, eps):
+    monkeypatch.setattr(registry, "entry_points", lambda group: [e for e in eps if e.group == group])
+
+
+def test_builtins_and_plugin_registered_through_entry_points():
+    methods = registry.discover_methods()
+    for name in ("3dgs", "3dgs-triang", "scgaussian", "scgaussian-single-stage", "scgaussian-hybrid",
+                 "scgaussian-hybrid-rg", "scgaussian-hybrid-rg-dual", "scgaussian-only-ray",
+                 "scgaussian-only-nonstructure"):
+        assert name in methods, name
+        cfg = methods[name].default_config()
+        assert cfg.method == name  # variants never share a method name (no colliding outputs)
+
+
+def test_broken_plugin_warns_instead_of_killing_the_cli(monkeypatch):
+    eps = [
+        EntryPoint("3dgs", "splat_framework.methods.gaussian_splatting:spec_3dgs", registry.ENTRY_POINT_GROUP),
+        EntryPoint("broken", "no_such_module_xyz:spec", registry.ENTRY_POINT_GROUP),
+    ]
+    _fake_eps(monkeypatch, eps)
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        methods = registry.discover_methods(config_dirs=[])
+    assert list(methods) == ["3dgs"]
+    assert any("broken" in str(x.message) and "failed to import" in str(x.message) for x in w)
+
+
+def test_variant_files_override_base(tmp_path, monkeypatch):
+    eps = [EntryPoint("3dgs", "splat_framework.methods.gaussian_splatting:spec_3dgs", registry.ENTRY_POINT_GROUP)]
+    _fake_eps(monkeypatch, eps)
+    (tmp_path / "small.toml").write_text('base = "3dgs"\ndescription = "d"\n[overrides.model]\nsh_degree = 1\n')
+    (tmp_path / "smaller.toml").write_text('base = "small"\n[overrides.strategy]\nenabled = false\n')
+    (tmp_path / "orphan.toml").write_text('base = "nope"\n')
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        methods = registry.discover_methods(config_dirs=[tmp_path])
+    assert "orphan" not in methods and any("orphan" in str(x.message) for x in w)
+    c = methods["smaller"].default_config()
+    assert c.model.sh_degree == 1 and c.strategy.enabled is False and c.method == "smaller"
+    assert methods["3dgs"].default_config().model.sh_degree == 3
+
+
+def test_bad_override_names_the_field():
+    with pytest.raises(ValidationError, match="no_such_field"):
+        apply_overrides(TrainConfig(), {"model": {"no_such_field": 1}})
+    with pytest.raises(ValidationError, match="sh_degree"):
+        apply_overrides(TrainConfig(), {"model": {"sh_degree": 7}})
+
+
+def test_every_config_field_has_a_docstring():
+    from scg_plugin.config import SCGTrainConfig, TriangTrainConfig
+
+    def check(cls):
+        for name, f in cls.model_fields.items():
+            assert f.description, f"{cls.__name__}.{name} has no docstring"
+            ann = f.annotation
+            if isinstance(ann, type) and issubclass(ann, SplatConfig):
+                check(ann)
+
+    for cls in (TrainConfig, SCGTrainConfig, TriangTrainConfig):
+        check(cls)
+
+
+def test_steps_rescale_the_whole_schedule():
+    from scg_plugin.method import config_scgaussian
+
+    c = resolve_steps(config_scgaussian().model_copy(update={"steps": 300}))
+    assert c.total_steps == 300
+    assert c.strategy.refine_start_iter == 50 and c.strategy.refine_stop_iter == 250
+    assert c.model.warmup_steps == 200 and c.model.sh_degree_interval == 50
+    assert c.checkpoint_every == 100
+    same = resolve_steps(TrainConfig())
+    assert same.strategy.refine_stop_iter == DensifyConfig().refine_stop_iter
+
+
+def test_config_json_roundtrip_with_schema_version(tmp_path):
+    from scg_plugin.method import config_scgaussian
+
+    cfg = config_scgaussian()
+    save_config(cfg, tmp_path / "config.json")
+    method, raw = read_config_json(tmp_path / "config.json")
+    assert method == "scgaussian"
+    assert type(cfg).model_validate(raw) == cfg
+    (tmp_path / "old.json").write_text('{"schema_version": 0, "config": {}}')
+    with pytest.raises(DataError, match="schema version"):
+        read_config_json(tmp_path / "old.json")
+
+
+def test_help_is_fast_and_lists_methods():
+    t0 = time.perf_counter()
+    r = subprocess.run([sys.executable, "-m", "splat_framework.cli.train", "--help"], capture_output=True, text=True, timeout=60)
+    elapsed = time.perf_counter() - t0
+    assert r.returncode == 0
+    assert "scgaussian" in r.stdout and "3dgs-triang" in r.stdout
+    assert "import" not in r.stderr
+    assert elapsed < 5.0  # < 2 s on an idle machine; generous under CI load
+    r = subprocess.run([sys.executable, "-c", "import sys, splat_framework.cli.train as t; t.build_parser_type(); print('torch' in sys.modules)"], capture_output=True, text=True, timeout=60)
+    assert r.stdout.strip() == "False"  # building --help never imports torch
+
+
+def test_method_help_shows_field_docstrings():
+    r = subprocess.run([sys.executable, "-m", "splat_framework.cli.train", "scgaussian", "--help"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0
+    for flag in ("--data", "--views", "--downscale", "--steps", "--output", "--seed", "--device", "--model.lambda-rg"):
+        assert flag in r.stdout, flag
+    assert "rendering-geometry" in r.stdout
+
+
+def test_bad_cli_values_exit_2_with_one_line(tmp_path):
+    r = subprocess.run(
+        [sys.executable, "-m", "splat_framework.cli.train", "3dgs", "--data", str(tmp_path / "missing"), "--output", str(tmp_path / "run")],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.strip().count("\n") == 0 and "missing" in r.stderr and "Traceback" not in r.stderr
