@@ -429,3 +429,21 @@ def test_scene_extent(tmp_path):
     assert scene.scene_radius == pytest.approx(1.1 * np.linalg.norm(centers - mean, axis=1).max(), rel=1e-5)
     one = load_scene(make_llff(tmp_path / "s1", 10), views=1)
     assert one.scene_radius > 0  # single camera -> near-based fallback
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["forward-tiny", "object-tiny"])
+def test_matches_synthetic_generator_cameras(tmp_path, name):
+    """Parsed cameras equal the exact cameras the built-in generator wrote (cameras.json)."""
+    synthetic = pytest.importorskip("splat_framework.data.synthetic")
+    root = synthetic.ensure_scene(name, cache_dir=tmp_path)
+    scene = load_scene(root, downscale=1)
+    exact = {v["image"]: v for v in json.loads((root / "cameras.json").read_text())["views"]}
+    assert scene.depth_paths is not None
+    for cam, path in zip(scene.cameras, scene.image_paths):
+        v = exact[path.relative_to(root).as_posix()]
+        assert (cam.width, cam.height) == (v["width"], v["height"])
+        assert torch.allclose(cam.K, torch.tensor(v["K"], dtype=torch.float32), atol=1e-4)
+        assert torch.allclose(cam.world_to_cam, torch.tensor(v["world_to_cam"], dtype=torch.float32), atol=1e-5)
+        if scene.format == "llff":
+            assert cam.near == pytest.approx(v["near"]) and cam.far == pytest.approx(v["far"])

@@ -145,14 +145,14 @@ def _loss_weights(h, w, seed, dtype):
 
 
 def _compare(n, seed, width, height, dtype, sh_k=None, sh_degree=None, tile_size=16, block=32,
-             fwd_tol=1e-4, grad_rtol=1e-6, **cam):
+             chunk_pairs=None, fwd_tol=1e-4, grad_rtol=1e-6, **cam):
     viewmat, K = make_camera(width, height, dtype=dtype, **cam)
     params = [p.requires_grad_() for p in random_scene(n, seed, dtype=dtype, sh_k=sh_k)]
     bg = torch.tensor([0.2, 0.5, 0.9], dtype=dtype)
     wr, wd, wa = _loss_weights(height, width, seed + 1, dtype)
 
     out = rasterize(*params, viewmat, K, width, height, sh_degree=sh_degree, background=bg,
-                    tile_size=tile_size, block=block)
+                    tile_size=tile_size, block=block, chunk_pairs=chunk_pairs)
     loss = (out.rgb * wr).sum() + 0.1 * (out.depth * wd).sum() + (out.alpha * wa).sum()
     grads = torch.autograd.grad(loss, params)
 
@@ -176,9 +176,9 @@ def test_matches_bruteforce_float64(seed):
     _compare(40, seed, 37, 29, torch.float64)
 
 
-def test_matches_bruteforce_small_tiles_small_blocks():
-    # many rounds, termination across rounds, tile size 8
-    _compare(60, 3, 33, 26, torch.float64, tile_size=8, block=4)
+def test_matches_bruteforce_small_tiles_small_blocks_many_chunks():
+    # many rounds and depth chunks, termination across rounds and chunks, tile size 8
+    _compare(60, 3, 33, 26, torch.float64, tile_size=8, block=4, chunk_pairs=16)
 
 
 def test_matches_bruteforce_float32():
@@ -204,9 +204,11 @@ def test_early_termination_dense_opaque_scene():
                                                      scale=(-1.0, 0.2))
     opac = 0.7 + 0.29 * torch.rand(80, generator=torch.Generator().manual_seed(0), dtype=dtype)
     params = [p.requires_grad_() for p in (means, quats, scales, opac, colors)]
-    out = rasterize(*params, viewmat, K, width, height, block=8)
+    out = rasterize(*params, viewmat, K, width, height, block=8, tile_size=8, chunk_pairs=30)
     rgb, depth, alpha = reference_render(*params, viewmat, K, width, height)
     assert (1 - alpha).min() < 1e-3  # termination actually happens
+    out1 = rasterize(*params, viewmat, K, width, height)  # single chunk
+    torch.testing.assert_close(out1.rgb, out.rgb)
     torch.testing.assert_close(out.rgb, rgb, atol=1e-6, rtol=0)
     torch.testing.assert_close(out.depth, depth, atol=1e-6, rtol=1e-6)
     wr, wd, wa = _loss_weights(height, width, 3, dtype)
@@ -373,7 +375,8 @@ def test_tile_and_block_settings_agree():
     viewmat, K = make_camera(width, height, dtype=torch.float64)
     params = random_scene(80, 13, dtype=torch.float64)
     ref = rasterize(*params, viewmat, K, width, height)
-    for ts, blk in [(8, 16), (16, 1), (32, 64)]:
-        out = rasterize(*params, viewmat, K, width, height, tile_size=ts, block=blk)
+    for ts, blk, cp in [(8, 16, None), (16, 1, 5), (32, 64, 1), (8, 3, 40)]:
+        out = rasterize(*params, viewmat, K, width, height, tile_size=ts, block=blk,
+                        chunk_pairs=cp)
         torch.testing.assert_close(out.rgb, ref.rgb)
         torch.testing.assert_close(out.depth, ref.depth)

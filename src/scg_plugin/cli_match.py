@@ -16,7 +16,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import tyro
 
@@ -38,14 +38,14 @@ class MatchArgs:
     out: Path
     """Output folder: matches.npz and one matches_i_j.png per pair."""
 
-    views: int | None = 3
-    """Number of training views (few-shot split); None keeps the parser's default split."""
+    views: int | Literal["all"] = 3
+    """Number of training views (the dataset's few-shot split), or "all"."""
 
     cache_dir: Path | None = None
     """Match cache folder (default: <out>/cache)."""
 
-    no_cache: bool = False
-    """Do not read or write the match cache."""
+    cache: bool = True
+    """Read and write the match cache (--no-cache to recompute and store nothing)."""
 
     max_lines: int = 200
     """Match lines drawn per picture."""
@@ -129,10 +129,10 @@ def main(args: MatchArgs) -> int:
             for i in ids
         ]
         cameras = [scene.cameras[i] for i in ids]
-        cache = None if args.no_cache else (args.cache_dir or Path(args.out) / "cache")
+        cache = None if not args.cache else (args.cache_dir or Path(args.out) / "cache")
         run_matching(images, cameras, ids, args.config, Path(args.out), cache, args.max_lines, console)
     except (DataError, MissingWeightsError) as e:
-        console.print(f"[red]error:[/] {e}", highlight=False)
+        console.print(f"[red]error:[/] {e}", highlight=False, soft_wrap=True)
         return 2
     return 0
 

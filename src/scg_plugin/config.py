@@ -6,36 +6,9 @@ from typing import Literal
 
 from pydantic import Field
 
-from splat_framework.config import GaussianModelConfig, SplatConfig, Steps, TrainConfig
+from splat_framework.config import GaussianModelConfig, Steps, TrainConfig
 
-
-class MatchConfig(SplatConfig):
-    """Matching prior: which matcher, how many matches, how they are verified."""
-
-    matcher: Literal["dense", "sift", "loftr", "disk-lightglue"] = "dense"
-    """Matcher: dense (DIS optical flow, forward-backward checked), sift, or the kornia learned matchers (need local weights)."""
-    max_matches: int = Field(4000, gt=0)
-    """Matches kept per pair of views after verification (spatially balanced sample)."""
-    ratio: float = Field(0.8, gt=0, le=1)
-    """Lowe ratio for SIFT."""
-    sift_features: int = Field(8000, gt=0)
-    """SIFT keypoints per image."""
-    fb_threshold: float = Field(1.0, gt=0)
-    """Forward-backward consistency threshold of the dense matcher (pixels)."""
-    dis_preset: Literal["ultrafast", "fast", "medium"] = "medium"
-    """OpenCV DIS optical-flow preset of the dense matcher."""
-    magsac_threshold: float = Field(1.0, gt=0)
-    """MAGSAC fundamental-matrix inlier threshold (pixels)."""
-    epipolar_check: bool = True
-    """Also reject matches far from the epipolar lines of the known poses."""
-    epipolar_threshold: float = Field(2.0, gt=0)
-    """Symmetric epipolar distance threshold of that check (pixels)."""
-    seed: int = 0
-    """Seed of the spatially balanced sampler."""
-    weights: str | None = None
-    """Local weights file of a learned matcher (never downloaded)."""
-    cache: bool = True
-    """Cache matches on disk (keyed by matcher, views and image content)."""
+from .matching import MatchConfig
 
 
 class SCGModelConfig(GaussianModelConfig):

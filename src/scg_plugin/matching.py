@@ -62,6 +62,7 @@ __all__ = [
     "fundamental_from_cameras",
     "get_matcher",
     "magsac_inliers",
+    "mutual_ratio_match",
     "verify_pair",
 ]
 
@@ -91,6 +92,9 @@ class MatchConfig(BaseModel):
 
     ratio: float = Field(0.8, gt=0.0, le=1.0)
     """SIFT: Lowe ratio test threshold (best / second-best descriptor distance)."""
+
+    sift_upscale: float = Field(2.0, gt=0.0)
+    """SIFT: image upsampling before detection (more keypoints on small images)."""
 
     dense_preset: Literal["ultrafast", "fast", "medium"] = "medium"
     """Dense: OpenCV DIS optical flow preset."""
@@ -124,6 +128,9 @@ class MatchConfig(BaseModel):
 
     device: str = "cpu"
     """Learned matchers: torch device."""
+
+    cache: bool = True
+    """Cache matches on disk, keyed by matcher settings, views and image content."""
 
     @field_validator("matcher")
     @classmethod
@@ -241,51 +248,93 @@ class Matcher(Protocol):
     def match(self, img_a: np.ndarray, img_b: np.ndarray) -> tuple[Pts, Pts]: ...
 
 
+def mutual_ratio_match(
+    desc_a: np.ndarray, desc_b: np.ndarray, ratio: float = 0.8, mutual: bool = True, chunk: int = 1024
+) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest-neighbour descriptor matching with Lowe's ratio test and a mutual check.
+
+    Exact L2 distances by blocked matrix products (one pass gives the forward
+    two nearest neighbours and the backward nearest neighbour).
+
+    Returns:
+        (indices into desc_a, indices into desc_b) of the kept matches, int64.
+    """
+    da = np.asarray(desc_a, np.float32)
+    db = np.asarray(desc_b, np.float32)
+    na, nb = len(da), len(db)
+    if na < 1 or nb < 2:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    sa = np.einsum("ij,ij->i", da, da)
+    sb = np.einsum("ij,ij->i", db, db)
+    nn1 = np.empty(na, np.int64)
+    d1 = np.empty(na, np.float32)
+    d2 = np.empty(na, np.float32)
+    col_min = np.full(nb, np.inf, np.float32)
+    for s in range(0, na, chunk):
+        D = da[s:s + chunk] @ db.T
+        D *= -2.0
+        D += sa[s:s + chunk, None]
+        D += sb[None, :]
+        rows = np.arange(len(D))
+        j1 = D.argmin(axis=1)
+        v1 = D[rows, j1]
+        np.minimum(col_min, D.min(axis=0), out=col_min)
+        D[rows, j1] = np.inf
+        nn1[s:s + chunk], d1[s:s + chunk], d2[s:s + chunk] = j1, v1, D.min(axis=1)
+    d1c, d2c = np.sqrt(np.maximum(d1, 0.0)), np.sqrt(np.maximum(d2, 0.0))
+    ok = d1c < ratio * d2c
+    if mutual:  # i is j's nearest neighbour too (same float values, so exact equality)
+        ok &= d1 <= col_min[nn1]
+    ia = np.flatnonzero(ok)
+    return ia.astype(np.int64), nn1[ia]
+
+
 class SiftMatcher:
-    """OpenCV SIFT + Lowe ratio test + mutual nearest neighbours."""
+    """OpenCV SIFT + Lowe ratio test + mutual nearest neighbours.
+
+    Images are upsampled by ``upscale`` before detection (LLFF at 1/8 scale has
+    too little fine detail for SIFT at its native size); keypoints are mapped
+    back exactly (continuous coordinates scale linearly under cv2.resize).
+    """
 
     name: ClassVar[str] = "sift"
 
-    def __init__(self, nfeatures: int = 8000, ratio: float = 0.8, mutual: bool = True) -> None:
+    def __init__(self, nfeatures: int = 8000, ratio: float = 0.8, mutual: bool = True, upscale: float = 2.0) -> None:
         self.nfeatures = int(nfeatures)
         self.ratio = float(ratio)
         self.mutual = bool(mutual)
+        self.upscale = float(upscale)
+        self._memo: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
 
     @classmethod
     def from_config(cls, config: MatchConfig) -> "SiftMatcher":
-        return cls(nfeatures=config.sift_features, ratio=config.ratio)
+        return cls(nfeatures=config.sift_features, ratio=config.ratio, upscale=config.sift_upscale)
 
-    def match(self, img_a: np.ndarray, img_b: np.ndarray) -> tuple[Pts, Pts]:
+    def features(self, img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(keypoints [N, 2] float32 continuous coords, descriptors [N, 128] float32); memoised per image."""
         import cv2
 
-        sift = cv2.SIFT_create(nfeatures=self.nfeatures)
-        ka, da = sift.detectAndCompute(to_gray_u8(img_a), None)
-        kb, db = sift.detectAndCompute(to_gray_u8(img_b), None)
-        if da is None or db is None or len(ka) < 2 or len(kb) < 2:
+        g = to_gray_u8(img)
+        key = hashlib.sha1(g.tobytes()).digest() + str(g.shape).encode()
+        if key in self._memo:
+            return self._memo[key]
+        if self.upscale != 1.0:
+            g = cv2.resize(g, None, fx=self.upscale, fy=self.upscale, interpolation=cv2.INTER_CUBIC)
+        kps, desc = cv2.SIFT_create(nfeatures=self.nfeatures).detectAndCompute(g, None)
+        pts = (np.array([k.pt for k in kps], np.float64).reshape(-1, 2) + 0.5) / self.upscale
+        out = (pts.astype(np.float32), np.zeros((0, 128), np.float32) if desc is None else desc.astype(np.float32))
+        if len(self._memo) >= 8:
+            self._memo.pop(next(iter(self._memo)))
+        self._memo[key] = out
+        return out
+
+    def match(self, img_a: np.ndarray, img_b: np.ndarray) -> tuple[Pts, Pts]:
+        ka, da = self.features(img_a)
+        kb, db = self.features(img_b)
+        if len(ka) < 2 or len(kb) < 2:
             return _empty()
-        bf = cv2.BFMatcher(cv2.NORM_L2)
-        knn = bf.knnMatch(da, db, k=2)
-        qi, ti, d1, d2 = [], [], [], []
-        for m in knn:
-            if len(m) < 2:
-                continue
-            qi.append(m[0].queryIdx)
-            ti.append(m[0].trainIdx)
-            d1.append(m[0].distance)
-            d2.append(m[1].distance)
-        if not qi:
-            return _empty()
-        qi, ti = np.asarray(qi), np.asarray(ti)
-        ok = np.asarray(d1) < self.ratio * np.asarray(d2)
-        if self.mutual:
-            back = np.full(len(kb), -1, np.int64)
-            for m in bf.match(db, da):
-                back[m.queryIdx] = m.trainIdx
-            ok &= back[ti] == qi
-        qi, ti = qi[ok], ti[ok]
-        pa = np.array([ka[i].pt for i in qi], np.float32).reshape(-1, 2) + 0.5
-        pb = np.array([kb[i].pt for i in ti], np.float32).reshape(-1, 2) + 0.5
-        return pa, pb
+        ia, ib = mutual_ratio_match(da, db, self.ratio, self.mutual)
+        return ka[ia], kb[ib]
 
 
 _DIS_PRESETS = {"ultrafast": "DISOPTICAL_FLOW_PRESET_ULTRAFAST", "fast": "DISOPTICAL_FLOW_PRESET_FAST",
@@ -391,10 +440,11 @@ def _resolve_weights(weights: Path | str | None, filenames: list[str], what: str
         if w.is_file():
             if allow_file:
                 return w
-            raise MissingWeightsError(f"{what}: --weights must be a folder holding {' and '.join(filenames[:1])}, got the file {w}")
+            raise MissingWeightsError(f"{what}: --weights must be a folder holding {filenames[0]}, got the file {w}")
         if not w.is_dir():
             raise MissingWeightsError(
-                f"{what} weights not found: {w} does not exist (give --weights a local copy of {filenames[0]}; nothing is downloaded)"
+                f"{what} weights not found: {w} does not exist; pass --weights PATH "
+                f"(a local copy of {filenames[0]} or its folder); nothing is downloaded"
             )
         folder = w
     else:
@@ -403,8 +453,8 @@ def _resolve_weights(weights: Path | str | None, filenames: list[str], what: str
         if (folder / f).is_file():
             return folder / f
     raise MissingWeightsError(
-        f"{what} weights not found: {folder / filenames[0]} is missing; fetch {filenames[0]} on a machine with "
-        f"internet and pass --weights PATH (the file or its folder) or copy it to {hub_checkpoint_dir()}/ (nothing is downloaded)"
+        f"{what} weights not found: {folder / filenames[0]} is missing; pass --weights PATH "
+        f"(a local copy of {filenames[0]} or its folder); nothing is downloaded"
     )
 
 
@@ -481,7 +531,7 @@ class DiskLightGlueMatcher:
 
     name: ClassVar[str] = "disk-lightglue"
     DISK_FILES: ClassVar[list[str]] = ["depth-save.pth", "disk_depth.pth", "disk.pth"]
-    LIGHTGLUE_FILES: ClassVar[list[str]] = ["disk_lightglue_v0-1_arxiv-pth", "disk_lightglue.pth", "disk_lightglue_v0-1_arxiv.pth"]
+    LIGHTGLUE_FILES: ClassVar[list[str]] = ["disk_lightglue.pth", "disk_lightglue_v0-1_arxiv-pth", "disk_lightglue_v0-1_arxiv.pth"]
 
     def __init__(
         self,

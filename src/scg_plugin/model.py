@@ -18,6 +18,7 @@ import torch
 from torch import Tensor, nn
 
 from splat_framework.cameras import Camera
+from splat_framework.data.resolve import user_cache_dir
 from splat_framework.model.gaussians import GaussianModel, knn_scale, rgb_to_sh0, sample_frustum_points
 from splat_framework.model.ops import remove
 
@@ -42,20 +43,16 @@ def compute_match_set(config, datamanager):
     images = [b["image"].cpu().numpy() for _, b in views]
     cameras = [c.to("cpu") for c, _ in views]
     ids = [int(b["index"]) for _, b in views]
-    cache_dir = datamanager.scene.root / ".splat_cache" if config.model.matching.cache else None
-    try:
-        if cache_dir is not None:
-            cache_dir.mkdir(parents=True, exist_ok=True)
-    except OSError:
-        cache_dir = None
+    cache_dir = user_cache_dir() / "matches" if config.model.matching.cache else None
     return compute_matches(images, cameras, ids, config.model.matching, cache_dir)
 
 
 def match_pairs(match_set, view_ids: list[int]):
     """(i, j, uv_i, uv_j) with i, j positions in the training-view list."""
     pos = {v: k for k, v in enumerate(view_ids)}
-    for pair in match_set.pairs():
-        yield pos[pair.view_a], pos[pair.view_b], pair.pts_a, pair.pts_b
+    for i, j in match_set.pairs():
+        uv_i, uv_j = match_set.get(i, j)
+        yield pos[i], pos[j], uv_i, uv_j
 
 
 class SCGaussianModel(GaussianModel):

@@ -144,7 +144,7 @@ def look_at(eye: Tensor, target: Tensor, up: Tensor) -> Tensor:
     eye, target, up = (torch.as_tensor(a, dtype=torch.float64) for a in (eye, target, up))
     z = target - eye
     z = z / z.norm()
-    x = torch.linalg.cross(z, -up)
+    x = torch.linalg.cross(z, up)
     x = x / x.norm()
     y = torch.linalg.cross(z, x)
     R = torch.stack([x, y, z], dim=0)  # rows: camera axes in world space

@@ -69,8 +69,8 @@ class DensifyConfig(SplatConfig):
     """Last iteration at which densification runs."""
     reset_every: Steps = 3000
     """Reset opacities to 2*prune_opa every this many iterations."""
-    refine_every: Steps = 100
-    """Densify every this many iterations."""
+    refine_every: int = 100
+    """Densify every this many iterations (not rescaled by --steps, so short runs do not densify more often)."""
     pause_refine_after_reset: Steps = 0
     """Skip densification for this many iterations after an opacity reset."""
     absgrad: bool = False

@@ -15,7 +15,7 @@ from typing import Literal
 import torch
 from torch import Tensor
 
-from ._composite import bin_gaussians, composite, pair_coefficients, pixel_basis, tiles_to_image
+from ._composite import TileGrid, composite, pixel_basis, tile_footprints, tiles_to_image
 from ._project import footprint, project_gaussians, reference_radii
 from .sh import sh_to_color
 
@@ -62,6 +62,7 @@ def rasterize(
     eps2d: float = 0.3,
     tile_size: int = 16,
     block: int = 32,
+    chunk_pairs: int | None = None,
 ) -> RenderOutput:
     """Render 3D Gaussians into one pinhole camera (3DGS reference semantics).
 
@@ -122,6 +123,9 @@ def rasterize(
         tile_size: tile edge in pixels used for binning (performance only).
         block: pairs per tile evaluated per compositing round (performance
             only; early termination drops finished tiles between rounds).
+        chunk_pairs: (tile, Gaussian) pairs binned per depth chunk
+            (performance only; None: 128 per tile). Tiles finished by nearer
+            chunks are skipped by farther ones.
 
     Returns:
         RenderOutput with
@@ -142,7 +146,6 @@ def rasterize(
                 "depths": [N] camera-space z of every mean (also culled ones).
                 "conics": [N, 3] inverse 2D covariance (a, b, c).
                 "width", "height": ints.
-                "n_pairs": number of (tile, Gaussian) pairs (diagnostics).
     """
     if depth_mode not in ("accumulated", "expected"):
         raise ValueError(f"depth_mode must be 'accumulated' or 'expected', got {depth_mode!r}")
@@ -181,15 +184,25 @@ def rasterize(
     if torch.is_grad_enabled() and means2d.requires_grad:
         means2d.retain_grad()
     ext_x, ext_y, ok = footprint(proj.cov2d, opacities, proj.valid)
-    bins = bin_gaussians(means2d, ext_x, ext_y, ok, proj.depths, width, height, tile_size)
+    grid = TileGrid(
+        tile=tile_size,
+        ntx=(width + tile_size - 1) // tile_size,
+        nty=(height + tile_size - 1) // tile_size,
+        width=width,
+        height=height,
+    )
+    fp = tile_footprints(means2d, ext_x, ext_y, ok, proj.depths, grid)
 
     # --------------------------------------------------------- compositing
-    coef = pair_coefficients(means2d, proj.conics, opacities.to(dtype), bins)
     ones = torch.ones(n, 1, device=device, dtype=dtype)
     feats = torch.cat([rgb_g.to(dtype), proj.depths[:, None], ones], dim=-1)  # [N, 5]
     basis = pixel_basis(tile_size, device, dtype)
-    out = composite(coef, feats, bins, basis, block)
-    img = tiles_to_image(out, bins, width, height)  # [H, W, 5]
+    if chunk_pairs is None:
+        chunk_pairs = 128 * grid.n_tiles
+    out = composite(
+        means2d, proj.conics, opacities.to(dtype), feats, fp, grid, basis, block, chunk_pairs
+    )
+    img = tiles_to_image(out, grid)  # [H, W, 5]
 
     alpha = img[..., 4:5]
     rgb = img[..., 0:3] + (1.0 - alpha) * background
@@ -199,12 +212,11 @@ def rasterize(
 
     meta = {
         "means2d": means2d,
-        "radii": reference_radii(proj.cov2d, bins.hit),
-        "visible": bins.hit,
+        "radii": reference_radii(proj.cov2d, fp.hit),
+        "visible": fp.hit,
         "depths": proj.depths,
         "conics": proj.conics,
         "width": width,
         "height": height,
-        "n_pairs": int(bins.pair_gid.numel()),
     }
     return RenderOutput(rgb=rgb, depth=depth, alpha=alpha, meta=meta)

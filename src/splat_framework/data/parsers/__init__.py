@@ -95,11 +95,15 @@ def load_scene(
     """
     path = Path(path)
     views = check_views(views)
-    fmt = detect_format(path) if format == "auto" else format
-    loader = _loader(fmt)
-    if format != "auto" and not path.is_dir():
-        raise DataError(f"{path}: no such dataset folder")
-    return loader(path, views=views, downscale=downscale)
+    try:
+        fmt = detect_format(path) if format == "auto" else format
+        loader = _loader(fmt)
+        if format != "auto" and not path.is_dir():
+            raise DataError(f"{path}: no such dataset folder")
+        return loader(path, views=views, downscale=downscale)
+    except OSError as e:  # file-system trouble not caught closer to the source
+        name = e.filename if e.filename is not None else path
+        raise DataError(f"{name}: {e.strerror or e}") from None
 
 
 __all__ = ["FORMATS", "detect_format", "load_scene"]

@@ -116,6 +116,13 @@ def _image_path(root: Path, file_path: str) -> Path:
     return p.with_name(p.name + ".png")
 
 
+def _rel(p: Path, root: Path) -> Path:
+    try:
+        return p.relative_to(root)
+    except ValueError:  # absolute file_path outside the dataset folder
+        return Path(p.name)
+
+
 def load_blender(root: Path, *, views: Views = "all", downscale: float | None = None) -> SceneData:
     f = check_downscale(downscale, root)
     factor = 2.0 if f is None else f
@@ -141,7 +148,7 @@ def load_blender(root: Path, *, views: Views = "all", downscale: float | None = 
     depth_root = root / "depths"
     depth_paths = None
     if depth_root.is_dir():
-        depth_paths = [depth_root / p.relative_to(root).with_suffix(".npy") for p in paths]
+        depth_paths = [depth_root / _rel(p, root).with_suffix(".npy") for p in paths]
         for d in depth_paths:
             if not d.is_file():
                 raise DataError(f"{d}: depth map missing (depths/ must mirror every image path)")
@@ -153,7 +160,7 @@ def load_blender(root: Path, *, views: Views = "all", downscale: float | None = 
         fx = focal_full * (w / stored[0])
         fy = focal_full * (h / stored[1])
         c2w = m @ FLIP_YZ
-        name = p.relative_to(root).with_suffix("").as_posix().replace("/", "_")
+        name = _rel(p, root).with_suffix("").as_posix().replace("/", "_")
         cameras.append(make_camera(c2w[:3, :3], c2w[:3, 3], fx, fy, w / 2.0, h / 2.0, w, h, NEAR, FAR, name, where))
 
     n_train = len(train_frames)

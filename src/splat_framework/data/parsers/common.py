@@ -102,7 +102,8 @@ def clean_rotation(R: np.ndarray, where: str) -> np.ndarray:
     R = np.asarray(R, dtype=np.float64)
     if R.shape != (3, 3) or not np.isfinite(R).all():
         raise DataError(f"{where}: rotation is not a finite 3x3 matrix")
-    err = np.abs(R.T @ R - np.eye(3)).max()
+    with np.errstate(all="ignore"):
+        err = np.abs(R.T @ R - np.eye(3)).max()
     if not err < ROTATION_TOL:
         raise DataError(f"{where}: degenerate pose, rotation is not orthonormal (|R^T R - I| = {err:.3g})")
     if np.linalg.det(R) < 0:
@@ -145,6 +146,8 @@ def make_camera(
     w2c = np.eye(4)
     w2c[:3, :3] = R.T
     w2c[:3, 3] = -R.T @ c
+    if not (np.abs(w2c).max() < 1e30 and max(abs(fx), abs(fy), abs(cx), abs(cy), far) < 1e30):
+        raise DataError(f"{where}: pose or intrinsics out of range (|value| >= 1e30)")
     K = torch.tensor([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=torch.float32)
     return Camera(
         K=K,

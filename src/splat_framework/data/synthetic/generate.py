@@ -65,18 +65,17 @@ def build_scene(kind: Kind, seed: int = 0, focal: float = 400.0) -> Scene:
 def pixel_rays(view: ViewSpec) -> tuple[np.ndarray, np.ndarray]:
     """Rays through all pixel centres of ``view`` (row-major).
 
-    Returns origins [H*W, 3] and directions [H*W, 3] scaled so that the ray
-    parameter equals camera-space z (the camera-space direction has z = 1).
+    Returns the shared origin [3] (the camera centre) and directions [H*W, 3]
+    scaled so that the ray parameter equals camera-space z (the camera-space
+    direction has z = 1).
     """
     K, w2c = view.K, view.world_to_cam
-    v, u = np.mgrid[0 : view.height, 0 : view.width].astype(np.float64)
-    x = (u.ravel() + 0.5 - K[0, 2]) / K[0, 0]
-    y = (v.ravel() + 0.5 - K[1, 2]) / K[1, 1]
-    d_cam = np.stack([x, y, np.ones_like(x)], -1)
-    R = w2c[:3, :3]
-    d = d_cam @ R  # R^T d_cam
+    x = (np.arange(view.width, dtype=np.float64) + 0.5 - K[0, 2]) / K[0, 0]
+    y = (np.arange(view.height, dtype=np.float64) + 0.5 - K[1, 2]) / K[1, 1]
+    R = w2c[:3, :3]  # rows: camera axes in world space; world dir = R^T d_cam
+    d = x[None, :, None] * R[0] + y[:, None, None] * R[1] + R[2]
     center = -R.T @ w2c[:3, 3]
-    return np.broadcast_to(center, d.shape), d
+    return center, d.reshape(-1, 3)
 
 
 def screen_candidates(scene: Scene, view: ViewSpec) -> list:
@@ -113,31 +112,49 @@ def render_view(scene: Scene, view: ViewSpec) -> tuple[np.ndarray, np.ndarray, n
         alpha: [H, W] float32, 1 where a surface is hit, else 0.
         depth: [H, W] float32 camera-space z of the surface at the pixel centre, 0 where none.
     """
-    o, d = pixel_rays(view)
-    hits = cast_rays(scene, o, d, screen_candidates(scene, view))
-    n = len(d)
-    rgb = np.zeros((n, 3), np.float32)
+    o, d_all = pixel_rays(view)
+    n_all = len(d_all)
+    cand = screen_candidates(scene, view)
+    # only rays inside some primitive's screen rectangle can hit anything
+    if any(c is None for c in cand):
+        active = np.arange(n_all)
+    else:
+        mask = np.zeros(n_all, bool)
+        for c in cand:
+            mask[c] = True
+        active = np.nonzero(mask)[0]
+        pos = np.full(n_all, -1, np.int64)
+        pos[active] = np.arange(len(active))
+        cand = [pos[c] for c in cand]
+    d = d_all[active]
+    hits = cast_rays(scene, o, d, cand)
+    rgb = np.zeros((len(d), 3), np.float32)
     f = 0.5 * (view.K[0, 0] + view.K[1, 1])
-    dn = d / np.linalg.norm(d, axis=1, keepdims=True)
     for i, prim in enumerate(scene.primitives):
         sel = np.nonzero(hits.prim == i)[0]
         if len(sel) == 0:
             continue
+        ds = d[sel]
+        dlen = np.sqrt((ds * ds).sum(-1))
         nrm = hits.normal[sel]
-        cos = np.einsum("ij,ij->i", nrm, dn[sel])
+        cos = (nrm * ds).sum(-1) / dlen
         nrm = nrm * np.where(cos > 0, -1.0, 1.0)[:, None]  # face the viewer (two-sided)
         # pixel footprint on the surface, in level-0 texels -> mip level
-        foot = hits.t[sel] / f * np.linalg.norm(d[sel], axis=1) / np.sqrt(np.maximum(np.abs(cos), 0.05))
+        foot = hits.t[sel] / f * dlen / np.sqrt(np.maximum(np.abs(cos), 0.05))
         lod = np.log2(np.maximum(foot * prim.texel_density, 1.0))
         albedo = sample(prim.texture, hits.uv[sel], lod)
         shade = np.full(len(sel), scene.ambient)
         for light in scene.lights:
             shade += light.intensity * np.maximum(nrm @ light.direction, 0.0)
         rgb[sel] = albedo * shade[:, None].astype(np.float32)
-    hit = hits.hit
-    depth = np.where(hit, hits.t, 0.0).astype(np.float32)
     H, W = view.height, view.width
-    return (np.clip(rgb, 0, 1).reshape(H, W, 3), hit.astype(np.float32).reshape(H, W), depth.reshape(H, W))
+    rgb_full = np.zeros((n_all, 3), np.float32)
+    rgb_full[active] = np.clip(rgb, 0, 1)
+    alpha = np.zeros(n_all, np.float32)
+    alpha[active] = hits.hit
+    depth = np.zeros(n_all, np.float32)
+    depth[active] = np.where(hits.hit, hits.t, 0.0)
+    return rgb_full.reshape(H, W, 3), alpha.reshape(H, W), depth.reshape(H, W)
 
 
 # ------------------------------------------------------------------ writers
@@ -273,7 +290,8 @@ def generate_scene(
         format=fmt,
         **params,
         **extra,
-        depth_format="depths/<image path relative to the dataset, .npy>: float32 [H, W] camera-space z, 0 = no surface",
+        depth_format=("depths/<image path relative to the image folder (LLFF: images/, Blender: the dataset root)"
+                      " with .npy>: float32 [H, W] camera-space z at pixel centres, 0 = no surface"),
         scene=scene.describe(),
     ))
     return out

@@ -190,6 +190,11 @@ class Scene:
 
 
 # --------------------------------------------------------------- intersections
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise dot product with broadcasting ([3] or [N, 3] operands)."""
+    return (a * b).sum(-1)
+
+
 def _safe_div(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     b = np.where(np.abs(b) < EPS, np.where(b < 0, -EPS, EPS), b)
     return a / b
@@ -206,9 +211,9 @@ def intersect_quad(q: Quad, o: np.ndarray, d: np.ndarray) -> np.ndarray:
 def intersect_sphere(s: Sphere, o: np.ndarray, d: np.ndarray) -> np.ndarray:
     """[N] nearest positive ray parameter (unit or non-unit ``d``), ``inf`` where missed."""
     oc = o - s.center
-    a = np.einsum("ij,ij->i", d, d)
-    b = np.einsum("ij,ij->i", oc, d)
-    c = np.einsum("ij,ij->i", oc, oc) - s.radius**2
+    a = _dot(d, d)
+    b = _dot(oc, d)
+    c = _dot(oc, oc) - s.radius**2
     disc = b * b - a * c
     sq = np.sqrt(np.maximum(disc, 0.0))
     t0 = (-b - sq) / a
@@ -242,24 +247,24 @@ def _cyl_parts(c: Cylinder, o: np.ndarray, d: np.ndarray):
     dl = d @ c.R
     # side
     a = dl[:, 0] ** 2 + dl[:, 1] ** 2
-    bb = ol[:, 0] * dl[:, 0] + ol[:, 1] * dl[:, 1]
-    cc = ol[:, 0] ** 2 + ol[:, 1] ** 2 - c.radius**2
+    bb = ol[..., 0] * dl[:, 0] + ol[..., 1] * dl[:, 1]
+    cc = ol[..., 0] ** 2 + ol[..., 1] ** 2 - c.radius**2
     disc = bb * bb - a * cc
     sq = np.sqrt(np.maximum(disc, 0.0))
     a_s = np.where(a < EPS, EPS, a)
     ok = (disc >= 0) & (a >= EPS)
-    inf = np.full(len(o), np.inf)
+    inf = np.full(len(d), np.inf)
     t_side = inf
     for root in ((-bb - sq) / a_s, (-bb + sq) / a_s):
-        z = ol[:, 2] + root * dl[:, 2]
+        z = ol[..., 2] + root * dl[:, 2]
         good = ok & (root > T_MIN) & (np.abs(z) <= c.half_height)
         t_side = np.where(good & (root < t_side), root, t_side)
     # caps
     t_cap = inf
     for h in (c.half_height, -c.half_height):
-        tc = _safe_div(h - ol[:, 2], dl[:, 2])
-        x = ol[:, 0] + tc * dl[:, 0]
-        y = ol[:, 1] + tc * dl[:, 1]
+        tc = _safe_div(h - ol[..., 2], dl[:, 2])
+        x = ol[..., 0] + tc * dl[:, 0]
+        y = ol[..., 1] + tc * dl[:, 1]
         good = (tc > T_MIN) & (x * x + y * y <= c.radius**2)
         t_cap = np.where(good & (tc < t_cap), tc, t_cap)
     return ol, dl, t_side, t_cap
@@ -385,8 +390,11 @@ def cast_rays(scene: Scene, origins: np.ndarray, dirs: np.ndarray, candidates: l
     Returns:
         :class:`Hits` with t, prim (material id), normal, uv, points.
     """
-    o = np.ascontiguousarray(np.broadcast_to(np.asarray(origins, dtype=np.float64), np.shape(dirs)))
-    d = np.ascontiguousarray(np.asarray(dirs, dtype=np.float64))
+    d = np.ascontiguousarray(np.asarray(dirs, dtype=np.float64)).reshape(-1, 3)
+    o = np.asarray(origins, dtype=np.float64)
+    shared = o.ndim == 1  # one origin for all rays: keep it [3] and let numpy broadcast
+    if not shared:
+        o = np.ascontiguousarray(np.broadcast_to(o, d.shape))
     n = len(d)
     best_t = np.full(n, np.inf)
     best_p = np.full(n, -1, dtype=np.int64)
@@ -398,7 +406,7 @@ def cast_rays(scene: Scene, origins: np.ndarray, dirs: np.ndarray, candidates: l
             best_t = np.where(closer, t, best_t)
             best_p = np.where(closer, i, best_p)
         elif len(idx):
-            t = intersect(prim, o[idx], d[idx])
+            t = intersect(prim, o if shared else o[idx], d[idx])
             closer = t < best_t[idx]
             best_t[idx[closer]] = t[closer]
             best_p[idx[closer]] = i
@@ -408,9 +416,10 @@ def cast_rays(scene: Scene, origins: np.ndarray, dirs: np.ndarray, candidates: l
         sel = np.nonzero(best_p == i)[0]
         if len(sel) == 0:
             continue
-        nn, uu = _surface(prim, o[sel], d[sel], best_t[sel])
+        nn, uu = _surface(prim, o if shared else o[sel], d[sel], best_t[sel])
         normal[sel] = nn
         uv[sel] = uu
-    hit = best_p >= 0
-    points = np.where(hit[:, None], o + np.where(hit, best_t, 0.0)[:, None] * d, 0.0)
+    hit = np.nonzero(best_p >= 0)[0]
+    points = np.zeros((n, 3))
+    points[hit] = (o if shared else o[hit]) + best_t[hit, None] * d[hit]
     return Hits(t=best_t, prim=best_p, normal=normal, uv=uv, points=points)

@@ -103,30 +103,37 @@ def make_texture(rng: np.random.Generator, h: int, w: int, *, text: bool = True,
 
 
 def mip_pyramid(img: np.ndarray) -> list[np.ndarray]:
-    """Mip levels (level 0 = ``img``), halving until the short side is < 4 texels."""
+    """Mip levels (level 0 = ``img``), halving until the short side is < 8 texels.
+
+    Each level is stored with a one-texel border (columns wrapped, since u
+    wraps around spheres and cylinders; rows replicated), which
+    :func:`sample` accounts for.
+    """
     levels = [np.ascontiguousarray(img, dtype=np.float32)]
     while min(levels[-1].shape[:2]) >= 8:
         levels.append(cv2.pyrDown(levels[-1]))
-    return levels
+    padded = []
+    for lv in levels:
+        lv = np.concatenate([lv[:, -1:], lv, lv[:, :1]], axis=1)
+        padded.append(np.ascontiguousarray(np.concatenate([lv[:1], lv, lv[-1:]], axis=0)))
+    return padded
+
+
+_BLOCK = 4096  # cv2.remap needs maps narrower than SHRT_MAX
 
 
 def _bilinear(tex: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    h, w = tex.shape[:2]
-    x = uv[:, 0] * w - 0.5
-    y = uv[:, 1] * h - 0.5
-    x0 = np.floor(x)
-    y0 = np.floor(y)
-    fx = (x - x0)[:, None].astype(np.float32)
-    fy = (y - y0)[:, None].astype(np.float32)
-    x0 = x0.astype(np.int64)
-    y0 = y0.astype(np.int64)
-    x1 = np.mod(x0 + 1, w)  # wrap in u (spheres, cylinder sides)
-    x0 = np.mod(x0, w)
-    y1 = np.clip(y0 + 1, 0, h - 1)
-    y0 = np.clip(y0, 0, h - 1)
-    top = tex[y0, x0] * (1 - fx) + tex[y0, x1] * fx
-    bot = tex[y1, x0] * (1 - fx) + tex[y1, x1] * fx
-    return top * (1 - fy) + bot * fy
+    """Bilinear lookup in a padded level (texel centres at +0.5), wrapping in u and clamping in v."""
+    h, w = tex.shape[0] - 2, tex.shape[1] - 2
+    n = len(uv)
+    rows = -(-n // _BLOCK)
+    mx = np.zeros(rows * _BLOCK, np.float32)
+    my = np.zeros(rows * _BLOCK, np.float32)
+    mx[:n] = np.mod(uv[:, 0], 1.0) * w + 0.5  # + 1 (border) - 0.5 (texel centre)
+    my[:n] = np.clip(uv[:, 1], 0.0, 1.0) * h + 0.5
+    out = cv2.remap(tex, mx.reshape(rows, _BLOCK), my.reshape(rows, _BLOCK), cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(-1, 3)[:n]
 
 
 def sample(pyramid: list[np.ndarray], uv: np.ndarray, lod: np.ndarray) -> np.ndarray:
@@ -139,8 +146,10 @@ def sample(pyramid: list[np.ndarray], uv: np.ndarray, lod: np.ndarray) -> np.nda
         sel = np.nonzero(lo == level)[0]
         a = _bilinear(pyramid[level], uv[sel])
         if level + 1 < len(pyramid):
-            b = _bilinear(pyramid[level + 1], uv[sel])
-            f = frac[sel]
-            a = a * (1 - f) + b * f
+            blend = np.nonzero(frac[sel, 0] > 0)[0]  # magnified texels (lod 0) need one level only
+            if len(blend):
+                b = _bilinear(pyramid[level + 1], uv[sel[blend]])
+                f = frac[sel[blend]]
+                a[blend] = a[blend] * (1 - f) + b * f
         out[sel] = a
     return out
