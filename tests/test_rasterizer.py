@@ -218,6 +218,27 @@ def test_early_termination_dense_opaque_scene():
         torch.testing.assert_close(a, b, atol=1e-7 * b.abs().max().item(), rtol=1e-6)
 
 
+def test_clamped_alpha_opacity_one():
+    # opacity 1 (alpha clamped at 0.99 near the centres): clamped pairs composite but
+    # pass no gradient through alpha
+    dtype = torch.float64
+    width, height = 26, 22
+    viewmat, K = make_camera(width, height, dtype=dtype)
+    means, quats, scales, opac, colors = random_scene(30, 17, dtype=dtype, spread=0.6,
+                                                     scale=(-1.8, 0.2))
+    opac = torch.where(torch.arange(30) % 2 == 0, torch.ones_like(opac), opac)
+    params = [p.requires_grad_() for p in (means, quats, scales, opac, colors)]
+    for kw in [dict(), dict(tile_size=8, block=3, chunk_pairs=10)]:
+        out = rasterize(*params, viewmat, K, width, height, **kw)
+        rgb, depth, alpha = reference_render(*params, viewmat, K, width, height)
+        torch.testing.assert_close(out.rgb, rgb, atol=1e-6, rtol=0)
+        wr, wd, wa = _loss_weights(height, width, 5, dtype)
+        loss = (out.rgb * wr).sum() + (out.depth * wd).sum() + (out.alpha * wa).sum()
+        ref = (rgb * wr).sum() + (depth * wd).sum() + (alpha * wa).sum()
+        for a, b in zip(torch.autograd.grad(loss, params), torch.autograd.grad(ref, params)):
+            torch.testing.assert_close(a, b, atol=1e-7 * b.abs().max().item(), rtol=1e-6)
+
+
 def test_gradcheck_tiny_scene():
     dtype = torch.float64
     width, height = 12, 10
@@ -380,3 +401,14 @@ def test_tile_and_block_settings_agree():
                         chunk_pairs=cp)
         torch.testing.assert_close(out.rgb, ref.rgb)
         torch.testing.assert_close(out.depth, ref.depth)
+
+
+def test_fused_kernel_variant_matches(monkeypatch):
+    # the functional kernels that SPLAT_COMPILE=1 compiles, run uncompiled here
+    from splat_framework.render import _composite, _kernels
+
+    monkeypatch.setattr(
+        _composite, "get_kernels", lambda: (_kernels.fwd_round_fused, _kernels.bwd_round_fused)
+    )
+    _compare(50, 31, 30, 22, torch.float64, tile_size=8, block=5, chunk_pairs=40)
+    test_clamped_alpha_opacity_one()

@@ -16,6 +16,7 @@ import pytest
 import torch
 
 from splat_framework.cameras import Camera
+from splat_framework.data.scene import DataError
 from splat_framework.data.synthetic import (
     GENERATOR_VERSION,
     build_scene,
@@ -159,6 +160,36 @@ def test_cylinder_depth_analytic():
     assert np.isinf(t[2])  # passes above the cap plane y = -2 ... (y = 2.4 at z = 4, beyond |y| <= 2)
     cap = intersect_cylinder(c, np.array([0.2, -5.0, 5.1]), np.array([[0, 1.0, 0]]))  # up the axis: cap y = -2
     assert cap[0] == pytest.approx(3.0)
+
+
+@pytest.mark.parametrize("kind", ["box", "cylinder", "sphere"])
+def test_first_hit_matches_ray_marching(kind):
+    """Random rays from outside, random poses: t equals the first inside sample of a fine march."""
+    rng = np.random.default_rng({"box": 0, "cylinder": 1, "sphere": 2}[kind])
+    R = rotation(*rng.uniform(-3, 3, 3))
+    prim = {
+        "box": Box(center=(0.1, -0.2, 0.3), half=(0.8, 0.5, 0.3), R=R),
+        "cylinder": Cylinder(center=(0.1, -0.2, 0.3), radius=0.6, half_height=0.9, R=R),
+        "sphere": Sphere(center=(0.1, -0.2, 0.3), radius=0.7, R=R),
+    }[kind]
+    o = rng.normal(size=(300, 3))
+    o = 3.0 * o / np.linalg.norm(o, axis=1, keepdims=True)  # outside every primitive
+    d = -o / 3.0 + rng.normal(size=(300, 3)) * 0.3
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    t = {"box": intersect_box, "cylinder": intersect_cylinder, "sphere": intersect_sphere}[kind](prim, o, d)
+    ts = np.linspace(0.0, 6.0, 6001)
+    loc = (o[:, None] + ts[None, :, None] * d[:, None] - prim.center) @ prim.R
+    if kind == "box":
+        inside = (np.abs(loc) <= prim.half).all(-1)
+    elif kind == "cylinder":
+        inside = (loc[..., 0] ** 2 + loc[..., 1] ** 2 <= 0.36) & (np.abs(loc[..., 2]) <= 0.9)
+    else:
+        inside = (loc**2).sum(-1) <= 0.49
+    first = np.where(inside.any(1), ts[np.argmax(inside, 1)], np.inf)
+    assert 50 < np.isfinite(t).sum() < 300
+    np.testing.assert_array_equal(np.isfinite(t), np.isfinite(first))
+    fin = np.isfinite(t)
+    assert np.abs(t[fin] - first[fin]).max() <= 1.01e-3
 
 
 def test_cast_rays_nearest_and_attributes():
@@ -352,7 +383,7 @@ def test_ensure_scene_cached_and_atomic(tmp_path, monkeypatch):
     with pytest.raises(RuntimeError):
         ensure_scene("object-tiny", cache_dir=tmp_path)
     assert sorted(p.name for p in tmp_path.iterdir()) == [root.name]
-    with pytest.raises(ValueError, match="unknown synthetic scene"):
+    with pytest.raises(DataError, match="unknown synthetic scene"):
         ensure_scene("nope", cache_dir=tmp_path)
 
 

@@ -78,7 +78,7 @@ class SCGaussianModel(GaussianModel):
         cameras = [c for c, _ in views]
         images = [b["image"] for _, b in views]
         ids = [int(b["index"]) for _, b in views]
-        timing = {}
+        timing, stats = {}, {}
         t0 = time.perf_counter()
         match_set = compute_match_set(config, datamanager)
         timing["matching_s"] = time.perf_counter() - t0
@@ -99,7 +99,7 @@ class SCGaussianModel(GaussianModel):
             if cache is not None:
                 bundle.z = cache.best_z
                 keep = cache.keep_mask(cfg.filter_eta_px)
-                timing["filtered_matches"] = int((~keep).sum()) // 2
+                stats["filtered_matches"] = int((~keep).sum()) // 2
                 bundle = bundle.select(keep)
             else:
                 bundle.z = z
@@ -113,7 +113,7 @@ class SCGaussianModel(GaussianModel):
             cols = torch.zeros(0, 3, device=images[0].device)
         model = cls(config, datamanager.scene.scene_radius, pts, cols, bundle, cameras, images)
         model.init_timing = timing
-        model.init_timing["num_matches"] = len(bundle) // 2 if bundle is not None else 0
+        model.init_stats = stats | {"num_matches": len(bundle) // 2 if bundle is not None else 0}
         return model
 
     def init_params(self, points: Tensor, colors: Tensor) -> dict[str, nn.Parameter]:
@@ -327,5 +327,6 @@ class TriangulatedGaussianModel(GaussianModel):
         else:
             points, colors = torch.cat(pts).to(dev), torch.cat(cols).to(dev)
         model = cls(config, datamanager.scene.scene_radius, points, colors)
-        model.init_timing = timing | {"num_points": int(points.shape[0])}
+        model.init_timing = timing
+        model.init_stats = {"num_points": int(points.shape[0])}
         return model

@@ -15,7 +15,6 @@ from torch import Tensor
 
 from splat_framework.cameras import Camera
 
-from .losses import reprojection_error
 
 
 @dataclass
@@ -107,31 +106,61 @@ def build_ray_bundle(match_pairs, cameras: list[Camera], generator: torch.Genera
     return RayBundle(**{k: torch.cat(v) for k, v in cols.items()})
 
 
-def position_errors(positions: Tensor, bundle: RayBundle, cameras: list[Camera]) -> Tensor:
-    """[G] normalised L1 reprojection error of each Gaussian in its partner view (the L_gp terms)."""
-    err = torch.empty(positions.shape[0], dtype=positions.dtype, device=positions.device)
-    for v in torch.unique(bundle.partner_view).tolist():
-        sel = bundle.partner_view == v
-        err[sel] = reprojection_error(positions[sel], cameras[v], bundle.partner_uv[sel].to(positions))
-    return err
+def partner_projections(bundle: RayBundle, cameras: list[Camera]) -> tuple[Tensor, Tensor]:
+    """Per Gaussian, its partner view's [3, 4] projection K [R | t] and (W, H).
+
+    Returns:
+        P [G, 3, 4] and size [G, 2], on the bundle's device.
+    """
+    dev = bundle.z.device
+    Ps = torch.stack([(c.K.double() @ c.world_to_cam[:3].double()) for c in cameras]).float().to(dev)
+    sizes = torch.tensor([[c.width, c.height] for c in cameras], dtype=torch.float32, device=dev)
+    return Ps[bundle.partner_view], sizes[bundle.partner_view]
 
 
-def gaussian_position_loss(positions: Tensor, bundle: RayBundle, cameras: list[Camera]) -> Tensor:
+def _project_rows(positions: Tensor, P: Tensor) -> tuple[Tensor, Tensor]:
+    """[G, 3] points through per-row [G, 3, 4] projections -> uv [G, 2], z [G]."""
+    h = (P[:, :, :3] * positions[:, None, :]).sum(-1) + P[:, :, 3]
+    return _dehomogenise(h)
+
+
+def _dehomogenise(h: Tensor) -> tuple[Tensor, Tensor]:
+    z = h[:, 2]
+    zs = torch.where(z.abs() < 1e-9, torch.full_like(z, 1e-9), z)
+    return h[:, :2] / zs[:, None], z
+
+
+def position_errors(positions: Tensor, bundle: RayBundle, cameras: list[Camera], proj=None) -> Tensor:
+    """[G] normalised L1 reprojection error of each Gaussian in its partner view (the L_gp terms).
+
+    ``proj`` is :func:`partner_projections`' result, to reuse it across steps.
+    A Gaussian behind the partner camera gets its (detached) error plus a push forward.
+    """
+    P, size = proj if proj is not None else partner_projections(bundle, cameras)
+    uv, z = _project_rows(positions, P)
+    return _normalised_error(uv, z, bundle, size)
+
+
+def _normalised_error(uv: Tensor, z: Tensor, bundle: RayBundle, size: Tensor) -> Tensor:
+    err = ((uv - bundle.partner_uv.to(uv)) / size).abs().sum(-1)
+    behind = z <= 1e-6
+    return torch.where(behind, err.detach() + 1.0 - z, err)
+
+
+def gaussian_position_loss(positions: Tensor, bundle: RayBundle, cameras: list[Camera], proj=None) -> Tensor:
     """L_gp: mean over both directions of every match of the normalised reprojection error."""
     if positions.shape[0] == 0:
         return positions.sum() * 0.0
-    return position_errors(positions, bundle, cameras).mean()
+    return position_errors(positions, bundle, cameras, proj).mean()
 
 
-def pixel_errors(positions: Tensor, bundle: RayBundle, cameras: list[Camera]) -> Tensor:
+def pixel_errors(positions: Tensor, bundle: RayBundle, cameras: list[Camera], proj=None) -> Tensor:
     """[M] worse-of-both-directions reprojection error in pixels for each match (rows 2m, 2m+1)."""
-    err = torch.empty(positions.shape[0], device=positions.device)
-    for v in torch.unique(bundle.partner_view).tolist():
-        sel = bundle.partner_view == v
-        uv, z = cameras[v].project(positions[sel])
-        e = (uv - bundle.partner_uv[sel].to(uv)).norm(dim=-1)
-        err[sel] = torch.where(z > 0, e, torch.full_like(e, float("inf")))
-    return err.view(-1, 2).amax(dim=1)
+    P, _ = proj if proj is not None else partner_projections(bundle, cameras)
+    uv, z = _project_rows(positions, P)
+    e = (uv - bundle.partner_uv.to(uv)).norm(dim=-1)
+    e = torch.where(z > 0, e, torch.full_like(e, float("inf")))
+    return e.view(-1, 2).amax(dim=1)
 
 
 class MatchCache:
@@ -143,8 +172,8 @@ class MatchCache:
         self.best_z = bundle.z.detach().clone()
 
     @torch.no_grad()
-    def update(self, z: Tensor, bundle: RayBundle, cameras: list[Camera]) -> None:
-        err = pixel_errors(bundle.positions(z.detach()), bundle, cameras).cpu()
+    def update(self, z: Tensor, bundle: RayBundle, cameras: list[Camera], proj=None) -> None:
+        err = pixel_errors(bundle.positions(z.detach()), bundle, cameras, proj).cpu()
         better = err < self.best_err
         self.best_err = torch.where(better, err, self.best_err)
         rows = better.repeat_interleave(2)
@@ -176,8 +205,14 @@ def warm_up(
     lr = lr_fraction * depth_range
     opt = torch.optim.Adam([z], lr=lr)
     sched = torch.optim.lr_scheduler.StepLR(opt, step_size=max(halve_every, 1), gamma=0.5)
+    proj = partner_projections(bundle, cameras)
+    P, size = proj
+    # projection is affine in z: h = (P o + P_4) + z (P d), precomputed once
+    h0 = (P[:, :, :3] * bundle.origins[:, None, :]).sum(-1) + P[:, :, 3]
+    h1 = (P[:, :, :3] * bundle.dirs[:, None, :]).sum(-1)
     for _ in range(steps):
-        loss = gaussian_position_loss(bundle.positions(z), bundle, cameras)
+        uv, zc = _dehomogenise(h0 + z[:, None] * h1)
+        loss = _normalised_error(uv, zc, bundle, size).mean()
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
@@ -185,7 +220,7 @@ def warm_up(
         with torch.no_grad():
             z.clamp_(min=1e-3)
         if cache is not None:
-            cache.update(z, bundle, cameras)
+            cache.update(z, bundle, cameras, proj)
     return z.detach()
 
 

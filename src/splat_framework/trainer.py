@@ -115,8 +115,8 @@ class Trainer:
         spec = get_method(self.config.method)
         t0 = time.perf_counter()
         self.model = spec.model_class().from_data(self.config, self.datamanager, self.generator).to(self.device)
-        self.timing["init_s"] = time.perf_counter() - t0
         self.timing.update(getattr(self.model, "init_timing", {}))
+        self.timing["init_s"] = time.perf_counter() - t0 - sum(getattr(self.model, "init_timing", {}).values())
         self.optimizers = self.model.make_optimizers()
         self.strategy = DefaultStrategy(self.config.strategy)
         self.strategy_state = self.strategy.initialize_state(scene_scale=self.model.scene_scale)
@@ -213,7 +213,7 @@ class Trainer:
             self.strategy.step_post_backward(model.params, self.optimizers, self.strategy_state, step, outputs.meta)
         with torch.no_grad():
             train_psnr = float(psnr(outputs.rgb.detach().clamp(0, 1), batch["image"]))
-        return {k: float(v) for k, v in losses.items()} | {"loss": float(loss)}, train_psnr
+        return {k: float(v.detach()) for k, v in losses.items()} | {"loss": float(loss.detach())}, train_psnr
 
     def _skip_nonfinite(self, step: int, what: str):
         for opt in self.optimizers.values():
@@ -278,6 +278,7 @@ class Trainer:
             "skipped_steps": getattr(self, "skipped_steps", 0),
             "lpips_note": results["lpips_note"],
         }
+        metrics["init_stats"] = getattr(self.model, "init_stats", {})
         if hasattr(self.model, "report"):
             metrics["model_report"] = self.model.report(self.datamanager)
         atomic_write_text(self.run_dir / "metrics.json", json.dumps(metrics, indent=2))

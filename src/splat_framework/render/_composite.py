@@ -29,10 +29,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from ._project import ALPHA_MIN
-
-T_MIN = 1e-4  # early termination threshold on transmittance
-ALPHA_MAX = 0.99
+from ._kernels import ALPHA_MAX, T_MIN, get_kernels
 _DUMMY_LOGIT = -1.0e4  # exp() == 0 in float32 and float64
 
 
@@ -106,91 +103,79 @@ def tile_footprints(
     return Footprints(ids, tx0, tx1, ty0, ty1, hit)
 
 
-def _chunk_bounds(cnt: Tensor, chunk_pairs: int) -> list[tuple[int, int]]:
-    """Split depth-sorted Gaussians (pair counts ``cnt``) into runs of ~chunk_pairs pairs."""
-    v = cnt.numel()
-    if v == 0:
-        return []
-    cum = torch.cumsum(cnt, 0)
-    total = int(cum[-1])
-    if total <= chunk_pairs:
-        return [(0, v)]
-    marks = torch.arange(chunk_pairs, total, chunk_pairs, device=cnt.device, dtype=cum.dtype)
-    cuts = torch.searchsorted(cum, marks, right=True).tolist()
-    edges = [0] + cuts + [v]
-    bounds = [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
-    return bounds
+def _alive_counts(tile_done: Tensor, fp: Footprints, pos: int, grid: TileGrid) -> Tensor:
+    """Number of unfinished tiles in each rectangle of fp[pos:] (summed-area table)."""
+    alive = (~tile_done).reshape(grid.nty, grid.ntx).to(torch.int64)
+    w1 = grid.ntx + 1
+    sat = torch.zeros(grid.nty + 1, w1, dtype=torch.int64, device=alive.device)
+    sat[1:, 1:] = alive.cumsum(0).cumsum(1)
+    flat = sat.reshape(-1)
+    tx0, tx1, ty0, ty1 = fp.tx0[pos:], fp.tx1[pos:] + 1, fp.ty0[pos:], fp.ty1[pos:] + 1
+    return flat[ty1 * w1 + tx1] - flat[ty0 * w1 + tx1] - flat[ty1 * w1 + tx0] + flat[ty0 * w1 + tx0]
 
 
-def _chunk_pairs(fp: Footprints, g0: int, g1: int, grid: TileGrid, tile_done: Tensor | None):
-    """Pairs of Gaussians fp.ids[g0:g1] with unfinished tiles, sorted by (tile, depth).
+def _iter_chunks(fp: Footprints, grid: TileGrid, chunk_pairs: int, tile_done: Tensor):
+    """Yield per-chunk (gid_sorted, tile_count, tile_offset), front to back.
+
+    Chunks hold ~chunk_pairs pairs with unfinished tiles; ``tile_done`` is read
+    (it is updated by the caller between chunks): Gaussians whose rectangle holds
+    only finished tiles are skipped, and iteration stops once every tile is done.
+    """
+    v = fp.ids.numel()
+    pos = 0
+    first = True
+    while pos < v:
+        if first:
+            cnt = (fp.tx1 - fp.tx0 + 1) * (fp.ty1 - fp.ty0 + 1)
+        else:
+            if bool(tile_done.all()):
+                return
+            cnt = _alive_counts(tile_done, fp, pos, grid)
+        cum = torch.cumsum(cnt, 0)
+        take = max(int(torch.searchsorted(cum, torch.tensor([chunk_pairs], device=cum.device, dtype=cum.dtype), right=True)), 1)
+        sel = pos + torch.nonzero(cnt[:take] > 0).squeeze(1)
+        pos += take
+        if sel.numel() == 0:
+            continue
+        yield _chunk_pairs(fp, sel, grid, tile_done)
+        first = False
+
+
+def _chunk_pairs(fp: Footprints, sel: Tensor, grid: TileGrid, tile_done: Tensor):
+    """Pairs (unfinished tile, Gaussian fp.ids[sel]) sorted by (tile, depth); sel ascending.
+
+    Pairs are enumerated per (Gaussian, tile row) over the row's unfinished tiles
+    only, so finished tiles cost nothing.
 
     Returns (gid_sorted [Pc], tile_count [n_tiles], tile_offset [n_tiles])."""
     device = fp.ids.device
-    ids = fp.ids[g0:g1]
-    tx0, tx1, ty0, ty1 = fp.tx0[g0:g1], fp.tx1[g0:g1], fp.ty0[g0:g1], fp.ty1[g0:g1]
-    wdt = tx1 - tx0 + 1
-    cnt = wdt * (ty1 - ty0 + 1)
+    nty, ntx = grid.nty, grid.ntx
+    alive = (~tile_done).reshape(nty, ntx)
+    pre = torch.zeros(nty, ntx + 1, dtype=torch.int64, device=device)
+    pre[:, 1:] = alive.cumsum(1)
+    row_off = torch.cumsum(pre[:, -1], 0) - pre[:, -1]
+    alive_ids = torch.nonzero(alive.reshape(-1)).squeeze(1)
+    ids = fp.ids[sel]
+    tx0, tx1, ty0, ty1 = fp.tx0[sel], fp.tx1[sel], fp.ty0[sel], fp.ty1[sel]
+    # (Gaussian, tile row) segments
+    nrows = ty1 - ty0 + 1
+    n_seg = int(nrows.sum())
+    gr = torch.repeat_interleave(torch.arange(ids.numel(), device=device), nrows, output_size=n_seg)
+    row = ty0[gr] + torch.arange(n_seg, device=device) - (torch.cumsum(nrows, 0) - nrows)[gr]
+    flat_pre = pre.reshape(-1)
+    a = flat_pre[row * (ntx + 1) + tx0[gr]]
+    cnt = flat_pre[row * (ntx + 1) + tx1[gr] + 1] - a
+    start = row_off[row] + a
     total = int(cnt.sum())
-    rank = torch.repeat_interleave(torch.arange(ids.numel(), device=device), cnt, output_size=total)
-    start = torch.cumsum(cnt, 0) - cnt
-    local = torch.arange(total, device=device) - start[rank]
-    w_r = wdt[rank]
-    tile_id = (ty0[rank] + local // w_r) * grid.ntx + tx0[rank] + local % w_r
-    if tile_done is not None:
-        keep = ~tile_done[tile_id]
-        tile_id = tile_id[keep]
-        rank = rank[keep]
+    seg = torch.repeat_interleave(torch.arange(n_seg, device=device), cnt, output_size=total)
+    local = torch.arange(total, device=device) - (torch.cumsum(cnt, 0) - cnt)[seg]
+    tile_id = alive_ids[start[seg] + local]
     # pairs are generated in depth order; a stable sort by tile keeps that order per tile
     tile_sorted, perm = torch.sort(tile_id, stable=True)
-    gid_sorted = ids[rank[perm]]
+    gid_sorted = ids[gr[seg[perm]]]
     tile_count = torch.bincount(tile_sorted, minlength=grid.n_tiles)
     tile_offset = torch.cumsum(tile_count, 0) - tile_count
     return gid_sorted, tile_count, tile_offset
-
-
-def _coefficients(gp: Tensor, tc: Tensor) -> Tensor:
-    """Per-pair coefficients [nA, B, 6] of log(opacity * G) on the pixel basis.
-
-    gp: [nA, B, 6] gathered (u, v, a, b, c, log o); tc: [nA, 2] tile centres."""
-    dx = tc[:, None, 0] - gp[..., 0]
-    dy = tc[:, None, 1] - gp[..., 1]
-    a, b, c = gp[..., 2], gp[..., 3], gp[..., 4]
-    bdy = b * dy
-    c0 = -0.5 * (a * dx * dx + 2.0 * bdy * dx + c * dy * dy) + gp[..., 5]
-    c1 = -(a * dx + bdy)
-    c2 = -(b * dx + c * dy)
-    return torch.stack([c0, c1, c2, -0.5 * a, -0.5 * c, -b], dim=-1)
-
-
-def _coefficients_backward(gp: Tensor, tc: Tensor, coef: Tensor, gc: Tensor) -> Tensor:
-    """Chain [nA, B, 6] coefficient grads back to (u, v, a, b, c, log o)."""
-    dx = tc[:, None, 0] - gp[..., 0]
-    dy = tc[:, None, 1] - gp[..., 1]
-    a, b, c = gp[..., 2], gp[..., 3], gp[..., 4]
-    g0, g1, g2, g3, g4, g5 = gc.unbind(-1)
-    ga = -0.5 * dx * dx * g0 - dx * g1 - 0.5 * g3
-    gb = -dx * dy * g0 - dy * g1 - dx * g2 - g5
-    gcc = -0.5 * dy * dy * g0 - dy * g2 - 0.5 * g4
-    gdx = coef[..., 1] * g0 - a * g1 - b * g2
-    gdy = coef[..., 2] * g0 - b * g1 - c * g2
-    return torch.stack([-gdx, -gdy, ga, gb, gcc, g0], dim=-1)
-
-
-def _alpha(coef: Tensor, basis: Tensor) -> Tensor:
-    """alpha [nA, B, npx]: min(0.99, exp(coef @ basis)), zeroed below 1/255."""
-    na, b, _ = coef.shape
-    alpha = (coef.reshape(na * b, 6) @ basis).reshape(na, b, -1)
-    alpha.exp_().clamp_(max=ALPHA_MAX)
-    return alpha.masked_fill_(alpha < ALPHA_MIN, 0.0)
-
-
-def _transmittance(alpha: Tensor, t_carry: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """(1 - alpha, T after each pair, T before each pair) for one round."""
-    om = 1.0 - alpha
-    t_after = torch.cumprod(om, 1).mul_(t_carry[:, None, :])
-    t_before = torch.cat([t_carry[:, None, :], t_after[:, :-1]], 1)
-    return om, t_after, t_before
 
 
 class _Composite(torch.autograd.Function):
@@ -213,18 +198,15 @@ class _Composite(torch.autograd.Function):
             [(t_idx % grid.ntx) * grid.tile, (t_idx // grid.ntx) * grid.tile], dim=1
         ).to(dtype) + grid.tile / 2.0
 
-        out = torch.zeros(n_tiles, npx, f, device=device, dtype=dtype)
+        fwd_round, _ = get_kernels()
+        out = torch.zeros(n_tiles, f, npx, device=device, dtype=dtype)
         t_state = torch.ones(n_tiles, npx, device=device, dtype=dtype)  # 0 once a pixel stopped
         tile_done = torch.zeros(n_tiles, dtype=torch.bool, device=device)
         ar = torch.arange(block, device=device)
         rounds = []
-        cnt = (fp.tx1 - fp.tx0 + 1) * (fp.ty1 - fp.ty0 + 1)
-        for ci, (g0, g1) in enumerate(_chunk_bounds(cnt, chunk_pairs)):
-            gid_sorted, tile_count, tile_offset = _chunk_pairs(
-                fp, g0, g1, grid, tile_done if ci > 0 else None
-            )
-            gid_pad = torch.cat([gid_sorted, torch.full((1,), n, device=device, dtype=gid_sorted.dtype)])
+        for gid_sorted, tile_count, tile_offset in _iter_chunks(fp, grid, chunk_pairs, tile_done):
             pc = gid_sorted.numel()
+            gid_pad = torch.cat([gid_sorted, gid_sorted.new_full((1,), n)])
             active = torch.nonzero(tile_count > 0).squeeze(1)
             r = 0
             while active.numel() > 0:
@@ -232,16 +214,12 @@ class _Composite(torch.autograd.Function):
                 cnt_a = tile_count[active]
                 idx = tile_offset[active][:, None] + slot[None, :]
                 gid = gid_pad[torch.where(slot[None, :] < cnt_a[:, None], idx, pc)]
-                t_carry = t_state[active]
-                rows = table[gid]  # [nA, B, 6 + F]
-                alpha = _alpha(_coefficients(rows[..., :6], tile_centers[active]), basis)
-                om, t_after, t_before = _transmittance(alpha, t_carry)
-                w = torch.where(t_after >= T_MIN, alpha.mul_(t_before), 0.0)
-                out[active] += torch.bmm(w.transpose(1, 2), rows[..., 6:])
+                t_carry = t_state.index_select(0, active)
+                rows = table.index_select(0, gid.reshape(-1)).reshape(gid.shape + (table.shape[1],))
+                contrib, t_new = fwd_round(rows, tile_centers.index_select(0, active), basis, t_carry)
+                out.index_add_(0, active, contrib)
                 rounds.append((active, gid, t_carry))
-                t_last = t_after[:, -1, :]
-                t_new = torch.where(t_last >= T_MIN, t_last, 0.0)
-                t_state[active] = t_new
+                t_state.index_copy_(0, active, t_new)
                 alive = (t_new > 0).any(1)
                 tile_done[active[~alive]] = True
                 active = active[(cnt_a > (r + 1) * block) & alive]
@@ -256,31 +234,22 @@ class _Composite(torch.autograd.Function):
         table, tile_centers, basis, out, opac = ctx.saved_tensors
         n, f = ctx.nf
         g_out = g_out.contiguous()
-        total = (out * g_out).sum(-1)  # [n_tiles, npx]
+        total = (out * g_out).sum(1)  # [n_tiles, npx]
         prefix = torch.zeros_like(total)
         grads = torch.zeros(n + 1, 6 + f, device=table.device, dtype=table.dtype)
-        basis_t = basis.T.contiguous()
+        _, bwd_round = get_kernels()
         for active, gid, t_carry in ctx.rounds:
-            rows = table[gid]
-            gp = rows[..., :6]
-            tc = tile_centers[active]
-            coef = _coefficients(gp, tc)
-            alpha = _alpha(coef, basis)
-            om, t_after, t_before = _transmittance(alpha, t_carry)
-            use = (t_after >= T_MIN) & (alpha < ALPHA_MAX)  # clamped alpha has zero grad
-            w = torch.where(t_after >= T_MIN, alpha * t_before, 0.0)
-            gb = g_out[active]  # [nA, npx, F]
-            h = torch.bmm(rows[..., 6:], gb.transpose(1, 2))  # [nA, B, npx]
-            cs = torch.cumsum(w * h, 1).add_(prefix[active][:, None, :])
-            prefix[active] = cs[:, -1, :]
-            s = total[active][:, None, :] - cs
-            # dL/dlogit = alpha * dL/dalpha = w h - alpha S / (1 - alpha)
-            dp = torch.where(use, w * h - alpha * s / om, 0.0)
-            na, b, npx = dp.shape
-            gc = (dp.reshape(na * b, npx) @ basis_t).reshape(na, b, 6)
-            g_rows = torch.cat(
-                [_coefficients_backward(gp, tc, coef, gc), torch.bmm(w, gb)], dim=-1
+            na, b = gid.shape
+            g_rows, new_prefix = bwd_round(
+                table.index_select(0, gid.reshape(-1)).reshape(na, b, table.shape[1]),
+                tile_centers.index_select(0, active),
+                basis,
+                t_carry,
+                g_out.index_select(0, active),
+                total.index_select(0, active),
+                prefix.index_select(0, active),
             )
+            prefix.index_copy_(0, active, new_prefix)
             grads.index_add_(0, gid.reshape(-1), g_rows.reshape(na * b, 6 + f))
         grads = grads[:n]
         d_opac = torch.where(opac > 0, grads[:, 5] / opac.clamp_min(1e-30), 0.0)
@@ -298,15 +267,15 @@ def composite(
     block: int,
     chunk_pairs: int,
 ) -> Tensor:
-    """[n_tiles, tile*tile, F] sum_i w_i f_i per pixel (tile-major layout)."""
+    """[n_tiles, F, tile*tile] sum_i w_i f_i per pixel (tile-major layout)."""
     return _Composite.apply(means2d, conics, opacities, feats, fp, grid, basis, block, chunk_pairs)
 
 
 def tiles_to_image(x: Tensor, grid: TileGrid) -> Tensor:
-    """[n_tiles, tile*tile, F] -> [H, W, F]."""
+    """[n_tiles, F, tile*tile] -> [H, W, F]."""
     t = grid.tile
-    f = x.shape[-1]
-    img = x.reshape(grid.nty, grid.ntx, t, t, f).permute(0, 2, 1, 3, 4)
+    f = x.shape[1]
+    img = x.reshape(grid.nty, grid.ntx, f, t, t).permute(0, 3, 1, 4, 2)
     return img.reshape(grid.nty * t, grid.ntx * t, f)[: grid.height, : grid.width]
 
 

@@ -13,6 +13,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
+from ..scene import DataError
 from .raycast import Scene, cast_rays
 from .scenes import (
     FORWARD_HFOV_DEG,
@@ -303,15 +304,14 @@ def scene_params(name: str) -> dict:
     try:
         return dict(NAMED_SCENES[name])
     except KeyError:
-        raise ValueError(f"unknown synthetic scene {name!r}; known: {', '.join(NAMED_SCENES)}") from None
+        raise DataError(f"synthetic/{name}: unknown synthetic scene (known: {', '.join(NAMED_SCENES)})") from None
 
 
 def default_cache_dir() -> Path:
     """``$SPLAT_CACHE/synthetic`` if ``SPLAT_CACHE`` is set, else ``~/.cache/splat/synthetic``."""
-    env = os.environ.get("SPLAT_CACHE")
-    if env:
-        return Path(env).expanduser() / "synthetic"
-    return Path.home() / ".cache" / "splat" / "synthetic"
+    from ..resolve import user_cache_dir
+
+    return user_cache_dir() / "synthetic"
 
 
 def cache_key(name: str, params: dict) -> str:

@@ -243,8 +243,15 @@ def intersect_box(b: Box, o: np.ndarray, d: np.ndarray) -> np.ndarray:
 
 
 def _cyl_parts(c: Cylinder, o: np.ndarray, d: np.ndarray):
+    """Local origin/direction and the side / cap hit parameters (``inf`` where none).
+
+    Only the first positive root of the side and the one cap plane the ray can
+    enter through are tested: if the first side root is outside the height
+    range, any later side hit is preceded by a cap hit.
+    """
     ol = (o - c.center) @ c.R
     dl = d @ c.R
+    h = c.half_height
     # side
     a = dl[:, 0] ** 2 + dl[:, 1] ** 2
     bb = ol[..., 0] * dl[:, 0] + ol[..., 1] * dl[:, 1]
@@ -252,21 +259,19 @@ def _cyl_parts(c: Cylinder, o: np.ndarray, d: np.ndarray):
     disc = bb * bb - a * cc
     sq = np.sqrt(np.maximum(disc, 0.0))
     a_s = np.where(a < EPS, EPS, a)
-    ok = (disc >= 0) & (a >= EPS)
-    inf = np.full(len(d), np.inf)
-    t_side = inf
-    for root in ((-bb - sq) / a_s, (-bb + sq) / a_s):
-        z = ol[..., 2] + root * dl[:, 2]
-        good = ok & (root > T_MIN) & (np.abs(z) <= c.half_height)
-        t_side = np.where(good & (root < t_side), root, t_side)
-    # caps
-    t_cap = inf
-    for h in (c.half_height, -c.half_height):
-        tc = _safe_div(h - ol[..., 2], dl[:, 2])
-        x = ol[..., 0] + tc * dl[:, 0]
-        y = ol[..., 1] + tc * dl[:, 1]
-        good = (tc > T_MIN) & (x * x + y * y <= c.radius**2)
-        t_cap = np.where(good & (tc < t_cap), tc, t_cap)
+    t0 = (-bb - sq) / a_s
+    root = np.where(t0 > T_MIN, t0, (-bb + sq) / a_s)
+    z = ol[..., 2] + root * dl[:, 2]
+    good = (disc >= 0) & (a >= EPS) & (root > T_MIN) & (np.abs(z) <= h)
+    t_side = np.where(good, root, np.inf)
+    # cap: the plane on the origin's side when outside the slab, else the exit plane
+    oz = np.broadcast_to(ol[..., 2], z.shape)
+    hz = np.where(np.abs(oz) > h, np.sign(oz) * h, np.where(dl[:, 2] >= 0, h, -h))
+    tc = _safe_div(hz - oz, dl[:, 2])
+    x = ol[..., 0] + tc * dl[:, 0]
+    y = ol[..., 1] + tc * dl[:, 1]
+    good = (tc > T_MIN) & (x * x + y * y <= c.radius**2)
+    t_cap = np.where(good, tc, np.inf)
     return ol, dl, t_side, t_cap
 
 
@@ -306,9 +311,8 @@ def _surface(p: Primitive, o: np.ndarray, d: np.ndarray, t: np.ndarray):
         v = np.arccos(np.clip(loc[:, 2], -1.0, 1.0)) / np.pi
         return n, np.stack([u, v], -1)
     if isinstance(p, Box):
-        ol, dl, tn, _ = _box_slabs(p, o, d)
-        loc = ol + t[:, None] * dl
-        rel = loc / p.half  # in [-1, 1]
+        loc = (x - p.center) @ p.R
+        rel = loc / p.half  # in [-1, 1]; the face is the axis at +-1
         axis = np.argmax(np.abs(rel), axis=1)
         side = np.sign(rel[np.arange(len(rel)), axis])
         side = np.where(side == 0, 1.0, side)

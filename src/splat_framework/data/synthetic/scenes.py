@@ -48,25 +48,14 @@ class ViewSpec:
 
 
 def look_at_np(eye, target, up) -> np.ndarray:
-    """[4, 4] world-to-camera (OpenCV axes) looking from ``eye`` at ``target``; ``up`` appears upwards.
+    """[4, 4] float64 world-to-camera (OpenCV axes): :func:`splat_framework.cameras.look_at` as numpy."""
+    from ...cameras import look_at
 
-    Rows of the rotation: x = z cross up (right), y = z cross x (down), z = forward.
-    """
-    eye, target, up = (np.asarray(a, dtype=np.float64) for a in (eye, target, up))
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    R = np.stack([x, y, z], 0)
-    w2c = np.eye(4)
-    w2c[:3, :3] = R
-    w2c[:3, 3] = -R @ eye
-    return w2c
+    return look_at(np.asarray(eye, np.float64), np.asarray(target, np.float64), np.asarray(up, np.float64)).numpy()
 
 
 def _texture(seed: int, index: int, w_world: float, h_world: float, density: float, *, text: bool = True,
-             detail: float = 1.0, max_side: int = 1024, min_side: int = 24) -> tuple[list[np.ndarray], float]:
+             tiles: float = 1.0, max_side: int = 1024, min_side: int = 24) -> tuple[list[np.ndarray], float]:
     """Mip pyramid for a surface of world size w_world x h_world at ``density`` texels/unit."""
     rng = np.random.default_rng([seed, 1000 + index])
     w = w_world * density
@@ -74,7 +63,7 @@ def _texture(seed: int, index: int, w_world: float, h_world: float, density: flo
     s = min(1.0, max_side / max(w, h))
     w, h = max(min_side, int(round(w * s))), max(min_side, int(round(h * s)))
     eff = max(w / w_world, h / h_world)
-    return mip_pyramid(make_texture(rng, h, w, text=text, density=detail)), eff
+    return mip_pyramid(make_texture(rng, h, w, text=text, tiles=tiles)), eff
 
 
 def _with_texture(prim, seed: int, index: int, w_world: float, h_world: float, density: float, **kw):
@@ -94,9 +83,9 @@ def build_forward(seed: int, focal: float) -> Scene:
     wall_yaw = rng.uniform(-0.08, 0.08)
     Rw = rotation(yaw=wall_yaw)
     wall = Quad(name="wall", center=(0.0, 0.0, 9.4), axis_u=Rw[:, 0], axis_v=Rw[:, 1], half_u=9.0, half_v=6.5)
-    prims.append(_with_texture(wall, seed, 0, 18.0, 13.0, density_at(9.4), detail=4.0))
+    prims.append(_with_texture(wall, seed, 0, 18.0, 13.0, density_at(9.4), tiles=3.0))
     floor = Quad(name="floor", center=(0.0, 2.2, 6.0), axis_u=(1, 0, 0), axis_v=(0, 0, 1), half_u=9.0, half_v=4.5)
-    prims.append(_with_texture(floor, seed, 1, 18.0, 9.0, density_at(6.0), detail=3.0))
+    prims.append(_with_texture(floor, seed, 1, 18.0, 9.0, density_at(6.0), tiles=3.0))
 
     # a near sphere so the scene's near bound is ~2
     side = 1.0 if rng.random() < 0.5 else -1.0

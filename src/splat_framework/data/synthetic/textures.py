@@ -48,30 +48,32 @@ def _color(rng: np.random.Generator, lo: float = 0.1, hi: float = 0.95) -> np.nd
     return cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)[0, 0].astype(np.float32) / 255.0
 
 
-def make_texture(rng: np.random.Generator, h: int, w: int, *, text: bool = True, density: float = 1.0) -> np.ndarray:
+def make_texture(rng: np.random.Generator, h: int, w: int, *, text: bool = True, tiles: float = 1.0) -> np.ndarray:
     """A rich seeded texture [h, w, 3] float32 in [0, 1].
 
-    ``density`` scales the number of overlay elements (discs, bars, words).
+    ``tiles``: how many "tiles" of detail span the long side; features shrink
+    by this factor and their number grows with its square (for large surfaces).
     """
+    density = tiles * tiles
     base_a, base_b, base_c = _color(rng), _color(rng), _color(rng)
-    n1 = value_noise(rng, h, w, cells=int(rng.integers(2, 6)))[..., None]
-    n2 = value_noise(rng, h, w, cells=int(rng.integers(8, 20)), octaves=3)[..., None]
+    n1 = value_noise(rng, h, w, cells=int(rng.integers(2, 6) * tiles))[..., None]
+    n2 = value_noise(rng, h, w, cells=int(rng.integers(8, 20) * tiles), octaves=3)[..., None]
     img = base_a * (1 - n1) + base_b * n1
     img = img * (0.75 + 0.5 * n2) + 0.0
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
     # checker at a random scale, blended through a noise mask
-    cs = float(rng.uniform(8, 40)) * max(h, w) / 256.0
+    cs = float(rng.uniform(8, 40)) * max(h, w) / 256.0 / tiles
     chk = ((np.floor(xx / cs) + np.floor(yy / cs)) % 2)[..., None]
-    mask = (value_noise(rng, h, w, cells=3, octaves=2) > 0.55).astype(np.float32)[..., None]
+    mask = (value_noise(rng, h, w, cells=int(3 * tiles), octaves=2) > 0.55).astype(np.float32)[..., None]
     img = img * (1 - 0.6 * mask) + 0.6 * mask * (chk * base_c + (1 - chk) * (1 - base_c))
     # stripes at another angle and frequency
     ang = rng.uniform(0, np.pi)
-    period = float(rng.uniform(6, 24)) * max(h, w) / 256.0
+    period = float(rng.uniform(6, 24)) * max(h, w) / 256.0 / tiles
     st = 0.5 + 0.5 * np.sin(2 * np.pi * (xx * np.cos(ang) + yy * np.sin(ang)) / period)
-    smask = (value_noise(rng, h, w, cells=3, octaves=2) > 0.6).astype(np.float32)[..., None]
+    smask = (value_noise(rng, h, w, cells=int(3 * tiles), octaves=2) > 0.6).astype(np.float32)[..., None]
     img = img * (1 - 0.5 * smask * st[..., None])
     img = np.round(np.clip(img, 0, 1) * 255).astype(np.uint8)  # cv2 drawing (putText) needs 8-bit
-    scale = max(h, w) / 256.0
+    scale = max(h, w) / 256.0 / tiles
     # discs and bars
     for _ in range(int(density * rng.integers(6, 14))):
         c = _c8(rng)
@@ -85,7 +87,8 @@ def make_texture(rng: np.random.Generator, h: int, w: int, *, text: bool = True,
     for _ in range(int(density * rng.integers(3, 8))):
         c = _c8(rng)
         p0 = (int(rng.integers(0, w)), int(rng.integers(0, h)))
-        p1 = (int(rng.integers(0, w)), int(rng.integers(0, h)))
+        ang, length = rng.uniform(0, 2 * np.pi), rng.uniform(20, 120) * scale
+        p1 = (int(p0[0] + length * np.cos(ang)), int(p0[1] + length * np.sin(ang)))
         cv2.line(img, p0, p1, c, max(1, int(rng.uniform(1, 4) * scale)), cv2.LINE_AA)
     if text:
         for _ in range(int(density * rng.integers(4, 9))):

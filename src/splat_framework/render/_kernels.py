@@ -1,0 +1,238 @@
+"""Per-round compositing kernels (forward and hand-derived backward).
+
+One *round* is a dense block of ``B`` (tile, Gaussian) pairs for each of ``nA``
+active tiles, evaluated against the tile's ``npx`` pixels. The functions here
+are pure tensor code: eager by default, optionally compiled with
+``torch.compile`` (set ``SPLAT_COMPILE=1``), which fuses the elementwise chains
+into a few loops. Any failure to compile falls back to eager with a warning.
+
+Shapes:
+    rows:    [nA, B, 6 + F] per-pair Gaussian data (u, v, a, b, c, log o | features)
+    tc:      [nA, 2] tile centres in pixels
+    basis:   [6, npx] quadratic pixel basis (1, lx, ly, lx^2, ly^2, lx*ly)
+    t_carry: [nA, npx] transmittance entering the round (0 = pixel terminated)
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import warnings
+
+import torch
+from torch import Tensor
+
+ALPHA_MIN = 1.0 / 255.0
+ALPHA_MAX = 0.99
+T_MIN = 1e-4
+_LOG_ALPHA_MAX = math.log(ALPHA_MAX)
+
+
+def coefficients(gp: Tensor, tc: Tensor) -> Tensor:
+    """[nA, B, 6] coefficients of log(o G) on the pixel basis.
+
+    gp: [nA, B, 6] (u, v, a, b, c, log o) with q = a dx^2 + 2 b dx dy + c dy^2."""
+    dx = tc[:, None, 0] - gp[..., 0]
+    dy = tc[:, None, 1] - gp[..., 1]
+    a, b, c = gp[..., 2], gp[..., 3], gp[..., 4]
+    bdy = b * dy
+    c0 = -0.5 * (a * dx * dx + 2.0 * bdy * dx + c * dy * dy) + gp[..., 5]
+    c1 = -(a * dx + bdy)
+    c2 = -(b * dx + c * dy)
+    return torch.stack([c0, c1, c2, -0.5 * a, -0.5 * c, -b], dim=-1)
+
+
+def coefficients_backward(gp: Tensor, tc: Tensor, coef: Tensor, gc: Tensor) -> Tensor:
+    """Chain [nA, B, 6] coefficient grads back to (u, v, a, b, c, log o)."""
+    dx = tc[:, None, 0] - gp[..., 0]
+    dy = tc[:, None, 1] - gp[..., 1]
+    a, b, c = gp[..., 2], gp[..., 3], gp[..., 4]
+    g0, g1, g2, g3, g4, g5 = gc.unbind(-1)
+    ga = -0.5 * dx * dx * g0 - dx * g1 - 0.5 * g3
+    gb = -dx * dy * g0 - dy * g1 - dx * g2 - g5
+    gcc = -0.5 * dy * dy * g0 - dy * g2 - 0.5 * g4
+    gdx = coef[..., 1] * g0 - a * g1 - b * g2
+    gdy = coef[..., 2] * g0 - b * g1 - c * g2
+    return torch.stack([-gdx, -gdy, ga, gb, gcc, g0], dim=-1)
+
+
+def _alpha_logits(coef: Tensor, basis: Tensor) -> Tensor:
+    na, b, _ = coef.shape
+    return torch.mm(coef.reshape(na * b, 6), basis).reshape(na, b, -1)
+
+
+# --------------------------------------------------------------------------- eager
+# In-place, few passes over the [nA, B, npx] blocks; used when not compiling.
+
+_THRESH: dict[torch.dtype, float] = {}
+
+
+def _alpha_threshold(dtype: torch.dtype) -> float:
+    """Largest value below 1/255 in ``dtype``: threshold_(x, t, 0) keeps x >= 1/255."""
+    if dtype not in _THRESH:
+        a = torch.tensor(ALPHA_MIN, dtype=dtype)
+        _THRESH[dtype] = float(torch.nextafter(a, torch.tensor(0.0, dtype=dtype)))
+    return _THRESH[dtype]
+
+
+def _alpha_eager(logits: Tensor) -> Tensor:
+    alpha = logits.exp_().clamp_(max=ALPHA_MAX)
+    return torch.nn.functional.threshold_(alpha, _alpha_threshold(alpha.dtype), 0.0)
+
+
+def _transmittance_eager(alpha: Tensor, t_carry: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    om = torch.rsub(alpha, 1.0)
+    t_after = torch.cumprod(om, 1).mul_(t_carry[:, None, :])
+    t_before = torch.cat([t_carry[:, None, :], t_after[:, :-1]], 1)
+    return om, t_after, t_before
+
+
+def fwd_round(rows: Tensor, tc: Tensor, basis: Tensor, t_carry: Tensor) -> tuple[Tensor, Tensor]:
+    """Returns (contribution [nA, F, npx] = sum_b w f, transmittance leaving the round
+    [nA, npx] with 0 for pixels that terminated)."""
+    alpha = _alpha_eager(_alpha_logits(coefficients(rows[..., :6], tc), basis))
+    om, t_after, t_before = _transmittance_eager(alpha, t_carry)
+    w = alpha.mul_(t_before).masked_fill_(t_after < T_MIN, 0.0)
+    contrib = torch.bmm(rows[..., 6:].transpose(1, 2), w)
+    t_last = t_after[:, -1, :]
+    return contrib, t_last.masked_fill_(t_last < T_MIN, 0.0)
+
+
+def bwd_round(
+    rows: Tensor,
+    tc: Tensor,
+    basis: Tensor,
+    t_carry: Tensor,
+    g_t: Tensor,
+    total: Tensor,
+    prefix: Tensor,
+) -> tuple[Tensor, Tensor]:
+    """Backward of one round.
+
+    g_t: [nA, F, npx] output gradient; total: [nA, npx] sum_j w_j (f_j . g) over
+    the whole pixel list; prefix: [nA, npx] the same sum over earlier rounds.
+
+    Returns (grads [nA, B, 6 + F] w.r.t. rows, new prefix [nA, npx]).
+
+    With h_i = f_i . g and S_i = sum_{j>i} w_j h_j = total - prefix_i:
+    dL/dlogit_i = alpha_i dL/dalpha_i = alpha_i (T_i h_i - S_i / (1 - alpha_i)),
+    zero where the pair is excluded (terminated) or alpha is clamped at 0.99.
+    """
+    gp = rows[..., :6]
+    coef = coefficients(gp, tc)
+    logits = _alpha_logits(coef, basis)
+    dead = logits >= _LOG_ALPHA_MAX  # clamped: no gradient through alpha
+    alpha = _alpha_eager(logits)
+    om, t_after, t_before = _transmittance_eager(alpha, t_carry)
+    excluded = t_after < T_MIN  # early termination
+    w = (alpha * t_before).masked_fill_(excluded, 0.0)
+    dead |= excluded
+    h = torch.bmm(rows[..., 6:], g_t)  # [nA, B, npx]
+    cs = torch.cumsum(w * h, 1).add_(prefix[:, None, :])
+    s = torch.sub(total[:, None, :], cs).div_(om)
+    dp = t_before.mul_(h).sub_(s).mul_(alpha).masked_fill_(dead, 0.0)
+    na, b, npx = dp.shape
+    gc = torch.mm(dp.reshape(na * b, npx), basis.T).reshape(na, b, 6)
+    g_feat = torch.bmm(g_t, w.transpose(1, 2)).transpose(1, 2)  # [nA, B, F]
+    g_rows = torch.cat([coefficients_backward(gp, tc, coef, gc), g_feat], dim=-1)
+    return g_rows, cs[:, -1, :]
+
+
+# --------------------------------------------------------------------------- fused
+# Functional versions with the scans unrolled over the (static) block size, so that
+# torch.compile can fuse each round into a few loops. Same math as the eager ones.
+
+
+def _alpha_fused(logits: Tensor) -> Tensor:
+    alpha = logits.exp().clamp(max=ALPHA_MAX)
+    return torch.where(alpha < ALPHA_MIN, 0.0, alpha)
+
+
+def _scan_mul(om: Tensor, t0: Tensor) -> tuple[Tensor, Tensor]:
+    ts = [t0]
+    for i in range(om.shape[1]):
+        ts.append(ts[-1] * om[:, i])
+    t_all = torch.stack(ts, 1)
+    return t_all[:, 1:], t_all[:, :-1]
+
+
+def _scan_add(x: Tensor, s0: Tensor) -> Tensor:
+    ss = [s0]
+    for i in range(x.shape[1]):
+        ss.append(ss[-1] + x[:, i])
+    return torch.stack(ss[1:], 1)
+
+
+def fwd_round_fused(rows: Tensor, tc: Tensor, basis: Tensor, t_carry: Tensor) -> tuple[Tensor, Tensor]:
+    alpha = _alpha_fused(_alpha_logits(coefficients(rows[..., :6], tc), basis))
+    t_after, t_before = _scan_mul(1.0 - alpha, t_carry)
+    w = torch.where(t_after >= T_MIN, alpha * t_before, 0.0)
+    contrib = torch.bmm(rows[..., 6:].transpose(1, 2), w)
+    t_last = t_after[:, -1, :]
+    return contrib, torch.where(t_last >= T_MIN, t_last, 0.0)
+
+
+def bwd_round_fused(
+    rows: Tensor,
+    tc: Tensor,
+    basis: Tensor,
+    t_carry: Tensor,
+    g_t: Tensor,
+    total: Tensor,
+    prefix: Tensor,
+) -> tuple[Tensor, Tensor]:
+    gp = rows[..., :6]
+    coef = coefficients(gp, tc)
+    logits = _alpha_logits(coef, basis)
+    alpha = _alpha_fused(logits)
+    om = 1.0 - alpha
+    t_after, t_before = _scan_mul(om, t_carry)
+    incl = t_after >= T_MIN
+    w = torch.where(incl, alpha * t_before, 0.0)
+    h = torch.bmm(rows[..., 6:], g_t)
+    cs = _scan_add(w * h, prefix)
+    s = total[:, None, :] - cs
+    dp = torch.where(incl & (logits < _LOG_ALPHA_MAX), alpha * (t_before * h - s / om), 0.0)
+    na, b, npx = dp.shape
+    gc = torch.mm(dp.reshape(na * b, npx), basis.T).reshape(na, b, 6)
+    g_feat = torch.bmm(g_t, w.transpose(1, 2)).transpose(1, 2)
+    g_rows = torch.cat([coefficients_backward(gp, tc, coef, gc), g_feat], dim=-1)
+    return g_rows, cs[:, -1, :]
+
+
+_KERNELS: dict[str, object] = {}
+
+
+def compile_requested() -> bool:
+    return os.environ.get("SPLAT_COMPILE", "0").strip().lower() in ("1", "true", "yes", "on")
+
+
+def get_kernels():
+    """(fwd_round, bwd_round): compiled when SPLAT_COMPILE=1, else eager."""
+    if not compile_requested():
+        return fwd_round, bwd_round
+    if "compiled" not in _KERNELS:
+        try:
+            _KERNELS["compiled"] = (
+                _with_fallback(torch.compile(fwd_round_fused, dynamic=True), fwd_round),
+                _with_fallback(torch.compile(bwd_round_fused, dynamic=True), bwd_round),
+            )
+        except Exception as exc:  # pragma: no cover - depends on the toolchain
+            warnings.warn(f"SPLAT_COMPILE: torch.compile unavailable ({exc}); using eager")
+            _KERNELS["compiled"] = (fwd_round, bwd_round)
+    return _KERNELS["compiled"]
+
+
+def _with_fallback(compiled, eager):
+    state = {"ok": True}
+
+    def run(*args):
+        if state["ok"]:
+            try:
+                return compiled(*args)
+            except Exception as exc:  # pragma: no cover - depends on the toolchain
+                state["ok"] = False
+                warnings.warn(f"SPLAT_COMPILE: compiled kernel failed ({exc!r}); using eager")
+        return eager(*args)
+
+    return run
