@@ -65,6 +65,7 @@ class Footprints:
     tx1: Tensor
     ty0: Tensor
     ty1: Tensor
+    ell: Tensor  # [V, 6] (u, v, cov_xx, cov_xy, cov_yy, qmax): the ellipse alpha >= 1/255
     hit: Tensor  # [N] bool
 
 
@@ -75,6 +76,8 @@ def tile_footprints(
     ext_y: Tensor,
     ok: Tensor,
     depths: Tensor,
+    cov2d: Tensor,
+    qmax: Tensor,
     grid: TileGrid,
 ) -> Footprints:
     width, height, tile = grid.width, grid.height, grid.tile
@@ -100,7 +103,8 @@ def tile_footprints(
     tx1 = px1[ids].clamp(0, width - 1).long() // tile
     ty0 = py0[ids].clamp(0, height - 1).long() // tile
     ty1 = py1[ids].clamp(0, height - 1).long() // tile
-    return Footprints(ids, tx0, tx1, ty0, ty1, hit)
+    ell = torch.cat([means2d.detach()[ids], cov2d.detach()[ids], qmax[ids, None]], dim=1)
+    return Footprints(ids, tx0, tx1, ty0, ty1, ell, hit)
 
 
 def _alive_counts(tile_done: Tensor, fp: Footprints, pos: int, grid: TileGrid) -> Tensor:
@@ -141,6 +145,41 @@ def _iter_chunks(fp: Footprints, grid: TileGrid, chunk_pairs: int, tile_done: Te
         first = False
 
 
+def _row_columns(ell: Tensor, row: Tensor, grid: TileGrid) -> tuple[Tensor, Tensor]:
+    """Tile columns [c0, c1] that the ellipse d^T cov^-1 d <= qmax reaches within
+    tile row ``row`` (conservative: the whole band between the row's first and last
+    pixel-centre lines). c1 < c0 when it reaches none."""
+    t = grid.tile
+    u, v, sxx, sxy, syy, q = ell.unbind(1)
+    syy = syy.clamp_min(1e-12)
+    sxx = sxx.clamp_min(1e-12)
+    rowf = row.to(ell.dtype)
+    ey = torch.sqrt(q * syy)
+    dyl = torch.maximum(rowf * t + 0.5 - v, -ey)
+    dyh = torch.minimum(torch.clamp_max(rowf * t + (t - 0.5), grid.height - 0.5) - v, ey)
+    empty = dyl > dyh
+    dyh = torch.maximum(dyh, dyl)
+    k = sxy / syy
+    w2 = torch.clamp_min(sxx - sxy * k, 0.0) / syy  # det / syy^2 * syy... conditional var / syy
+    d_star = sxy * torch.sqrt(q / sxx)  # dy of the rightmost point (leftmost: -d_star)
+
+    def half(dy):
+        return torch.sqrt(torch.clamp_min(q * syy - dy * dy, 0.0) * w2)
+
+    dr = torch.minimum(torch.maximum(d_star, dyl), dyh)
+    dl = torch.minimum(torch.maximum(-d_star, dyl), dyh)
+    x_hi = u + k * dr + half(dr)
+    x_lo = u + k * dl - half(dl)
+    margin = 1e-3 + 1e-5 * (x_hi.abs() + x_lo.abs())
+    big = float(grid.width + t)
+    p_lo = torch.ceil((x_lo - 0.5 - margin).clamp(-big, big))
+    p_hi = torch.floor((x_hi - 0.5 + margin).clamp(-big, big))
+    c0 = torch.div(p_lo.clamp(0, grid.width - 1), t, rounding_mode="floor").long()
+    c1 = torch.div(p_hi.clamp(0, grid.width - 1), t, rounding_mode="floor").long()
+    c1 = torch.where(empty | (p_hi < 0) | (p_lo > grid.width - 1) | (p_lo > p_hi), c0 - 1, c1)
+    return c0, c1
+
+
 def _chunk_pairs(fp: Footprints, sel: Tensor, grid: TileGrid, tile_done: Tensor):
     """Pairs (unfinished tile, Gaussian fp.ids[sel]) sorted by (tile, depth); sel ascending.
 
@@ -163,8 +202,12 @@ def _chunk_pairs(fp: Footprints, sel: Tensor, grid: TileGrid, tile_done: Tensor)
     gr = torch.repeat_interleave(torch.arange(ids.numel(), device=device), nrows, output_size=n_seg)
     row = ty0[gr] + torch.arange(n_seg, device=device) - (torch.cumsum(nrows, 0) - nrows)[gr]
     flat_pre = pre.reshape(-1)
-    a = flat_pre[row * (ntx + 1) + tx0[gr]]
-    cnt = flat_pre[row * (ntx + 1) + tx1[gr] + 1] - a
+    # tighten each row's column range to the ellipse's x extent within the row
+    c0, c1 = _row_columns(fp.ell[sel][gr], row, grid)
+    c0 = torch.maximum(c0, tx0[gr])
+    c1 = torch.maximum(torch.minimum(c1, tx1[gr]), c0 - 1)
+    a = flat_pre[row * (ntx + 1) + c0]
+    cnt = flat_pre[row * (ntx + 1) + c1 + 1] - a
     start = row_off[row] + a
     total = int(cnt.sum())
     seg = torch.repeat_interleave(torch.arange(n_seg, device=device), cnt, output_size=total)

@@ -101,7 +101,7 @@ def project_gaussians(
 
 def footprint(
     cov2d: Tensor, opacities: Tensor, valid: Tensor
-) -> tuple[Tensor, Tensor, Tensor]:
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Opacity-aware half extents of the region where alpha >= 1/255.
 
     The region is the ellipse d^T cov^-1 d <= 2 ln(255 opacity); its axis-aligned
@@ -109,8 +109,8 @@ def footprint(
     small safety margin (the per-pixel test is exact).
 
     Returns:
-        (ext_x [N], ext_y [N], ok [N] bool) -- ok is False where the Gaussian can
-        never reach 1/255.
+        (ext_x [N], ext_y [N], ok [N] bool, qmax [N]) -- ok is False where the
+        Gaussian can never reach 1/255; qmax = 2 ln(255 opacity) (with margin).
     """
     with torch.no_grad():
         o = opacities.detach().to(cov2d.dtype)
@@ -120,7 +120,7 @@ def footprint(
         c = cov2d.detach()
         ext_x = torch.sqrt(qmax * c[:, 0]) * (1.0 + 1e-4) + 1e-3
         ext_y = torch.sqrt(qmax * c[:, 2]) * (1.0 + 1e-4) + 1e-3
-    return ext_x, ext_y, ok
+    return ext_x, ext_y, ok, qmax * (1.0 + 1e-4) + 1e-6
 
 
 def reference_radii(cov2d: Tensor, active: Tensor) -> Tensor:

@@ -183,7 +183,7 @@ def rasterize(
     means2d = proj.means2d
     if torch.is_grad_enabled() and means2d.requires_grad:
         means2d.retain_grad()
-    ext_x, ext_y, ok = footprint(proj.cov2d, opacities, proj.valid)
+    ext_x, ext_y, ok, qmax = footprint(proj.cov2d, opacities, proj.valid)
     grid = TileGrid(
         tile=tile_size,
         ntx=(width + tile_size - 1) // tile_size,
@@ -191,7 +191,7 @@ def rasterize(
         width=width,
         height=height,
     )
-    fp = tile_footprints(means2d, ext_x, ext_y, ok, proj.depths, grid)
+    fp = tile_footprints(means2d, ext_x, ext_y, ok, proj.depths, proj.cov2d, qmax, grid)
 
     # --------------------------------------------------------- compositing
     ones = torch.ones(n, 1, device=device, dtype=dtype)
