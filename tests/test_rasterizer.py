@@ -412,3 +412,52 @@ def test_fused_kernel_variant_matches(monkeypatch):
     )
     _compare(50, 31, 30, 22, torch.float64, tile_size=8, block=5, chunk_pairs=40)
     test_clamped_alpha_opacity_one()
+
+
+@pytest.mark.parametrize("tile", [8, 16])
+def test_tile_pairs_cover_every_contributing_pixel(tile):
+    # the opacity-aware, per-row-tightened footprint must list every (tile, Gaussian)
+    # with at least one pixel where opacity * G >= 1/255
+    from splat_framework.render._composite import TileGrid, _chunk_pairs, tile_footprints
+    from splat_framework.render._project import footprint
+
+    g = torch.Generator().manual_seed(tile)
+    n, width, height = 300, 71, 53
+    dtype = torch.float32
+    means2d = torch.rand(n, 2, generator=g) * torch.tensor([width + 30.0, height + 30.0]) - 15
+    ang = torch.rand(n, generator=g) * math.pi
+    s1 = torch.exp(torch.randn(n, generator=g) * 0.8 + 1.0)
+    s2 = s1 * torch.exp(-torch.rand(n, generator=g) * 2.5)  # up to ~12:1 anisotropy
+    c, s = torch.cos(ang), torch.sin(ang)
+    cxx = c * c * s1**2 + s * s * s2**2 + 0.3
+    cyy = s * s * s1**2 + c * c * s2**2 + 0.3
+    cxy = c * s * (s1**2 - s2**2)
+    cov2d = torch.stack([cxx, cxy, cyy], 1)
+    opac = torch.rand(n, generator=g)
+    valid = torch.ones(n, dtype=torch.bool)
+    ext_x, ext_y, ok, qmax = footprint(cov2d, opac, valid)
+    grid = TileGrid(tile, (width + tile - 1) // tile, (height + tile - 1) // tile, width, height)
+    fp = tile_footprints(means2d, ext_x, ext_y, ok, torch.rand(n, generator=g), cov2d, qmax, grid)
+    gid, count, _ = _chunk_pairs(fp, torch.arange(fp.ids.numel()), grid,
+                                 torch.zeros(grid.n_tiles, dtype=torch.bool))
+    tiles = torch.repeat_interleave(torch.arange(grid.n_tiles), count)
+    listed = torch.zeros(n, grid.n_tiles, dtype=torch.bool)
+    listed[gid, tiles] = True
+
+    ys, xs = torch.meshgrid(torch.arange(height, dtype=dtype), torch.arange(width, dtype=dtype),
+                            indexing="ij")
+    pix = torch.stack([xs, ys], -1).reshape(-1, 2) + 0.5
+    det = cxx * cyy - cxy**2
+    conic = torch.stack([cyy / det, -cxy / det, cxx / det], 1)
+    d = pix[:, None, :] - means2d[None]
+    q = conic[:, 0] * d[..., 0] ** 2 + 2 * conic[:, 1] * d[..., 0] * d[..., 1] + conic[:, 2] * d[..., 1] ** 2
+    contributes = opac * torch.exp(-0.5 * q) >= 1.0 / 255.0  # [HW, N]
+    pix_tile = ((pix[:, 1] // tile) * grid.ntx + pix[:, 0] // tile).long()
+    need = torch.zeros(n, grid.n_tiles, dtype=torch.bool)
+    pi, gi = torch.nonzero(contributes, as_tuple=True)
+    need[gi, pix_tile[pi]] = True
+    assert need.sum() > 500
+    missing = need & ~listed
+    assert not missing.any(), f"{int(missing.sum())} contributing (Gaussian, tile) pairs missing"
+    # and the listing is reasonably tight
+    assert listed.sum() < 1.6 * need.sum()

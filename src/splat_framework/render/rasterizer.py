@@ -60,8 +60,8 @@ def rasterize(
     far_plane: float = 1e10,
     depth_mode: Literal["accumulated", "expected"] = "accumulated",
     eps2d: float = 0.3,
-    tile_size: int = 16,
-    block: int = 32,
+    tile_size: int = 8,
+    block: int = 4,
     chunk_pairs: int | None = None,
 ) -> RenderOutput:
     """Render 3D Gaussians into one pinhole camera (3DGS reference semantics).

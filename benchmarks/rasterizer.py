@@ -1,0 +1,284 @@
+"""Benchmark of the pure-PyTorch Gaussian rasterizer (``splat_framework.render.rasterize``).
+
+Scene (reproducible, fixed seed): N Gaussians spread uniformly over a forward-facing
+frustum of a 504x378 pinhole camera (fx = fy = 407, principal point at the centre,
+like LLFF fern at 1/8 resolution): pixel position uniform over the image (+5 % margin),
+camera depth z ~ U[2, 10]; per-axis scales exp(N(log(0.01 * 8), 0.3)) (about 1 % of the
+depth range), random rotations, opacities ~ U(0.05, 0.95), RGB colours ~ U(0, 1).
+
+Reported per N: median wall time of the forward pass without grad ("render"), the
+training forward (grad enabled), and forward + backward of a loss mixing rgb, depth
+and alpha; plus peak memory (CPU: growth of the process's max RSS, measured in a fresh
+subprocess per N; CUDA: torch.cuda.max_memory_allocated).
+
+Usage:
+    python benchmarks/rasterizer.py [--device cpu|cuda] [--sizes 10000 50000 ...]
+        [--repeats 7] [--json PATH] [--md PATH] [--compile] [--threads T]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import resource
+import statistics
+import subprocess
+import sys
+import time
+
+WIDTH, HEIGHT, FOCAL = 504, 378, 407.0
+DEFAULT_SIZES = [10_000, 50_000, 100_000, 200_000]
+
+
+def make_scene(n: int, device: str, seed: int = 0):
+    import torch
+
+    g = torch.Generator().manual_seed(seed)
+    u = (torch.rand(n, generator=g) * 1.1 - 0.05) * WIDTH
+    v = (torch.rand(n, generator=g) * 1.1 - 0.05) * HEIGHT
+    z = 2.0 + 8.0 * torch.rand(n, generator=g)
+    means = torch.stack([(u - WIDTH / 2) / FOCAL * z, (v - HEIGHT / 2) / FOCAL * z, z], -1)
+    quats = torch.randn(n, 4, generator=g)
+    scales = torch.exp(math.log(0.01 * 8.0) + 0.3 * torch.randn(n, 3, generator=g))
+    opacities = 0.05 + 0.9 * torch.rand(n, generator=g)
+    colors = torch.rand(n, 3, generator=g)
+    viewmat = torch.eye(4)
+    K = torch.tensor([[FOCAL, 0.0, WIDTH / 2], [0.0, FOCAL, HEIGHT / 2], [0.0, 0.0, 1.0]])
+    w_rgb = torch.randn(HEIGHT, WIDTH, 3, generator=g)
+    w_depth = 0.1 * torch.randn(HEIGHT, WIDTH, 1, generator=g)
+    w_alpha = torch.randn(HEIGHT, WIDTH, 1, generator=g)
+    to = lambda t: t.to(device)  # noqa: E731
+    params = [to(t).requires_grad_() for t in (means, quats, scales, opacities, colors)]
+    return params, to(viewmat), to(K), (to(w_rgb), to(w_depth), to(w_alpha))
+
+
+def _maxrss_bytes() -> int:
+    r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return r if sys.platform == "darwin" else r * 1024
+
+
+def run_one(n: int, device: str, repeats: int, warmup: int) -> dict:
+    """Measure one size in this process (called in a fresh subprocess)."""
+    import torch
+
+    from splat_framework.render import rasterize
+
+    def sync():
+        if device == "cuda":
+            torch.cuda.synchronize()
+
+    params, viewmat, K, (w_rgb, w_depth, w_alpha) = make_scene(n, device)
+
+    def forward():
+        return rasterize(*params, viewmat, K, WIDTH, HEIGHT)
+
+    def loss_of(out):
+        return (out.rgb * w_rgb).sum() + (out.depth * w_depth).sum() + (out.alpha * w_alpha).sum()
+
+    sync()
+    t0 = time.perf_counter()
+    loss_of(forward()).backward()  # first call (includes torch.compile when enabled)
+    sync()
+    first_call = time.perf_counter() - t0
+    for _ in range(max(warmup - 1, 0)):
+        loss_of(forward()).backward()
+    for p in params:
+        p.grad = None
+    sync()
+    if device == "cuda":
+        torch.cuda.reset_peak_memory_stats()
+        base_mem = torch.cuda.memory_allocated()
+    rss0 = _maxrss_bytes()
+
+    t_render, t_fwd, t_fb = [], [], []
+    visible = n_alpha = None
+    for _ in range(repeats):
+        sync()
+        t0 = time.perf_counter()
+        with torch.no_grad():
+            out = forward()
+        sync()
+        t_render.append(time.perf_counter() - t0)
+        visible = int(out.meta["visible"].sum())
+        n_alpha = float(out.alpha.mean())
+        del out
+
+        sync()
+        t0 = time.perf_counter()
+        out = forward()
+        loss = loss_of(out)
+        sync()
+        t1 = time.perf_counter()
+        loss.backward()
+        sync()
+        t2 = time.perf_counter()
+        t_fwd.append(t1 - t0)
+        t_fb.append(t2 - t0)
+        assert out.meta["means2d"].grad is not None
+        del out, loss
+        for p in params:
+            p.grad = None
+
+    if device == "cuda":
+        peak = torch.cuda.max_memory_allocated() - base_mem
+    else:
+        peak = max(_maxrss_bytes() - rss0, 0)
+    return {
+        "n": n,
+        "visible": visible,
+        "mean_alpha": round(n_alpha, 4),
+        "render_median_s": statistics.median(t_render),
+        "forward_median_s": statistics.median(t_fwd),
+        "fwd_bwd_median_s": statistics.median(t_fb),
+        "fwd_bwd_min_s": min(t_fb),
+        "fwd_bwd_runs_s": [round(t, 4) for t in t_fb],
+        "first_call_s": first_call,
+        "peak_memory_mb": peak / 2**20,
+        "peak_memory_kind": "cuda max_memory_allocated" if device == "cuda" else "max RSS growth",
+    }
+
+
+def machine_info(device: str, threads: int | None) -> dict:
+    import torch
+
+    model = platform.processor() or ""
+    try:
+        out = subprocess.run(["lscpu"], capture_output=True, text=True, check=True).stdout
+        for line in out.splitlines():
+            if line.startswith("Model name:"):
+                model = line.split(":", 1)[1].strip()
+    except (OSError, subprocess.CalledProcessError):
+        pass
+    info = {
+        "cpu_model": model,
+        "cpu_count": os.cpu_count(),
+        "torch_threads": threads if threads else torch.get_num_threads(),
+        "torch": torch.__version__,
+        "python": platform.python_version(),
+        "device": device,
+        "splat_compile": os.environ.get("SPLAT_COMPILE", "0"),
+        "image": f"{WIDTH}x{HEIGHT}",
+        "focal": FOCAL,
+    }
+    try:
+        info["loadavg_at_start"] = [round(x, 2) for x in os.getloadavg()]
+    except OSError:
+        pass
+    if device == "cuda":
+        info["gpu"] = torch.cuda.get_device_name(0)
+    return info
+
+
+def render_table(results: list[dict], info: dict) -> str:
+    head = (
+        f"Rasterizer benchmark, {info['image']} (fx = fy = {info['focal']:g}), device {info['device']}"
+        f" ({info.get('gpu', info['cpu_model'])}, {info['cpu_count']} cores,"
+        f" {info['torch_threads']} torch threads), torch {info['torch']},"
+        f" SPLAT_COMPILE={info['splat_compile']}"
+    )
+    lines = [
+        head,
+        "",
+        "| N | visible | render (no grad) median | forward median | fwd+bwd median | fwd+bwd min | peak memory |",
+        "|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in results:
+        lines.append(
+            f"| {r['n']:,} | {r['visible']:,} | {r['render_median_s'] * 1e3:.0f} ms"
+            f" | {r['forward_median_s'] * 1e3:.0f} ms | {r['fwd_bwd_median_s'] * 1e3:.0f} ms"
+            f" | {r['fwd_bwd_min_s'] * 1e3:.0f} ms | {r['peak_memory_mb']:.0f} MiB |"
+        )
+    return "\n".join(lines)
+
+
+def print_rich(results: list[dict], info: dict) -> None:
+    try:
+        from rich.console import Console
+        from rich.table import Table
+    except ImportError:  # pragma: no cover
+        print(render_table(results, info))
+        return
+    t = Table(
+        title=f"rasterize() {info['image']} on {info['device']} "
+        f"({info.get('gpu', info['cpu_model'])}, {info['torch_threads']} threads, "
+        f"torch {info['torch']}, SPLAT_COMPILE={info['splat_compile']})"
+    )
+    for col in ["N", "visible", "render (no grad)", "forward", "fwd+bwd", "fwd+bwd min", "peak mem", "first call"]:
+        t.add_column(col, justify="right")
+    for r in results:
+        t.add_row(
+            f"{r['n']:,}",
+            f"{r['visible']:,}",
+            f"{r['render_median_s'] * 1e3:.0f} ms",
+            f"{r['forward_median_s'] * 1e3:.0f} ms",
+            f"{r['fwd_bwd_median_s'] * 1e3:.0f} ms",
+            f"{r['fwd_bwd_min_s'] * 1e3:.0f} ms",
+            f"{r['peak_memory_mb']:.0f} MiB",
+            f"{r['first_call_s']:.2f} s",
+        )
+    Console().print(t)
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
+    ap.add_argument("--sizes", type=int, nargs="+", default=DEFAULT_SIZES)
+    ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--warmup", type=int, default=2)
+    ap.add_argument("--threads", type=int, default=None, help="torch.set_num_threads (default: torch's)")
+    ap.add_argument("--compile", action="store_true", help="set SPLAT_COMPILE=1 (fused torch.compile kernels)")
+    ap.add_argument("--json", type=str, default=None, help="write results as JSON here")
+    ap.add_argument("--md", type=str, default=None, help="write the table as Markdown here")
+    ap.add_argument("--worker", type=int, default=None, help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+
+    if args.compile:
+        os.environ["SPLAT_COMPILE"] = "1"
+    if args.worker is not None:
+        import torch
+
+        if args.threads:
+            torch.set_num_threads(args.threads)
+        print(json.dumps(run_one(args.worker, args.device, args.repeats, args.warmup)))
+        return
+
+    results = []
+    for n in args.sizes:
+        cmd = [sys.executable, os.path.abspath(__file__), "--worker", str(n), "--device", args.device,
+               "--repeats", str(args.repeats), "--warmup", str(args.warmup)]
+        if args.threads:
+            cmd += ["--threads", str(args.threads)]
+        proc = subprocess.run(cmd, capture_output=True, text=True, env=os.environ.copy())
+        if proc.returncode != 0:
+            sys.stderr.write(proc.stderr)
+            raise SystemExit(f"benchmark worker for N={n} failed")
+        res = json.loads(proc.stdout.strip().splitlines()[-1])
+        results.append(res)
+        print(
+            f"N={n:>7,}: render {res['render_median_s'] * 1e3:6.0f} ms, forward {res['forward_median_s'] * 1e3:6.0f} ms,"
+            f" fwd+bwd {res['fwd_bwd_median_s'] * 1e3:6.0f} ms (median of {args.repeats}),"
+            f" peak {res['peak_memory_mb']:.0f} MiB",
+            flush=True,
+        )
+
+    import torch
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    info = machine_info(args.device, args.threads)
+    print_rich(results, info)
+    if args.json:
+        os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
+        with open(args.json, "w") as f:
+            json.dump({"machine": info, "scene": __doc__.split("Reported")[0].strip(), "results": results}, f, indent=2)
+    if args.md:
+        os.makedirs(os.path.dirname(os.path.abspath(args.md)), exist_ok=True)
+        with open(args.md, "w") as f:
+            f.write(render_table(results, info) + "\n")
+
+
+if __name__ == "__main__":
+    main()

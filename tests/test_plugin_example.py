@@ -1,0 +1,48 @@
+"""The example plugin package in examples/ installs and trains through the public entry point."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+EXAMPLE = REPO / "examples" / "splat-example-plugin"
+
+
+@pytest.fixture(scope="module")
+def plugin_site(tmp_path_factory):
+    site = tmp_path_factory.mktemp("site")
+    r = subprocess.run(
+        [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--no-build-isolation", "--target", str(site), str(EXAMPLE)],
+        capture_output=True, text=True, timeout=300,
+    )
+    if r.returncode != 0:
+        pytest.fail(f"installing the example plugin failed: {r.stderr[-2000:]}")
+    return site
+
+
+def _env(site, tmp_path):
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(site), env.get("PYTHONPATH", "")])
+    env["SPLAT_CACHE"] = str(tmp_path / "cache")
+    return env
+
+
+def test_example_plugin_is_listed_and_trains(plugin_site, tmp_path):
+    env = _env(plugin_site, tmp_path)
+    r = subprocess.run([sys.executable, "-m", "splat_framework.cli.train", "--help"], capture_output=True, text=True, env=env, timeout=120)
+    assert r.returncode == 0 and "flat-3dgs" in r.stdout
+    out = tmp_path / "run"
+    r = subprocess.run(
+        [sys.executable, "-m", "splat_framework.cli.train", "flat-3dgs", "--data", "synthetic/forward-tiny",
+         "--steps", "20", "--output", str(out), "--no-progress"],
+        capture_output=True, text=True, env=env, timeout=600,
+    )
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert (out / "metrics.json").is_file()
+    import json
+
+    cfg = json.loads((out / "config.json").read_text())["config"]
+    assert cfg["method"] == "flat-3dgs" and cfg["model"]["sh_degree"] == 0
