@@ -461,3 +461,19 @@ def test_tile_pairs_cover_every_contributing_pixel(tile):
     assert not missing.any(), f"{int(missing.sum())} contributing (Gaussian, tile) pairs missing"
     # and the listing is reasonably tight
     assert listed.sum() < 1.6 * need.sum()
+
+
+def test_all_culled_and_inference_mode():
+    viewmat, K = make_camera(16, 12)
+    means = torch.tensor([[0.0, 0.0, -10.0], [0.0, 0.0, -20.0]], requires_grad=True)
+    args = (torch.tensor([[1.0, 0, 0, 0]] * 2), torch.full((2, 3), 0.1), torch.full((2,), 0.5),
+            torch.rand(2, 3))
+    viewmat = torch.eye(4)
+    out = rasterize(means, *args, viewmat, K, 16, 12, background=torch.ones(3))
+    assert (out.rgb == 1).all() and not out.meta["visible"].any()
+    assert (out.meta["radii"] == 0).all()
+    out.rgb.sum().backward()
+    assert (means.grad == 0).all()
+    with torch.inference_mode():
+        out = rasterize(means.detach(), *args, viewmat, K, 16, 12)
+    assert out.rgb.shape == (12, 16, 3)

@@ -13,13 +13,12 @@ from __future__ import annotations
 import time
 import warnings
 
-import numpy as np
 import torch
 from torch import Tensor, nn
 
 from splat_framework.cameras import Camera
 from splat_framework.data.resolve import user_cache_dir
-from splat_framework.model.gaussians import GaussianModel, knn_scale, rgb_to_sh0, sample_frustum_points
+from splat_framework.model.gaussians import GaussianModel, sample_frustum_points
 from splat_framework.model.ops import remove
 
 from .losses import rendering_geometry_loss
@@ -283,13 +282,47 @@ class SCGaussianModel(GaussianModel):
 
     @torch.no_grad()
     def report(self, datamanager) -> dict:
-        """Structure statistics: match count and, with GT depth, the ray Gaussians' distance to the surface."""
+        """Structure statistics of the ray (match) Gaussians, rows ``[0, G)``.
+
+        Always: their count and the median reprojection error of the matches.
+        With GT depth for the training views (built-in synthetic scenes), the
+        distance of each to the true surface along its own view, as a relative
+        depth error |camera z - GT depth at its pixel| / GT depth (pixels with
+        GT depth > 0 only): median, 90th percentile, fraction within 1% and 5%.
+        """
         out = {"num_match_gaussians": self.num_match_gaussians}
         if self.bundle is None:
             return out
-        pos = self.positions()[: len(self.bundle)]
-        err = pixel_errors(pos, self.bundle, self.train_cameras)
-        out["match_reprojection_px_median"] = float(err.median())
+        b = self.bundle
+        g = len(b)
+        views = datamanager.train_views()
+        cameras = [c for c, _ in views]
+        pos = self.positions()[:g]
+        err = pixel_errors(pos, b, cameras)
+        out["match_reprojection_px_median"] = float(err.median()) if err.numel() else None
+        if g == 0 or any("depth" not in batch for _, batch in views):
+            return out
+        rel_all = []
+        for v, (cam, batch) in enumerate(views):
+            sel = b.view == v
+            if not bool(sel.any()):
+                continue
+            gt_map = batch["depth"][..., 0]
+            h, w = gt_map.shape
+            uv = b.uv[sel].to(gt_map.device)
+            x = uv[:, 0].floor().long().clamp(0, w - 1)
+            y = uv[:, 1].floor().long().clamp(0, h - 1)
+            gt = gt_map[y, x].double()
+            z = cam.world_to_camera_points(pos[sel].to(gt_map.device).double())[:, 2]
+            ok = gt > 0
+            rel_all.append(((z - gt).abs() / gt)[ok].cpu())
+        rel = torch.cat(rel_all) if rel_all else torch.zeros(0, dtype=torch.float64)
+        out["ray_depth_evaluated"] = int(rel.numel())
+        if rel.numel():
+            out["ray_depth_rel_err_median"] = float(rel.median())
+            out["ray_depth_rel_err_p90"] = float(torch.quantile(rel, 0.9))
+            out["ray_depth_within_1pct"] = float((rel < 0.01).double().mean())
+            out["ray_depth_within_5pct"] = float((rel < 0.05).double().mean())
         return out
 
 

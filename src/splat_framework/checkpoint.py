@@ -1,52 +1,101 @@
 """Checkpoints: atomic, checksummed, with fallback to the previous good one.
 
 File layout: ``b"SPLATCKPT1\\n"`` + 64 hex chars of the SHA-256 of the payload
-+ ``b"\\n"`` + the payload (a ``torch.save`` archive). A truncated or corrupt
-file fails the checksum and is reported, and :func:`load_latest` falls back to
-the newest checkpoint that verifies.
++ ``b"\\n"`` + the payload (a ``torch.save`` archive, read back with
+``weights_only=True``: loading a checkpoint never executes code). A truncated
+or corrupt file fails the checksum and is reported, and :func:`load_latest`
+falls back to the newest checkpoint that verifies.
+
+Writing goes through :func:`splat_framework.io.atomic_write_bytes`, so a crash
+or a full disk while saving leaves the previous checkpoints intact; old files
+are deleted only after the new one is safely on disk. Parameters with NaN/inf
+values are never written.
 """
 
 from __future__ import annotations
 
 import hashlib
 import io
+import re
 import warnings
 from pathlib import Path
+from typing import Callable
 
 import torch
 
+from .errors import CheckpointError  # noqa: F401  (re-exported)
 from .io import atomic_write_bytes
 
 MAGIC = b"SPLATCKPT1\n"
 KEEP = 2
-
-
-from .errors import CheckpointError  # noqa: F401  (re-exported)
+_NAME = re.compile(r"^step-(\d+)\.ckpt$")
 
 
 def checkpoint_path(folder: Path, step: int) -> Path:
     return Path(folder) / f"step-{step:07d}.ckpt"
 
 
-def save_checkpoint(folder: Path, step: int, payload: dict, keep: int = KEEP) -> Path:
-    """Write ``payload`` for ``step`` atomically and keep only the newest ``keep`` files."""
+def checkpoint_step(path: Path) -> int:
+    """The step number in a checkpoint's file name."""
+    m = _NAME.match(Path(path).name)
+    if m is None:
+        raise ValueError(f"{path}: not a checkpoint file name")
+    return int(m.group(1))
+
+
+def _check_finite(step: int, payload: dict) -> None:
     for name, t in payload.get("params", {}).items():
-        if not torch.isfinite(t).all():
+        if torch.is_tensor(t) and t.is_floating_point() and not torch.isfinite(t).all():
             raise CheckpointError(f"refusing to save step {step}: parameter '{name}' has non-finite values")
+    for key, sd in payload.get("optimizers", {}).items():
+        for st in sd.get("state", {}).values():
+            for name, t in st.items():
+                if torch.is_tensor(t) and t.is_floating_point() and not torch.isfinite(t).all():
+                    raise CheckpointError(
+                        f"refusing to save step {step}: optimizer state '{key}.{name}' has non-finite values"
+                    )
+
+
+def save_checkpoint(folder: Path, step: int, payload: dict, keep: int = KEEP) -> Path:
+    """Write ``payload`` for ``step`` atomically and keep only the newest ``keep`` files.
+
+    Raises CheckpointError (one line) when the payload holds non-finite values
+    or the file cannot be written (disk full, read-only folder...); the
+    previous checkpoints are then left as they were. Checkpoints of later
+    steps (an abandoned timeline, e.g. after resuming from an older file) are
+    removed once this one is written.
+    """
+    _check_finite(step, payload)
     buf = io.BytesIO()
     torch.save(payload, buf)
     data = buf.getvalue()
     digest = hashlib.sha256(data).hexdigest().encode()
     path = checkpoint_path(folder, step)
-    atomic_write_bytes(path, MAGIC + digest + b"\n" + data)
-    for old in list_checkpoints(folder)[:-keep]:
-        old.unlink(missing_ok=True)
+    try:
+        atomic_write_bytes(path, MAGIC + digest + b"\n" + data)
+    except OSError as e:
+        reason = e.strerror or str(e)
+        raise CheckpointError(
+            f"{path}: cannot write checkpoint ({reason}); the previous checkpoint is kept"
+        ) from None
+    existing = list_checkpoints(folder)
+    # later steps belong to an abandoned timeline (resumed from an older file)
+    stale = [p for p in existing if checkpoint_step(p) > step]
+    current = [p for p in existing if checkpoint_step(p) <= step]
+    for old in stale + current[:-keep]:
+        if old != path:
+            old.unlink(missing_ok=True)
+    for stale in Path(folder).glob(".step-*.ckpt.*.tmp"):  # left by a killed process
+        stale.unlink(missing_ok=True)
     return path
 
 
 def list_checkpoints(folder: Path) -> list[Path]:
-    """Checkpoint files in ``folder``, oldest first."""
-    return sorted(Path(folder).glob("step-*.ckpt"))
+    """Checkpoint files in ``folder``, oldest (lowest step) first."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    return sorted((p for p in folder.iterdir() if _NAME.match(p.name)), key=checkpoint_step)
 
 
 def load_checkpoint(path: Path, map_location="cpu") -> dict:
@@ -62,14 +111,31 @@ def load_checkpoint(path: Path, map_location="cpu") -> dict:
     digest, data = raw[len(MAGIC) : head - 1], raw[head:]
     if hashlib.sha256(data).hexdigest().encode() != digest:
         raise CheckpointError(f"{path}: checksum mismatch (truncated or corrupt checkpoint)")
-    return torch.load(io.BytesIO(data), map_location=map_location, weights_only=True)
+    try:
+        payload = torch.load(io.BytesIO(data), map_location=map_location, weights_only=True)
+    except Exception as e:  # verified bytes that still do not load: incompatible writer
+        raise CheckpointError(f"{path}: cannot load checkpoint ({type(e).__name__})") from None
+    if not isinstance(payload, dict) or "params" not in payload or "step" not in payload:
+        raise CheckpointError(f"{path}: checkpoint payload lacks 'step' or 'params'")
+    return payload
 
 
-def load_latest(folder: Path, map_location="cpu") -> tuple[Path, dict] | None:
-    """The newest checkpoint in ``folder`` that verifies (warning about each bad one), or None."""
+def _warn(message: str) -> None:
+    warnings.warn(message, stacklevel=3)
+
+
+def load_latest(
+    folder: Path, map_location="cpu", report: Callable[[str], None] | None = None
+) -> tuple[Path, dict] | None:
+    """The newest checkpoint in ``folder`` that verifies, or None when none does.
+
+    Each bad file is reported through ``report(message)`` (default: a warning)
+    before the previous one is tried.
+    """
+    report = report or _warn
     for path in reversed(list_checkpoints(folder)):
         try:
             return path, load_checkpoint(path, map_location)
         except CheckpointError as e:
-            warnings.warn(f"{e}; trying the previous checkpoint", stacklevel=2)
+            report(f"{e}; trying the previous checkpoint")
     return None

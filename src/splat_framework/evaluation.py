@@ -12,10 +12,14 @@ from torch import Tensor
 from .metrics import LPIPSMetric, evaluate_images
 
 
-def colorize_depth(depth: Tensor, alpha: Tensor | None = None) -> np.ndarray:
+def colorize_depth(
+    depth: Tensor, alpha: Tensor | None = None, inv_range: tuple[float, float] | None = None
+) -> np.ndarray:
     """[H, W, 1] depth -> [H, W, 3] uint8 RGB colour map (inverse depth, turbo).
 
-    Pixels with no coverage (alpha < 0.05) are black.
+    Pixels with no coverage (alpha < 0.05) are black. The inverse-depth range
+    mapped to the colour map is ``inv_range`` = (1/far, 1/near) when given
+    (stable across video frames), else the 1st-99th percentile of the image.
     """
     import cv2
 
@@ -25,12 +29,72 @@ def colorize_depth(depth: Tensor, alpha: Tensor | None = None) -> np.ndarray:
         valid &= alpha[..., 0].detach().cpu().numpy() > 0.05
     inv = np.zeros_like(d)
     inv[valid] = 1.0 / d[valid]
-    if valid.any():
+    if inv_range is not None:
+        lo, hi = inv_range
+        inv = np.clip((inv - lo) / max(hi - lo, 1e-8), 0, 1)
+    elif valid.any():
         lo, hi = np.percentile(inv[valid], [1, 99])
         inv = np.clip((inv - lo) / max(hi - lo, 1e-8), 0, 1)
     img = cv2.applyColorMap((inv * 255).astype(np.uint8), cv2.COLORMAP_TURBO)[..., ::-1]
     img = img.copy()
     img[~valid] = 0
+    return img
+
+
+def model_depth_mode(model) -> str:
+    """The depth mode ``model.get_outputs`` renders with ("accumulated" when the model does not say)."""
+    cfg = getattr(getattr(model, "config", None), "model", None)
+    return getattr(cfg, "depth_mode", "accumulated")
+
+
+def expected_depth(depth: Tensor, alpha: Tensor, depth_mode: str) -> Tensor:
+    """[H, W, 1] expected depth sum_i w_i z_i / alpha, whichever mode ``depth`` was rendered in."""
+    if depth_mode == "expected":
+        return depth
+    return depth / alpha.clamp_min(1e-6)
+
+
+DEPTH_KEYS = ("depth_abs_rel", "depth_within_5pct", "depth_coverage")
+"""Geometry metrics of :func:`depth_metrics` (None where the dataset has no GT depth)."""
+
+
+def depth_metrics(depth: Tensor, alpha: Tensor, gt_depth: Tensor | None, min_alpha: float = 0.5) -> dict:
+    """Error of a rendered expected depth against ground truth (camera z).
+
+    Evaluated over the pixels with ``alpha > min_alpha`` and GT depth > 0.
+
+    Returns:
+        depth_abs_rel: mean |d - gt| / gt;
+        depth_within_5pct: fraction of those pixels with |d - gt| / gt < 0.05;
+        depth_coverage: fraction of the GT-valid pixels that were evaluated
+        (rendered alpha above ``min_alpha``).
+        All None when there is no GT; the first two None when no pixel qualifies.
+    """
+    if gt_depth is None:
+        return dict.fromkeys(DEPTH_KEYS)
+    gt = gt_depth[..., 0].float()
+    has_gt = gt > 0
+    sel = has_gt & (alpha[..., 0] > min_alpha)
+    n_gt = int(has_gt.sum())
+    out = {"depth_coverage": float(sel.sum()) / n_gt if n_gt else None}
+    if not bool(sel.any()):
+        return {"depth_abs_rel": None, "depth_within_5pct": None, **out}
+    rel = (depth[..., 0].float()[sel] - gt[sel]).abs() / gt[sel]
+    return {"depth_abs_rel": float(rel.mean()), "depth_within_5pct": float((rel < 0.05).float().mean()), **out}
+
+
+def label_panel(img: np.ndarray, text: str) -> np.ndarray:
+    """Draw a small caption in the top-left corner of an RGB uint8 panel (in place; returns it)."""
+    import cv2
+
+    h = img.shape[0]
+    scale = min(max(h / 400.0, 0.3), 1.0)
+    thick = 1 if scale < 0.8 else 2
+    (tw, th), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thick)
+    pad = max(1, int(round(2 * scale)))
+    x1, y1 = min(tw + 2 * pad, img.shape[1]), min(th + base + 2 * pad, h)
+    img[:y1, :x1] = (img[:y1, :x1].astype(np.uint16) * 2 // 5).astype(np.uint8)  # darkened backdrop
+    cv2.putText(img, text, (pad, pad + th), cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), thick, cv2.LINE_AA)
     return img
 
 
@@ -62,13 +126,20 @@ def error_map(pred: Tensor, gt: Tensor) -> np.ndarray:
 
 @torch.no_grad()
 def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = None) -> dict:
-    """Render every test view and compute PSNR, SSIM, LPIPS (when available) and AVG.
+    """Render every test view and compute PSNR, SSIM, LPIPS (when available) and AVG,
+    plus the depth error when the dataset has ground-truth depth (see :func:`depth_metrics`).
+
+    With ``render_dir``, writes per view ``<view>_render.png``, ``<view>_gt.png``,
+    ``<view>_depth.png`` and a labelled ``<view>_grid.png`` (GT | render | depth | error).
 
     Returns:
-        {"mean": {...}, "per_view": [...], "fps": float, "lpips_note": str | None}
+        {"mean": {psnr, ssim, lpips, avg, depth_abs_rel, depth_within_5pct,
+        depth_coverage}, "per_view": [...], "fps": float, "lpips_note": str | None}.
+        A mean is None when a metric is unavailable (no LPIPS package, no GT depth).
     """
     lpips = LPIPSMetric(device=background.device)
     available, reason = lpips.available()
+    mode = model_depth_mode(model)
     per_view = []
     render_time = 0.0
     for camera, batch in datamanager.eval_views():
@@ -76,22 +147,33 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
         out = model.get_outputs(camera, background)
         render_time += time.perf_counter() - t0
         pred, gt = out.rgb.clamp(0, 1), batch["image"]
+        depth = expected_depth(out.depth, out.alpha, mode)
         mask = batch.get("mask") if datamanager.scene.masked_metrics else None
         m = evaluate_images(pred, gt, mask=mask, lpips=lpips if available else None)
+        m.update(depth_metrics(depth, out.alpha, batch.get("depth")))
         name = camera.name or f"view{batch['index']:03d}"
         per_view.append({"view": name, "index": int(batch["index"]), **m})
         if render_dir is not None:
-            grid = np.concatenate(
-                [to_uint8(gt), to_uint8(pred), colorize_depth(out.depth, out.alpha), error_map(pred, gt)],
-                axis=1,
-            )
-            write_png(render_dir / f"{name}_grid.png", grid)
-            write_png(render_dir / f"{name}_render.png", to_uint8(pred))
-            write_png(render_dir / f"{name}_depth.png", colorize_depth(out.depth, out.alpha))
+            gt8, pred8, depth8 = to_uint8(gt), to_uint8(pred), colorize_depth(depth, out.alpha)
+            write_png(render_dir / f"{name}_render.png", pred8)
+            write_png(render_dir / f"{name}_gt.png", gt8)
+            write_png(render_dir / f"{name}_depth.png", depth8)
+            depth_label = "depth" if m["depth_abs_rel"] is None else f"depth rel {m['depth_abs_rel']:.3f}"
+            panels = [
+                label_panel(gt8.copy(), "GT"),
+                label_panel(pred8.copy(), f"render {m['psnr']:.2f}dB"),
+                label_panel(depth8.copy(), depth_label),
+                label_panel(error_map(pred, gt), "|error|"),
+            ]
+            write_png(render_dir / f"{name}_grid.png", np.concatenate(panels, axis=1))
     mean = {}
     for key in ("psnr", "ssim", "lpips", "avg"):
         vals = [v[key] for v in per_view if v.get(key) is not None]
         mean[key] = float(np.mean(vals)) if vals and len(vals) == len(per_view) else None
+    for key in DEPTH_KEYS:
+        # views where nothing qualified (no pixel with alpha > 0.5) lower depth_coverage instead
+        vals = [v[key] for v in per_view if v.get(key) is not None]
+        mean[key] = float(np.mean(vals)) if vals else None
     n = max(len(per_view), 1)
     return {
         "mean": mean,

@@ -6,14 +6,17 @@ from pathlib import Path
 
 import torch
 
-from .checkpoint import CheckpointError, load_latest
+from .checkpoint import load_latest
 from .config import read_config_json
-from .data import DataError, DataManager, load_scene, resolve_data_path
+from .errors import CheckpointError, DataError
 from .registry import get_method
 
 
-def load_run(run_dir: Path, device: str | None = None):
-    """(config, datamanager, model) of ``run_dir``, the model holding the newest good checkpoint."""
+def load_trained_model(run_dir: Path, device: str | None = None, scene_scale: float = 1.0):
+    """(config, model) of ``run_dir`` from its newest good checkpoint, without loading the dataset.
+
+    ``scene_scale`` only scales learning rates, which rendering and exporting do not use.
+    """
     run_dir = Path(run_dir)
     cfg_path = run_dir / "config.json"
     if not cfg_path.is_file():
@@ -30,10 +33,18 @@ def load_run(run_dir: Path, device: str | None = None):
     if found is None:
         raise CheckpointError(f"{run_dir / 'checkpoints'}: no valid checkpoint")
     _, ck = found
+    model = spec.model_class().from_checkpoint(config, scene_scale, ck).to(config.device)
+    return config, model
+
+
+def load_run(run_dir: Path, device: str | None = None):
+    """(config, datamanager, model) of ``run_dir``, the model holding the newest good checkpoint."""
+    from .data import DataManager, load_scene, resolve_data_path
+
+    config, model = load_trained_model(run_dir, device)
     scene = load_scene(resolve_data_path(config.data), format=config.format, views=config.views, downscale=config.downscale)
-    dm = DataManager(scene, device=config.device, seed=config.seed)
-    model = spec.model_class().from_checkpoint(config, scene.scene_radius, ck).to(config.device)
-    return config, dm, model
+    model.scene_scale = float(scene.scene_radius)
+    return config, DataManager(scene, device=config.device, seed=config.seed), model
 
 
 def background_for(scene, device) -> torch.Tensor:

@@ -6,28 +6,58 @@ One step reads top to bottom in :meth:`Trainer.train_step`::
     outputs = model.get_outputs(camera, background)
     losses = model.get_loss_dict(outputs, batch, camera, step)
     sum(losses).backward(); optimizers step; strategy densifies
+
+Reliability contract:
+
+- **Run folders** are never overwritten silently: without ``--output`` a new
+  timestamped folder is made; an existing non-empty ``--output`` needs
+  ``--resume`` (continue it) or ``--overwrite`` (start again; its old
+  checkpoints and metrics are removed first).
+- **Checkpoints** hold everything the next step depends on (parameters, Adam
+  states, densification state, model extra state, all RNG states, the
+  learning-rate factor); the view order is a pure function of (seed, step).
+  So a run stopped at step s and resumed gives the same parameters as an
+  uninterrupted run. Checkpoints, ``config.json`` and ``metrics.json`` are
+  written atomically with a checksum; ``--resume`` skips a corrupt checkpoint
+  (one-line warning) and uses the previous good one.
+- **Signals**: SIGINT/SIGTERM finish the current step, write a checkpoint and
+  raise :class:`TrainingInterrupted` (the CLI exits with code 130).
+- **Numerics**: a step whose loss or gradients are not finite is skipped and
+  counted; after :data:`MAX_NONFINITE` consecutive skips (or parameters that
+  became non-finite) the last checkpoint is restored with halved learning
+  rates, at most :data:`MAX_RESTORES` times, then :class:`TrainingDiverged`.
+  Non-finite parameters are never written to disk.
+- **Memory**: ``$SPLAT_IMAGE_MEMORY_BUDGET`` (bytes, ``"2G"`` style accepted)
+  caps the decoded-image cache (the rest is decoded on demand); a run whose
+  estimated memory exceeds the machine is reported before training starts.
 """
 
 from __future__ import annotations
 
-import json
 import math
+import os
+import random
+import re
 import signal
 import time
 from contextlib import contextmanager
 from datetime import datetime
 from pathlib import Path
+from typing import Callable, Sequence
 
+import numpy as np
 import torch
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
+from rich.text import Text
 
-from .checkpoint import CheckpointError, load_latest, save_checkpoint
-from .config import TrainConfig, resolve_steps, save_config
+from .checkpoint import CheckpointError, list_checkpoints, load_latest, save_checkpoint
+from .config import SCHEMA_VERSION, TrainConfig, resolve_steps
 from .data import DataError, DataManager, load_scene, resolve_data_path
+from .data.datamanager import estimate_image_bytes
 from .evaluation import evaluate
-from .io import atomic_write_text
+from .io import atomic_write_json, read_json
 from .metrics import psnr
 from .model.strategy import DefaultStrategy
 from .registry import get_method
@@ -38,54 +68,214 @@ MAX_NONFINITE = 20
 """Consecutive non-finite steps tolerated before restoring the last checkpoint."""
 MAX_RESTORES = 2
 """Checkpoint restores (each halving the learning rates) before giving up."""
+MEMORY_ENV = "SPLAT_IMAGE_MEMORY_BUDGET"
+"""Environment variable: cap on the decoded-image cache, in bytes ("512M", "2G", "1.5GiB" accepted)."""
+BYTES_PER_GAUSSIAN = 2048
+"""Rough memory of one Gaussian during training: 59 floats of parameters, their
+gradients, two Adam moments, strategy statistics and projection intermediates."""
+DENSIFY_GROWTH = 3
+"""Assumed growth of the Gaussian count through densification (memory estimate only)."""
 
 
 class TrainingInterrupted(Exception):
-    """SIGINT/SIGTERM arrived; a checkpoint was written."""
+    """SIGINT/SIGTERM arrived; a checkpoint was written. The CLIs exit with code 130."""
+
+    cli_exit_code = 130
+    cli_prefix = "stopped"
 
 
+class TrainingDiverged(RuntimeError):
+    """Non-finite losses/gradients persisted through checkpoint restores (one-line message)."""
+
+    cli_exit_code = 1
+    cli_prefix = "error"
+
+
+class _Restart(Exception):
+    """Internal: a checkpoint was restored; continue the loop from ``Trainer.start_step``."""
+
+
+def _say(message: str, style: str | None = None) -> None:
+    """One line on stderr, never wrapped, never parsed as markup."""
+    console.print(Text(message, style=style or ""), soft_wrap=True)
+
+
+# ------------------------------------------------------------------ run dir
 def default_run_dir(config: TrainConfig) -> Path:
     scene = Path(config.data).name or "scene"
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    return Path("outputs") / scene / config.method / stamp
+    base = Path("outputs") / scene / config.method / stamp
+    run_dir, k = base, 1
+    while run_dir.exists():  # two runs started in the same second
+        run_dir = base.with_name(f"{stamp}-{k}")
+        k += 1
+    return run_dir
 
 
 def prepare_run_dir(config: TrainConfig) -> Path:
-    """The run folder; never silently overwrite an existing run."""
-    run_dir = Path(config.output) if config.output is not None else default_run_dir(config)
-    if run_dir.exists() and any(run_dir.iterdir()) and not (config.resume or config.overwrite):
-        raise DataError(f"{run_dir}: run folder exists and is not empty (use --resume or --overwrite)")
+    """The run folder; never silently overwrite an existing run.
+
+    Raises DataError (one line, exit code 2 in the CLIs) when ``--output``
+    exists and is not empty and neither ``--resume`` nor ``--overwrite`` is
+    given. With ``--overwrite`` the old checkpoints and metrics are removed so
+    that nothing of the previous run can be mistaken for this one's.
+    """
+    if config.resume and config.overwrite:
+        raise DataError("--resume and --overwrite exclude each other (continue the run, or start it again)")
+    if config.output is None:
+        if config.resume:
+            raise DataError("--resume needs --output RUN_FOLDER (the run to continue)")
+        run_dir = default_run_dir(config)
+    else:
+        run_dir = Path(config.output)
+        if run_dir.exists() and not run_dir.is_dir():
+            raise DataError(f"{run_dir}: --output exists and is not a folder")
+        if run_dir.exists() and any(run_dir.iterdir()) and not (config.resume or config.overwrite):
+            raise DataError(
+                f"{run_dir}: run folder exists and is not empty (use --resume to continue it or --overwrite to replace it)"
+            )
+        if config.overwrite and run_dir.is_dir():
+            for old in list_checkpoints(run_dir / "checkpoints"):
+                old.unlink(missing_ok=True)
+            (run_dir / "metrics.json").unlink(missing_ok=True)
     run_dir.mkdir(parents=True, exist_ok=True)
     return run_dir
 
 
+# ------------------------------------------------------------------- memory
+_UNITS = {"": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}
+
+
+def parse_bytes(text: str | int) -> int:
+    """``"123"``, ``"512K"``, ``"2G"``, ``"1.5GiB"``, ``"3GB"`` -> bytes (binary units)."""
+    if isinstance(text, int):
+        return text
+    m = re.fullmatch(r"\s*(\d+(?:\.\d*)?|\.\d+)\s*([kKmMgGtT]?)(?:i?[bB])?\s*", str(text))
+    if m is None:
+        raise DataError(f"{MEMORY_ENV}={text!r}: not a size (examples: 800000000, 512M, 2G)")
+    return int(float(m.group(1)) * _UNITS[m.group(2).upper()])
+
+
+def image_memory_budget() -> int | None:
+    """The decoded-image cache budget from ``$SPLAT_IMAGE_MEMORY_BUDGET`` (None = unlimited)."""
+    text = os.environ.get(MEMORY_ENV, "").strip()
+    return parse_bytes(text) if text else None
+
+
+def _cgroup_limit() -> int | None:
+    for path in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
+        try:
+            text = Path(path).read_text().strip()
+        except OSError:
+            continue
+        if text.isdigit() and int(text) < 2**60:
+            return int(text)
+    return None
+
+
+def physical_memory_bytes() -> int | None:
+    """Total RAM this process may use (physical pages, capped by a cgroup limit), or None."""
+    try:
+        total = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+    limit = _cgroup_limit()
+    return min(total, limit) if limit else total
+
+
+def available_memory_bytes() -> int | None:
+    """RAM currently free (SC_AVPHYS_PAGES), or None where unknown."""
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def _gb(n: float) -> str:
+    return f"{n / 2**30:.2f} GiB" if n >= 2**28 else f"{n / 2**20:.0f} MiB"
+
+
+def plan_memory(scene, config: TrainConfig, budget: int | None) -> int | None:
+    """Check that a run fits in memory before any decoding; return the image-cache budget to use.
+
+    Estimate: decoded images (those the budget lets us cache) + Gaussians
+    (``BYTES_PER_GAUSSIAN`` each, times ``DENSIFY_GROWTH`` when densifying).
+    Raises DataError when that exceeds the machine's RAM; warns (one line)
+    when it exceeds the currently free RAM. Without a budget, images that
+    would take more than half the RAM are decoded on demand instead.
+    """
+    total = physical_memory_bytes()
+    img = estimate_image_bytes(scene)
+    if total is not None and budget is None and img > total // 2:
+        budget = total // 4
+        _say(
+            f"warning: decoded images need {_gb(img)} (more than half of the {_gb(total)} of RAM): "
+            f"caching {_gb(budget)} and decoding the rest on demand (set {MEMORY_ENV} to choose)",
+            "yellow",
+        )
+    cached = img if budget is None else min(img, budget)
+    n = max(int(getattr(config.model, "init_num_points", 0) or 0), 10_000)
+    growth = DENSIFY_GROWTH if config.strategy.enabled else 1
+    gauss = n * BYTES_PER_GAUSSIAN * growth
+    need = cached + gauss
+    if total is not None and need > total:
+        raise DataError(
+            f"{scene.root}: the run needs about {_gb(need)} of memory (images {_gb(cached)}, "
+            f"Gaussians {_gb(gauss)}) but the machine has {_gb(total)}; lower {MEMORY_ENV}, "
+            "--downscale or --model.init-num-points"
+        )
+    free = available_memory_bytes()
+    if free is not None and need > free:
+        _say(
+            f"warning: the run needs about {_gb(need)} of memory but only {_gb(free)} is free; it may swap or be killed",
+            "yellow",
+        )
+    return budget
+
+
+# -------------------------------------------------------------------- misc
 def seed_everything(seed: int) -> torch.Generator:
-    import random
-
-    import numpy as np
-
     random.seed(seed)
     np.random.seed(seed % 2**32)
     torch.manual_seed(seed)
     return torch.Generator().manual_seed(seed)
 
 
+def _config_diff(old: dict, new: dict, prefix: str = "") -> list[str]:
+    out = []
+    for k in sorted(set(old) | set(new)):
+        a, b = old.get(k), new.get(k)
+        if isinstance(a, dict) and isinstance(b, dict):
+            out += _config_diff(a, b, f"{prefix}{k}.")
+        elif a != b:
+            out.append(f"{prefix}{k} ({a} -> {b})")
+    return out
+
+
+_RUN_ONLY_FIELDS = ("resume", "overwrite", "progress", "output", "device", "eval_every", "save_renders")
+
+
 @contextmanager
-def _stop_signals():
-    """Turn SIGINT/SIGTERM into a flag the loop checks between steps."""
-    flag = {"stop": None}
+def _stop_signals(trainer: "Trainer"):
+    """Turn SIGINT/SIGTERM into a stop request the loop checks between steps.
+
+    A second signal while stopping raises KeyboardInterrupt at once.
+    """
 
     def handler(signum, frame):
-        flag["stop"] = signal.Signals(signum).name
+        if trainer.stop_reason is not None:
+            raise KeyboardInterrupt
+        trainer.request_stop(signal.Signals(signum).name)
 
-    old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    sigs = (signal.SIGINT, signal.SIGTERM)
+    old = {}
     try:
-        for s in old:
-            signal.signal(s, handler)
+        for s in sigs:
+            old[s] = signal.signal(s, handler)
     except ValueError:  # not in the main thread: no handlers
         pass
     try:
-        yield flag
+        yield
     finally:
         for s, h in old.items():
             try:
@@ -94,11 +284,31 @@ def _stop_signals():
                 pass
 
 
-class Trainer:
-    """Owns the data, the model, its optimizers and the densification strategy."""
+def _numpy_state_to_payload() -> dict:
+    name, keys, pos, has_gauss, cached = np.random.get_state()
+    return {"name": name, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos),
+            "has_gauss": int(has_gauss), "cached": float(cached)}
 
-    def __init__(self, config: TrainConfig):
+
+def _numpy_state_from_payload(s: dict) -> None:
+    keys = s["keys"].numpy().astype(np.uint32)
+    np.random.set_state((s["name"], keys, s["pos"], s["has_gauss"], s["cached"]))
+
+
+# ---------------------------------------------------------------- trainer
+class Trainer:
+    """Owns the data, the model, its optimizers and the densification strategy.
+
+    Args:
+        config: the run config.
+        callbacks: ``callback(trainer, step)`` called after every completed
+            step (after its periodic checkpoint); a callback may call
+            :meth:`request_stop` to stop the run like SIGINT would.
+    """
+
+    def __init__(self, config: TrainConfig, callbacks: Sequence[Callable[["Trainer", int], None]] = ()):
         self.config = resolve_steps(config)
+        self.callbacks = list(callbacks)
         self.run_dir = prepare_run_dir(self.config)
         self.device = torch.device(self.config.device)
         self.timing: dict[str, float] = {}
@@ -108,7 +318,8 @@ class Trainer:
         scene = load_scene(
             data_path, format=self.config.format, views=self.config.views, downscale=self.config.downscale
         )
-        self.datamanager = DataManager(scene, device=self.device, seed=self.config.seed)
+        budget = plan_memory(scene, self.config, image_memory_budget())
+        self.datamanager = DataManager(scene, device=self.device, seed=self.config.seed, memory_budget_bytes=budget)
         self.timing["data_s"] = time.perf_counter() - t0
         bg = 1.0 if scene.white_background else 0.0
         self.background = torch.full((3,), bg, device=self.device)
@@ -121,93 +332,191 @@ class Trainer:
         self.strategy = DefaultStrategy(self.config.strategy)
         self.strategy_state = self.strategy.initialize_state(scene_scale=self.model.scene_scale)
         self.start_step = 0
-        self.nonfinite_steps = 0
+        self.nonfinite_streak = 0
+        self.skipped_steps = 0
         self.restores = 0
         self.lr_factor = 1.0
-        save_config(self.config, self.run_dir / "config.json")
+        self.stop_reason: str | None = None
+        self._train_prior_s = 0.0
+        self._train_t0: float | None = None
+        if self.config.resume:
+            self._check_saved_config()
+        self.write_config()
+
+    # ------------------------------------------------------------- config
+    def config_payload(self) -> dict:
+        import json
+
+        return {"schema_version": SCHEMA_VERSION, "config": json.loads(self.config.model_dump_json())}
+
+    def write_config(self) -> None:
+        """``config.json``: the resolved config with its schema version and a checksum (atomic)."""
+        try:
+            atomic_write_json(self.run_dir / "config.json", self.config_payload())
+        except OSError as e:
+            raise CheckpointError(f"{self.run_dir / 'config.json'}: cannot write ({e.strerror or e})") from None
+
+    def _check_saved_config(self) -> None:
+        path = self.run_dir / "config.json"
+        if not path.is_file():
+            return
+        try:
+            saved = read_json(path)
+        except DataError as e:
+            _say(f"warning: {e}; it will be rewritten", "yellow")
+            return
+        old = dict(saved.get("config", {}))
+        new = self.config_payload()["config"]
+        if old.get("method") not in (None, new["method"]):
+            raise DataError(f"{path}: the run was trained with method {old['method']!r}, not {new['method']!r}")
+        for k in _RUN_ONLY_FIELDS:
+            old.pop(k, None)
+            new.pop(k, None)
+        diff = _config_diff(old, new)
+        if diff:
+            shown = ", ".join(diff[:4]) + (f" and {len(diff) - 4} more" if len(diff) > 4 else "")
+            _say(f"warning: resuming with options that differ from the saved run: {shown}", "yellow")
 
     # ------------------------------------------------------------ checkpoints
     @property
     def checkpoint_dir(self) -> Path:
         return self.run_dir / "checkpoints"
 
+    def _train_seconds(self) -> float:
+        extra = time.perf_counter() - self._train_t0 if self._train_t0 is not None else 0.0
+        return self._train_prior_s + extra
+
     def state_payload(self, step: int) -> dict:
+        timing = dict(self.timing)
+        timing["train_s"] = self._train_seconds()
         return {
             "step": step,
+            "method": self.config.method,
+            "total_steps": self.config.total_steps,
             "params": {k: v.detach().cpu() for k, v in self.model.params.items()},
             "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()},
             "strategy_state": {
-                k: (v.cpu() if torch.is_tensor(v) else v) for k, v in self.strategy_state.items()
+                k: (v.detach().cpu() if torch.is_tensor(v) else v) for k, v in self.strategy_state.items()
             },
             "model_state": self.model.extra_state() if hasattr(self.model, "extra_state") else {},
             "torch_rng": torch.get_rng_state(),
+            "cuda_rng": torch.cuda.get_rng_state_all() if self.device.type == "cuda" else [],
             "generator_rng": self.generator.get_state(),
+            "python_rng": random.getstate(),
+            "numpy_rng": _numpy_state_to_payload(),
             "lr_factor": self.lr_factor,
-            "timing": dict(self.timing),
+            "skipped_steps": self.skipped_steps,
+            "restores": self.restores,
+            "timing": timing,
         }
 
-    def save(self, step: int) -> None:
-        save_checkpoint(self.checkpoint_dir, step, self.state_payload(step))
+    def save(self, step: int) -> Path:
+        """Write the checkpoint of ``step`` (CheckpointError, one line, on failure)."""
+        return save_checkpoint(self.checkpoint_dir, step, self.state_payload(step))
 
-    def restore(self) -> bool:
-        """Load the newest good checkpoint; False when there is none."""
-        found = load_latest(self.checkpoint_dir)
-        if found is None:
-            return False
-        path, ck = found
+    def _load_state(self, path: Path, ck: dict) -> None:
         dev = self.device
+        old = self.model.params
+        if set(ck["params"]) != set(old.keys()):
+            raise CheckpointError(
+                f"{path}: checkpoint parameters {sorted(ck['params'])} do not match the model's {sorted(old.keys())}"
+            )
         self.model.params = torch.nn.ParameterDict(
-            {
-                k: torch.nn.Parameter(v.to(dev), requires_grad=self.model.params[k].requires_grad)
-                for k, v in ck["params"].items()
-            }
+            {k: torch.nn.Parameter(v.to(dev), requires_grad=old[k].requires_grad) for k, v in ck["params"].items()}
         )
+        if ck.get("model_state") and hasattr(self.model, "load_extra_state"):
+            self.model.load_extra_state(ck["model_state"])
         self.optimizers = self.model.make_optimizers()
         for k, o in self.optimizers.items():
             o.load_state_dict(ck["optimizers"][k])
         self.strategy_state = {
             k: (v.to(dev) if torch.is_tensor(v) else v) for k, v in ck["strategy_state"].items()
         }
-        if ck.get("model_state") and hasattr(self.model, "load_extra_state"):
-            self.model.load_extra_state(ck["model_state"])
         torch.set_rng_state(ck["torch_rng"])
+        if ck.get("cuda_rng") and dev.type == "cuda":
+            torch.cuda.set_rng_state_all(ck["cuda_rng"])
         self.generator.set_state(ck["generator_rng"])
-        self.lr_factor = ck.get("lr_factor", 1.0)
-        self.timing.update(ck.get("timing", {}))
-        self.start_step = ck["step"]
-        console.print(f"[cyan]resumed from {path} (step {self.start_step})")
+        if "python_rng" in ck:
+            random.setstate(ck["python_rng"])
+        if "numpy_rng" in ck:
+            _numpy_state_from_payload(ck["numpy_rng"])
+        self.lr_factor = float(ck.get("lr_factor", 1.0))
+        self.start_step = int(ck["step"])
+
+    def restore(self) -> bool:
+        """Load the newest good checkpoint (``--resume``); False when there is none.
+
+        A corrupt or truncated newer checkpoint is reported in one line and
+        the previous one is used; CheckpointError when checkpoint files exist
+        but none verifies.
+        """
+        found = load_latest(self.checkpoint_dir, report=lambda msg: _say(f"warning: {msg}", "yellow"))
+        if found is None:
+            if list_checkpoints(self.checkpoint_dir):
+                raise CheckpointError(
+                    f"{self.checkpoint_dir}: no valid checkpoint to resume from (all corrupt); use --overwrite to start again"
+                )
+            return False
+        path, ck = found
+        self._load_state(path, ck)
+        self.skipped_steps = int(ck.get("skipped_steps", 0))
+        self.restores = int(ck.get("restores", 0))
+        timing = dict(ck.get("timing", {}))
+        self._train_prior_s = float(timing.pop("train_s", 0.0))
+        self.timing.update(timing)
+        _say(f"resumed from {path} (step {self.start_step})", "cyan")
         return True
 
+    def request_stop(self, reason: str = "stop requested") -> None:
+        """Stop after the current step, writing a checkpoint (what SIGINT/SIGTERM do)."""
+        self.stop_reason = reason
+
     # ------------------------------------------------------------------ step
-    def train_step(self, step: int) -> tuple[dict, float]:
-        model, cfg = self.model, self.config
-        model.on_step_start(step)
-        model.update_learning_rates(self.optimizers, step, cfg.total_steps)
+    def _set_learning_rates(self, step: int) -> None:
+        """Schedule from the base rates every step, then the fault factor (never compounded)."""
+        base = self.model.learning_rates()
+        for k, o in self.optimizers.items():
+            if k in base:
+                for g in o.param_groups:
+                    g["lr"] = base[k]
+        self.model.update_learning_rates(self.optimizers, step, self.config.total_steps)
         if self.lr_factor != 1.0:
             for o in self.optimizers.values():
                 for g in o.param_groups:
                     g["lr"] *= self.lr_factor
+
+    def train_step(self, step: int) -> tuple[dict, float] | None:
+        """One optimisation step; None when it was skipped (non-finite loss or gradients)."""
+        model, cfg = self.model, self.config
+        model.on_step_start(step)
+        self._set_learning_rates(step)
         camera, batch = self.datamanager.next_train(step)
         outputs = model.get_outputs(camera, self.background)
         losses = model.get_loss_dict(outputs, batch, camera, step)
         loss = sum(losses.values())
+        if not torch.isfinite(loss):
+            return self._fault(step, "loss")
         densify = model.densify_now(step)
         if densify:
             self.strategy.step_pre_backward(model.params, self.optimizers, self.strategy_state, step, outputs.meta)
-        if not torch.isfinite(loss):
-            return self._skip_nonfinite(step, "loss")
         loss.backward()
-        keys = model.trainable_keys(step)
         for k, p in model.params.items():
             if p.grad is not None and not torch.isfinite(p.grad).all():
-                return self._skip_nonfinite(step, f"gradient of {k}")
-        self.nonfinite_steps = 0
+                return self._fault(step, f"gradient of {k}")
+        keys = model.trainable_keys(step)
         for k, opt in self.optimizers.items():
             if keys is None or k in keys:
                 opt.step()
             opt.zero_grad(set_to_none=True)
+        for k in self.optimizers:
+            if not torch.isfinite(model.params[k].detach()).all():
+                return self._fault(step, f"parameter {k}", corrupted=True)
+        self.nonfinite_streak = 0
+        n_before = model.num_gaussians
         model.after_optimizer_step(step, losses, self.optimizers, self.strategy_state)
-        if densify:
+        # a hook that added/removed rows (e.g. SCGaussian's match filter) resized the
+        # strategy state itself; this step's screen-space statistics no longer line up
+        if densify and model.num_gaussians == n_before:
             with torch.no_grad():
                 model.prepare_for_strategy()
             self.strategy.step_post_backward(model.params, self.optimizers, self.strategy_state, step, outputs.meta)
@@ -215,51 +524,79 @@ class Trainer:
             train_psnr = float(psnr(outputs.rgb.detach().clamp(0, 1), batch["image"]))
         return {k: float(v.detach()) for k, v in losses.items()} | {"loss": float(loss.detach())}, train_psnr
 
-    def _skip_nonfinite(self, step: int, what: str):
+    def _fault(self, step: int, what: str, corrupted: bool = False) -> None:
+        """Count a skipped step; restore the last checkpoint (halved lr) when faults persist."""
         for opt in self.optimizers.values():
             opt.zero_grad(set_to_none=True)
-        self.nonfinite_steps += 1
-        self.skipped_steps = getattr(self, "skipped_steps", 0) + 1
-        if self.nonfinite_steps >= MAX_NONFINITE:
-            if self.restores < MAX_RESTORES and self.restore():
-                self.restores += 1
-                self.lr_factor *= 0.5
-                self.nonfinite_steps = 0
-                console.print(f"[yellow]non-finite {what} {MAX_NONFINITE} times: restored the last checkpoint, learning rates x{self.lr_factor}")
-                raise _Restart()
-            raise RuntimeError(f"training diverged: non-finite {what} at step {step} (restores exhausted)")
-        return {"loss": float("nan")}, float("nan")
+        for p in self.model.params.values():
+            p.grad = None
+        self.skipped_steps += 1
+        self.nonfinite_streak += 1
+        if self.nonfinite_streak == 1 and not corrupted:
+            _say(f"warning: step {step}: non-finite {what}, step skipped", "yellow")
+        if not corrupted and self.nonfinite_streak < MAX_NONFINITE:
+            return None
+        why = f"non-finite {what} at step {step}" + ("" if corrupted else f" ({self.nonfinite_streak} steps in a row)")
+        if self.restores >= MAX_RESTORES:
+            raise TrainingDiverged(
+                f"training diverged: {why}; {self.restores} checkpoint restores with lower learning rates did not help "
+                f"({self.skipped_steps} steps skipped)"
+            )
+        found = load_latest(self.checkpoint_dir, report=lambda msg: _say(f"warning: {msg}", "yellow"))
+        if found is None:
+            raise TrainingDiverged(f"training diverged: {why} and no checkpoint to restore ({self.skipped_steps} steps skipped)")
+        path, ck = found
+        self._load_state(path, ck)
+        self.restores += 1
+        self.lr_factor *= 0.5
+        self.nonfinite_streak = 0
+        _say(f"warning: {why}: restored {path.name} (step {self.start_step}), learning rates x{self.lr_factor:g}", "yellow")
+        raise _Restart()
 
     # ------------------------------------------------------------------- run
     def train(self) -> dict:
         cfg = self.config
-        if cfg.resume:
-            self.restore()
+        if cfg.resume and not self.restore():
+            _say(f"warning: {self.checkpoint_dir}: no checkpoint to resume from; training from the start", "yellow")
         total = cfg.total_steps
-        t_train = time.perf_counter()
         last = {"loss": float("nan")}
         tpsnr = float("nan")
-        with _stop_signals() as stop, _progress(cfg.progress) as progress:
-            task = progress.add_task("train", total=total, completed=self.start_step, loss=math.nan, psnr=math.nan, n=self.model.num_gaussians)
+        self._train_t0 = time.perf_counter()
+        with _stop_signals(self), _progress(cfg.progress) as progress:
+            task = progress.add_task(
+                "train", total=total, completed=self.start_step, loss=math.nan, psnr=math.nan, n=self.model.num_gaussians
+            )
             step = self.start_step
             while step < total:
                 try:
-                    last, tpsnr = self.train_step(step)
+                    out = self.train_step(step)
                 except _Restart:
                     step = self.start_step
+                    progress.update(task, completed=step, n=self.model.num_gaussians)
                     continue
+                if out is not None:
+                    last, tpsnr = out
                 step += 1
                 progress.update(task, completed=step, loss=last["loss"], psnr=tpsnr, n=self.model.num_gaussians)
-                if stop["stop"]:
-                    self.save(step)
-                    raise TrainingInterrupted(f"{stop['stop']} at step {step}: checkpoint written to {self.checkpoint_dir}")
+                saved = False
                 if cfg.checkpoint_every and step % cfg.checkpoint_every == 0 and step < total:
                     self.save(step)
+                    saved = True
                 if cfg.eval_every and step % cfg.eval_every == 0 and step < total:
                     m = evaluate(self.model, self.datamanager, self.background)
-                    console.print(f"step {step}: test PSNR {m['mean']['psnr']:.2f}")
-        self.timing["train_s"] = self.timing.get("train_s", 0.0) + time.perf_counter() - t_train
-        self.save(total)
+                    _say(f"step {step}: test PSNR {m['mean']['psnr']:.2f}")
+                for cb in self.callbacks:
+                    cb(self, step)
+                if self.stop_reason is not None:
+                    path = self.save(step) if not saved else None
+                    where = path or self.checkpoint_dir
+                    raise TrainingInterrupted(
+                        f"{self.stop_reason} at step {step}/{total}: checkpoint written to {where} (continue with --resume)"
+                    )
+            self._train_prior_s = self._train_seconds()
+            self._train_t0 = None
+            self.timing["train_s"] = self._train_prior_s
+            self.save(total)
         t0 = time.perf_counter()
         results = evaluate(
             self.model, self.datamanager, self.background, self.run_dir / "renders" if cfg.save_renders else None
@@ -275,19 +612,19 @@ class Trainer:
             "timing": self.timing,
             "num_gaussians": self.model.num_gaussians,
             "render_fps": results["fps"],
-            "skipped_steps": getattr(self, "skipped_steps", 0),
+            "skipped_steps": self.skipped_steps,
+            "restores": self.restores,
             "lpips_note": results["lpips_note"],
         }
         metrics["init_stats"] = getattr(self.model, "init_stats", {})
         if hasattr(self.model, "report"):
             metrics["model_report"] = self.model.report(self.datamanager)
-        atomic_write_text(self.run_dir / "metrics.json", json.dumps(metrics, indent=2))
+        try:
+            atomic_write_json(self.run_dir / "metrics.json", metrics)
+        except OSError as e:
+            raise CheckpointError(f"{self.run_dir / 'metrics.json'}: cannot write ({e.strerror or e})") from None
         print_summary(metrics, self.run_dir)
         return metrics
-
-
-class _Restart(Exception):
-    pass
 
 
 @contextmanager
@@ -314,8 +651,6 @@ class _SpeedColumn(TextColumn):
         super().__init__("")
 
     def render(self, task):
-        from rich.text import Text
-
         speed = task.finished_speed or task.speed
         return Text(f"{speed:.2f} it/s" if speed else "-- it/s")
 
@@ -329,6 +664,8 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
         table.add_row(f"test {k}", "n/a" if v is None else f"{v:.4f}")
     table.add_row("gaussians", str(metrics["num_gaussians"]))
     table.add_row("steps", str(metrics["steps"]))
+    if metrics.get("skipped_steps"):
+        table.add_row("skipped steps", str(metrics["skipped_steps"]))
     if metrics.get("render_fps"):
         table.add_row("render fps", f"{metrics['render_fps']:.1f}")
     for k, v in metrics["timing"].items():
@@ -336,9 +673,9 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
     table.add_row("run folder", str(run_dir))
     Console().print(table)
     if metrics.get("lpips_note"):
-        console.print(f"[yellow]LPIPS not computed: {metrics['lpips_note']}")
+        _say(f"LPIPS not computed: {metrics['lpips_note']}", "yellow")
 
 
-def train(config: TrainConfig) -> dict:
+def train(config: TrainConfig, callbacks: Sequence[Callable[[Trainer, int], None]] = ()) -> dict:
     """Train ``config`` end to end and return metrics (also written to metrics.json)."""
-    return Trainer(config).train()
+    return Trainer(config, callbacks).train()

@@ -1,13 +1,78 @@
 """What every CLI shares: clean one-line errors and exit codes.
 
-Exit codes: 0 success, 2 bad input or config, 1 internal error, 130 interrupted
-(after a checkpoint was written).
+Exit codes: 0 success, 2 bad input or config, 1 internal error (or an
+environment failure such as a full disk, reported in one line), 130
+interrupted (after a checkpoint was written when training).
+
+Invalid config values (pydantic validation, e.g. ``--model.sh-degree 9``) are
+reported as one line naming the dotted field (``model.sh_degree``) before any
+work starts. SIGTERM outside the training loop is treated like Ctrl-C.
 """
 
 from __future__ import annotations
 
+import errno
+import signal
 import sys
+from contextlib import contextmanager, nullcontext
 from typing import Callable
+
+_ENV_ERRNOS = {
+    errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG, errno.EMFILE,
+}
+"""OSErrors caused by the machine rather than by a bug: reported in one line."""
+
+
+class ConfigRejected(ValueError):
+    """A config value failed validation; the message names the field (one line)."""
+
+
+def format_validation_error(e, prefix: str = "") -> str:
+    """One line: ``field.path: message; other.field: message``."""
+    parts = []
+    for err in e.errors():
+        loc = ".".join(str(p) for p in err["loc"])
+        loc = ".".join(x for x in (prefix, loc) if x) or "config"
+        parts.append(f"{loc}: {err['msg']}")
+    return "; ".join(parts)
+
+
+def _field_prefix(arg) -> str:
+    """tyro's dotted argument path (``__tyro-dummy-inner__.model``) -> ``model``."""
+    if not isinstance(arg, str):
+        return ""
+    parts = [p for p in arg.split(".") if p and not p.startswith("__tyro")]
+    return ".".join(p.replace("-", "_") for p in parts)
+
+
+def _tyro_hook(event) -> None:
+    """Parse-error hook: turn a pydantic ValidationError inside tyro into ConfigRejected."""
+    from pydantic import ValidationError
+
+    exc = sys.exc_info()[1]
+    prefix = _field_prefix(getattr(exc, "arg", None))
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, ValidationError):
+            raise ConfigRejected(format_validation_error(exc, prefix)) from None
+        exc = exc.__cause__ or exc.__context__
+
+
+@contextmanager
+def _config_errors_in_one_line():
+    try:
+        from tyro._errors import on_parse_error  # private tyro API: optional
+    except Exception:
+        ctx = nullcontext()
+    else:
+        ctx = on_parse_error(_tyro_hook)
+    with ctx:
+        yield
+
+
+def _sigterm_as_interrupt(signum, frame):
+    raise KeyboardInterrupt
 
 
 def run_cli(main: Callable[[], object]) -> None:
@@ -17,23 +82,33 @@ def run_cli(main: Callable[[], object]) -> None:
     from ..errors import CheckpointError, DataError
 
     try:
-        main()
+        signal.signal(signal.SIGTERM, _sigterm_as_interrupt)
+    except ValueError:  # not the main thread
+        pass
+    try:
+        with _config_errors_in_one_line():
+            main()
+    except ConfigRejected as e:
+        print(f"error: invalid config: {e}", file=sys.stderr)
+        sys.exit(2)
     except (DataError, CheckpointError) as e:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)
     except ValidationError as e:
-        errs = "; ".join(
-            f"{'.'.join(str(p) for p in err['loc']) or 'config'}: {err['msg']}" for err in e.errors()
-        )
-        print(f"error: invalid config: {errs}", file=sys.stderr)
+        print(f"error: invalid config: {format_validation_error(e)}", file=sys.stderr)
         sys.exit(2)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         sys.exit(130)
+    except OSError as e:
+        if e.errno not in _ENV_ERRNOS:
+            raise
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"error: {where}{e.strerror or e}", file=sys.stderr)
+        sys.exit(1)
     except Exception as e:
-        from ..trainer import TrainingInterrupted
-
-        if isinstance(e, TrainingInterrupted):
-            print(f"stopped: {e}", file=sys.stderr)
-            sys.exit(130)
-        raise
+        code = getattr(type(e), "cli_exit_code", None)
+        if code is None:
+            raise
+        print(f"{getattr(type(e), 'cli_prefix', 'error')}: {e}", file=sys.stderr)
+        sys.exit(code)

@@ -5,11 +5,14 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
+
+from tyro.conf import Positional, arg
 
 
 @dataclass
 class EvalArgs:
-    run_dir: Path
+    run_dir: Annotated[Positional[Path], arg(metavar="RUN_DIR")]
     """Run folder written by splat-train."""
     device: str | None = None
     """Torch device (default: the run's)."""

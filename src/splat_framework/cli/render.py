@@ -5,12 +5,14 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
+
+from tyro.conf import Positional, arg
 
 
 @dataclass
 class RenderArgs:
-    run_dir: Path
+    run_dir: Annotated[Positional[Path], arg(metavar="RUN_DIR")]
     """Run folder written by splat-train."""
     path: Literal["test", "spiral", "orbit", "auto"] = "test"
     """What to render: the test views (PNGs), or a camera path video (auto: spiral for forward-facing scenes, orbit for object scenes)."""
@@ -19,68 +21,102 @@ class RenderArgs:
     fps: int = 30
     """Video frame rate."""
     out: Path | None = None
-    """Output folder for PNGs or the video file (default RUN_DIR/renders or RUN_DIR/video.mp4)."""
+    """Output folder for PNGs, or the video file (default RUN_DIR/renders, or RUN_DIR/<spiral|orbit>.mp4)."""
     depth: bool = False
-    """Also write a depth video (colour-mapped) next to the RGB one."""
+    """Also write a colour-mapped depth video next to the RGB one (<out>_depth.mp4)."""
     device: str | None = None
     """Torch device (default: the run's)."""
+
+
+def camera_path(kind: str, dm, frames: int) -> tuple[str, list]:
+    """(resolved kind, cameras) of a novel-view path around the run's views."""
+    from ..camera_paths import orbit_path, spiral_path
+
+    if kind == "auto":
+        kind = "orbit" if dm.scene.format in ("blender", "dtu") else "spiral"
+    cams = [c.to("cpu") for c, _ in dm.train_views()] + [c.to("cpu") for c, _ in dm.eval_views()]
+    if kind == "spiral":
+        return kind, spiral_path(cams, frames)
+    return kind, orbit_path(cams, dm.scene.scene_center, frames)
 
 
 def main(args: RenderArgs) -> Path:
     import torch
     from rich.progress import track
 
-    from ..camera_paths import orbit_path, spiral_path
-    from ..evaluation import colorize_depth, to_uint8, write_png
+    from ..errors import DataError
+    from ..evaluation import colorize_depth, expected_depth, model_depth_mode, to_uint8, write_png
     from ..run import background_for, load_run
 
+    if args.frames < 1:
+        raise DataError(f"--frames must be >= 1, got {args.frames}")
+    if args.fps < 1:
+        raise DataError(f"--fps must be >= 1, got {args.fps}")
     config, dm, model = load_run(args.run_dir, args.device)
     bg = background_for(dm.scene, config.device)
     if args.path == "test":
         out = args.out or args.run_dir / "renders"
+        views = dm.eval_views()
+        mode = model_depth_mode(model)
         with torch.no_grad():
-            for cam, batch in track(dm.eval_views(), description="rendering test views"):
+            for cam, batch in track(views, description="rendering test views"):
                 o = model.get_outputs(cam, bg)
-                write_png(out / f"{cam.name or batch['index']}_render.png", to_uint8(o.rgb))
-                write_png(out / f"{cam.name or batch['index']}_depth.png", colorize_depth(o.depth, o.alpha))
-        print(f"wrote {len(dm.eval_views())} views to {out}")
+                name = cam.name or f"view{batch['index']:03d}"
+                write_png(out / f"{name}_render.png", to_uint8(o.rgb))
+                write_png(out / f"{name}_depth.png", colorize_depth(expected_depth(o.depth, o.alpha, mode), o.alpha))
+        print(f"wrote {len(views)} views to {out}")
         return out
-    kind = args.path
-    if kind == "auto":
-        kind = "orbit" if dm.scene.format in ("blender", "dtu") else "spiral"
-    train_cams = [c for c, _ in dm.train_views()] + [c for c, _ in dm.eval_views()]
-    cams = spiral_path(train_cams, args.frames) if kind == "spiral" else orbit_path(train_cams, dm.scene.scene_center, args.frames)
+    kind, cams = camera_path(args.path, dm, args.frames)
     out = args.out or args.run_dir / f"{kind}.mp4"
     return write_video(model, cams, bg, out, args.fps, args.depth)
 
 
 def write_video(model, cams, bg, out: Path, fps: int, depth: bool) -> Path:
-    """Render ``cams`` and encode an mp4 (and optionally ``<out>_depth.mp4``), atomically."""
+    """Render ``cams`` and encode an mp4 (and optionally ``<out>_depth.mp4``), atomically.
+
+    The depth video maps inverse expected depth over the cameras' [near, far]
+    range, the same for every frame (no flicker). Nothing is left behind on failure.
+    """
     import os
 
     import cv2
+    import numpy as np
     import torch
     from rich.progress import track
 
-    from ..evaluation import colorize_depth, to_uint8
+    from ..evaluation import colorize_depth, expected_depth, model_depth_mode, to_uint8
 
+    out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     w, h = cams[0].width, cams[0].height
     targets = [out] + ([out.with_name(out.stem + "_depth.mp4")] if depth else [])
     tmps = [t.with_name("." + t.name + ".tmp.mp4") for t in targets]
-    writers = [cv2.VideoWriter(str(t), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h)) for t in tmps]
-    if not all(wr.isOpened() for wr in writers):
-        raise RuntimeError(f"{out}: OpenCV cannot open an mp4 writer")
-    with torch.no_grad():
-        for cam in track(cams, description=f"rendering {out.name}"):
-            o = model.get_outputs(cam.to(bg.device), bg)
-            writers[0].write(to_uint8(o.rgb)[..., ::-1].copy())
-            if depth:
-                writers[1].write(colorize_depth(o.depth, o.alpha)[..., ::-1].copy())
-    for wr, tmp, target in zip(writers, tmps, targets):
-        wr.release()
-        os.replace(tmp, target)
-        print(f"wrote {target}")
+    mode = model_depth_mode(model)
+    inv_range = (1.0 / max(c.far for c in cams), 1.0 / min(c.near for c in cams))
+    writers = []
+    try:
+        for t in tmps:
+            writers.append(cv2.VideoWriter(str(t), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h)))
+            if not writers[-1].isOpened():
+                raise RuntimeError(f"{out}: OpenCV cannot open an mp4 writer")
+        with torch.no_grad():
+            for cam in track(cams, description=f"rendering {out.name}"):
+                o = model.get_outputs(cam.to(bg.device), bg)
+                writers[0].write(np.ascontiguousarray(to_uint8(o.rgb)[..., ::-1]))
+                if depth:
+                    d = expected_depth(o.depth, o.alpha, mode)
+                    writers[1].write(np.ascontiguousarray(colorize_depth(d, o.alpha, inv_range)[..., ::-1]))
+        for wr in writers:
+            wr.release()
+        for tmp, target in zip(tmps, targets):
+            os.replace(tmp, target)
+            print(f"wrote {target}")
+    finally:
+        for wr in writers:
+            wr.release()
+        for tmp in tmps:
+            if tmp.exists():
+                tmp.unlink()
     return out
 
 

@@ -13,8 +13,11 @@ only, so ``next_train(step)`` is a pure function of ``(seed, step)`` and a
 run resumed at step ``s`` sees exactly the views it would have seen.
 
 Memory: when ``memory_budget_bytes`` is given and the decoded tensors would
-exceed it, images are not cached; each request decodes the file again (slower
+exceed it, only the views that fit in the budget are cached (training views
+first, then test views); every other request decodes its file again (slower
 but bounded memory). Image sizes are still checked up front from headers.
+:func:`estimate_image_bytes` gives the decoded size of a scene before any
+decoding (the trainer uses it to check a run fits in memory).
 
 Batches share the cached tensors: treat them as read-only.
 """
@@ -32,6 +35,20 @@ from .images import load_depth, load_image, load_mask, read_image_size, scaled_s
 from .scene import DataError, SceneData
 
 Batch = dict
+
+
+def view_bytes(scene: SceneData, i: int) -> int:
+    """Bytes of the decoded float32 tensors (image, mask, depth) of camera ``i``."""
+    cam = scene.cameras[i]
+    per_pixel = 3 + (scene.mask_paths is not None) + (scene.depth_paths is not None)
+    return cam.width * cam.height * per_pixel * 4
+
+
+def estimate_image_bytes(scene: SceneData) -> int:
+    """Bytes the decoded views of the split (train and test) take when all are cached."""
+    used = set(scene.train_indices) | set(scene.test_indices)
+    n = len(scene.cameras)
+    return sum(view_bytes(scene, i) for i in used if 0 <= i < n)
 
 
 class DataManager:
@@ -73,17 +90,23 @@ class DataManager:
         used = sorted(set(self.train_indices) | set(self.test_indices))
         for i in used:
             self._check_size(i)
-        nbytes = 0
-        for i in used:
-            cam = scene.cameras[i]
-            per_pixel = 3 + (scene.mask_paths is not None) + (scene.depth_paths is not None)
-            nbytes += cam.width * cam.height * per_pixel * 4
+        nbytes = estimate_image_bytes(scene)
         self.estimated_bytes = nbytes
+        self.memory_budget_bytes = memory_budget_bytes
         self.lazy = memory_budget_bytes is not None and nbytes > memory_budget_bytes
         self._cache: dict[int, Batch] = {}
         if not self.lazy:
             for i in used:
                 self._cache[i] = self._decode(i)
+        else:
+            # cache what fits, training views first; the rest is decoded on demand
+            room = int(memory_budget_bytes)
+            order = list(dict.fromkeys([*self.train_indices, *self.test_indices]))
+            for i in order:
+                size = view_bytes(scene, i)
+                if size <= room:
+                    self._cache[i] = self._decode(i)
+                    room -= size
         self._perm_epoch = -1
         self._perm: list[int] = []
 

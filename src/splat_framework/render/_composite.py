@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import torch
 from torch import Tensor
+from torch.autograd.function import once_differentiable
 
 from ._kernels import ALPHA_MAX, T_MIN, get_kernels
 _DUMMY_LOGIT = -1.0e4  # exp() == 0 in float32 and float64
@@ -136,7 +137,8 @@ def _iter_chunks(fp: Footprints, grid: TileGrid, chunk_pairs: int, tile_done: Te
                 return
             cnt = _alive_counts(tile_done, fp, pos, grid)
         cum = torch.cumsum(cnt, 0)
-        take = max(int(torch.searchsorted(cum, torch.tensor([chunk_pairs], device=cum.device, dtype=cum.dtype), right=True)), 1)
+        limit = torch.tensor([chunk_pairs], device=cum.device, dtype=cum.dtype)
+        take = max(int(torch.searchsorted(cum, limit, right=True)), 1)
         sel = pos + torch.nonzero(cnt[:take] > 0).squeeze(1)
         pos += take
         if sel.numel() == 0:
@@ -273,6 +275,7 @@ class _Composite(torch.autograd.Function):
         return out
 
     @staticmethod
+    @once_differentiable
     def backward(ctx, g_out):  # type: ignore[override]
         table, tile_centers, basis, out, opac = ctx.saved_tensors
         n, f = ctx.nf

@@ -1,9 +1,12 @@
 """The shared differentiable Gaussian rasterizer (pure PyTorch, device-agnostic).
 
 See ``rasterize`` for the full contract. Implementation: EWA projection with
-plain autograd (``_project.py``), tile binning with an opacity-aware footprint
-and front-to-back compositing in rounds with a hand-written backward
-(``_composite.py``).
+plain autograd (``_project.py``); tile binning with an opacity-aware footprint,
+depth chunks and front-to-back compositing in rounds with a hand-written
+backward (``_composite.py``); the per-round kernels (``_kernels.py``) run eagerly
+by default, or fused by ``torch.compile`` when the environment variable
+``SPLAT_COMPILE=1`` is set (about 2x less CPU time per call after a one-off
+compile of ~15-30 s; worth it for training runs, not for tests).
 """
 
 from __future__ import annotations
@@ -92,9 +95,9 @@ def rasterize(
          Gaussians whose opacity-aware footprint (where alpha >= 1/255)
          misses the image are not rendered at all.
 
-    Gradients flow to every floating-point input (means, quats, scales,
-    opacities, colours / SH coefficients, also background) from rgb, depth
-    and alpha. The hard thresholds (1/255 skip, termination) have zero
+    Gradients flow to means, quats, scales, opacities, colours / SH
+    coefficients and background from rgb, depth and alpha (means also get the
+    SH view-direction term). The hard thresholds (1/255 skip, termination) have zero
     gradient; where the 0.99 clamp is active alpha has zero gradient
     (as in gsplat; the 3DGS CUDA backward ignores the clamp).
 
@@ -120,7 +123,8 @@ def rasterize(
         depth_mode: "accumulated" -> depth = sum_i w_i z_i;
             "expected" -> that divided by alpha (0 where alpha == 0).
         eps2d: low-pass dilation added to the 2D covariance diagonal (px^2).
-        tile_size: tile edge in pixels used for binning (performance only).
+        tile_size: tile edge in pixels used for binning (performance only;
+            8 measured fastest on CPU at 504x378).
         block: pairs per tile evaluated per compositing round (performance
             only; early termination drops finished tiles between rounds).
         chunk_pairs: (tile, Gaussian) pairs binned per depth chunk
@@ -151,6 +155,7 @@ def rasterize(
         raise ValueError(f"depth_mode must be 'accumulated' or 'expected', got {depth_mode!r}")
     device, dtype = means.device, means.dtype
     n = means.shape[0]
+    opacities = opacities.reshape(n)  # also accept [N, 1]
     width = int(width)
     height = int(height)
 

@@ -1,0 +1,47 @@
+"""``splat-export RUN_DIR --ply out.ply``: write a run's Gaussians as a 3DGS-layout PLY for splat viewers."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated
+
+from tyro.conf import Positional, arg
+
+
+@dataclass
+class ExportArgs:
+    run_dir: Annotated[Positional[Path], arg(metavar="RUN_DIR")]
+    """Run folder written by splat-train."""
+    ply: Path | None = None
+    """Output PLY file (default RUN_DIR/point_cloud.ply)."""
+    device: str = "cpu"
+    """Torch device used to load the checkpoint."""
+
+
+def main(args: ExportArgs) -> Path:
+    from ..export import export_ply
+    from ..run import load_trained_model
+
+    _, model = load_trained_model(args.run_dir, args.device)
+    out = args.ply if args.ply is not None else Path(args.run_dir) / "point_cloud.ply"
+    export_ply(model, out)
+    print(f"wrote {model.num_gaussians} Gaussians to {out}")
+    return out
+
+
+def entrypoint() -> None:
+    import tyro
+
+    from .common import run_cli
+
+    args = tyro.cli(
+        ExportArgs, args=sys.argv[1:], prog="splat-export",
+        description="Export a trained run as a 3DGS-layout PLY (opens in common Gaussian-splat viewers).",
+    )
+    run_cli(lambda: main(args))
+
+
+if __name__ == "__main__":
+    entrypoint()

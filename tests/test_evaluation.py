@@ -1,0 +1,208 @@
+"""Evaluation: depth metrics against GT depth, labelled pictures, comparison figure, SCGaussian structure report."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from splat_framework.errors import DataError
+from splat_framework.evaluation import DEPTH_KEYS, depth_metrics, evaluate, expected_depth, label_panel
+
+
+def tiny_run(tmp_path_factory) -> Path:
+    """A 30-step 3dgs run on forward-tiny, trained once per pytest session (same as in test_export)."""
+    from splat_framework.registry import get_method
+    from splat_framework.trainer import train
+
+    run = tmp_path_factory.getbasetemp() / "tiny-3dgs-run"
+    if not (run / "metrics.json").is_file():
+        cfg = get_method("3dgs").default_config()
+        cfg = cfg.model_copy(
+            update=dict(
+                data="synthetic/forward-tiny", steps=30, output=run, progress=False, overwrite=True,
+                model=cfg.model.model_copy(update=dict(init_num_points=2000)),
+            )
+        )
+        train(cfg)
+    return run
+
+
+@pytest.fixture(scope="module")
+def cache_env(tmp_path_factory):
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("SPLAT_CACHE", str(tmp_path_factory.getbasetemp() / "splatcache"))
+        yield
+
+
+@pytest.fixture(scope="module")
+def run_dir(cache_env, tmp_path_factory):
+    return tiny_run(tmp_path_factory)
+
+
+# ------------------------------------------------------------------ unit
+def test_depth_metrics_values():
+    gt = torch.tensor([[2.0, 4.0], [10.0, 0.0]])[..., None]
+    pred = torch.tensor([[2.02, 4.4], [5.0, 7.0]])[..., None]
+    alpha = torch.tensor([[0.9, 0.9], [0.4, 0.9]])[..., None]
+    m = depth_metrics(pred, alpha, gt)
+    # evaluated: (0,0) rel 0.01 and (0,1) rel 0.1; (1,0) has alpha <= 0.5, (1,1) no GT
+    assert m["depth_abs_rel"] == pytest.approx(0.055, abs=1e-6)
+    assert m["depth_within_5pct"] == pytest.approx(0.5)
+    assert m["depth_coverage"] == pytest.approx(2 / 3)
+    assert depth_metrics(pred, alpha, None) == dict.fromkeys(DEPTH_KEYS)
+    none = depth_metrics(pred, torch.zeros_like(alpha), gt)
+    assert none["depth_abs_rel"] is None and none["depth_within_5pct"] is None and none["depth_coverage"] == 0.0
+
+
+def test_expected_depth_handles_both_modes():
+    alpha = torch.tensor([0.5, 0.25])[:, None, None]
+    acc = torch.tensor([1.0, 1.0])[:, None, None]
+    assert torch.allclose(expected_depth(acc, alpha, "accumulated"), torch.tensor([2.0, 4.0])[:, None, None])
+    assert expected_depth(acc, alpha, "expected") is acc
+
+
+def test_label_panel_draws_in_the_corner_only():
+    img = np.full((48, 64, 3), 200, np.uint8)
+    out = label_panel(img, "GT")
+    assert out is img
+    assert (img[:8, :8] != 200).any()
+    assert (img[-10:, -20:] == 200).all()
+
+
+# ----------------------------------------------------------- integration
+@pytest.mark.slow
+def test_trained_run_reports_depth_metrics(run_dir):
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    mean = metrics["mean"]
+    assert set(mean) == {"psnr", "ssim", "lpips", "avg", *DEPTH_KEYS}
+    assert 0 < mean["depth_abs_rel"] < 5
+    assert 0 <= mean["depth_within_5pct"] <= 1
+    assert 0 < mean["depth_coverage"] <= 1
+    for v in metrics["per_view"]:
+        assert v["depth_abs_rel"] is not None and 0 <= v["depth_within_5pct"] <= 1
+    renders = run_dir / "renders"
+    for v in metrics["per_view"]:
+        for suffix in ("render", "gt", "depth", "grid"):
+            assert (renders / f"{v['view']}_{suffix}.png").is_file()
+    import cv2
+
+    grid = cv2.imread(str(renders / f"{metrics['per_view'][0]['view']}_grid.png"))
+    gt = cv2.imread(str(renders / f"{metrics['per_view'][0]['view']}_gt.png"))
+    assert grid.shape == (gt.shape[0], 4 * gt.shape[1], 3)
+    # the GT panel carries a caption: its corner differs from the plain GT image
+    assert (grid[:6, :10] != gt[:6, :10]).any()
+    assert (grid[-10:, : gt.shape[1]] == gt[-10:]).all()
+
+
+class _NoDepth:
+    """A datamanager view without GT depth."""
+
+    def __init__(self, dm):
+        self.dm, self.scene = dm, dm.scene
+
+    def eval_views(self):
+        return [(c, {k: v for k, v in b.items() if k != "depth"}) for c, b in self.dm.eval_views()]
+
+    def train_views(self):
+        return [(c, {k: v for k, v in b.items() if k != "depth"}) for c, b in self.dm.train_views()]
+
+
+@pytest.mark.slow
+def test_depth_mode_does_not_change_the_metrics_and_no_gt_gives_none(run_dir):
+    from splat_framework.run import background_for, load_run
+
+    config, dm, model = load_run(run_dir)
+    bg = background_for(dm.scene, "cpu")
+    assert "depth" in dm.eval_views()[0][1]
+    res = {}
+    for mode in ("expected", "accumulated"):
+        model.config = config.model_copy(update={"model": config.model.model_copy(update={"depth_mode": mode})})
+        res[mode] = evaluate(model, dm, bg)["mean"]
+    for k in DEPTH_KEYS:
+        assert res["expected"][k] == pytest.approx(res["accumulated"][k], rel=1e-4), k
+    nogt = evaluate(model, _NoDepth(dm), bg)["mean"]
+    assert all(nogt[k] is None for k in DEPTH_KEYS)
+    assert nogt["psnr"] == pytest.approx(res["expected"]["psnr"])
+
+
+@pytest.mark.slow
+def test_comparison_figure(run_dir, tmp_path):
+    import cv2
+
+    from splat_framework.figures import comparison_figure, run_views
+
+    views = run_views(run_dir)
+    assert len(views) == 3
+    out = comparison_figure([("3DGS", run_dir), ("3DGS again", run_dir)], tmp_path / "fig.png")
+    fig = cv2.imread(str(out))
+    h, w = cv2.imread(str(run_dir / "renders" / f"{views[0]}_render.png")).shape[:2]
+    factor = int(np.ceil(160 / h))
+    assert fig.shape[0] > 3 * h * factor and fig.shape[1] > 3 * w * factor  # GT row + 2 methods, 3 views
+    # a run without renders shows grey tiles instead of failing
+    empty = tmp_path / "empty"
+    (empty / "renders").mkdir(parents=True)
+    comparison_figure([("3DGS", run_dir), ("missing", empty)], tmp_path / "fig2.png", views=views[:1])
+    with pytest.raises(DataError):
+        comparison_figure([("missing", empty)], tmp_path / "fig3.png")
+    with pytest.raises(DataError):
+        comparison_figure([], tmp_path / "fig4.png")
+
+
+# ------------------------------------------------------- SCGaussian report
+def true_correspondences(dm, a=0, b=1, n=150, seed=0):
+    """Matches from GT depth: pixels of view a lifted and projected into view b (visible there)."""
+    views = dm.train_views()
+    cams = [c for c, _ in views]
+    da, db = (views[i][1]["depth"][..., 0] for i in (a, b))
+    h, w = da.shape
+    rng = np.random.default_rng(seed)
+    xs, ys = torch.as_tensor(rng.integers(0, w, 6 * n)), torch.as_tensor(rng.integers(0, h, 6 * n))
+    uv_a = torch.stack([xs + 0.5, ys + 0.5], 1).float()
+    z = da[ys, xs].double()
+    pts = cams[a].unproject_depth(uv_a.double(), z)
+    uv_b, zb = cams[b].project(pts)
+    ok = (z > 0) & (zb > 0) & (uv_b[:, 0] > 0) & (uv_b[:, 0] < w) & (uv_b[:, 1] > 0) & (uv_b[:, 1] < h)
+    px = uv_b.floor().long()
+    px[:, 0] = px[:, 0].clamp(0, w - 1)
+    px[:, 1] = px[:, 1].clamp(0, h - 1)
+    ok &= (db[px[:, 1], px[:, 0]].double() - zb).abs() < 0.01 * zb
+    return uv_a[ok][:n], uv_b[ok][:n].float(), pts[ok][:n]
+
+
+@pytest.mark.slow
+def test_scgaussian_report_measures_distance_to_surface(cache_env):
+    from scg_plugin.model import SCGaussianModel
+    from scg_plugin.ray_gaussians import build_ray_bundle
+    from splat_framework.data import DataManager, load_scene
+    from splat_framework.data.synthetic import ensure_scene
+    from splat_framework.registry import get_method
+
+    dm = DataManager(load_scene(ensure_scene("forward-tiny"), views=3), device="cpu", seed=0)
+    views = dm.train_views()
+    cams, images = [c for c, _ in views], [b["image"] for _, b in views]
+    uv_a, uv_b, pts = true_correspondences(dm)
+    assert len(pts) > 30
+    bundle = build_ray_bundle([(0, 1, uv_a, uv_b)], cams, torch.Generator().manual_seed(0))
+    bundle.z = (pts.float().repeat_interleave(2, 0) - bundle.origins).norm(dim=-1)
+    config = get_method("scgaussian").default_config()
+    empty = torch.zeros(0, 3)
+    model = SCGaussianModel(config, dm.scene.scene_radius, empty, empty, bundle, cams, images)
+
+    exact = model.report(dm)
+    assert exact["num_match_gaussians"] == 2 * len(pts)
+    assert exact["ray_depth_evaluated"] == 2 * len(pts)
+    assert exact["ray_depth_rel_err_median"] < 1e-3
+    assert exact["ray_depth_within_1pct"] > 0.9 and exact["ray_depth_within_5pct"] > 0.95
+    assert exact["match_reprojection_px_median"] < 0.1
+
+    with torch.no_grad():
+        model.params["z"].mul_(1.1)  # 10% too far along every ray = 10% too deep
+    off = model.report(dm)
+    assert off["ray_depth_rel_err_median"] == pytest.approx(0.1, abs=2e-3)
+    assert off["ray_depth_rel_err_p90"] >= off["ray_depth_rel_err_median"]
+    assert off["ray_depth_within_5pct"] < 0.05 and off["ray_depth_within_1pct"] == 0.0
+
+    no_gt = model.report(_NoDepth(dm))
+    assert "ray_depth_rel_err_median" not in no_gt and "match_reprojection_px_median" in no_gt

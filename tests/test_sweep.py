@@ -1,0 +1,252 @@
+"""splat-sweep: grid parsing, run folders, resume, aggregation, failures, tables, local and Ray backends."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+import io
+import json
+import statistics
+import sys
+from pathlib import Path
+
+import pytest
+
+from splat_framework import sweep
+from splat_framework.cli import sweep as cli_sweep
+from splat_framework.sweep import Grid, SweepError, run_sweep
+
+REPO = Path(__file__).resolve().parents[1]
+TINY = {"model": {"init_num_points": 300}, "save_renders": False}
+"""Keeps the end-to-end runs to about a second of training each."""
+
+
+@pytest.fixture(autouse=True)
+def _private_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("SPLAT_CACHE", str(tmp_path / "cache"))
+
+
+def fake_metrics(path: Path, method: str, data: str, psnr: float, ssim: float, lpips=None, steps=10, **timing):
+    path.mkdir(parents=True, exist_ok=True)
+    (path / "metrics.json").write_text(json.dumps({
+        "method": method, "data": data, "steps": steps,
+        "mean": {"psnr": psnr, "ssim": ssim, "lpips": lpips, "avg": None if lpips is None else lpips / 2},
+        "per_view": [],
+        "timing": {"data_s": 0.1, "init_s": 0.2, "train_s": 10.0, "eval_s": 1.0, "total_s": 11.3, **timing},
+        "num_gaussians": 1000, "render_fps": 50.0,
+    }))
+
+
+def no_training(*args, **kwargs):
+    raise AssertionError("a run was trained although its metrics.json exists")
+
+
+# ------------------------------------------------------------------ grid
+def test_grid_toml_and_json(tmp_path):
+    toml = tmp_path / "grid.toml"
+    toml.write_text(
+        'methods = ["3dgs", "scgaussian"]\ndata = "synthetic/forward"\nviews = [3, "all"]\n'
+        'seeds = [0, 1]\nsteps = 500\nout = "sweeps/x"\nworkers = 2\n[overrides.model]\ninit_num_points = 100\n'
+    )
+    s = sweep.load_grid_file(toml)
+    assert s == {"methods": ["3dgs", "scgaussian"], "data": ["synthetic/forward"], "views": [3, "all"],
+                 "seeds": [0, 1], "steps": 500, "out": "sweeps/x", "workers": 2,
+                 "overrides": {"model": {"init_num_points": 100}}}
+    js = tmp_path / "grid.json"
+    js.write_text(json.dumps({"methods": "3dgs", "data": ["llff/fern"], "seeds": 3, "views": "6"}))
+    assert sweep.load_grid_file(js) == {"methods": ["3dgs"], "data": ["llff/fern"], "seeds": [3], "views": [6]}
+    bad = tmp_path / "bad.toml"
+    bad.write_text('methods = ["3dgs"]\nseedz = [1]\n')
+    with pytest.raises(SweepError, match="unknown key.*seedz"):
+        sweep.load_grid_file(bad)
+    bad.write_text('methods = ["3dgs"]\nviews = ["three"]\n')
+    with pytest.raises(SweepError, match="views"):
+        sweep.load_grid_file(bad)
+    bad.write_text("methods = [")
+    with pytest.raises(SweepError, match="not valid TOML"):
+        sweep.load_grid_file(bad)
+
+
+def test_cli_lists_override_the_file(tmp_path):
+    toml = tmp_path / "grid.toml"
+    toml.write_text('methods = ["3dgs"]\ndata = ["a/b"]\nseeds = [0]\nsteps = 100\nout = "o"\n[overrides.model]\nsh_degree = 1\n')
+    p = cli_sweep.build_parser()
+    args = p.parse_args([str(toml), "--seeds", "0", "1", "--steps", "50", "--views", "3", "all",
+                         "--override", "model.init_num_points=300", "--override", "save_renders=false"])
+    s = cli_sweep.settings_from_args(args)
+    assert s["methods"] == ["3dgs"] and s["data"] == ["a/b"] and s["seeds"] == [0, 1]
+    assert s["steps"] == 50 and s["views"] == [3, "all"] and s["out"] == "o"
+    assert s["overrides"] == {"model": {"sh_degree": 1, "init_num_points": 300}, "save_renders": False}
+    args = p.parse_args(["--methods", "3dgs", "scgaussian", "--data", "synthetic/forward", "llff/fern",
+                         "--views", "3", "--seeds", "0", "1", "--steps", "500", "--out", "sweeps/x"])
+    s = cli_sweep.settings_from_args(args)
+    runs = Grid(s["methods"], s["data"], s["views"], s["seeds"], s["steps"]).runs(Path(s["out"]))
+    assert len(runs) == 8 and all(r.steps == 500 for r in runs)
+    assert [(r.data, r.method, r.seed) for r in runs[:4]] == [
+        ("synthetic/forward", "3dgs", 0), ("synthetic/forward", "3dgs", 1),
+        ("synthetic/forward", "scgaussian", 0), ("synthetic/forward", "scgaussian", 1)]
+    with pytest.raises(SweepError, match="no output folder"):
+        cli_sweep.settings_from_args(p.parse_args(["--methods", "3dgs", "--data", "x"]))
+    with pytest.raises(SweepError, match="no methods"):
+        cli_sweep.settings_from_args(p.parse_args(["--data", "x", "--out", "o"]))
+    with pytest.raises(SweepError, match="unknown method"):
+        run_sweep(Grid(["3dgs", "no-such-method"], ["x"]), tmp_path / "o")
+
+
+def test_run_folder_naming(tmp_path):
+    assert sweep.scene_slug("synthetic/forward") == "synthetic-forward"
+    assert sweep.scene_slug("llff/fern/") == "llff-fern"
+    assert sweep.scene_slug("/data/nerf llff/fern") == "nerf_llff-fern"
+    assert sweep.scene_slug("dtu\\scan37") == "dtu-scan37"
+    assert sweep.run_dir(tmp_path, "llff/fern", "scgaussian", 3, 1) == tmp_path / "runs/llff-fern/scgaussian/v3-s1"
+    assert sweep.run_dir(tmp_path, "blender/lego", "3dgs", "all", 0).name == "vall-s0"
+    with pytest.raises(SweepError, match="share the run-folder name"):
+        Grid(["3dgs"], ["a/b", "a-b"]).runs(tmp_path)
+
+
+# ------------------------------------------------- resume and aggregation
+def test_aggregation_and_resume_without_training(tmp_path, monkeypatch):
+    out = tmp_path / "sw"
+    grid = Grid(["3dgs", "scgaussian"], ["synthetic/forward"], [3], [0, 1, 2], steps=10)
+    psnr = {"3dgs": [20.0, 21.0, 22.5], "scgaussian": [24.0, 25.0, 23.0]}
+    for run in grid.runs(out):
+        extra = {"matching_s": 2.0 + run.seed, "warmup_s": 5.0} if run.method == "scgaussian" else {}
+        lp = 0.2 + 0.01 * run.seed if run.method == "scgaussian" else None
+        fake_metrics(run.run_dir, run.method, run.data, psnr[run.method][run.seed], 0.5 + 0.1 * run.seed, lp, **extra)
+    for name in ("run_local", "run_serial", "run_ray", "execute_run"):
+        monkeypatch.setattr(sweep, name, no_training)
+    res = run_sweep(grid, out, live=False)
+    assert (res.ran, res.skipped, res.failed) == (0, 6, 0)
+    by = {r["method"]: r for r in res.rows}
+    assert by["3dgs"]["psnr_mean"] == pytest.approx(statistics.mean(psnr["3dgs"]))
+    assert by["3dgs"]["psnr_std"] == pytest.approx(statistics.stdev(psnr["3dgs"]))
+    assert by["scgaussian"]["ssim_mean"] == pytest.approx(0.6) and by["scgaussian"]["ssim_std"] == pytest.approx(0.1)
+    assert by["scgaussian"]["matching_s_mean"] == pytest.approx(3.0)
+    assert by["3dgs"]["lpips_mean"] is None and by["3dgs"]["matching_s_mean"] is None
+    assert by["scgaussian"]["lpips_mean"] == pytest.approx(0.21)
+
+    md = (out / "results.md").read_text()
+    line3 = next(ln for ln in md.splitlines() if ln.startswith("| 3dgs |"))
+    cells = [c.strip() for c in line3.strip("|").split("|")]
+    heads = [c.strip() for c in md.splitlines()[0].strip("|").split("|")]
+    row = dict(zip(heads, cells))
+    assert row["PSNR ↑"] == "21.17 ± 1.26" and row["LPIPS ↓"] == "n/a" and row["AVG ↓"] == "n/a"
+    assert row["Matching (s)"] == "n/a" and row["Training (s)"] == "10.0 ± 0.0" and row["Status"] == "3/3 ok"
+    assert {"Warm-up (s)", "Evaluation (s)", "Peak mem (MB)", "Gaussians", "FPS"} <= set(heads)
+    sc = next(ln for ln in md.splitlines() if ln.startswith("| scgaussian |"))
+    assert "24.00 ± 1.00" in sc and "0.210 ± 0.010" in sc
+
+    rows = list(csv.DictReader(io.StringIO((out / "results.csv").read_text())))
+    assert [r["method"] for r in rows] == ["3dgs", "scgaussian"]
+    assert float(rows[0]["psnr_mean"]) == pytest.approx(21.1666, abs=1e-3) and rows[0]["lpips_mean"] == ""
+    assert rows[1]["seeds"] == "0 1 2" and rows[1]["n_ok"] == "3"
+    js = json.loads((out / "results.json").read_text())
+    assert len(js["runs"]) == 6 and js["rows"][1]["warmup_s_mean"] == pytest.approx(5.0)
+    assert js["sweep"]["grid"]["seeds"] == [0, 1, 2]
+
+
+def test_failures_are_recorded_not_raised(tmp_path, monkeypatch):
+    from splat_framework import trainer
+
+    def boom(config):
+        if config.seed == 1:
+            raise RuntimeError("training diverged\nat step 3")
+        return no_training()
+
+    monkeypatch.setattr(trainer, "train", boom)
+    out = tmp_path / "sw"
+    grid = Grid(["3dgs"], ["synthetic/forward-tiny", "no/such/scene"], [3], [0, 1], steps=10)
+    runs = grid.runs(out)
+    fake_metrics(runs[0].run_dir, "3dgs", "synthetic/forward-tiny", 20.0, 0.5)             # done: skipped
+    res = run_sweep(grid, out, backend="serial", live=False)
+    recs = {(r["data"], r["seed"]): r for r in res.records}
+    assert recs[("synthetic/forward-tiny", 0)]["status"] == "ok"
+    bad = recs[("synthetic/forward-tiny", 1)]
+    assert bad["status"] == "failed" and bad["error"] == "RuntimeError: training diverged at step 3"
+    assert "RuntimeError" in (runs[1].run_dir / "sweep.log").read_text()
+    assert recs[("no/such/scene", 0)]["status"] == "failed" and "no such dataset" in recs[("no/such/scene", 0)]["error"]
+    assert (res.ran, res.skipped, res.failed) == (1, 1, 3)
+    md = (out / "results.md").read_text()
+    assert "1/2 ok, 1 failed" in md and "seed 1: RuntimeError: training diverged at step 3" in md
+    # an old run with another step count is never overwritten; a bad override fails only its runs
+    res = run_sweep(Grid(["3dgs"], ["synthetic/forward-tiny"], [3], [0], steps=20), out, backend="serial", live=False)
+    assert res.records[0]["status"] == "failed" and "holds a 10-step run" in res.records[0]["error"]
+    res = run_sweep(Grid(["3dgs"], ["synthetic/forward-tiny"], [3], [5], overrides={"model": {"nope": 1}}),
+                    out, backend="serial", live=False)
+    assert res.records[0]["error"].startswith("invalid config: model.nope")
+    # a worker process that died without writing its result
+    r = runs[1]
+    rec = sweep._child_result(r, "other-attempt", -9, None)
+    assert rec["status"] == "failed" and "killed by signal 9 (out of memory?)" in rec["error"]
+
+
+def test_live_table_renders(tmp_path):
+    from rich.console import Console
+
+    buf = io.StringIO()
+    rep = sweep.Reporter(Console(file=buf, force_terminal=True, width=250), live=True, total=2)
+    run = Grid(["3dgs"], ["a/b"], [3], [0, 1]).runs(tmp_path)
+    recs = [sweep.record_for(run[0], "running"), sweep.record_for(run[1], "pending")]
+    rep.start(recs)
+    recs[0] = sweep.record_for(run[0], "ok", {"peak_rss_mb": 100.0}, {"mean": {"psnr": 20.0, "ssim": 0.5}, "timing": {}})
+    rep.run_finished(recs[0])
+    rep.update(recs)
+    rep.stop(recs)
+    assert rep.use_live and "20.00" in buf.getvalue() and "1 pending" in buf.getvalue()
+
+
+# ------------------------------------------------------------ end to end
+def test_local_backend_end_to_end_and_resume(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "sw"
+    argv = ["--methods", "3dgs", "--data", "synthetic/forward-tiny", "--seeds", "0", "1", "--steps", "10",
+            "--out", str(out), "--workers", "2", "--override", "model.init_num_points=300",
+            "--override", "save_renders=false", "--no-live"]
+    res = cli_sweep.main(argv)
+    assert (res.ran, res.skipped, res.failed) == (2, 0, 0), [r["error"] for r in res.records]
+    for seed in (0, 1):
+        d = out / "runs/synthetic-forward-tiny/3dgs" / f"v3-s{seed}"
+        m = json.loads((d / "metrics.json").read_text())
+        assert m["steps"] == 10 and m["num_gaussians"] > 0
+    row = res.rows[0]
+    assert row["n_ok"] == 2 and row["psnr_mean"] > 5 and row["psnr_std"] is not None
+    assert row["peak_rss_mb_mean"] > 50 and row["train_s_mean"] > 0 and row["render_fps_mean"] > 0
+    assert "| 3dgs | synthetic/forward-tiny | 3 | 2 |" in (out / "results.md").read_text()
+    assert "[2/2]" in capsys.readouterr().out
+    # killed or not, a second invocation trains nothing
+    monkeypatch.setattr(sweep, "run_local", no_training)
+    res = cli_sweep.main(argv)
+    assert (res.ran, res.skipped) == (0, 2) and res.rows[0]["psnr_mean"] == pytest.approx(row["psnr_mean"])
+
+
+def test_ray_backend_two_tiny_runs(tmp_path):
+    ray = pytest.importorskip("ray", reason="ray is not installed (pip install splat[ray])")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        res = run_sweep(Grid(["3dgs"], ["synthetic/forward-tiny"], [3], [0, 1], steps=10, overrides=TINY),
+                        tmp_path / "sw", backend="ray", threads=1, live=False)
+    finally:
+        ray.shutdown()
+    assert (res.ran, res.failed) == (2, 0), [r["error"] for r in res.records]
+    assert all((Path(r["run_dir"]) / "metrics.json").is_file() for r in res.records)
+    assert res.rows[0]["n_ok"] == 2 and res.rows[0]["peak_rss_mb_mean"] > 50
+
+
+def test_ray_missing_gives_install_hint(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray -> ImportError
+    with pytest.raises(SweepError, match=r"pip install splat\[ray\]"):
+        run_sweep(Grid(["3dgs"], ["x"]), tmp_path, backend="ray")
+
+
+def test_ablation_script_two_methods(tmp_path):
+    spec = importlib.util.spec_from_file_location("ablation", REPO / "benchmarks" / "ablation.py")
+    ablation = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ablation)
+    out = tmp_path / "abl"
+    md = ablation.main(["--data", "synthetic/forward-tiny", "--views", "3", "--steps", "10", "--seeds", "0",
+                        "--methods", "3dgs", "scgaussian", "--out", str(out), "--workers", "2",
+                        "--override", "model.init_num_points=300", "--override", "save_renders=false", "--no-live"])
+    text = md.read_text()
+    assert "### Ablation on `synthetic/forward-tiny`, 3 training views" in text
+    lines = [ln for ln in text.splitlines() if ln.startswith("| ")]
+    assert lines[1].startswith("| 3DGS (random init) | `3dgs` |") and "`scgaussian`" in lines[2]
+    assert "failed" not in text and (out / "results.csv").is_file()
