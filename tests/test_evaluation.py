@@ -1,7 +1,6 @@
 """Evaluation: depth metrics against GT depth, labelled pictures, comparison figure, SCGaussian structure report."""
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,36 +8,6 @@ import torch
 
 from splat_framework.errors import DataError
 from splat_framework.evaluation import DEPTH_KEYS, depth_metrics, evaluate, expected_depth, label_panel
-
-
-def tiny_run(tmp_path_factory) -> Path:
-    """A 30-step 3dgs run on forward-tiny, trained once per pytest session (same as in test_export)."""
-    from splat_framework.registry import get_method
-    from splat_framework.trainer import train
-
-    run = tmp_path_factory.getbasetemp() / "tiny-3dgs-run"
-    if not (run / "metrics.json").is_file():
-        cfg = get_method("3dgs").default_config()
-        cfg = cfg.model_copy(
-            update=dict(
-                data="synthetic/forward-tiny", steps=30, output=run, progress=False, overwrite=True,
-                model=cfg.model.model_copy(update=dict(init_num_points=2000)),
-            )
-        )
-        train(cfg)
-    return run
-
-
-@pytest.fixture(scope="module")
-def cache_env(tmp_path_factory):
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("SPLAT_CACHE", str(tmp_path_factory.getbasetemp() / "splatcache"))
-        yield
-
-
-@pytest.fixture(scope="module")
-def run_dir(cache_env, tmp_path_factory):
-    return tiny_run(tmp_path_factory)
 
 
 # ------------------------------------------------------------------ unit
@@ -172,7 +141,7 @@ def true_correspondences(dm, a=0, b=1, n=150, seed=0):
 
 
 @pytest.mark.slow
-def test_scgaussian_report_measures_distance_to_surface(cache_env):
+def test_scgaussian_report_measures_distance_to_surface():
     from scg_plugin.model import SCGaussianModel
     from scg_plugin.ray_gaussians import build_ray_bundle
     from splat_framework.data import DataManager, load_scene

@@ -477,3 +477,28 @@ def test_all_culled_and_inference_mode():
     with torch.inference_mode():
         out = rasterize(means.detach(), *args, viewmat, K, 16, 12)
     assert out.rgb.shape == (12, 16, 3)
+
+
+def test_thread_policy(monkeypatch):
+    from splat_framework.render import _threads
+
+    cpu = torch.device("cpu")
+    monkeypatch.setattr(torch, "get_num_threads", lambda: 4)
+    monkeypatch.setattr(_threads.os, "cpu_count", lambda: 4)
+    real = _threads._others_running()
+    assert real is None or real >= 0
+    monkeypatch.delenv("SPLAT_THREADS", raising=False)
+    monkeypatch.setattr(_threads, "_others_running", lambda: 2)
+    assert _threads.choose_threads(cpu) == 2  # two CPUs busy elsewhere
+    monkeypatch.setattr(_threads, "_others_running", lambda: 7)
+    assert _threads.choose_threads(cpu) == 1
+    monkeypatch.setattr(_threads, "_others_running", lambda: 0)
+    assert _threads.choose_threads(cpu) is None
+    monkeypatch.setattr(_threads, "_others_running", lambda: None)
+    assert _threads.choose_threads(cpu) is None
+    assert _threads._others_running.__name__  # real implementation exists
+    monkeypatch.setenv("SPLAT_THREADS", "1")
+    assert _threads.choose_threads(cpu) == 1
+    monkeypatch.setenv("SPLAT_THREADS", "off")
+    assert _threads.choose_threads(cpu) is None
+    assert _threads.choose_threads(torch.device("cuda")) is None

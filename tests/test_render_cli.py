@@ -10,29 +10,6 @@ import torch
 pytestmark = pytest.mark.slow
 
 
-def tiny_run(tmp_path_factory) -> Path:
-    """A 30-step 3dgs run on forward-tiny, trained once per pytest session (same as in test_export)."""
-    from splat_framework.registry import get_method
-    from splat_framework.trainer import train
-
-    run = tmp_path_factory.getbasetemp() / "tiny-3dgs-run"
-    if not (run / "metrics.json").is_file():
-        cfg = get_method("3dgs").default_config()
-        cfg = cfg.model_copy(
-            update=dict(
-                data="synthetic/forward-tiny", steps=30, output=run, progress=False, overwrite=True,
-                model=cfg.model.model_copy(update=dict(init_num_points=2000)),
-            )
-        )
-        train(cfg)
-    return run
-
-
-@pytest.fixture(scope="module")
-def run_dir(tmp_path_factory):
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("SPLAT_CACHE", str(tmp_path_factory.getbasetemp() / "splatcache"))
-        yield tiny_run(tmp_path_factory)
 
 
 def render_cli(monkeypatch, *argv):

@@ -596,7 +596,7 @@ class Trainer:
             self._train_prior_s = self._train_seconds()
             self._train_t0 = None
             self.timing["train_s"] = self._train_prior_s
-            self.save(total)
+            self.save(step)  # == total, unless resumed past a shortened --steps
         t0 = time.perf_counter()
         results = evaluate(
             self.model, self.datamanager, self.background, self.run_dir / "renders" if cfg.save_renders else None

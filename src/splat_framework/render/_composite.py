@@ -31,6 +31,7 @@ from torch import Tensor
 from torch.autograd.function import once_differentiable
 
 from ._kernels import ALPHA_MAX, T_MIN, get_kernels
+from ._threads import thread_policy
 _DUMMY_LOGIT = -1.0e4  # exp() == 0 in float32 and float64
 
 
@@ -277,6 +278,11 @@ class _Composite(torch.autograd.Function):
     @staticmethod
     @once_differentiable
     def backward(ctx, g_out):  # type: ignore[override]
+        with thread_policy(g_out.device):
+            return _Composite._backward(ctx, g_out)
+
+    @staticmethod
+    def _backward(ctx, g_out):
         table, tile_centers, basis, out, opac = ctx.saved_tensors
         n, f = ctx.nf
         g_out = g_out.contiguous()

@@ -20,6 +20,7 @@ from torch import Tensor
 
 from ._composite import TileGrid, composite, pixel_basis, tile_footprints, tiles_to_image
 from ._project import footprint, project_gaussians, reference_radii
+from ._threads import thread_policy
 from .sh import sh_to_color
 
 __all__ = ["RenderOutput", "rasterize"]
@@ -131,6 +132,14 @@ def rasterize(
             (performance only; None: 128 per tile). Tiles finished by nearer
             chunks are skipped by farther ones.
 
+    Environment:
+        SPLAT_COMPILE=1: fuse the per-round compositing kernels with
+            torch.compile (eager fallback on any failure; default eager).
+        SPLAT_THREADS: CPU threads inside the rasterizer; "auto" (default)
+            halves torch's thread count while the load average exceeds the
+            CPU count (OpenMP spin-waiting is slow on an oversubscribed CPU),
+            an integer fixes it, "off" leaves torch's setting alone.
+
     Returns:
         RenderOutput with
             rgb: [H, W, 3] sum_i w_i c_i + background * (1 - alpha).
@@ -151,6 +160,36 @@ def rasterize(
                 "conics": [N, 3] inverse 2D covariance (a, b, c).
                 "width", "height": ints.
     """
+    with thread_policy(means.device):
+        return _rasterize(
+            means, quats, scales, opacities, colors, viewmat, K, width, height,
+            sh_degree=sh_degree, background=background, near_plane=near_plane,
+            far_plane=far_plane, depth_mode=depth_mode, eps2d=eps2d, tile_size=tile_size,
+            block=block, chunk_pairs=chunk_pairs,
+        )
+
+
+def _rasterize(
+    means: Tensor,
+    quats: Tensor,
+    scales: Tensor,
+    opacities: Tensor,
+    colors: Tensor,
+    viewmat: Tensor,
+    K: Tensor,
+    width: int,
+    height: int,
+    *,
+    sh_degree: int | None,
+    background: Tensor | None,
+    near_plane: float,
+    far_plane: float,
+    depth_mode: str,
+    eps2d: float,
+    tile_size: int,
+    block: int,
+    chunk_pairs: int | None,
+) -> RenderOutput:
     if depth_mode not in ("accumulated", "expected"):
         raise ValueError(f"depth_mode must be 'accumulated' or 'expected', got {depth_mode!r}")
     device, dtype = means.device, means.dtype

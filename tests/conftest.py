@@ -1,0 +1,37 @@
+"""Shared test fixtures."""
+
+from pathlib import Path
+
+import pytest
+
+
+@pytest.fixture(autouse=True)
+def _private_cache(tmp_path_factory, monkeypatch):
+    """Generated scenes and match caches go to this session's temp folder, never ~/.cache."""
+    monkeypatch.setenv("SPLAT_CACHE", str(tmp_path_factory.getbasetemp() / "splatcache"))
+
+
+def _tiny_run(tmp_path_factory) -> Path:
+    """A 30-step 3dgs run on forward-tiny, trained once per pytest session."""
+    from splat_framework.registry import get_method
+    from splat_framework.trainer import train
+
+    run = tmp_path_factory.getbasetemp() / "tiny-3dgs-run"
+    if not (run / "metrics.json").is_file():
+        cfg = get_method("3dgs").default_config()
+        cfg = cfg.model_copy(
+            update=dict(
+                data="synthetic/forward-tiny", steps=30, output=run, progress=False, overwrite=True,
+                model=cfg.model.model_copy(update=dict(init_num_points=2000)),
+            )
+        )
+        train(cfg)
+    return run
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    """Folder of a finished tiny 3dgs run (shared by the export, evaluation and render tests)."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("SPLAT_CACHE", str(tmp_path_factory.getbasetemp() / "splatcache"))
+        yield _tiny_run(tmp_path_factory)

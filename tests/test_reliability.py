@@ -1,0 +1,360 @@
+"""Reliability: exact resume, corrupt checkpoints, signals, disk full, non-finite numerics, CLI errors."""
+
+from __future__ import annotations
+
+import errno
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+import splat_framework.trainer as trainer_mod
+from splat_framework.checkpoint import (
+    CheckpointError,
+    checkpoint_path,
+    list_checkpoints,
+    load_checkpoint,
+    load_latest,
+    save_checkpoint,
+)
+from splat_framework.cli.common import run_cli
+from splat_framework.config import apply_overrides
+from splat_framework.io import atomic_write_json, read_json
+from splat_framework.model.gaussians import GaussianModel
+from splat_framework.registry import get_method
+from splat_framework.trainer import Trainer, TrainingDiverged, TrainingInterrupted
+
+PY = sys.executable
+
+
+@pytest.fixture(autouse=True)
+def private_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("SPLAT_CACHE", str(tmp_path / "cache"))
+    monkeypatch.delenv("SPLAT_IMAGE_MEMORY_BUDGET", raising=False)
+
+
+def fixed_config(method: str, output: Path, **over):
+    """A 40-step schedule written out directly (no --steps rescaling), so an
+    interrupted+resumed run and a straight run have identical schedules:
+    densification at steps 10, 20, 30, opacity reset at 30, SH degree up every 10."""
+    cfg = get_method(method).default_config()
+    base = {
+        "data": "synthetic/forward-tiny",
+        "output": str(output),
+        "default_steps": 40,
+        "checkpoint_every": 20,
+        "progress": False,
+        "save_renders": False,
+        "model": {"init_num_points": 300, "sh_degree_interval": 10},
+        "strategy": {"refine_start_iter": 5, "refine_stop_iter": 35, "refine_every": 10, "reset_every": 30},
+    }
+    cfg = apply_overrides(cfg, base)
+    return apply_overrides(cfg, over)
+
+
+def stop_at(step_to_stop: int):
+    def callback(trainer, step):
+        if step == step_to_stop:
+            trainer.request_stop("test stop")
+
+    return callback
+
+
+def assert_same_params(a, b):
+    assert set(a.params.keys()) == set(b.params.keys())
+    for k in a.params:
+        pa, pb = a.params[k].detach(), b.params[k].detach()
+        assert pa.shape == pb.shape, k
+        assert torch.allclose(pa, pb, atol=1e-6, rtol=0), (k, (pa - pb).abs().max())
+
+
+def interrupted_then_resumed(cfg_fn, out: Path, stop: int):
+    with pytest.raises(TrainingInterrupted, match=f"at step {stop}/"):
+        Trainer(cfg_fn(out, overwrite=True), [stop_at(stop)]).train()
+    ck = load_latest(out / "checkpoints")
+    assert ck is not None and ck[1]["step"] == stop
+    resumed = Trainer(cfg_fn(out, resume=True))
+    metrics = resumed.train()
+    return resumed, metrics
+
+
+# ------------------------------------------------------------------ resume
+def test_resume_reproduces_uninterrupted_run_3dgs(tmp_path):
+    cfg_fn = lambda out, **kw: fixed_config("3dgs", out, **kw)  # noqa: E731
+    straight = Trainer(cfg_fn(tmp_path / "a"))
+    ma = straight.train()
+    # stop mid densification window (15) so grad statistics, SH degree, Adam
+    # moments and RNG state all have to travel through the checkpoint
+    resumed, mb = interrupted_then_resumed(cfg_fn, tmp_path / "b", stop=15)
+    assert straight.model.num_gaussians != 300, "densification should have run"
+    assert_same_params(straight.model, resumed.model)
+    assert mb["mean"]["psnr"] == pytest.approx(ma["mean"]["psnr"], abs=1e-6)
+
+
+def test_resume_reproduces_uninterrupted_run_scgaussian(tmp_path):
+    def cfg_fn(out, **kw):
+        # single stage with the match cache alive across the interruption (cache until 30)
+        over = {"model": {"schedule": "single-stage", "cache_until": 30, "lambda_gp": 1.0, "warmup_steps": 0,
+                          "init_num_points": 0, "matching": {"max_matches": 100, "dense_preset": "ultrafast"}}}
+        return apply_overrides(fixed_config("scgaussian", out, **kw), over)
+
+    straight = Trainer(cfg_fn(tmp_path / "a"))
+    assert straight.model.cache is not None and straight.model.num_match_gaussians > 0
+    straight.train()
+    resumed, _ = interrupted_then_resumed(cfg_fn, tmp_path / "b", stop=15)
+    assert_same_params(straight.model, resumed.model)
+    assert resumed.model.num_match_gaussians == straight.model.num_match_gaussians
+    assert torch.equal(resumed.model.bundle.z.cpu(), straight.model.bundle.z.cpu())
+
+
+def test_corrupt_checkpoint_on_resume_falls_back_to_previous(tmp_path, capsys):
+    out = tmp_path / "run"
+    cfg_fn = lambda out, **kw: fixed_config("3dgs", out, checkpoint_every=5, **kw)  # noqa: E731
+    with pytest.raises(TrainingInterrupted):
+        Trainer(cfg_fn(out), [stop_at(10)]).train()
+    newest = checkpoint_path(out / "checkpoints", 10)
+    raw = newest.read_bytes()
+    newest.write_bytes(raw[: len(raw) // 2])  # truncated
+    capsys.readouterr()
+    resumed = Trainer(cfg_fn(out, resume=True))
+    resumed.restore()
+    err = capsys.readouterr().err
+    assert resumed.start_step == 5
+    bad = [line for line in err.splitlines() if "step-0000010.ckpt" in line]
+    assert len(bad) == 1 and "checksum mismatch" in bad[0] and "previous checkpoint" in bad[0]
+    # all checkpoints corrupt: a clear error, not a silent fresh start
+    for p in list_checkpoints(out / "checkpoints"):
+        p.write_bytes(b"garbage")
+    with pytest.raises(CheckpointError, match="no valid checkpoint"):
+        Trainer(cfg_fn(out, resume=True)).restore()
+
+
+def test_checkpoint_verification_unit(tmp_path):
+    folder = tmp_path / "ck"
+    save_checkpoint(folder, 1, {"step": 1, "params": {"x": torch.ones(3)}})
+    p2 = save_checkpoint(folder, 2, {"step": 2, "params": {"x": torch.full((3,), 2.0)}})
+    data = bytearray(p2.read_bytes())
+    data[-5] ^= 0xFF  # flip a byte
+    p2.write_bytes(bytes(data))
+    with pytest.raises(CheckpointError, match="checksum mismatch"):
+        load_checkpoint(p2)
+    msgs = []
+    path, ck = load_latest(folder, report=msgs.append)
+    assert ck["step"] == 1 and len(msgs) == 1 and "step-0000002" in msgs[0]
+    # NaN parameters are never written
+    with pytest.raises(CheckpointError, match="non-finite"):
+        save_checkpoint(folder, 3, {"step": 3, "params": {"x": torch.tensor([1.0, float("nan")])}})
+    assert not checkpoint_path(folder, 3).exists()
+    # keep the newest two; a save at an older step drops the abandoned later ones
+    save_checkpoint(folder, 3, {"step": 3, "params": {"x": torch.ones(3)}})
+    save_checkpoint(folder, 4, {"step": 4, "params": {"x": torch.ones(3)}})
+    assert [p.name for p in list_checkpoints(folder)] == ["step-0000003.ckpt", "step-0000004.ckpt"]
+    save_checkpoint(folder, 2, {"step": 2, "params": {"x": torch.ones(3)}})
+    assert [p.name for p in list_checkpoints(folder)] == ["step-0000002.ckpt"]
+
+
+# ------------------------------------------------------------- disk full
+def _enospc(*args, **kwargs):
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+def test_disk_full_keeps_previous_checkpoint_and_results(tmp_path, monkeypatch):
+    folder = tmp_path / "ck"
+    good = save_checkpoint(folder, 1, {"step": 1, "params": {"x": torch.ones(3)}})
+    atomic_write_json(tmp_path / "metrics.json", {"mean": {"psnr": 20.0}})
+    monkeypatch.setattr(os, "fsync", _enospc)
+    with pytest.raises(CheckpointError) as info:
+        save_checkpoint(folder, 2, {"step": 2, "params": {"x": torch.zeros(3)}})
+    msg = str(info.value)
+    assert "\n" not in msg and "No space left on device" in msg and "previous checkpoint is kept" in msg
+    with pytest.raises(OSError):
+        atomic_write_json(tmp_path / "metrics.json", {"mean": {"psnr": 1.0}})
+    monkeypatch.undo()
+    assert [p.name for p in folder.iterdir()] == [good.name]  # no temp files left
+    assert load_checkpoint(good)["step"] == 1
+    assert read_json(tmp_path / "metrics.json")["mean"]["psnr"] == 20.0
+    assert [p.name for p in tmp_path.iterdir() if p.name.endswith(".tmp")] == []
+
+
+def test_disk_full_during_training_is_one_line_exit_2(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "run"
+    trainer = Trainer(fixed_config("3dgs", out, checkpoint_every=5, default_steps=10))
+
+    real_fsync = os.fsync
+    calls = {"n": 0}
+
+    def fsync_fails_after_first_checkpoint(fd):
+        if list_checkpoints(out / "checkpoints"):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        calls["n"] += 1
+        return real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", fsync_fails_after_first_checkpoint)
+    with pytest.raises(SystemExit) as info:
+        run_cli(trainer.train)
+    assert info.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("error: ") and "No space left on device" in err[-1]
+    assert "Traceback" not in "\n".join(err)
+    monkeypatch.undo()
+    ck = load_latest(out / "checkpoints")
+    assert ck is not None and ck[1]["step"] == 5
+
+
+# -------------------------------------------------------------- numerics
+def nan_loss_on_calls(monkeypatch, bad_calls):
+    real = GaussianModel.get_loss_dict
+    calls = {"n": 0}
+
+    def patched(self, outputs, batch, camera, step):
+        losses = real(self, outputs, batch, camera, step)
+        calls["n"] += 1
+        if calls["n"] in bad_calls:
+            losses["photometric"] = losses["photometric"] * float("nan")
+        return losses
+
+    monkeypatch.setattr(GaussianModel, "get_loss_dict", patched)
+    return calls
+
+
+def test_nan_loss_and_gradient_steps_are_skipped(tmp_path, monkeypatch, capsys):
+    real = GaussianModel.get_loss_dict
+    calls = {"n": 0}
+
+    def patched(self, outputs, batch, camera, step):
+        losses = real(self, outputs, batch, camera, step)
+        calls["n"] += 1
+        if calls["n"] in (3, 4):  # NaN loss
+            losses["photometric"] = losses["photometric"] * float("nan")
+        if calls["n"] == 7:  # finite loss, NaN gradient: d sqrt(|0 x|) at 0 = inf * 0
+            losses["bad"] = torch.sqrt((self.params["means"][:1, 0] * 0).abs()).sum()
+        return losses
+
+    monkeypatch.setattr(GaussianModel, "get_loss_dict", patched)
+    trainer = Trainer(fixed_config("3dgs", tmp_path / "run", default_steps=12, checkpoint_every=5))
+    metrics = trainer.train()
+    assert metrics["skipped_steps"] == 3 and metrics["restores"] == 0
+    assert read_json(tmp_path / "run" / "metrics.json")["skipped_steps"] == 3
+    for p in list_checkpoints(tmp_path / "run" / "checkpoints"):
+        for t in load_checkpoint(p)["params"].values():
+            assert torch.isfinite(t).all()
+    err = capsys.readouterr().err
+    assert "non-finite loss, step skipped" in err and "non-finite gradient of means" in err
+
+
+def test_repeated_nan_restores_last_checkpoint_with_lower_lr(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(trainer_mod, "MAX_NONFINITE", 3)
+    nan_loss_on_calls(monkeypatch, {8, 9, 10})  # steps 7, 8, 9 after the step-5 checkpoint
+    trainer = Trainer(fixed_config("3dgs", tmp_path / "run", default_steps=12, checkpoint_every=5))
+    metrics = trainer.train()
+    assert metrics["restores"] == 1 and metrics["skipped_steps"] == 3
+    assert trainer.lr_factor == 0.5
+    err = capsys.readouterr().err
+    assert "restored step-0000005.ckpt (step 5), learning rates x0.5" in err
+    assert all(torch.isfinite(p).all() for p in trainer.model.params.values())
+
+
+def test_persistent_nan_stops_with_clear_message_and_no_nan_on_disk(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(trainer_mod, "MAX_NONFINITE", 2)
+    nan_loss_on_calls(monkeypatch, set(range(7, 1000)))
+    out = tmp_path / "run"
+    trainer = Trainer(fixed_config("3dgs", out, default_steps=20, checkpoint_every=5))
+    with pytest.raises(SystemExit) as info:
+        run_cli(trainer.train)
+    assert info.value.code == 1
+    err = capsys.readouterr().err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("error: training diverged: non-finite loss") and "restores" in last
+    assert "Traceback" not in err
+    assert not (out / "metrics.json").exists()
+    for p in list_checkpoints(out / "checkpoints"):
+        for t in load_checkpoint(p)["params"].values():
+            assert torch.isfinite(t).all()
+    # without any checkpoint to fall back on, the run stops at once with a message
+    nan_loss_on_calls(monkeypatch, set(range(1, 1000)))
+    with pytest.raises(TrainingDiverged, match="no checkpoint to restore"):
+        Trainer(fixed_config("3dgs", tmp_path / "run2", default_steps=20)).train()
+
+
+# ---------------------------------------------------------------- signals
+def test_sigint_in_process_saves_checkpoint(tmp_path):
+    def send_sigint(trainer, step):
+        if step == 3:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    out = tmp_path / "run"
+    before = signal.getsignal(signal.SIGINT)
+    with pytest.raises(TrainingInterrupted, match="SIGINT at step 3/"):
+        Trainer(fixed_config("3dgs", out, default_steps=20), [send_sigint]).train()
+    assert load_latest(out / "checkpoints")[1]["step"] == 3
+    assert signal.getsignal(signal.SIGINT) is before  # handlers restored
+
+
+def _cli(args, env, **kw):
+    return subprocess.run([PY, "-m", "splat_framework.cli.train", *args], env=env, capture_output=True, text=True, **kw)
+
+
+def _env(tmp_path):
+    env = dict(os.environ, SPLAT_CACHE=str(tmp_path / "cache"), PYTHONUNBUFFERED="1")
+    env.pop("SPLAT_IMAGE_MEMORY_BUDGET", None)
+    return env
+
+
+def test_sigterm_writes_checkpoint_exits_130_and_resume_finishes(tmp_path):
+    env = _env(tmp_path)
+    out = tmp_path / "run"
+    # --steps 60 rather than 2000 so that the resumed run finishes quickly; the
+    # checkpoint interval (rescaled) becomes 1, so a checkpoint exists within the first steps
+    args = ["3dgs", "--data", "synthetic/forward-tiny", "--steps", "60", "--output", str(out), "--no-progress",
+            "--checkpoint-every", "50", "--model.init-num-points", "300", "--no-save-renders"]
+    proc = subprocess.Popen([PY, "-m", "splat_framework.cli.train", *args], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 300
+    while not list_checkpoints(out / "checkpoints"):
+        assert proc.poll() is None, proc.communicate()
+        assert time.time() < deadline
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=300)
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("stopped: SIGTERM at step "), stderr
+    path, ck = load_latest(out / "checkpoints")
+    assert 1 <= ck["step"] < 60 and all(torch.isfinite(t).all() for t in ck["params"].values())
+    assert not (out / "metrics.json").exists()
+    # the same command line without --resume refuses to overwrite the run
+    again = _cli(args, env, timeout=300)
+    assert again.returncode == 2 and again.stderr.strip().count("\n") == 0
+    assert "not empty" in again.stderr and "Traceback" not in again.stderr
+    done = _cli([*args, "--resume"], env, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert f"resumed from {path}" in done.stderr
+    metrics = read_json(out / "metrics.json", require_checksum=True)
+    assert metrics["steps"] == 60
+    assert load_latest(out / "checkpoints")[1]["step"] == 60
+
+
+# -------------------------------------------------------------------- CLI
+def test_invalid_config_value_is_one_line_naming_the_field(tmp_path):
+    res = _cli(["3dgs", "--model.sh-degree", "9", "--output", str(tmp_path / "x")], _env(tmp_path), timeout=120)
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and "model.sh_degree" in lines[0] and lines[0].startswith("error: invalid config")
+    assert not (tmp_path / "x").exists()  # rejected before any work
+
+
+def test_existing_output_without_flags_exits_2(tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "something").write_text("x")
+    res = _cli(["3dgs", "--data", "synthetic/forward-tiny", "--output", str(out)], _env(tmp_path), timeout=120)
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--resume" in lines[0] and "--overwrite" in lines[0]
+    assert sorted(p.name for p in out.iterdir()) == ["something"]

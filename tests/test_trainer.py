@@ -1,0 +1,172 @@
+"""Trainer basics on the tiny synthetic scene: run folder contents, learning, progress and summary."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+import torch
+
+from splat_framework.config import SCHEMA_VERSION, apply_overrides, read_config_json
+from splat_framework.data import DataError, load_scene, resolve_data_path
+from splat_framework.data.datamanager import view_bytes
+from splat_framework.evaluation import evaluate
+from splat_framework.io import read_json
+from splat_framework.registry import get_method
+from splat_framework.trainer import (
+    Trainer,
+    default_run_dir,
+    parse_bytes,
+    prepare_run_dir,
+)
+
+
+@pytest.fixture(autouse=True)
+def private_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("SPLAT_CACHE", str(tmp_path / "cache"))
+    monkeypatch.delenv("SPLAT_IMAGE_MEMORY_BUDGET", raising=False)
+
+
+def tiny_config(output, **top):
+    cfg = get_method("3dgs").default_config()
+    over = {"data": "synthetic/forward-tiny", "output": str(output), "model": {"init_num_points": 500}}
+    over.update(top)
+    return apply_overrides(cfg, over)
+
+
+def test_run_writes_documented_outputs_and_learns(tmp_path, capsys):
+    run = tmp_path / "run"
+    trainer = Trainer(tiny_config(run, steps=60, progress=True))
+    dm = trainer.datamanager
+    before = evaluate(trainer.model, dm, trainer.background)["mean"]["psnr"]
+    metrics = trainer.train()
+    out, err = capsys.readouterr()
+
+    # config.json: schema version, the resolved config, a checksum that verifies
+    payload = read_json(run / "config.json", require_checksum=True)
+    assert payload["schema_version"] == SCHEMA_VERSION
+    method, raw = read_config_json(run / "config.json")
+    assert method == "3dgs" and raw["steps"] == 60
+    # checkpoints: the final one
+    ckpts = sorted((run / "checkpoints").glob("step-*.ckpt"))
+    assert ckpts and ckpts[-1].name == "step-0000060.ckpt"
+    # metrics.json: documented keys, checksummed, equal to the returned dict
+    m = read_json(run / "metrics.json", require_checksum=True)
+    assert set(m["mean"]) >= {"psnr", "ssim", "lpips", "avg"}
+    assert len(m["per_view"]) == dm.num_eval and all("psnr" in v for v in m["per_view"])
+    assert m["timing"]["total_s"] > 0 and {"data_s", "init_s", "train_s", "eval_s"} <= set(m["timing"])
+    assert isinstance(m["num_gaussians"], int) and m["num_gaussians"] == trainer.model.num_gaussians
+    assert m["skipped_steps"] == 0
+    assert m["mean"]["psnr"] == pytest.approx(metrics["mean"]["psnr"])
+    # renders
+    pngs = list((run / "renders").glob("*.png"))
+    assert len(pngs) >= dm.num_eval
+    # learned something: beats the untrained model clearly
+    assert math.isfinite(before)
+    assert metrics["mean"]["psnr"] > before + 1.0, (before, metrics["mean"]["psnr"])
+    # progress bar (stderr) and summary table (stdout)
+    assert "train" in err and "60/60" in err and "gaussians" in err
+    assert "test psnr" in out and "run folder" in out
+    assert "Traceback" not in err
+
+
+def test_default_run_dirs_are_new_timestamped_folders(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    cfg = get_method("3dgs").default_config().model_copy(update={"data": "synthetic/forward-tiny"})
+    a = prepare_run_dir(cfg)
+    (a / "config.json").write_text("{}")
+    b = prepare_run_dir(cfg)  # same second: still a different folder
+    assert a != b and a.parent == b.parent == Path("outputs") / "forward-tiny" / "3dgs"
+    assert a.is_dir() and b.is_dir()
+    assert not default_run_dir(cfg).exists()
+
+
+def test_run_folder_rules(tmp_path):
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "checkpoints" / "step-0000010.ckpt").write_bytes(b"old")
+    (run / "metrics.json").write_text("{}")
+    (run / "notes.txt").write_text("keep me")
+    cfg = get_method("3dgs").default_config().model_copy(update={"output": run})
+    with pytest.raises(DataError, match="not empty.*--resume.*--overwrite"):
+        prepare_run_dir(cfg)
+    with pytest.raises(DataError, match="exclude"):
+        prepare_run_dir(cfg.model_copy(update={"resume": True, "overwrite": True}))
+    with pytest.raises(DataError, match="--output"):
+        prepare_run_dir(cfg.model_copy(update={"resume": True, "output": None}))
+    assert prepare_run_dir(cfg.model_copy(update={"resume": True})) == run
+    assert (run / "checkpoints" / "step-0000010.ckpt").exists()
+    # --overwrite: the old run's checkpoints and metrics cannot leak into the new one
+    prepare_run_dir(cfg.model_copy(update={"overwrite": True}))
+    assert not (run / "checkpoints" / "step-0000010.ckpt").exists() and not (run / "metrics.json").exists()
+    assert (run / "notes.txt").read_text() == "keep me"
+    # an empty folder is fine without flags
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert prepare_run_dir(cfg.model_copy(update={"output": empty})) == empty
+
+
+def test_learning_rate_factor_does_not_compound(tmp_path):
+    trainer = Trainer(tiny_config(tmp_path / "run", steps=20, progress=False))
+    base = trainer.model.learning_rates()
+    trainer.lr_factor = 0.5
+    for step in (0, 1, 2, 3):
+        trainer._set_learning_rates(step)
+    for k, opt in trainer.optimizers.items():
+        if k != "means":  # means follows its decay schedule
+            assert opt.param_groups[0]["lr"] == pytest.approx(base[k] * 0.5)
+
+
+def test_memory_budget_from_environment(tmp_path, monkeypatch):
+    assert parse_bytes("1234") == 1234
+    assert parse_bytes("2G") == 2 * 2**30 and parse_bytes("512M") == 512 * 2**20
+    assert parse_bytes("1.5GiB") == int(1.5 * 2**30) and parse_bytes("3kb") == 3 * 1024
+    with pytest.raises(DataError, match="SPLAT_IMAGE_MEMORY_BUDGET"):
+        parse_bytes("lots")
+    scene = load_scene(resolve_data_path("synthetic/forward-tiny"), views=3)
+    one_view = view_bytes(scene, scene.train_indices[0])
+    monkeypatch.setenv("SPLAT_IMAGE_MEMORY_BUDGET", str(2 * one_view + 10))
+    trainer = Trainer(tiny_config(tmp_path / "run", steps=20, progress=False))
+    dm = trainer.datamanager
+    assert dm.lazy and 0 < len(dm._cache) < dm.num_train + dm.num_eval
+    # on-demand views decode to the same pixels
+    for cam, batch in dm.eval_views():
+        assert batch["image"].shape == (cam.height, cam.width, 3)
+    monkeypatch.setenv("SPLAT_IMAGE_MEMORY_BUDGET", "nonsense")
+    with pytest.raises(DataError, match="SPLAT_IMAGE_MEMORY_BUDGET"):
+        Trainer(tiny_config(tmp_path / "run2", steps=20, progress=False))
+
+
+def test_impossible_memory_is_reported_before_training(tmp_path, monkeypatch, capsys):
+    import splat_framework.trainer as tr
+
+    monkeypatch.setattr(tr, "physical_memory_bytes", lambda: 8 * 2**20)  # 8 MiB machine
+    with pytest.raises(DataError, match="needs about .* of memory"):
+        Trainer(tiny_config(tmp_path / "run", steps=20, progress=False))
+    # big enough for the Gaussians, but images above half the RAM: decoded on demand, with a warning
+    img = 200 * 2**20
+    monkeypatch.setattr(tr, "physical_memory_bytes", lambda: 10_000 * tr.BYTES_PER_GAUSSIAN * tr.DENSIFY_GROWTH + img)
+    monkeypatch.setattr(tr, "estimate_image_bytes", lambda scene: img)
+    monkeypatch.setattr(tr, "available_memory_bytes", lambda: None)
+    trainer = Trainer(tiny_config(tmp_path / "run3", steps=20, progress=False))
+    err = capsys.readouterr().err
+    assert trainer.datamanager.memory_budget_bytes is not None
+    warn = [line for line in err.splitlines() if "decoding the rest on demand" in line]
+    assert len(warn) == 1
+
+
+def test_config_json_checksum_detects_edits(tmp_path):
+    trainer = Trainer(tiny_config(tmp_path / "run", steps=20, progress=False))
+    path = trainer.run_dir / "config.json"
+    payload = json.loads(path.read_text())
+    assert payload["checksum"].startswith("sha256:")
+    payload["config"]["seed"] = 123
+    path.write_text(json.dumps(payload))
+    with pytest.raises(DataError, match="checksum mismatch"):
+        read_json(path)
+    path.write_text(path.read_text()[:40])
+    with pytest.raises(DataError, match="truncated or corrupt"):
+        read_json(path)
+    assert torch.isfinite(trainer.model.params["means"]).all()
