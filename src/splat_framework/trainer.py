@@ -53,7 +53,7 @@ from rich.table import Table
 from rich.text import Text
 
 from .checkpoint import CheckpointError, list_checkpoints, load_latest, save_checkpoint
-from .config import SCHEMA_VERSION, TrainConfig, resolve_steps
+from .config import TrainConfig, config_payload, resolve_steps, save_config
 from .data import DataError, DataManager, load_scene, resolve_data_path
 from .data.datamanager import estimate_image_bytes
 from .evaluation import evaluate
@@ -184,7 +184,13 @@ def physical_memory_bytes() -> int | None:
 
 
 def available_memory_bytes() -> int | None:
-    """RAM currently free (SC_AVPHYS_PAGES), or None where unknown."""
+    """RAM available to new allocations (MemAvailable, else SC_AVPHYS_PAGES), or None where unknown."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
     try:
         return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
     except (ValueError, OSError, AttributeError):
@@ -345,16 +351,11 @@ class Trainer:
 
     # ------------------------------------------------------------- config
     def config_payload(self) -> dict:
-        import json
-
-        return {"schema_version": SCHEMA_VERSION, "config": json.loads(self.config.model_dump_json())}
+        return config_payload(self.config)
 
     def write_config(self) -> None:
         """``config.json``: the resolved config with its schema version and a checksum (atomic)."""
-        try:
-            atomic_write_json(self.run_dir / "config.json", self.config_payload())
-        except OSError as e:
-            raise CheckpointError(f"{self.run_dir / 'config.json'}: cannot write ({e.strerror or e})") from None
+        save_config(self.config, self.run_dir / "config.json")
 
     def _check_saved_config(self) -> None:
         path = self.run_dir / "config.json"
@@ -487,7 +488,7 @@ class Trainer:
 
     def train_step(self, step: int) -> tuple[dict, float] | None:
         """One optimisation step; None when it was skipped (non-finite loss or gradients)."""
-        model, cfg = self.model, self.config
+        model = self.model
         model.on_step_start(step)
         self._set_learning_rates(step)
         camera, batch = self.datamanager.next_train(step)
@@ -619,10 +620,7 @@ class Trainer:
         metrics["init_stats"] = getattr(self.model, "init_stats", {})
         if hasattr(self.model, "report"):
             metrics["model_report"] = self.model.report(self.datamanager)
-        try:
-            atomic_write_json(self.run_dir / "metrics.json", metrics)
-        except OSError as e:
-            raise CheckpointError(f"{self.run_dir / 'metrics.json'}: cannot write ({e.strerror or e})") from None
+        atomic_write_json(self.run_dir / "metrics.json", metrics)  # OSError (disk full): one line in the CLI
         print_summary(metrics, self.run_dir)
         return metrics
 

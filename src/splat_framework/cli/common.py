@@ -93,7 +93,7 @@ def run_cli(main: Callable[[], object]) -> None:
         sys.exit(2)
     except (DataError, CheckpointError) as e:
         print(f"error: {e}", file=sys.stderr)
-        sys.exit(2)
+        sys.exit(getattr(type(e), "cli_exit_code", 2))
     except ValidationError as e:
         print(f"error: invalid config: {format_validation_error(e)}", file=sys.stderr)
         sys.exit(2)

@@ -21,23 +21,22 @@ class EvalArgs:
 
 
 def main(args: EvalArgs) -> dict:
-    import json
 
     from ..evaluation import evaluate
-    from ..io import atomic_write_text
+    from ..io import atomic_write_json, read_json
     from ..run import background_for, load_run
     from ..trainer import print_summary
 
     config, dm, model = load_run(args.run_dir, args.device)
     results = evaluate(model, dm, background_for(dm.scene, config.device), args.run_dir / "renders" if args.renders else None)
     path = args.run_dir / "metrics.json"
-    metrics = json.loads(path.read_text()) if path.is_file() else {"method": config.method, "data": config.data, "timing": {}}
+    metrics = read_json(path) if path.is_file() else {"method": config.method, "data": config.data, "timing": {}}
     metrics.update(
         mean=results["mean"], per_view=results["per_view"], render_fps=results["fps"],
         num_gaussians=model.num_gaussians, lpips_note=results["lpips_note"],
     )
     metrics.setdefault("steps", config.total_steps)
-    atomic_write_text(path, json.dumps(metrics, indent=2))
+    atomic_write_json(path, metrics)
     print_summary(metrics, args.run_dir)
     return metrics
 
