@@ -147,6 +147,7 @@ def _loss_weights(h, w, seed, dtype):
 def _compare(n, seed, width, height, dtype, sh_k=None, sh_degree=None, tile_size=16, block=32,
              chunk_pairs=None, fwd_tol=1e-4, grad_rtol=1e-6, **cam):
     viewmat, K = make_camera(width, height, dtype=dtype, **cam)
+    viewmat.requires_grad_()  # camera pose gradients flow through the projection too
     params = [p.requires_grad_() for p in random_scene(n, seed, dtype=dtype, sh_k=sh_k)]
     bg = torch.tensor([0.2, 0.5, 0.9], dtype=dtype)
     wr, wd, wa = _loss_weights(height, width, seed + 1, dtype)
@@ -154,7 +155,7 @@ def _compare(n, seed, width, height, dtype, sh_k=None, sh_degree=None, tile_size
     out = rasterize(*params, viewmat, K, width, height, sh_degree=sh_degree, background=bg,
                     tile_size=tile_size, block=block, chunk_pairs=chunk_pairs)
     loss = (out.rgb * wr).sum() + 0.1 * (out.depth * wd).sum() + (out.alpha * wa).sum()
-    grads = torch.autograd.grad(loss, params)
+    grads = torch.autograd.grad(loss, params + [viewmat])
 
     rgb, depth, alpha = reference_render(*params, viewmat, K, width, height, sh_degree=sh_degree,
                                          background=bg)
@@ -163,8 +164,9 @@ def _compare(n, seed, width, height, dtype, sh_k=None, sh_degree=None, tile_size
     torch.testing.assert_close(out.alpha, alpha, atol=fwd_tol, rtol=0)
     torch.testing.assert_close(out.depth, depth, atol=fwd_tol * 10, rtol=fwd_tol)
     ref_loss = (rgb * wr).sum() + 0.1 * (depth * wd).sum() + (alpha * wa).sum()
-    ref_grads = torch.autograd.grad(ref_loss, params)
-    for name, ga, gb in zip(["means", "quats", "scales", "opacities", "colors"], grads, ref_grads):
+    ref_grads = torch.autograd.grad(ref_loss, params + [viewmat])
+    names = ["means", "quats", "scales", "opacities", "colors", "viewmat"]
+    for name, ga, gb in zip(names, grads, ref_grads):
         scale = gb.abs().max().clamp_min(1e-3)
         err = (ga - gb).abs().max() / scale
         assert err < grad_rtol, f"grad {name}: rel err {err:.3g}"

@@ -563,7 +563,10 @@ class Trainer:
         last = {"loss": float("nan")}
         tpsnr = float("nan")
         self._train_t0 = time.perf_counter()
-        with _stop_signals(self), _progress(cfg.progress) as progress:
+        # without a terminal (logs, CI) the live bar cannot render: print a line every 5% instead
+        plain_log = cfg.progress and not console.is_terminal
+        plain_every = max(total // 20, 1)
+        with _stop_signals(self), _progress(cfg.progress and console.is_terminal) as progress:
             task = progress.add_task(
                 "train", total=total, completed=self.start_step, loss=math.nan, psnr=math.nan, n=self.model.num_gaussians
             )
@@ -579,6 +582,9 @@ class Trainer:
                     last, tpsnr = out
                 step += 1
                 progress.update(task, completed=step, loss=last["loss"], psnr=tpsnr, n=self.model.num_gaussians)
+                if plain_log and (step % plain_every == 0 or step == total):
+                    rate = (step - self.start_step) / max(time.perf_counter() - self._train_t0, 1e-9)
+                    _say(f"step {step}/{total}  loss {last['loss']:.4f}  PSNR {tpsnr:.2f}  {self.model.num_gaussians} gaussians  {rate:.2f} it/s")
                 saved = False
                 if cfg.checkpoint_every and step % cfg.checkpoint_every == 0 and step < total:
                     self.save(step)

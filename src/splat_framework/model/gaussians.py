@@ -24,15 +24,7 @@ from torch import Tensor, nn
 from ..cameras import Camera
 from ..config import TrainConfig
 from ..losses import photometric_loss
-from ..render import RenderOutput, rasterize
-
-SH_C0 = 0.28209479177387814
-
-
-def rgb_to_sh0(rgb: Tensor) -> Tensor:
-    """[..., 3] colour in [0, 1] -> [..., 3] degree-0 SH coefficient."""
-    return (rgb - 0.5) / SH_C0
-
+from ..render import RenderOutput, rasterize, rgb_to_sh
 
 def knn_scale(points: Tensor, k: int = 3, chunk: int = 4096) -> Tensor:
     """[N] root-mean-square distance of each point to its ``k`` nearest neighbours (3DGS init scale)."""
@@ -110,7 +102,7 @@ class GaussianModel(nn.Module):
         quats = torch.zeros(n, 4, device=dev)
         quats[:, 0] = 1.0
         k = (cfg.sh_degree + 1) ** 2
-        sh0 = rgb_to_sh0(colors.clamp(0, 1))[:, None, :]
+        sh0 = rgb_to_sh(colors.clamp(0, 1))[:, None, :]
         shN = torch.zeros(n, k - 1, 3, device=dev)
         opac = torch.logit(torch.full((n,), cfg.init_opacity, device=dev))
         return {

@@ -30,24 +30,12 @@ from __future__ import annotations
 from typing import Callable, Mapping, MutableMapping
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor
+
+from ..render._project import quat_to_rotmat  # one definition, shared with the rasterizer
 
 Params = MutableMapping[str, Tensor]
 Optimizers = Mapping[str, torch.optim.Optimizer]
-
-
-def quat_to_rotmat(quats: Tensor) -> Tensor:
-    """[..., 4] quaternions (w, x, y, z), any norm -> [..., 3, 3] rotation matrices."""
-    w, x, y, z = F.normalize(quats, dim=-1).unbind(-1)
-    return torch.stack(
-        [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-        ],
-        dim=-1,
-    ).reshape(quats.shape[:-1] + (3, 3))
 
 
 def _rewrap(old: Tensor, new: Tensor) -> Tensor:

@@ -226,15 +226,25 @@ def _chunk_pairs(fp: Footprints, sel: Tensor, grid: TileGrid, tile_done: Tensor)
 
 class _Composite(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, feats, fp, grid, basis, block, chunk_pairs):  # type: ignore[override]
+    def forward(ctx, means2d, conics, opacities, colors, depths, background, fp, grid, basis, block, chunk_pairs):  # type: ignore[override]
+        ctx.set_materialize_grads(False)
         device, dtype = means2d.device, means2d.dtype
-        n, f = feats.shape
+        n = means2d.shape[0]
+        f = 5  # rgb, depth, 1 (alpha)
         npx = basis.shape[1]
         n_tiles = grid.n_tiles
-        # per-Gaussian table (u, v, a, b, c, log o | features); row n is a dummy with alpha 0
+        # per-Gaussian table (u, v, a, b, c, log o | r, g, b, z, 1); row n: dummy with alpha 0
         logo = torch.log(opacities.detach().clamp_min(1e-30))
         table = torch.cat(
-            [means2d.detach(), conics.detach(), logo[:, None], feats.detach()], dim=1
+            [
+                means2d.detach(),
+                conics.detach(),
+                logo[:, None],
+                colors.detach(),
+                depths.detach()[:, None],
+                torch.ones(n, 1, device=device, dtype=dtype),
+            ],
+            dim=1,
         )
         dummy = torch.zeros(1, 6 + f, device=device, dtype=dtype)
         dummy[0, 5] = _DUMMY_LOGIT
@@ -271,21 +281,35 @@ class _Composite(torch.autograd.Function):
                 active = active[(cnt_a > (r + 1) * block) & alive]
                 r += 1
         ctx.rounds = rounds
-        ctx.save_for_backward(table, tile_centers, basis, out, opacities.detach())
+        img = tiles_to_image(out, grid)  # [H, W, 5]
+        alpha = img[..., 4:5]
+        bg = background.detach()
+        rgb = img[..., 0:3] + (1.0 - alpha) * bg
+        ctx.save_for_backward(table, tile_centers, basis, out, opacities.detach(), bg, alpha)
         ctx.nf = (n, f)
-        return out
+        ctx.grid = grid
+        return rgb, img[..., 3:4].contiguous(), alpha.contiguous()
 
     @staticmethod
     @once_differentiable
-    def backward(ctx, g_out):  # type: ignore[override]
-        with thread_policy(g_out.device):
-            return _Composite._backward(ctx, g_out)
+    def backward(ctx, g_rgb, g_depth, g_alpha):  # type: ignore[override]
+        with thread_policy(ctx.saved_tensors[0].device):
+            return _Composite._backward(ctx, g_rgb, g_depth, g_alpha)
 
     @staticmethod
-    def _backward(ctx, g_out):
-        table, tile_centers, basis, out, opac = ctx.saved_tensors
+    def _backward(ctx, g_rgb, g_depth, g_alpha):
+        table, tile_centers, basis, out, opac, bg, alpha = ctx.saved_tensors
         n, f = ctx.nf
-        g_out = g_out.contiguous()
+        grid = ctx.grid
+        h, w = grid.height, grid.width
+        zeros = lambda c: torch.zeros(h, w, c, device=table.device, dtype=table.dtype)  # noqa: E731
+        g_rgb = zeros(3) if g_rgb is None else g_rgb
+        g_depth = zeros(1) if g_depth is None else g_depth
+        g_alpha = zeros(1) if g_alpha is None else g_alpha
+        # rgb = C + (1 - alpha) bg  ->  dL/dalpha gets -g_rgb . bg
+        g_a = g_alpha - (g_rgb * bg).sum(-1, keepdim=True)
+        d_bg = (g_rgb * (1.0 - alpha)).sum((0, 1))
+        g_out = image_to_tiles(torch.cat([g_rgb, g_depth, g_a], -1), grid)  # [n_tiles, F, npx]
         total = (out * g_out).sum(1)  # [n_tiles, npx]
         prefix = torch.zeros_like(total)
         grads = torch.zeros(n + 1, 6 + f, device=table.device, dtype=table.dtype)
@@ -305,22 +329,38 @@ class _Composite(torch.autograd.Function):
             grads.index_add_(0, gid.reshape(-1), g_rows.reshape(na * b, 6 + f))
         grads = grads[:n]
         d_opac = torch.where(opac > 0, grads[:, 5] / opac.clamp_min(1e-30), 0.0)
-        return grads[:, 0:2], grads[:, 2:5], d_opac, grads[:, 6:], None, None, None, None, None
+        return (
+            grads[:, 0:2],
+            grads[:, 2:5],
+            d_opac,
+            grads[:, 6:9],
+            grads[:, 9],
+            d_bg,
+            None,
+            None,
+            None,
+            None,
+            None,
+        )
 
 
 def composite(
     means2d: Tensor,
     conics: Tensor,
     opacities: Tensor,
-    feats: Tensor,
+    colors: Tensor,
+    depths: Tensor,
+    background: Tensor,
     fp: Footprints,
     grid: TileGrid,
     basis: Tensor,
     block: int,
     chunk_pairs: int,
-) -> Tensor:
-    """[n_tiles, F, tile*tile] sum_i w_i f_i per pixel (tile-major layout)."""
-    return _Composite.apply(means2d, conics, opacities, feats, fp, grid, basis, block, chunk_pairs)
+) -> tuple[Tensor, Tensor, Tensor]:
+    """(rgb [H, W, 3] with background, accumulated depth [H, W, 1], alpha [H, W, 1])."""
+    return _Composite.apply(
+        means2d, conics, opacities, colors, depths, background, fp, grid, basis, block, chunk_pairs
+    )
 
 
 def tiles_to_image(x: Tensor, grid: TileGrid) -> Tensor:
@@ -331,12 +371,24 @@ def tiles_to_image(x: Tensor, grid: TileGrid) -> Tensor:
     return img.reshape(grid.nty * t, grid.ntx * t, f)[: grid.height, : grid.width]
 
 
+def image_to_tiles(img: Tensor, grid: TileGrid) -> Tensor:
+    """[H, W, F] -> [n_tiles, F, tile*tile] (zero padded); inverse of ``tiles_to_image``."""
+    t = grid.tile
+    f = img.shape[-1]
+    ph, pw = grid.nty * t - grid.height, grid.ntx * t - grid.width
+    if ph or pw:
+        img = torch.nn.functional.pad(img, (0, 0, 0, pw, 0, ph))
+    x = img.reshape(grid.nty, t, grid.ntx, t, f).permute(0, 2, 4, 1, 3)
+    return x.reshape(grid.n_tiles, f, t * t)
+
+
 __all__ = [
     "T_MIN",
     "ALPHA_MAX",
     "Footprints",
     "TileGrid",
     "composite",
+    "image_to_tiles",
     "pixel_basis",
     "tile_footprints",
     "tiles_to_image",

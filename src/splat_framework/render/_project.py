@@ -4,11 +4,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import torch
 from torch import Tensor
 
-# A pixel receives a Gaussian only if opacity * exp(-q / 2) >= 1/255.
-ALPHA_MIN = 1.0 / 255.0
+from ._kernels import ALPHA_MIN  # a pixel receives a Gaussian only if alpha >= 1/255
+from ._threads import thread_policy
+from .sh import sh_to_color
+
 
 
 @dataclass
@@ -99,6 +103,85 @@ def project_gaussians(
     return Projected(means2d=means2d, conics=conics, cov2d=cov2d, depths=z, valid=valid)
 
 
+def project_and_shade(
+    means: Tensor,
+    quats: Tensor,
+    scales: Tensor,
+    colors: Tensor,
+    viewmat: Tensor,
+    K: Tensor,
+    width: int,
+    height: int,
+    near_plane: float,
+    far_plane: float,
+    eps2d: float,
+    sh_degree: int | None,
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor]:
+    """Projection plus per-Gaussian colour.
+
+    Returns (means2d [N, 2], conics [N, 3], cov2d [N, 3], depths [N], valid [N] bool,
+    rgb [N, 3]); rgb is ``colors`` itself for [N, 3] input, or the SH colour
+    max(SH(dir) + 0.5, 0) for [N, K, 3] coefficients, dir = unit(mean - camera centre).
+    """
+    if colors.dim() == 3:
+        deg = int(math.isqrt(colors.shape[1])) - 1 if sh_degree is None else int(sh_degree)
+        R = viewmat[:3, :3]
+        cam_center = -R.T @ viewmat[:3, 3]
+        dirs = means - cam_center
+        dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+        rgb = sh_to_color(deg, colors, dirs)
+    else:
+        rgb = colors
+    p = project_gaussians(means, quats, scales, viewmat, K, width, height, near_plane, far_plane, eps2d)
+    return p.means2d, p.conics, p.cov2d, p.depths, p.valid, rgb
+
+
+class ProjectFn(torch.autograd.Function):
+    """``project_and_shade`` as one autograd node.
+
+    Forward records the projection's graph internally; backward replays it with
+    ``torch.autograd.grad`` inside the rasterizer's CPU thread policy, so the
+    many small ops of the projection backward also run with the thread count
+    chosen for the rasterizer (see ``_threads``)."""
+
+    @staticmethod
+    def forward(ctx, means, quats, scales, colors, viewmat, K, cfg):  # type: ignore[override]
+        ctx.set_materialize_grads(False)
+        inputs = (means, quats, scales, colors, viewmat, K)
+        with torch.enable_grad():
+            leaves = tuple(
+                t.detach().requires_grad_(bool(need)) for t, need in zip(inputs, ctx.needs_input_grad)
+            )
+            outs = project_and_shade(*leaves, *cfg)
+        ctx.leaves = leaves
+        ctx.outs = outs
+        # rgb may be the colours input itself: return a copy, never an input
+        ret = tuple(o.detach().clone() if o is leaves[3] else o.detach() for o in outs)
+        ctx.mark_non_differentiable(ret[4])
+        return ret
+
+    @staticmethod
+    def backward(ctx, *grads):  # type: ignore[override]
+        with thread_policy(ctx.leaves[0].device):
+            pairs = [
+                (o, g) for o, g in zip(ctx.outs, grads) if g is not None and o.requires_grad
+            ]
+            wanted = [i for i, leaf in enumerate(ctx.leaves) if leaf.requires_grad]
+            result = [None] * (len(ctx.leaves) + 1)
+            if not pairs or not wanted:
+                return tuple(result)
+            got = torch.autograd.grad(
+                [o for o, _ in pairs],
+                [ctx.leaves[i] for i in wanted],
+                [g for _, g in pairs],
+                allow_unused=True,
+                retain_graph=True,
+            )
+            for i, g in zip(wanted, got):
+                result[i] = g
+            return tuple(result)
+
+
 def footprint(
     cov2d: Tensor, opacities: Tensor, valid: Tensor
 ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
@@ -136,4 +219,13 @@ def reference_radii(cov2d: Tensor, active: Tensor) -> Tensor:
     return r.to(torch.int32)
 
 
-__all__ = ["ALPHA_MIN", "Projected", "footprint", "project_gaussians", "quat_to_rotmat", "reference_radii"]
+__all__ = [
+    "ALPHA_MIN",
+    "Projected",
+    "ProjectFn",
+    "footprint",
+    "project_and_shade",
+    "project_gaussians",
+    "quat_to_rotmat",
+    "reference_radii",
+]

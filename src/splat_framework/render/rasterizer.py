@@ -11,17 +11,15 @@ compile of ~15-30 s; worth it for training runs, not for tests).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Literal
 
 import torch
 from torch import Tensor
 
-from ._composite import TileGrid, composite, pixel_basis, tile_footprints, tiles_to_image
-from ._project import footprint, project_gaussians, reference_radii
+from ._composite import TileGrid, composite, pixel_basis, tile_footprints
+from ._project import ProjectFn, footprint, project_and_shade, reference_radii
 from ._threads import thread_policy
-from .sh import sh_to_color
 
 __all__ = ["RenderOutput", "rasterize"]
 
@@ -88,8 +86,8 @@ def rasterize(
          with ``sh_degree`` (default: the largest degree K allows), and the
          colour is max(SH + 0.5, 0).
       3. Compositing, per pixel, front to back in order of camera z:
-         alpha_i = min(0.99, o_i exp(-q_i / 2)) with q_i the Mahalanobis
-         distance under the 2D covariance; Gaussians with alpha_i < 1/255
+         alpha_i = min(0.99, o_i exp(-q_i / 2)) with q_i the squared
+         Mahalanobis distance under the 2D covariance; Gaussians with alpha_i < 1/255
          are skipped; a Gaussian whose inclusion would bring the
          transmittance below 1e-4 is not included and compositing stops
          for that pixel. w_i = alpha_i T_i, T_i = prod_{j<i} (1 - alpha_j).
@@ -97,8 +95,8 @@ def rasterize(
          misses the image are not rendered at all.
 
     Gradients flow to means, quats, scales, opacities, colours / SH
-    coefficients and background from rgb, depth and alpha (means also get the
-    SH view-direction term). The hard thresholds (1/255 skip, termination) have zero
+    coefficients, background and (when it requires grad) viewmat from rgb,
+    depth and alpha (means and viewmat also get the SH view-direction term). The hard thresholds (1/255 skip, termination) have zero
     gradient; where the 0.99 clamp is active alpha has zero gradient
     (as in gsplat; the 3DGS CUDA backward ignores the clamp).
 
@@ -198,36 +196,32 @@ def _rasterize(
     width = int(width)
     height = int(height)
 
-    # ------------------------------------------------------------ colours
     viewmat = viewmat.to(device=device, dtype=dtype)
     K = K.to(device=device, dtype=dtype)
-    if colors.dim() == 3:
-        k = colors.shape[1]
-        deg = int(math.isqrt(k)) - 1 if sh_degree is None else int(sh_degree)
-        R = viewmat[:3, :3]
-        cam_center = -R.T @ viewmat[:3, 3]
-        dirs = means - cam_center
-        dirs = dirs / dirs.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-        rgb_g = sh_to_color(deg, colors, dirs)
-    elif colors.dim() == 2 and colors.shape[-1] == 3:
+    if colors.dim() == 2:
+        if colors.shape[-1] != 3:
+            raise ValueError(f"colors must be [N, 3] or [N, K, 3], got {tuple(colors.shape)}")
         if sh_degree is not None:
             raise ValueError("sh_degree given but colors is [N, 3]; pass SH as [N, K, 3]")
-        rgb_g = colors
-    else:
+    elif colors.dim() != 3 or colors.shape[-1] != 3:
         raise ValueError(f"colors must be [N, 3] or [N, K, 3], got {tuple(colors.shape)}")
     if background is None:
         background = torch.zeros(3, device=device, dtype=dtype)
     else:
         background = background.to(device=device, dtype=dtype)
+    opacities = opacities.to(dtype)
 
-    # --------------------------------------------------------- projection
-    proj = project_gaussians(
-        means, quats, scales, viewmat, K, width, height, near_plane, far_plane, eps2d
-    )
-    means2d = proj.means2d
-    if torch.is_grad_enabled() and means2d.requires_grad:
-        means2d.retain_grad()
-    ext_x, ext_y, ok, qmax = footprint(proj.cov2d, opacities, proj.valid)
+    # ------------------------------------------------- projection, colours
+    cfg = (width, height, near_plane, far_plane, eps2d, sh_degree)
+    proj_inputs = (means, quats, scales, colors, viewmat, K)
+    if torch.is_grad_enabled() and any(t.requires_grad for t in proj_inputs):
+        # one autograd node whose backward runs under the rasterizer's thread policy
+        means2d, conics, cov2d, depths, valid, rgb_g = ProjectFn.apply(*proj_inputs, cfg)
+        if means2d.requires_grad:
+            means2d.retain_grad()
+    else:
+        means2d, conics, cov2d, depths, valid, rgb_g = project_and_shade(*proj_inputs, *cfg)
+    ext_x, ext_y, ok, qmax = footprint(cov2d, opacities, valid)
     grid = TileGrid(
         tile=tile_size,
         ntx=(width + tile_size - 1) // tile_size,
@@ -235,31 +229,25 @@ def _rasterize(
         width=width,
         height=height,
     )
-    fp = tile_footprints(means2d, ext_x, ext_y, ok, proj.depths, proj.cov2d, qmax, grid)
+    fp = tile_footprints(means2d, ext_x, ext_y, ok, depths, cov2d, qmax, grid)
 
     # --------------------------------------------------------- compositing
-    ones = torch.ones(n, 1, device=device, dtype=dtype)
-    feats = torch.cat([rgb_g.to(dtype), proj.depths[:, None], ones], dim=-1)  # [N, 5]
     basis = pixel_basis(tile_size, device, dtype)
     if chunk_pairs is None:
         chunk_pairs = 128 * grid.n_tiles
-    out = composite(
-        means2d, proj.conics, opacities.to(dtype), feats, fp, grid, basis, block, chunk_pairs
+    rgb, depth, alpha = composite(
+        means2d, conics, opacities, rgb_g.to(dtype), depths, background, fp, grid, basis, block,
+        chunk_pairs,
     )
-    img = tiles_to_image(out, grid)  # [H, W, 5]
-
-    alpha = img[..., 4:5]
-    rgb = img[..., 0:3] + (1.0 - alpha) * background
-    depth = img[..., 3:4]
     if depth_mode == "expected":
         depth = torch.where(alpha > 0, depth / alpha.clamp_min(1e-12), torch.zeros_like(depth))
 
     meta = {
         "means2d": means2d,
-        "radii": reference_radii(proj.cov2d, fp.hit),
+        "radii": reference_radii(cov2d, fp.hit),
         "visible": fp.hit,
-        "depths": proj.depths,
-        "conics": proj.conics,
+        "depths": depths,
+        "conics": conics,
         "width": width,
         "height": height,
     }
