@@ -67,7 +67,7 @@ def test_run_writes_documented_outputs_and_learns(tmp_path, capsys):
     assert math.isfinite(before)
     assert metrics["mean"]["psnr"] > before + 1.0, (before, metrics["mean"]["psnr"])
     # progress bar (stderr) and summary table (stdout)
-    assert "train" in err and "60/60" in err and "gaussians" in err
+    assert "60/60" in err and "gaussians" in err and "it/s" in err
     assert "test psnr" in out and "run folder" in out
     assert "Traceback" not in err
 

@@ -44,8 +44,6 @@ class MatchArgs:
     cache_dir: Path | None = None
     """Match cache folder (default: <out>/cache)."""
 
-    cache: bool = True
-    """Read and write the match cache (--no-cache to recompute and store nothing)."""
 
     max_lines: int = 200
     """Match lines drawn per picture."""
@@ -129,7 +127,7 @@ def main(args: MatchArgs) -> int:
             for i in ids
         ]
         cameras = [scene.cameras[i] for i in ids]
-        cache = None if not args.cache else (args.cache_dir or Path(args.out) / "cache")
+        cache = None if not args.config.cache else (args.cache_dir or Path(args.out) / "cache")
         run_matching(images, cameras, ids, args.config, Path(args.out), cache, args.max_lines, console)
     except (DataError, MissingWeightsError) as e:
         console.print(f"[red]error:[/] {e}", highlight=False, soft_wrap=True)

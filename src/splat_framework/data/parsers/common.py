@@ -137,8 +137,8 @@ def make_camera(
     vals = np.array([fx, fy, cx, cy], dtype=np.float64)
     if not np.isfinite(vals).all():
         raise DataError(f"{where}: non-finite intrinsics")
-    if not (fx > 0 and fy > 0):
-        raise DataError(f"{where}: focal length must be positive (fx={fx:g}, fy={fy:g})")
+    if not (fx > 1e-6 * width and fy > 1e-6 * height):
+        raise DataError(f"{where}: focal length must be positive and non-degenerate (fx={fx:g}, fy={fy:g})")
     if width < 1 or height < 1:
         raise DataError(f"{where}: image size {width}x{height} is empty")
     if not (math.isfinite(near) and math.isfinite(far) and near > 0 and far > near):
