@@ -200,3 +200,22 @@ def test_ray_gaussians_survive_pruning(scene):
     counts = _refine_once(model, cfg, dm)
     assert counts["n_prune"] == 6  # every ordinary Gaussian has opacity 0.1 < 0.99
     assert model.num_gaussians == 8 and torch.all(model.params["is_ray"] == 1)
+
+
+def test_too_few_matches_warn_and_fall_back_to_ordinary_gaussians(scene, monkeypatch, tmp_path):
+    """Texture-less views (simulated: the matcher finds nothing) must not crash or train nothing."""
+    import scg_plugin.model as scg_model
+    from scg_plugin.matching import MatchSet
+    from splat_framework.trainer import Trainer
+
+    sc, _, _ = scene
+    monkeypatch.setattr(
+        scg_model, "compute_match_set",
+        lambda config, dm: MatchSet(view_ids=[int(i) for i in dm.scene.train_indices], matches={}),
+    )
+    cfg = config_scgaussian().model_copy(update=dict(data=str(sc.root), steps=10, output=tmp_path / "run", progress=False, save_renders=False))
+    with pytest.warns(UserWarning, match="only 0 verified matches"):
+        tr = Trainer(cfg)
+    assert tr.model.num_match_gaussians == 0 and tr.model.num_gaussians >= 10000
+    metrics = tr.train()
+    assert metrics["init_stats"]["num_matches"] == 0 and metrics["mean"]["psnr"] > 5
