@@ -250,3 +250,26 @@ def test_ablation_script_two_methods(tmp_path):
     lines = [ln for ln in text.splitlines() if ln.startswith("| ")]
     assert lines[1].startswith("| 3DGS (random init) | `3dgs` |") and "`scgaussian`" in lines[2]
     assert "failed" not in text and (out / "results.csv").is_file()
+
+
+def test_comparison_figure_per_scene_from_finished_runs(tmp_path):
+    import cv2
+    import numpy as np
+
+    from splat_framework.sweep import write_figures
+
+    records = []
+    for k, method in enumerate(["3dgs", "scgaussian"]):
+        for seed in (1, 0):
+            rd = tmp_path / "runs" / "fern" / method / f"v3-s{seed}"
+            (rd / "renders").mkdir(parents=True)
+            for view in ("image000", "image008"):
+                img = np.full((12, 16, 3), 40 * (k + 1) + seed, np.uint8)
+                cv2.imwrite(str(rd / "renders" / f"{view}_render.png"), img)
+                cv2.imwrite(str(rd / "renders" / f"{view}_gt.png"), img * 0 + 200)
+            records.append({"method": method, "data": "llff/fern", "views": 3, "seed": seed, "run_dir": str(rd), "status": "ok"})
+    records.append({"method": "broken", "data": "llff/fern", "views": 3, "seed": 0, "run_dir": str(tmp_path / "none"), "status": "failed"})
+    figs = write_figures(tmp_path, records)
+    assert [f.name for f in figs] == ["llff-fern-v3.png"]
+    fig = cv2.imread(str(figs[0]))
+    assert fig is not None and fig.shape[0] > 3 * 12 and fig.shape[1] > 2 * 16  # GT row + 2 method rows, 2 views

@@ -45,6 +45,7 @@ import sys
 import time
 import traceback
 import uuid
+import warnings
 from collections import deque
 from contextlib import redirect_stderr, redirect_stdout
 from dataclasses import asdict, dataclass, field
@@ -695,6 +696,32 @@ def write_tables(out: Path, records: list[dict], settings: dict | None = None) -
     return rows
 
 
+def write_figures(out: Path, records: list[dict]) -> list[Path]:
+    """One qualitative comparison per scene and view count (the paper's figure):
+    ground truth on top, a row per method (its lowest-seed finished run).
+
+    Written to ``<out>/figures/<scene>-v<views>.png``; runs without renders are left out.
+    """
+    from .figures import comparison_figure
+
+    groups: dict[tuple, dict[str, dict]] = {}
+    for r in records:
+        if r["status"] != "ok" or not (Path(r["run_dir"]) / "renders").is_dir():
+            continue
+        methods = groups.setdefault((r["data"], r["views"]), {})
+        if r["method"] not in methods or r["seed"] < methods[r["method"]]["seed"]:
+            methods[r["method"]] = r
+    written = []
+    for (data, views), methods in groups.items():
+        target = Path(out) / "figures" / f"{scene_slug(data)}-v{views}.png"
+        rows = [(m, Path(r["run_dir"])) for m, r in methods.items()]
+        try:
+            written.append(comparison_figure(rows, target))
+        except DataError as e:  # a run without usable renders: the tables still stand
+            warnings.warn(f"{target}: comparison figure skipped ({e})", stacklevel=2)
+    return written
+
+
 # ------------------------------------------------------------ reporting
 class Reporter:
     """A rich live table on a terminal; one plain line per finished run otherwise."""
@@ -1073,12 +1100,13 @@ def run_sweep(
         reporter.stop(ordered())
         rows = write_tables(out, ordered(), settings)
     recs = ordered()
+    figures = write_figures(out, recs)
     failed = sum(1 for r in recs if r["status"] in ("failed", "interrupted"))
     if not reporter.use_live:
         reporter.console.print(markdown_table(rows), markup=False, highlight=False, soft_wrap=True)
     reporter.console.print(
         f"sweep: {len(todo)} run(s) trained, {skipped} skipped (already done), {failed} failed; "
-        f"tables in {out}/results.{{md,csv,json}}",
+        f"tables in {out}/results.{{md,csv,json}}" + (f", {len(figures)} comparison figure(s)" if figures else ""),
         markup=False, highlight=False, soft_wrap=True,
     )
     return SweepResult(out, recs, rows, len(todo), skipped, failed)
