@@ -75,8 +75,6 @@ def build_ray_bundle(match_pairs, cameras: list[Camera], generator: torch.Genera
         other = torch.stack([uv_j, uv_i], 1).reshape(-1, 2)
         views = torch.tensor([i, j]).repeat(m)
         partners = torch.tensor([j, i]).repeat(m)
-        for v in (i, j):
-            pass
         o = torch.empty(2 * m, 3)
         d = torch.empty(2 * m, 3)
         near = torch.empty(2 * m)
