@@ -19,7 +19,7 @@ import numpy as np
 from ..images import IMAGE_SUFFIXES
 from ..scene import DataError, SceneData
 from ..splits import Views, blender_split
-from .common import check_downscale, check_same_size, decoded_size, make_camera, scene_extent
+from .common import check_downscale, check_same_size, decoded_size, make_camera, build_scene
 
 NEAR, FAR = 2.0, 6.0
 FLIP_YZ = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -167,18 +167,15 @@ def load_blender(root: Path, *, views: Views = "all", downscale: float | None = 
     train_pool = list(range(n_train))
     test_pool = list(range(n_train, len(entries)))
     train, test = blender_split(train_pool, test_pool, views)
-    center, radius = scene_extent(cameras, train)
-    return SceneData(
-        root=root,
-        format="blender",
-        cameras=cameras,
-        image_paths=paths,
-        train_indices=train,
-        test_indices=test,
+    return build_scene(
+        root,
+        "blender",
+        cameras,
+        paths,
+        train,
+        test,
         image_scale=image_scale,
         white_background=True,
         depth_paths=depth_paths,
-        scene_center=center,
-        scene_radius=radius,
         extras={"train_pool": train_pool, "test_pool": test_pool},
     )

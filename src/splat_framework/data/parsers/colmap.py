@@ -29,7 +29,7 @@ from .common import (
     choose_image_dir,
     decoded_size,
     make_camera,
-    scene_extent,
+    build_scene,
 )
 
 # id -> (name, number of params)
@@ -384,16 +384,13 @@ def load_colmap(root: Path, *, views: Views = "all", downscale: float | None = N
         )
 
     train, test = llff_split(len(cameras), views)
-    center, radius = scene_extent(cameras, train)
-    return SceneData(
-        root=root,
-        format="colmap",
-        cameras=cameras,
-        image_paths=paths,
-        train_indices=train,
-        test_indices=test,
+    return build_scene(
+        root,
+        "colmap",
+        cameras,
+        paths,
+        train,
+        test,
         image_scale=image_scale,
-        scene_center=center,
-        scene_radius=radius,
         extras={"points3d": xyz.astype(np.float32), "points3d_rgb": rgb},
     )

@@ -179,3 +179,14 @@ def scene_extent(cameras: Sequence[Camera], indices: Sequence[int]) -> tuple[tup
         near = float(np.mean([cameras[i].near for i in idx]))
         radius = 1.1 * near if near > 1e-6 and math.isfinite(near) else 1.0
     return (float(mean[0]), float(mean[1]), float(mean[2])), radius
+
+
+def build_scene(root, format: str, cameras, image_paths, train: list[int], test: list[int], **fields):
+    """The SceneData every parser returns, with the scene extent derived from the training cameras."""
+    from ..scene import SceneData
+
+    center, radius = scene_extent(cameras, train)
+    return SceneData(
+        root=root, format=format, cameras=cameras, image_paths=image_paths,
+        train_indices=train, test_indices=test, scene_center=center, scene_radius=radius, **fields,
+    )

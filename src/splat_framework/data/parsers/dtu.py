@@ -25,7 +25,7 @@ from .common import (
     find_images,
     image_folders,
     make_camera,
-    scene_extent,
+    build_scene,
 )
 
 FULL_W, FULL_H = 1600, 1200
@@ -116,18 +116,15 @@ def load_dtu(root: Path, *, views: Views = "all", downscale: float | None = None
         cameras.append(make_camera(R_w2c.T, C, fx, fy, cx, cy, w, h, near, far, p.stem, where))
 
     train, test = dtu_split(n, views)
-    center, radius = scene_extent(cameras, train)
-    return SceneData(
-        root=root,
-        format="dtu",
-        cameras=cameras,
-        image_paths=paths,
-        train_indices=train,
-        test_indices=test,
+    return build_scene(
+        root,
+        "dtu",
+        cameras,
+        paths,
+        train,
+        test,
         image_scale=image_scale,
         white_background=False,
         mask_paths=mask_paths,
-        scene_center=center,
-        scene_radius=radius,
         masked_metrics=mask_paths is not None,
     )

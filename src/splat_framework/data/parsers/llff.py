@@ -15,7 +15,7 @@ import numpy as np
 
 from ..scene import DataError, SceneData
 from ..splits import Views, llff_split
-from .common import check_same_size, choose_image_dir, decoded_size, find_images, image_folders, make_camera, scene_extent
+from .common import check_same_size, choose_image_dir, decoded_size, find_images, image_folders, make_camera, build_scene
 
 
 def load_poses_bounds(path: Path) -> np.ndarray:
@@ -85,17 +85,14 @@ def load_llff(root: Path, *, views: Views = "all", downscale: float | None = Non
         )
 
     train, test = llff_split(n, views)
-    center, radius = scene_extent(cameras, train)
-    return SceneData(
-        root=root,
-        format="llff",
-        cameras=cameras,
-        image_paths=paths,
-        train_indices=train,
-        test_indices=test,
+    return build_scene(
+        root,
+        "llff",
+        cameras,
+        paths,
+        train,
+        test,
         image_scale=image_scale,
         white_background=False,
         depth_paths=depth_paths,
-        scene_center=center,
-        scene_radius=radius,
     )
