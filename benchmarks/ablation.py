@@ -15,7 +15,12 @@ Usage:
     python benchmarks/ablation.py --data llff/fern --views 3 --seeds 0 1 2 \\
         --out benchmarks/results/ablation-fern [--steps N] [--workers W] \\
         [--methods 3dgs scgaussian ...] [--backend local|ray --address auto] \\
-        [--override model.key=value] [--md PATH]
+        [--override model.key=value] [--md PATH] [--readme README.md]
+
+``--md PATH`` also copies each scene's comparison figure next to PATH and embeds
+it; ``--readme README.md`` replaces the block between the markers
+``<!-- ablation:SCENE-vVIEWS -->`` and ``<!-- /ablation:SCENE-vVIEWS -->`` with the
+table of that scene (so the README's Results section is generated, not typed).
 
 A killed run of this script, started again with the same options, trains only
 the missing runs.
@@ -58,12 +63,34 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--address", default=None, help="Ray address (auto, ray://HOST:10001); default a local instance")
     p.add_argument("--override", action="append", default=[], metavar="KEY=VALUE", help="config override for every run")
     p.add_argument("--md", type=Path, default=None, help="where to write the table (default <out>/ablation.md)")
+    p.add_argument("--readme", type=Path, default=None, help="splice each scene's table into this file's ablation markers")
     p.add_argument("--no-live", action="store_true", help="plain progress lines instead of the live table")
     return p.parse_args(argv)
 
 
-def ablation_markdown(rows: list[dict], args: argparse.Namespace, command: str) -> str:
-    """The README table: one section per (scene, views), one line per ablation row."""
+def section_key(data: str, views) -> str:
+    """Marker key of a (scene, views) table: ``llff-fern-v3``."""
+    from splat_framework.sweep import scene_slug
+
+    return f"{scene_slug(data)}-v{views}"
+
+
+def splice_block(text: str, key: str, block: str, source: str = "README") -> str:
+    """``text`` with the lines between ``<!-- ablation:KEY -->`` and ``<!-- /ablation:KEY -->`` replaced by ``block``."""
+    from splat_framework.errors import DataError
+
+    start, end = f"<!-- ablation:{key} -->", f"<!-- /ablation:{key} -->"
+    i, j = text.find(start), text.find(end)
+    if i < 0 or j < i:
+        raise DataError(f"{source}: no '{start}' ... '{end}' markers to put the {key} table between")
+    return text[: i + len(start)] + "\n" + block.strip("\n") + "\n" + text[j:]
+
+
+def ablation_markdown(
+    rows: list[dict], args: argparse.Namespace, command: str, figures: dict[str, str] | None = None
+) -> dict[str, str]:
+    """The README tables: one Markdown section per (scene, views) keyed by :func:`section_key`,
+    one line per ablation row, the comparison figure (``figures[key]``: a relative path) below."""
     from splat_framework.sweep import fmt_value
 
     order = {m: i for i, m in enumerate(ROWS)}
@@ -72,16 +99,21 @@ def ablation_markdown(rows: list[dict], args: argparse.Namespace, command: str) 
         sections.setdefault((r["data"], r["views"]), []).append(r)
     steps = f"{args.steps} iterations" if args.steps else "each method's default iterations"
     seeds = ", ".join(str(s) for s in args.seeds)
-    lines: list[str] = []
+    footer = [
+        f"Machine: {platform.platform()}, Python {platform.python_version()}, {os.cpu_count()} CPU cores; {date.today()}.",
+        f"Reproduce: `{command}`",
+        "",
+    ]
+    out: dict[str, str] = {}
     for (data, views), rs in sections.items():
         rs = sorted(rs, key=lambda r: order.get(r["method"], len(order)))
-        lines += [
+        lines = [
             f"### Ablation on `{data}`, {views} training views",
             "",
             f"{steps}; mean ± std over seeds {seeds}.",
             "",
-            "| Row | Config | PSNR ↑ | SSIM ↑ | LPIPS ↓ | AVG ↓ | Gaussians | Train (s) | Total (s) | Peak mem (MB) |",
-            "|---|---|--:|--:|--:|--:|--:|--:|--:|--:|",
+            "| Row | Config | PSNR ↑ | SSIM ↑ | LPIPS ↓ | AVG ↓ | Gaussians | Warm-up (s) | Train (s) | Total (s) | Peak mem (MB) |",
+            "|---|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|",
         ]
         for r in rs:
             def v(f, fmt):
@@ -89,25 +121,25 @@ def ablation_markdown(rows: list[dict], args: argparse.Namespace, command: str) 
 
             label = ROWS.get(r["method"], r["method"])
             if r["n_ok"] == 0:
-                cells = ["failed" if r["n_failed"] else "not run"] + ["n/a"] * 7
+                cells = ["failed" if r["n_failed"] else "not run"] + ["n/a"] * 8
             else:
                 cells = [v("psnr", ".2f"), v("ssim", ".3f"), v("lpips", ".3f"), v("avg", ".3f"),
-                         v("num_gaussians", ",.0f"), v("train_s", ".1f"), v("total_s", ".1f"), v("peak_rss_mb", ".0f")]
+                         v("num_gaussians", ",.0f"), v("warmup_s", ".1f"), v("train_s", ".1f"),
+                         v("total_s", ".1f"), v("peak_rss_mb", ".0f")]
                 if r["n_failed"]:
                     label += f" ({r['n_failed']} of {r['n_runs']} seeds failed)"
             lines.append(f"| {label} | `{r['method']}` | " + " | ".join(cells) + " |")
         lines.append("")
-    errors = [f"- `{r['method']}` on `{r['data']}`, {e}" for r in rows for e in r["errors"]]
-    if errors:
-        lines += ["Failed runs:", "", *errors, ""]
-    if all(r["lpips_mean"] is None for r in rows):
-        lines += ["LPIPS and AVG are n/a: the `lpips` package or its weights were not available.", ""]
-    lines += [
-        f"Machine: {platform.platform()}, Python {platform.python_version()}, {os.cpu_count()} CPU cores; {date.today()}.",
-        f"Reproduce: `{command}`",
-        "",
-    ]
-    return "\n".join(lines)
+        errors = [f"- `{r['method']}`, {e}" for r in rs for e in r["errors"]]
+        if errors:
+            lines += ["Failed runs:", "", *errors, ""]
+        if all(r["lpips_mean"] is None for r in rs):
+            lines += ["LPIPS and AVG are n/a: the `lpips` package or its weights were not available.", ""]
+        key = section_key(data, views)
+        if figures and key in figures:
+            lines += [f"![Test views of `{data}`: ground truth, then one row per config]({figures[key]})", ""]
+        out[key] = "\n".join(lines + footer)
+    return out
 
 
 def main(argv: list[str] | None = None) -> Path:
@@ -129,9 +161,52 @@ def main(argv: list[str] | None = None) -> Path:
     )
     command = "python benchmarks/ablation.py " + " ".join(sys.argv[1:] if argv is None else argv)
     md_path = args.md or out / "ablation.md"
-    atomic_write_text(md_path, ablation_markdown(result.rows, args, command))
+    figures = publish_figures(out, md_path, args.readme, [(r["data"], r["views"]) for r in result.rows])
+    sections = ablation_markdown(result.rows, args, command, figures["md"])
+    atomic_write_text(md_path, "\n".join(sections.values()))
     print(f"ablation table: {md_path}")
+    if args.readme is not None:
+        sections = ablation_markdown(result.rows, args, command, figures["readme"])
+        text = args.readme.read_text(encoding="utf-8")
+        for key, block in sections.items():
+            text = splice_block(text, key, block, str(args.readme))
+        atomic_write_text(args.readme, text)
+        print(f"README tables updated: {args.readme} ({', '.join(sections)})")
     return md_path
+
+
+def publish_figures(
+    out: Path, md_path: Path, readme: Path | None, groups: list[tuple], max_width: int = 1200
+) -> dict[str, dict[str, str]]:
+    """Copy each (scene, views) comparison figure of the sweep next to ``md_path``,
+    as a JPEG at most ``max_width`` pixels wide (the full-size PNG stays in ``out/figures``).
+
+    Returns ``{"md": {key: path relative to md_path}, "readme": {key: path relative to readme}}``
+    for the figures that exist.
+    """
+    import cv2
+
+    from splat_framework.io import atomic_write_bytes
+    from splat_framework.sweep import scene_slug
+
+    links: dict[str, dict[str, str]] = {"md": {}, "readme": {}}
+    for data, views in dict.fromkeys(groups):
+        key = section_key(data, views)
+        img = cv2.imread(str(Path(out) / "figures" / f"{scene_slug(data)}-v{views}.png"), cv2.IMREAD_COLOR)
+        if img is None:
+            continue
+        if img.shape[1] > max_width:
+            h = round(img.shape[0] * max_width / img.shape[1])
+            img = cv2.resize(img, (max_width, h), interpolation=cv2.INTER_AREA)
+        dst = md_path.parent / f"{md_path.stem}-{key}.jpg"
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 88])
+        if ok:
+            atomic_write_bytes(dst, buf.tobytes())
+        links["md"][key] = dst.name
+        if readme is not None:
+            links["readme"][key] = os.path.relpath(dst.resolve(), readme.resolve().parent)
+    return links
 
 
 if __name__ == "__main__":

@@ -93,9 +93,12 @@ def test_steps_rescale_the_whole_schedule():
 
     c = resolve_steps(config_scgaussian().model_copy(update={"steps": 300}))
     assert c.total_steps == 300
-    assert c.strategy.refine_start_iter == 50 and c.strategy.refine_stop_iter == 250
-    assert c.model.warmup_steps == 200 and c.model.sh_degree_interval == 50
-    assert c.checkpoint_every == 100
+    # scgaussian's own schedule is 1000 iterations: 500..1000 densification, reset every 200,
+    # 2000 warm-up iterations, SH degree raised every 1000, checkpoint every 1000.
+    assert c.strategy.refine_start_iter == 150 and c.strategy.refine_stop_iter == 300
+    assert c.strategy.reset_every == 60 and c.strategy.refine_every == 100  # refine_every is not rescaled
+    assert c.model.warmup_steps == 600 and c.model.sh_degree_interval == 300
+    assert c.checkpoint_every == 300
     same = resolve_steps(TrainConfig())
     assert same.strategy.refine_stop_iter == DensifyConfig().refine_stop_iter
 

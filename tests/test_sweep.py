@@ -237,19 +237,40 @@ def test_ray_missing_gives_install_hint(tmp_path, monkeypatch):
         run_sweep(Grid(["3dgs"], ["x"]), tmp_path, backend="ray")
 
 
-def test_ablation_script_two_methods(tmp_path):
+def load_ablation_script():
     spec = importlib.util.spec_from_file_location("ablation", REPO / "benchmarks" / "ablation.py")
     ablation = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(ablation)
+    return ablation
+
+
+def test_ablation_script_two_methods_writes_table_figure_and_readme(tmp_path):
+    ablation = load_ablation_script()
     out = tmp_path / "abl"
+    readme = tmp_path / "README.md"
+    readme.write_text("# R\n\n<!-- ablation:synthetic-forward-tiny-v3 -->\nold table\n<!-- /ablation:synthetic-forward-tiny-v3 -->\ntail\n")
     md = ablation.main(["--data", "synthetic/forward-tiny", "--views", "3", "--steps", "10", "--seeds", "0",
                         "--methods", "3dgs", "scgaussian", "--out", str(out), "--workers", "2",
-                        "--override", "model.init_num_points=300", "--override", "save_renders=false", "--no-live"])
+                        "--md", str(tmp_path / "results" / "abl.md"), "--readme", str(readme),
+                        "--override", "model.init_num_points=300", "--no-live"])
     text = md.read_text()
     assert "### Ablation on `synthetic/forward-tiny`, 3 training views" in text
     lines = [ln for ln in text.splitlines() if ln.startswith("| ")]
     assert lines[1].startswith("| 3DGS (random init) | `3dgs` |") and "`scgaussian`" in lines[2]
     assert "failed" not in text and (out / "results.csv").is_file()
+    fig = tmp_path / "results" / "abl-synthetic-forward-tiny-v3.jpg"
+    assert fig.is_file() and "](abl-synthetic-forward-tiny-v3.jpg)" in text
+    new = readme.read_text()
+    assert "old table" not in new and new.startswith("# R\n") and new.endswith("<!-- /ablation:synthetic-forward-tiny-v3 -->\ntail\n")
+    assert "| 3DGS (random init) | `3dgs` |" in new and "](results/abl-synthetic-forward-tiny-v3.jpg)" in new
+
+
+def test_ablation_readme_without_markers_is_a_clear_error():
+    from splat_framework.errors import DataError
+
+    ablation = load_ablation_script()
+    with pytest.raises(DataError, match=r"README.md: no '<!-- ablation:llff-fern-v3 -->'"):
+        ablation.splice_block("no markers here", "llff-fern-v3", "table", "README.md")
 
 
 def test_comparison_figure_per_scene_from_finished_runs(tmp_path):

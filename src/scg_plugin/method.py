@@ -11,11 +11,27 @@ from splat_framework.config import DensifyConfig
 
 
 def config_scgaussian() -> SCGTrainConfig:
-    """SCGaussian as in the public code: z warm-up with L_gp (cache and filter), then L_photo + 0.3 L_rg."""
+    """SCGaussian as in the public code: z warm-up with L_gp (cache and filter), then L_photo + 0.3 L_rg.
+
+    Densification follows the public code (gradient threshold 0.0004, densify from
+    iteration 500, opacity reset every 200 iterations, SH degree raised every 1000),
+    which keeps the hybrid model small. Main training is 1000 iterations rather
+    than the public code's 2000: on fern (3 views) test PSNR is flat after ~750
+    iterations (20.60 at 500, 20.69 at 750, 20.76 at 1000 of a 2000-iteration run)
+    while every further iteration costs CPU time with a growing model.
+    """
     return SCGTrainConfig(
         method="scgaussian",
-        model=SCGModelConfig(),
-        strategy=DensifyConfig(never_prune_key="is_match", child_defaults={"is_ray": 0.0, "is_match": 0.0}),
+        default_steps=1000,
+        model=SCGModelConfig(sh_degree_interval=1000),
+        strategy=DensifyConfig(
+            grow_grad2d=0.0004,
+            refine_start_iter=500,
+            refine_stop_iter=1000,
+            reset_every=200,
+            never_prune_key="is_match",
+            child_defaults={"is_ray": 0.0, "is_match": 0.0},
+        ),
     )
 
 
