@@ -87,10 +87,12 @@ def splice_block(text: str, key: str, block: str, source: str = "README") -> str
 
 
 def ablation_markdown(
-    rows: list[dict], args: argparse.Namespace, command: str, figures: dict[str, str] | None = None
+    rows: list[dict], args: argparse.Namespace, command: str, figures: dict[str, Path] | None = None,
+    base: Path = Path("."),
 ) -> dict[str, str]:
     """The README tables: one Markdown section per (scene, views) keyed by :func:`section_key`,
-    one line per ablation row, the comparison figure (``figures[key]``: a relative path) below."""
+    one line per ablation row, the comparison figure ``figures[key]`` below (linked relative to
+    the folder ``base`` of the Markdown file)."""
     from splat_framework.sweep import fmt_value
 
     order = {m: i for i, m in enumerate(ROWS)}
@@ -137,7 +139,8 @@ def ablation_markdown(
             lines += ["LPIPS and AVG are n/a: the `lpips` package or its weights were not available.", ""]
         key = section_key(data, views)
         if figures and key in figures:
-            lines += [f"![Test views of `{data}`: ground truth, then one row per config]({figures[key]})", ""]
+            link = Path(os.path.relpath(figures[key].resolve(), base.resolve())).as_posix()
+            lines += [f"![Test views of `{data}`: ground truth, then one row per config]({link})", ""]
         out[key] = "\n".join(lines + footer)
     return out
 
@@ -161,12 +164,12 @@ def main(argv: list[str] | None = None) -> Path:
     )
     command = "python benchmarks/ablation.py " + " ".join(sys.argv[1:] if argv is None else argv)
     md_path = args.md or out / "ablation.md"
-    figures = publish_figures(out, md_path, args.readme, [(r["data"], r["views"]) for r in result.rows])
-    sections = ablation_markdown(result.rows, args, command, figures["md"])
+    figures = publish_figures(out, md_path, [(r["data"], r["views"]) for r in result.rows])
+    sections = ablation_markdown(result.rows, args, command, figures, md_path.parent)
     atomic_write_text(md_path, "\n".join(sections.values()))
     print(f"ablation table: {md_path}")
     if args.readme is not None:
-        sections = ablation_markdown(result.rows, args, command, figures["readme"])
+        sections = ablation_markdown(result.rows, args, command, figures, args.readme.parent)
         text = args.readme.read_text(encoding="utf-8")
         for key, block in sections.items():
             text = splice_block(text, key, block, str(args.readme))
@@ -175,38 +178,30 @@ def main(argv: list[str] | None = None) -> Path:
     return md_path
 
 
-def publish_figures(
-    out: Path, md_path: Path, readme: Path | None, groups: list[tuple], max_width: int = 1200
-) -> dict[str, dict[str, str]]:
-    """Copy each (scene, views) comparison figure of the sweep next to ``md_path``,
-    as a JPEG at most ``max_width`` pixels wide (the full-size PNG stays in ``out/figures``).
+def publish_figures(out: Path, md_path: Path, groups: list[tuple], max_width: int = 1200) -> dict[str, Path]:
+    """Copy each (scene, views) comparison figure of the sweep next to ``md_path``, as a JPEG
+    at most ``max_width`` pixels wide (the full-size PNG stays in ``out/figures``).
 
-    Returns ``{"md": {key: path relative to md_path}, "readme": {key: path relative to readme}}``
-    for the figures that exist.
+    Returns ``{section key: JPEG path}`` for the figures the sweep wrote.
     """
     import cv2
 
     from splat_framework.io import atomic_write_bytes
-    from splat_framework.sweep import scene_slug
 
-    links: dict[str, dict[str, str]] = {"md": {}, "readme": {}}
+    written: dict[str, Path] = {}
     for data, views in dict.fromkeys(groups):
-        key = section_key(data, views)
-        img = cv2.imread(str(Path(out) / "figures" / f"{scene_slug(data)}-v{views}.png"), cv2.IMREAD_COLOR)
+        key = section_key(data, views)  # also the sweep's figure name
+        img = cv2.imread(str(Path(out) / "figures" / f"{key}.png"), cv2.IMREAD_COLOR)
         if img is None:
             continue
         if img.shape[1] > max_width:
             h = round(img.shape[0] * max_width / img.shape[1])
             img = cv2.resize(img, (max_width, h), interpolation=cv2.INTER_AREA)
-        dst = md_path.parent / f"{md_path.stem}-{key}.jpg"
-        dst.parent.mkdir(parents=True, exist_ok=True)
         ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 88])
         if ok:
-            atomic_write_bytes(dst, buf.tobytes())
-        links["md"][key] = dst.name
-        if readme is not None:
-            links["readme"][key] = os.path.relpath(dst.resolve(), readme.resolve().parent)
-    return links
+            written[key] = md_path.parent / f"{md_path.stem}-{key}.jpg"
+            atomic_write_bytes(written[key], buf.tobytes())
+    return written
 
 
 if __name__ == "__main__":

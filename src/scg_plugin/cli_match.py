@@ -44,7 +44,6 @@ class MatchArgs:
     cache_dir: Path | None = None
     """Match cache folder (default: <out>/cache)."""
 
-
     max_lines: int = 200
     """Match lines drawn per picture."""
 

@@ -13,7 +13,7 @@ import torch
 
 from ...cameras import Camera
 from ..images import list_images, read_image_size, scaled_size
-from ..scene import DataError
+from ..scene import DataError, SceneData
 
 ROTATION_TOL = 2e-3
 
@@ -181,10 +181,8 @@ def scene_extent(cameras: Sequence[Camera], indices: Sequence[int]) -> tuple[tup
     return (float(mean[0]), float(mean[1]), float(mean[2])), radius
 
 
-def build_scene(root, format: str, cameras, image_paths, train: list[int], test: list[int], **fields):
+def build_scene(root, format: str, cameras, image_paths, train: list[int], test: list[int], **fields) -> SceneData:
     """The SceneData every parser returns, with the scene extent derived from the training cameras."""
-    from ..scene import SceneData
-
     center, radius = scene_extent(cameras, train)
     return SceneData(
         root=root, format=format, cameras=cameras, image_paths=image_paths,
