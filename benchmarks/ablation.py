@@ -36,7 +36,8 @@ from datetime import date
 from pathlib import Path
 
 ROWS: dict[str, str] = {
-    "3dgs": "3DGS (random init)",
+    "3dgs": "3DGS (reference random init)",
+    "3dgs-frustum": "3DGS, frustum init with pixel colours",
     "3dgs-triang": "3DGS + triangulated-match init",
     "scgaussian-hybrid": "Hybrid representation",
     "scgaussian-hybrid-rg": "+ rendering-geometry loss",

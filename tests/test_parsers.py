@@ -316,6 +316,7 @@ def test_blender_cameras(tmp_path):
     focal = 0.5 * 8 / math.tan(0.35) * 0.5
     assert cam.K[0, 0].item() == pytest.approx(focal, rel=1e-5)
     assert (cam.near, cam.far) == (2.0, 6.0)
+    assert scene.content_box == ((-1.3, -1.3, -1.3), (1.3, 1.3, 1.3))  # the 3DGS reference's random-init cube
     assert scene.train_indices == list(range(10))
     assert scene.test_indices == [10, 18]  # every 8th test frame
     assert scene.cameras[10].name == "test_r_0" and scene.cameras[0].name == "train_r_0"
@@ -344,6 +345,7 @@ def test_dtu_cameras(tmp_path):
     root = make_dtu(tmp_path / "scan", 49)
     scene = load_scene(root, views=3)
     assert scene.format == "dtu" and scene.masked_metrics
+    assert scene.content_box == ((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0))  # cameras are in the unit-sphere frame
     assert scene.train_indices == [25, 22, 28]
     assert len(scene.test_indices) == 25
     assert len(scene.mask_paths) == 49 and scene.mask_paths[0].name == "000.png"

@@ -31,7 +31,7 @@ def _fake_eps(monkeypatch, eps):
 
 def test_builtins_and_plugin_registered_through_entry_points():
     methods = registry.discover_methods()
-    for name in ("3dgs", "3dgs-triang", "scgaussian", "scgaussian-single-stage", "scgaussian-hybrid",
+    for name in ("3dgs", "3dgs-frustum", "3dgs-triang", "scgaussian", "scgaussian-single-stage", "scgaussian-hybrid",
                  "scgaussian-hybrid-rg", "scgaussian-hybrid-rg-dual", "scgaussian-only-ray",
                  "scgaussian-only-nonstructure"):
         assert name in methods, name

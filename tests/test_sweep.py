@@ -256,13 +256,13 @@ def test_ablation_script_two_methods_writes_table_figure_and_readme(tmp_path):
     text = md.read_text()
     assert "### Ablation on `synthetic/forward-tiny`, 3 training views" in text
     lines = [ln for ln in text.splitlines() if ln.startswith("| ")]
-    assert lines[1].startswith("| 3DGS (random init) | `3dgs` |") and "`scgaussian`" in lines[2]
+    assert lines[1].startswith("| 3DGS (reference random init) | `3dgs` |") and "`scgaussian`" in lines[2]
     assert "failed" not in text and (out / "results.csv").is_file()
     fig = tmp_path / "results" / "abl-synthetic-forward-tiny-v3.jpg"
     assert fig.is_file() and "](abl-synthetic-forward-tiny-v3.jpg)" in text
     new = readme.read_text()
     assert "old table" not in new and new.startswith("# R\n") and new.endswith("<!-- /ablation:synthetic-forward-tiny-v3 -->\ntail\n")
-    assert "| 3DGS (random init) | `3dgs` |" in new and "](results/abl-synthetic-forward-tiny-v3.jpg)" in new
+    assert "| 3DGS (reference random init) | `3dgs` |" in new and "](results/abl-synthetic-forward-tiny-v3.jpg)" in new
 
 
 def test_ablation_readme_without_markers_is_a_clear_error():

@@ -14,8 +14,8 @@ from .matching import MatchConfig
 class SCGModelConfig(GaussianModelConfig):
     """SCGaussian: hybrid ray-based + ordinary Gaussians with matching-prior losses."""
 
-    init: Literal["random", "points", "matches"] = "matches"
-    """Initialisation: ray-based Gaussians on matched rays (SCGaussian)."""
+    init: Literal["random", "frustum"] = "frustum"
+    """Placement of random ordinary Gaussians (the init_num_points extra ones, or all of them when matches are too few); ray-based Gaussians always start on the matched rays."""
     init_num_points: int = 0
     """Extra random ordinary Gaussians at start (0 = ordinary ones come only from densification)."""
     matching: MatchConfig = Field(default_factory=MatchConfig)
@@ -58,8 +58,8 @@ class SCGTrainConfig(TrainConfig):
 class TriangModelConfig(GaussianModelConfig):
     """3DGS initialised from matches triangulated with the known poses."""
 
-    init: Literal["random", "points", "matches"] = "points"
-    """Initialisation: the triangulated match points."""
+    init: Literal["random", "frustum"] = "frustum"
+    """Placement of the random Gaussians used only when too few matches triangulate (normally the model starts from the triangulated points)."""
     matching: MatchConfig = Field(default_factory=MatchConfig)
     """Matching prior used for triangulation."""
     max_reprojection_px: float = Field(2.0, gt=0)

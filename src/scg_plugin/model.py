@@ -18,7 +18,7 @@ from torch import Tensor, nn
 
 from splat_framework.cameras import Camera
 from splat_framework.data.resolve import user_cache_dir
-from splat_framework.model.gaussians import GaussianModel, sample_frustum_points
+from splat_framework.model.gaussians import GaussianModel, random_init
 from splat_framework.model.ops import remove
 
 from .losses import rendering_geometry_loss
@@ -106,7 +106,7 @@ class SCGaussianModel(GaussianModel):
         # ordinary Gaussians at start (none for SCGaussian's default)
         n_rand = cfg.init_num_points if bundle is not None else max(cfg.init_num_points, 10000)
         if n_rand > 0:
-            pts, cols = sample_frustum_points(cameras, images, n_rand, generator)
+            pts, cols = random_init(cfg.init, datamanager.scene, cameras, images, n_rand, generator)
         else:
             pts = torch.zeros(0, 3, device=images[0].device)
             cols = torch.zeros(0, 3, device=images[0].device)
@@ -356,7 +356,9 @@ class TriangulatedGaussianModel(GaussianModel):
         dev = images[0].device
         if not pts or sum(len(p) for p in pts) < 50:
             warnings.warn("too few triangulated matches: falling back to random initialisation", stacklevel=2)
-            points, colors = sample_frustum_points([c for c, _ in views], images, max(config.model.init_num_points, 10000), generator)
+            n_rand = max(config.model.init_num_points, 10000)
+            device_cams = [c for c, _ in views]
+            points, colors = random_init(config.model.init, datamanager.scene, device_cams, images, n_rand, generator)
         else:
             points, colors = torch.cat(pts).to(dev), torch.cat(cols).to(dev)
         model = cls(config, datamanager.scene.scene_radius, points, colors)

@@ -105,8 +105,8 @@ class OptimConfig(SplatConfig):
 class GaussianModelConfig(SplatConfig):
     """The 3DGS Gaussian model."""
 
-    init: Literal["random", "points"] = "random"
-    """Initialisation: random points in the training frusta, or a point cloud (matches triangulated with the known poses)."""
+    init: Literal["random", "frustum"] = "random"
+    """Initialisation: "random" = the 3DGS reference's (uniform in the scene's content box, or the box of the training frusta when the dataset defines none; grey); "frustum" = random points inside the training frusta (uniform in inverse depth) coloured by the pixel they lie on."""
     init_num_points: int = 10_000
     """Number of random initial Gaussians."""
     init_opacity: float = 0.1

@@ -31,6 +31,10 @@ class SceneData:
         scene_center: [3] centre of the region of interest (world).
         scene_radius: radius of that region (used for random init and lr scaling).
         masked_metrics: compute PSNR/SSIM on mask pixels only (DTU protocol).
+        content_box: (min corner, max corner) of an axis-aligned world box
+            around the scene content where the dataset defines one (Blender:
+            the reference code's [-1.3, 1.3]^3; DTU: the unit sphere's cube);
+            None = derived from the training frusta (random initialisation).
     """
 
     root: Path
@@ -46,6 +50,7 @@ class SceneData:
     scene_center: tuple[float, float, float] = (0.0, 0.0, 0.0)
     scene_radius: float = 1.0
     masked_metrics: bool = False
+    content_box: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
     extras: dict = field(default_factory=dict)
 
     @property

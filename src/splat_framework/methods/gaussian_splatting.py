@@ -15,7 +15,7 @@ def config_3dgs() -> TrainConfig:
 
 spec_3dgs = MethodSpec(
     name="3dgs",
-    description="3D Gaussian Splatting, random initialisation inside the training frusta",
+    description="3D Gaussian Splatting, the reference random initialisation (uniform in the scene box, grey)",
     config_factory=config_3dgs,
     model="splat_framework.model.gaussians:GaussianModel",
 )

@@ -69,6 +69,45 @@ def sample_frustum_points(
     return torch.cat(pts), torch.cat(cols)
 
 
+def frustum_box(cameras: list[Camera]) -> Tensor:
+    """[2, 3] min and max corner of the axis-aligned box around the cameras' frusta cut at near and far."""
+    corners = []
+    for cam in cameras:
+        uv = torch.tensor([[0.0, 0.0], [cam.width, 0.0], [0.0, cam.height], [cam.width, cam.height]])
+        for z in (cam.near, cam.far):
+            corners.append(cam.to("cpu").unproject_depth(uv, torch.full((4,), float(z))))
+    pts = torch.cat(corners)
+    return torch.stack([pts.amin(0), pts.amax(0)])
+
+
+def sample_box_points(box: Tensor, n: int, generator: torch.Generator) -> tuple[Tensor, Tensor]:
+    """The 3DGS reference's random initialisation: points uniform in a box, grey colours.
+
+    Args:
+        box: [2, 3] min and max corner.
+
+    Returns:
+        points [n, 3], colors [n, 3] (0.5: the reference's SH values are U(0, 1) / 255, i.e. grey).
+    """
+    lo, hi = box[0].float().cpu(), box[1].float().cpu()
+    points = lo + torch.rand(n, 3, generator=generator) * (hi - lo)
+    return points, torch.full((n, 3), 0.5)
+
+
+def random_init(
+    init: str, scene, cameras: list[Camera], images: list[Tensor], n: int, generator: torch.Generator
+) -> tuple[Tensor, Tensor]:
+    """Initial points and colours for ``init`` = "random" (uniform in the scene's content box, else
+    the box of the training frusta) or "frustum" (``sample_frustum_points``), on the images' device."""
+    if init == "frustum":
+        return sample_frustum_points(cameras, images, n, generator)
+    if init != "random":
+        raise ValueError(f"unknown random initialisation {init!r} (expected 'random' or 'frustum')")
+    box = torch.tensor(scene.content_box) if scene.content_box is not None else frustum_box(cameras)
+    points, colors = sample_box_points(box, n, generator)
+    return points.to(images[0].device), colors.to(images[0].device)
+
+
 class GaussianModel(nn.Module):
     """Vanilla 3D Gaussian Splatting.
 
@@ -89,9 +128,11 @@ class GaussianModel(nn.Module):
     # ------------------------------------------------------------------ build
     @classmethod
     def from_data(cls, config: TrainConfig, datamanager, generator: torch.Generator) -> "GaussianModel":
-        """Build the model for a dataset (random init inside the training frusta by default)."""
+        """Build the model for a dataset (``config.model.init``: "random" or "frustum")."""
         cams, imgs = zip(*[(c, b["image"]) for c, b in datamanager.train_views()])
-        points, colors = sample_frustum_points(list(cams), list(imgs), config.model.init_num_points, generator)
+        points, colors = random_init(
+            config.model.init, datamanager.scene, list(cams), list(imgs), config.model.init_num_points, generator
+        )
         return cls(config, datamanager.scene.scene_radius, points, colors)
 
     def init_params(self, points: Tensor, colors: Tensor) -> dict[str, nn.Parameter]:

@@ -177,5 +177,6 @@ def load_blender(root: Path, *, views: Views = "all", downscale: float | None = 
         image_scale=image_scale,
         white_background=True,
         depth_paths=depth_paths,
+        content_box=((-1.3, -1.3, -1.3), (1.3, 1.3, 1.3)),
         extras={"train_pool": train_pool, "test_pool": test_pool},
     )

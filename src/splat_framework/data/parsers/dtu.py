@@ -127,4 +127,5 @@ def load_dtu(root: Path, *, views: Views = "all", downscale: float | None = None
         white_background=False,
         mask_paths=mask_paths,
         masked_metrics=mask_paths is not None,
+        content_box=((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0)),
     )
