@@ -219,3 +219,26 @@ def test_too_few_matches_warn_and_fall_back_to_ordinary_gaussians(scene, monkeyp
     assert tr.model.num_match_gaussians == 0 and tr.model.num_gaussians >= 10000
     metrics = tr.train()
     assert metrics["init_stats"]["num_matches"] == 0 and metrics["mean"]["psnr"] > 5
+
+
+def test_sparse_prior_warns_and_adds_random_ordinary_gaussians(scene, monkeypatch):
+    """A prior of a few hundred matches (wide baselines, DTU) keeps its ray Gaussians and gets a random start too."""
+    import scg_plugin.model as scg_model
+    from scg_plugin.matching import MatchSet
+
+    sc, dm, depths = scene
+    uv_a, uv_b, _ = true_correspondences(dm, depths, 0, 1, n=100)
+    ids = [int(i) for i in sc.train_indices]
+    monkeypatch.setattr(
+        scg_model, "compute_match_set",
+        lambda config, dm: MatchSet(view_ids=ids, matches={(ids[0], ids[1]): (uv_a.numpy(), uv_b.numpy())}),
+    )
+    cfg = apply_overrides(config_scgaussian(), {"model": {"warmup_steps": 50}})
+    with pytest.warns(UserWarning, match="only 100 verified matches .* adding 10000 random ordinary Gaussians"):
+        model = SCGaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
+    assert model.num_match_gaussians == 200 - model.init_stats.get("filtered_matches", 0) * 2
+    assert model.num_gaussians == model.num_match_gaussians + 10000
+    # sparse_matches = 0 switches the fill off (the only-ray variant)
+    cfg = apply_overrides(cfg, {"model": {"sparse_matches": 0}})
+    model = SCGaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
+    assert model.num_gaussians == model.num_match_gaussians

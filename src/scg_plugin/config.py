@@ -14,8 +14,8 @@ from .matching import MatchConfig
 class SCGModelConfig(GaussianModelConfig):
     """SCGaussian: hybrid ray-based + ordinary Gaussians with matching-prior losses."""
 
-    init: Literal["random", "frustum"] = "frustum"
-    """Placement of random ordinary Gaussians (the init_num_points extra ones, or all of them when matches are too few); ray-based Gaussians always start on the matched rays."""
+    init: Literal["random", "frustum"] = "random"
+    """Placement of random ordinary Gaussians (the init_num_points extra ones, the sparse-prior fill, or all of them when matches are too few); ray-based Gaussians always start on the matched rays."""
     init_num_points: int = 0
     """Extra random ordinary Gaussians at start (0 = ordinary ones come only from densification)."""
     matching: MatchConfig = Field(default_factory=MatchConfig)
@@ -46,6 +46,8 @@ class SCGModelConfig(GaussianModelConfig):
     """Learning rate of ray depths during main training, times the scene scale (decays like the position lr)."""
     min_matches: int = 50
     """Below this many verified matches the run warns and falls back to random ordinary Gaussians."""
+    sparse_matches: int = 1000
+    """Below this many verified matches the prior is too sparse to grow a model from: the run warns and adds max(init_num_points, 10000) random ordinary Gaussians alongside the ray-based ones (0 = never)."""
 
 
 class SCGTrainConfig(TrainConfig):

@@ -103,8 +103,15 @@ class SCGaussianModel(GaussianModel):
             else:
                 bundle.z = z
         timing["warmup_s"] = time.perf_counter() - t0
-        # ordinary Gaussians at start (none for SCGaussian's default)
+        # ordinary Gaussians at start (none for SCGaussian's default unless the prior is sparse)
         n_rand = cfg.init_num_points if bundle is not None else max(cfg.init_num_points, 10000)
+        if bundle is not None and n_matches < cfg.sparse_matches:
+            n_rand = max(cfg.init_num_points, 10000)
+            warnings.warn(
+                f"only {n_matches} verified matches between the {len(ids)} training views "
+                f"(fewer than sparse_matches={cfg.sparse_matches}): adding {n_rand} random ordinary Gaussians",
+                stacklevel=2,
+            )
         if n_rand > 0:
             pts, cols = random_init(cfg.init, datamanager.scene, cameras, images, n_rand, generator)
         else:
