@@ -69,13 +69,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-def section_key(data: str, views) -> str:
-    """Marker key of a (scene, views) table: ``llff-fern-v3``."""
-    from splat_framework.sweep import scene_slug
-
-    return f"{scene_slug(data)}-v{views}"
-
-
 def splice_block(text: str, key: str, block: str, source: str = "README") -> str:
     """``text`` with the lines between ``<!-- ablation:KEY -->`` and ``<!-- /ablation:KEY -->`` replaced by ``block``."""
     from splat_framework.errors import DataError
@@ -91,10 +84,10 @@ def ablation_markdown(
     rows: list[dict], args: argparse.Namespace, command: str, figures: dict[str, Path] | None = None,
     base: Path = Path("."),
 ) -> dict[str, str]:
-    """The README tables: one Markdown section per (scene, views) keyed by :func:`section_key`,
+    """The README tables: one Markdown section per (scene, views) keyed by ``sweep.group_key``,
     one line per ablation row, the comparison figure ``figures[key]`` below (linked relative to
     the folder ``base`` of the Markdown file)."""
-    from splat_framework.sweep import fmt_value
+    from splat_framework.sweep import fmt_value, group_key
 
     order = {m: i for i, m in enumerate(ROWS)}
     sections: dict[tuple, list[dict]] = {}
@@ -138,7 +131,7 @@ def ablation_markdown(
             lines += ["Failed runs:", "", *errors, ""]
         if all(r["lpips_mean"] is None for r in rs):
             lines += ["LPIPS and AVG are n/a: the `lpips` package or its weights were not available.", ""]
-        key = section_key(data, views)
+        key = group_key(data, views)
         if figures and key in figures:
             link = Path(os.path.relpath(figures[key].resolve(), base.resolve())).as_posix()
             lines += [f"![Test views of `{data}`: ground truth, then one row per config]({link})", ""]
@@ -188,10 +181,11 @@ def publish_figures(out: Path, md_path: Path, groups: list[tuple], max_width: in
     import cv2
 
     from splat_framework.io import atomic_write_bytes
+    from splat_framework.sweep import group_key
 
     written: dict[str, Path] = {}
     for data, views in dict.fromkeys(groups):
-        key = section_key(data, views)  # also the sweep's figure name
+        key = group_key(data, views)
         img = cv2.imread(str(Path(out) / "figures" / f"{key}.png"), cv2.IMREAD_COLOR)
         if img is None:
             continue

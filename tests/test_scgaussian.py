@@ -242,3 +242,24 @@ def test_sparse_prior_warns_and_adds_random_ordinary_gaussians(scene, monkeypatc
     cfg = apply_overrides(cfg, {"model": {"sparse_matches": 0}})
     model = SCGaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
     assert model.num_gaussians == model.num_match_gaussians
+
+
+def test_triangulation_without_matches_falls_back_to_the_reference_random_init(scene, monkeypatch):
+    import scg_plugin.model as scg_model
+    from scg_plugin.matching import MatchSet
+    from scg_plugin.method import config_3dgs_triang
+    from splat_framework.model.gaussians import FALLBACK_POINTS, frustum_box
+
+    sc, dm, _ = scene
+    monkeypatch.setattr(
+        scg_model, "compute_match_set",
+        lambda config, dm: MatchSet(view_ids=[int(i) for i in sc.train_indices], matches={}),
+    )
+    with pytest.warns(UserWarning, match="too few triangulated matches"):
+        model = scg_model.TriangulatedGaussianModel.from_data(config_3dgs_triang(), dm, torch.Generator().manual_seed(0))
+    assert model.num_gaussians == FALLBACK_POINTS
+    box = frustum_box(dm.train_cameras)
+    means = model.params["means"].detach()
+    assert (means >= box[0] - 1e-5).all() and (means <= box[1] + 1e-5).all()
+    sh0 = model.params["sh0"].detach()
+    assert torch.all(sh0 == sh0[0])  # grey, like 3dgs

@@ -60,7 +60,7 @@ class SCGTrainConfig(TrainConfig):
 class TriangModelConfig(GaussianModelConfig):
     """3DGS initialised from matches triangulated with the known poses."""
 
-    init: Literal["random", "frustum"] = "frustum"
+    init: Literal["random", "frustum"] = "random"
     """Placement of the random Gaussians used only when too few matches triangulate (normally the model starts from the triangulated points)."""
     matching: MatchConfig = Field(default_factory=MatchConfig)
     """Matching prior used for triangulation."""

@@ -18,7 +18,7 @@ from torch import Tensor, nn
 
 from splat_framework.cameras import Camera
 from splat_framework.data.resolve import user_cache_dir
-from splat_framework.model.gaussians import GaussianModel, random_init
+from splat_framework.model.gaussians import FALLBACK_POINTS, GaussianModel, random_init
 from splat_framework.model.ops import remove
 
 from .losses import rendering_geometry_loss
@@ -84,10 +84,11 @@ class SCGaussianModel(GaussianModel):
         cpu_cams = [c.to("cpu") for c in cameras]
         bundle = build_ray_bundle(match_pairs(match_set, ids), cpu_cams, generator)
         n_matches = len(bundle) // 2
+        n_fill = max(cfg.init_num_points, FALLBACK_POINTS)
         if n_matches < cfg.min_matches:
             warnings.warn(
                 f"only {n_matches} verified matches between the {len(ids)} training views "
-                f"(fewer than min_matches={cfg.min_matches}): falling back to {max(cfg.init_num_points, 10000)} random ordinary Gaussians",
+                f"(fewer than min_matches={cfg.min_matches}): falling back to {n_fill} random ordinary Gaussians",
                 stacklevel=2,
             )
             bundle = None
@@ -103,15 +104,15 @@ class SCGaussianModel(GaussianModel):
             else:
                 bundle.z = z
         timing["warmup_s"] = time.perf_counter() - t0
-        # ordinary Gaussians at start (none for SCGaussian's default unless the prior is sparse)
-        n_rand = cfg.init_num_points if bundle is not None else max(cfg.init_num_points, 10000)
-        if bundle is not None and n_matches < cfg.sparse_matches:
-            n_rand = max(cfg.init_num_points, 10000)
+        # ordinary Gaussians at start (none for SCGaussian's default unless the prior is missing or sparse)
+        sparse = bundle is not None and n_matches < cfg.sparse_matches
+        if sparse:
             warnings.warn(
                 f"only {n_matches} verified matches between the {len(ids)} training views "
-                f"(fewer than sparse_matches={cfg.sparse_matches}): adding {n_rand} random ordinary Gaussians",
+                f"(fewer than sparse_matches={cfg.sparse_matches}): adding {n_fill} random ordinary Gaussians",
                 stacklevel=2,
             )
+        n_rand = n_fill if bundle is None or sparse else cfg.init_num_points
         if n_rand > 0:
             pts, cols = random_init(cfg.init, datamanager.scene, cameras, images, n_rand, generator)
         else:
@@ -363,7 +364,7 @@ class TriangulatedGaussianModel(GaussianModel):
         dev = images[0].device
         if not pts or sum(len(p) for p in pts) < 50:
             warnings.warn("too few triangulated matches: falling back to random initialisation", stacklevel=2)
-            n_rand = max(config.model.init_num_points, 10000)
+            n_rand = max(config.model.init_num_points, FALLBACK_POINTS)
             device_cams = [c for c, _ in views]
             points, colors = random_init(config.model.init, datamanager.scene, device_cams, images, n_rand, generator)
         else:

@@ -160,6 +160,10 @@ def scene_slug(data: str) -> str:
     return slug or "scene"
 
 
+def group_key(data: str, views) -> str:
+    """Name of a (scene, view count) group: ``llff-fern-v3`` (its comparison figure's file stem)."""
+    return f"{scene_slug(data)}-v{views}"
+
 def run_dir(out: Path, data: str, method: str, views: int | str, seed: int) -> Path:
     """``<out>/runs/<scene-slug>/<method>/v<views>-s<seed>``."""
     return Path(out) / "runs" / scene_slug(data) / method / f"v{views}-s{seed}"
@@ -713,7 +717,7 @@ def write_figures(out: Path, records: list[dict]) -> list[Path]:
             methods[r["method"]] = r
     written = []
     for (data, views), methods in groups.items():
-        target = Path(out) / "figures" / f"{scene_slug(data)}-v{views}.png"
+        target = Path(out) / "figures" / f"{group_key(data, views)}.png"
         rows = [(m, Path(r["run_dir"])) for m, r in methods.items()]
         try:
             written.append(comparison_figure(rows, target))

@@ -23,8 +23,13 @@ from torch import Tensor, nn
 
 from ..cameras import Camera
 from ..config import TrainConfig
+from ..data.scene import SceneData
 from ..losses import photometric_loss
 from ..render import RenderOutput, rasterize, rgb_to_sh
+
+FALLBACK_POINTS = 10_000
+"""Random ordinary Gaussians a model starts from when its prior (matches, triangulated points) is missing or sparse."""
+
 
 def knn_scale(points: Tensor, k: int = 3, chunk: int = 4096) -> Tensor:
     """[N] root-mean-square distance of each point to its ``k`` nearest neighbours (3DGS init scale)."""
@@ -72,10 +77,10 @@ def sample_frustum_points(
 def frustum_box(cameras: list[Camera]) -> Tensor:
     """[2, 3] min and max corner of the axis-aligned box around the cameras' frusta cut at near and far."""
     corners = []
-    for cam in cameras:
-        uv = torch.tensor([[0.0, 0.0], [cam.width, 0.0], [0.0, cam.height], [cam.width, cam.height]])
-        for z in (cam.near, cam.far):
-            corners.append(cam.to("cpu").unproject_depth(uv, torch.full((4,), float(z))))
+    for cam in (c.to("cpu") for c in cameras):
+        uv = torch.tensor([[0.0, 0.0], [cam.width, 0.0], [0.0, cam.height], [cam.width, cam.height]]).repeat(2, 1)
+        z = torch.tensor([cam.near] * 4 + [cam.far] * 4)
+        corners.append(cam.unproject_depth(uv, z))
     pts = torch.cat(corners)
     return torch.stack([pts.amin(0), pts.amax(0)])
 
@@ -95,7 +100,7 @@ def sample_box_points(box: Tensor, n: int, generator: torch.Generator) -> tuple[
 
 
 def random_init(
-    init: str, scene, cameras: list[Camera], images: list[Tensor], n: int, generator: torch.Generator
+    init: str, scene: SceneData, cameras: list[Camera], images: list[Tensor], n: int, generator: torch.Generator
 ) -> tuple[Tensor, Tensor]:
     """Initial points and colours for ``init`` = "random" (uniform in the scene's content box, else
     the box of the training frusta) or "frustum" (``sample_frustum_points``), on the images' device."""
