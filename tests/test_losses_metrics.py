@@ -116,6 +116,38 @@ def test_masked_psnr_ignores_background():
         psnr(a, b, torch.zeros(8, 8, 1))
 
 
+def test_dtu_protocol_on_a_hand_made_pair():
+    """DNGaussian / SCGaussian DTU metrics: PSNR over mask == 1 only, soft edge left out; SSIM on white composites."""
+    gt = torch.full((6, 8, 3), 0.5)
+    pred = gt.clone()
+    mask = torch.zeros(6, 8, 1)
+    mask[:, :3] = 1.0  # 18 object pixels, error 0.1 each -> MSE 0.01 -> 20 dB
+    mask[:, 3] = 0.5  # soft edge: a huge error there must not count
+    pred[:, :3] += 0.1
+    pred[:, 3:] = 1.0
+    assert psnr(pred, gt, mask) == pytest.approx(20.0, abs=1e-5)
+    # by hand: composite x * m + (1 - m) on the edge column gives 1.0 vs 0.75
+    p_w, g_w = pred * mask + (1 - mask), gt * mask + (1 - mask)
+    assert float(g_w[0, 3, 0]) == pytest.approx(0.75) and float(p_w[0, 3, 0]) == pytest.approx(1.0)
+    assert ssim_metric(pred, gt, mask) == pytest.approx(ssim_metric(p_w, g_w), abs=1e-7)
+
+
+def test_load_mask_keeps_soft_edges(tmp_path):
+    import cv2
+    import numpy as np
+
+    from splat_framework.data.images import load_mask
+
+    m = np.zeros((4, 4), np.uint8)
+    m[:, :2] = 255
+    m[:, 2] = 128
+    cv2.imwrite(str(tmp_path / "m.png"), m)
+    out = load_mask(tmp_path / "m.png", (4, 4))
+    assert out.dtype == np.float32 and out.shape == (4, 4)
+    assert (out[:, :2] == 1.0).all() and (out[:, 3] == 0.0).all()
+    assert np.allclose(out[:, 2], 128 / 255, atol=1e-6)
+
+
 def test_masked_ssim_composites_white():
     a, b = images()
     mask = torch.zeros(16, 20, 1)

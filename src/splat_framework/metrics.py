@@ -1,7 +1,14 @@
 """Evaluation metrics: PSNR, SSIM, LPIPS (VGG) and the RegNeRF AVG score.
 
 Images are [H, W, 3] (or [B, H, W, 3]) in [0, 1]; masks [H, W] / [H, W, 1],
-bool or float (DTU protocol: 1 = object).
+bool or float in [0, 1] (DTU protocol: 1 = object, fractions on the object's edge).
+
+The masked (DTU) protocol is that of DNGaussian's ``metrics_dtu.py`` and
+SCGaussian's ``metrics.py`` (github.com/Fictionarry/DNGaussian,
+github.com/prstrive/SCGaussian), which both follow RegNeRF: PSNR is the MSE
+over the object pixels only (mask exactly 1, so soft edge pixels are left
+out); SSIM and LPIPS see the full image with both prediction and ground truth
+composited onto white with the (soft) mask, ``x * m + (1 - m)``.
 
 PSNR of identical images is ``math.inf`` (MSE 0), not a clipped constant, so
 it never silently enters a table as a plausible number; ``avg_metric`` turns
@@ -37,12 +44,12 @@ def _composite_white(pred: Tensor, gt: Tensor, mask: Tensor) -> tuple[Tensor, Te
 
 @torch.no_grad()
 def psnr(pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> float:
-    """PSNR in dB for images in [0, 1]; with ``mask``, MSE over masked pixels only. inf when MSE is 0."""
+    """PSNR in dB for images in [0, 1]; with ``mask``, MSE over the pixels where mask == 1 only. inf when MSE is 0."""
     pred, gt = pred.double(), gt.double()
     if mask is None:
         mse = ((pred - gt) ** 2).mean()
     else:
-        m = _mask_bhw1(mask, pred)
+        m = (_mask_bhw1(mask, pred) >= 1.0).to(pred.dtype)  # object pixels, as the reference's `mask == 1.`
         se = ((pred - gt) ** 2).reshape(m.shape[0], *pred.shape[-3:]) * m
         denom = m.sum() * pred.shape[-1]
         if denom <= 0:

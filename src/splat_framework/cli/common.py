@@ -101,6 +101,10 @@ def run_cli(main: Callable[[], object]) -> None:
         print("interrupted", file=sys.stderr)
         sys.exit(130)
     except OSError as e:
+        code = getattr(type(e), "cli_exit_code", None)
+        if code is not None:  # an OSError subclass that declares its own one-line message
+            print(f"error: {e}", file=sys.stderr)
+            sys.exit(code)
         if e.errno not in _ENV_ERRNOS:
             raise
         where = f"{e.filename}: " if e.filename else ""

@@ -184,10 +184,12 @@ def load_image(
 
 
 def load_mask(path: Path | str, size: tuple[int, int]) -> np.ndarray:
-    """Decode a foreground mask to float32 [H, W] in {0, 1} at ``size`` = (W, H).
+    """Decode a foreground mask to float32 [H, W] in [0, 1] at ``size`` = (W, H).
 
-    Any channel layout works; a pixel is foreground when its mean value > 0.5.
-    Masks at another resolution are resized (area) before thresholding.
+    Any channel layout works (the channel mean is taken). Values stay soft, as
+    the DTU protocol needs: 1 = object, fractions on its edge (see
+    :mod:`splat_framework.metrics`). Masks at another resolution are resized
+    with area averaging.
     """
     import cv2
 
@@ -197,7 +199,7 @@ def load_mask(path: Path | str, size: tuple[int, int]) -> np.ndarray:
     w, h = size
     if m.shape != (h, w):
         m = cv2.resize(m, (w, h), interpolation=cv2.INTER_AREA)
-    return (m > 0.5).astype(np.float32)
+    return np.clip(m, 0.0, 1.0).astype(np.float32)
 
 
 def load_depth(path: Path | str, size: tuple[int, int]) -> np.ndarray:
