@@ -49,6 +49,16 @@ ROWS: dict[str, str] = {
 }
 """Ablation rows in table order: method/variant name -> row label."""
 
+MATCHER_ROWS: dict[str, str] = {
+    "scgaussian-dense": "SCGaussian, dense DIS-flow matches",
+    "scgaussian-sift": "SCGaussian, SIFT matches",
+    "scgaussian-disk-lightglue": "SCGaussian, DISK + LightGlue matches",
+    "scgaussian-aliked-lightglue": "SCGaussian, ALIKED + LightGlue matches (the default)",
+}
+"""The paper's robustness-to-matching-models rows (``--methods scgaussian-dense ...``); not run by default."""
+
+LABELS = {**ROWS, **MATCHER_ROWS}
+
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -89,7 +99,7 @@ def ablation_markdown(
     the folder ``base`` of the Markdown file)."""
     from splat_framework.sweep import fmt_value, group_key
 
-    order = {m: i for i, m in enumerate(ROWS)}
+    order = {m: i for i, m in enumerate(LABELS)}
     sections: dict[tuple, list[dict]] = {}
     for r in rows:
         sections.setdefault((r["data"], r["views"]), []).append(r)
@@ -115,7 +125,7 @@ def ablation_markdown(
             def v(f, fmt):
                 return fmt_value(r[f"{f}_mean"], r[f"{f}_std"], fmt)
 
-            label = ROWS.get(r["method"], r["method"])
+            label = LABELS.get(r["method"], r["method"])
             if r["n_ok"] == 0:
                 cells = ["failed" if r["n_failed"] else "not run"] + ["n/a"] * 8
             else:

@@ -16,8 +16,8 @@ class SCGModelConfig(GaussianModelConfig):
 
     init: Literal["random", "frustum"] = "random"
     """Placement of random ordinary Gaussians (the init_num_points extra ones, the sparse-prior fill, or all of them when matches are too few); ray-based Gaussians always start on the matched rays."""
-    init_num_points: int = 0
-    """Extra random ordinary Gaussians at start (0 = ordinary ones come only from densification)."""
+    init_num_points: int = 10_000
+    """Random ordinary Gaussians at start beside the ray-based ones, placed as 3DGS's reference init (0 = ordinary ones come only from densification). Matched rays cover only textured surfaces; without these, densification alone does not fill the rest in 1000 iterations (lego 19.76 -> 20.80, fern 20.70 -> 20.92 with the dense matcher)."""
     matching: MatchConfig = Field(default_factory=MatchConfig)
     """Matching prior."""
     ray_binding: bool = True

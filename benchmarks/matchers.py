@@ -1,0 +1,124 @@
+"""Matching prior per matcher: verified matches per pair and matching time on CPU.
+
+The first half of the paper's "robustness to matching models" table: for each
+scene and each matcher (``dense``, ``sift``, ``disk-lightglue``,
+``aliked-lightglue``; each also a config variant ``scgaussian-<matcher>`` whose
+PSNR/SSIM come from ``benchmarks/ablation.py --methods scgaussian-<matcher>``),
+the matches that survive MAGSAC and the known-pose epipolar check between every
+pair of the few-shot training views, and the wall time of matching (uncached,
+networks built once per scene and matcher, features detected once per view).
+
+Usage:
+    SPLAT_DATA=../shared/data python benchmarks/matchers.py \\
+        --data llff/fern:3 blender/lego:8 dtu/scan37:3 [--matchers dense sift ...] \\
+        [--threads 2] [--json benchmarks/results/matchers.json] [--readme README.md]
+
+``--readme`` replaces the block between ``<!-- ablation:matchers -->`` and
+``<!-- /ablation:matchers -->``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import sys
+import time
+from datetime import date
+from pathlib import Path
+
+MATCHER_ROWS = ["dense", "sift", "disk-lightglue", "aliked-lightglue"]
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--data", nargs="+", default=["llff/fern:3", "blender/lego:8", "dtu/scan37:3"],
+                   help="SCENE:VIEWS entries (as splat-train --data / --views)")
+    p.add_argument("--matchers", nargs="+", default=MATCHER_ROWS)
+    p.add_argument("--threads", type=int, default=None, help="torch threads (default: all cores)")
+    p.add_argument("--json", type=Path, default=Path("benchmarks/results/matchers.json"))
+    p.add_argument("--readme", type=Path, default=None, help="splice the table into this file's matcher markers")
+    return p.parse_args(argv)
+
+
+def training_views(data: str, views: int):
+    """(images float32 [H, W, 3], cameras, dataset ids) of the few-shot training views, as training sees them."""
+    from splat_framework.data.images import load_image
+    from splat_framework.data.parsers import load_scene
+    from splat_framework.data.resolve import resolve_data_path
+
+    scene = load_scene(resolve_data_path(data), views=views)
+    ids = [int(i) for i in scene.train_indices]
+    imgs = [load_image(scene.image_paths[i], scale=scene.image_scale, white_background=scene.white_background)
+            for i in ids]
+    return [getattr(im, "numpy", lambda im=im: im)() for im in imgs], [scene.cameras[i] for i in ids], ids
+
+
+def measure(data: str, views: int, matcher: str) -> dict:
+    from scg_plugin.matching import MatchConfig, compute_matches
+
+    imgs, cams, ids = training_views(data, views)
+    t0 = time.perf_counter()
+    ms = compute_matches(imgs, cams, ids, MatchConfig(matcher=matcher, cache=False))
+    seconds = time.perf_counter() - t0
+    per_pair = {f"{a}-{b}": int(c["final"]) for (a, b), c in ms.stats.items()}
+    return {"data": data, "views": views, "matcher": matcher, "seconds": seconds, "total": ms.total(),
+            "per_pair": per_pair, "raw": {f"{a}-{b}": int(c["raw"]) for (a, b), c in ms.stats.items()}}
+
+
+def markdown(records: list[dict], command: str) -> str:
+    lines = [
+        "| Scene | Matcher | Pairs with matches | Verified per pair (min / median / max) | Total | Time (s) |",
+        "|---|---|--:|--:|--:|--:|",
+    ]
+    for r in records:
+        counts = list(r["per_pair"].values())
+        spread = f"{min(counts):,} / {statistics.median(counts):,.0f} / {max(counts):,}"
+        matched = sum(c > 0 for c in counts)
+        lines.append(f"| `{r['data']}` ({r['views']} views) | `{r['matcher']}` | {matched} of {len(counts)} | "
+                     f"{spread} | {r['total']:,} | {r['seconds']:.1f} |")
+    torch_threads = records[0].get("threads") if records else None
+    lines += [
+        "",
+        f"Machine: {platform.platform()}, Python {platform.python_version()}, {os.cpu_count()} CPU cores, "
+        f"{torch_threads} torch threads; {date.today()}.",
+        f"Reproduce: `{command}`",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> Path:
+    import torch
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from ablation import splice_block
+
+    from splat_framework.io import atomic_write_text
+
+    args = parse_args(argv)
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    records = []
+    for entry in args.data:
+        data, _, views = entry.partition(":")
+        for matcher in args.matchers:
+            rec = measure(data, int(views or 3), matcher)
+            rec["threads"] = torch.get_num_threads()
+            records.append(rec)
+            print(f"{data} {matcher}: {rec['total']} matches {rec['per_pair']} in {rec['seconds']:.1f} s", flush=True)
+    command = "python benchmarks/matchers.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    atomic_write_text(args.json, json.dumps(records, indent=1))
+    table = markdown(records, command)
+    atomic_write_text(args.json.with_suffix(".md"), table)
+    if args.readme is not None:
+        atomic_write_text(args.readme, splice_block(args.readme.read_text(encoding="utf-8"), "matchers", table,
+                                                    str(args.readme)))
+    print(table)
+    return args.json
+
+
+if __name__ == "__main__":
+    main()
