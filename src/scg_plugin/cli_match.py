@@ -92,7 +92,8 @@ def run_matching(
         draw_matches(by_id[i], by_id[j], pa, pb, out_dir / f"matches_{i}_{j}.png", max_lines=max_lines, seed=config.seed)
 
     cached = " (cached)" if ms.meta.get("cache_hit") else ""
-    table = Table(title=f"{config.matcher} matches, views {ms.view_ids}{cached}")
+    matcher = ms.meta.get("config", {}).get("matcher", config.matcher)  # "auto" resolved
+    table = Table(title=f"{matcher} matches, views {ms.view_ids}{cached}")
     for col in ("pair", "raw", "MAGSAC", "epipolar", "final"):
         table.add_column(col, justify="right")
     for p in ms.pairs():
