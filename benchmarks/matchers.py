@@ -12,6 +12,8 @@ Usage:
     SPLAT_DATA=../shared/data python benchmarks/matchers.py \\
         --data llff/fern:3 blender/lego:8 dtu/scan37:3 [--matchers dense sift ...] \\
         [--threads 2] [--json benchmarks/results/matchers.json] [--readme README.md]
+    python benchmarks/matchers.py --data dtu/scan37:3 --json /tmp/m.json \\
+        --matchers aliked-lightglue:learned_resize=0,max_keypoints=4096 aliked-lightglue
 
 ``--readme`` replaces the block between ``<!-- ablation:matchers -->`` and
 ``<!-- /ablation:matchers -->``.
@@ -36,7 +38,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--data", nargs="+", default=["llff/fern:3", "blender/lego:8", "dtu/scan37:3"],
                    help="SCENE:VIEWS entries (as splat-train --data / --views)")
-    p.add_argument("--matchers", nargs="+", default=MATCHER_ROWS)
+    p.add_argument("--matchers", nargs="+", default=MATCHER_ROWS,
+                   help="matcher names, each optionally with MatchConfig fields: NAME[:key=value,...]")
     p.add_argument("--threads", type=int, default=None, help="torch threads (default: all cores)")
     p.add_argument("--json", type=Path, default=Path("benchmarks/results/matchers.json"))
     p.add_argument("--readme", type=Path, default=None, help="splice the table into this file's matcher markers")
@@ -56,12 +59,22 @@ def training_views(data: str, views: int):
     return [getattr(im, "numpy", lambda im=im: im)() for im in imgs], [scene.cameras[i] for i in ids], ids
 
 
+def match_config(spec: str):
+    """``NAME[:key=value,...]`` -> MatchConfig, e.g. ``aliked-lightglue:learned_resize=0,max_keypoints=4096``."""
+    from scg_plugin.matching import MatchConfig
+
+    name, _, rest = spec.partition(":")
+    fields = dict(kv.split("=", 1) for kv in rest.split(",") if kv)
+    return MatchConfig(matcher=name, cache=False, **fields)
+
+
 def measure(data: str, views: int, matcher: str) -> dict:
-    from scg_plugin.matching import MatchConfig, compute_matches
+    from scg_plugin.matching import compute_matches
 
     imgs, cams, ids = training_views(data, views)
+    config = match_config(matcher)
     t0 = time.perf_counter()
-    ms = compute_matches(imgs, cams, ids, MatchConfig(matcher=matcher, cache=False))
+    ms = compute_matches(imgs, cams, ids, config)
     seconds = time.perf_counter() - t0
     per_pair = {f"{a}-{b}": int(c["final"]) for (a, b), c in ms.stats.items()}
     return {"data": data, "views": views, "matcher": matcher, "seconds": seconds, "total": ms.total(),

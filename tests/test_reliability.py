@@ -103,7 +103,7 @@ def test_resume_reproduces_uninterrupted_run_scgaussian(tmp_path):
     def cfg_fn(out, **kw):
         # single stage with the match cache alive across the interruption (cache until 30)
         over = {"model": {"schedule": "single-stage", "cache_until": 30, "lambda_gp": 1.0, "warmup_steps": 0,
-                          "init_num_points": 0, "sparse_matches": 0, "matching": {"max_matches": 100, "dense_preset": "ultrafast"}}}
+                          "init_num_points": 0, "sparse_matches": 0, "matching": {"matcher": "dense", "max_matches": 100, "dense_preset": "ultrafast"}}}
         return apply_overrides(fixed_config("scgaussian", out, **kw), over)
 
     straight = Trainer(cfg_fn(tmp_path / "a"))

@@ -1,5 +1,7 @@
 """SCGaussian on a built-in synthetic scene with exact depth: losses, warm-up, hybrid densification."""
 
+import warnings
+
 import numpy as np
 import pytest
 import torch
@@ -238,8 +240,14 @@ def test_sparse_prior_warns_and_adds_random_ordinary_gaussians(scene, monkeypatc
         model = SCGaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
     assert model.num_match_gaussians == 200 - model.init_stats.get("filtered_matches", 0) * 2
     assert model.num_gaussians == model.num_match_gaussians + 10000
-    # sparse_matches = 0 switches the fill off (the only-ray variant)
+    # without the warning, the default still starts with init_num_points (10,000) random ordinary Gaussians
     cfg = apply_overrides(cfg, {"model": {"sparse_matches": 0}})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        model = SCGaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
+    assert model.num_gaussians == model.num_match_gaussians + 10000
+    # sparse_matches = 0 and init_num_points = 0: ray-based Gaussians only (the only-ray variant)
+    cfg = apply_overrides(cfg, {"model": {"sparse_matches": 0, "init_num_points": 0}})
     model = SCGaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
     assert model.num_gaussians == model.num_match_gaussians
 
