@@ -334,11 +334,23 @@ def test_named_unavailable_matcher_is_one_line_exit_2(no_weights, capsys):
     assert err.count("\n") == 1 and err.startswith("error: ") and "aliked" in err.lower()
 
 
-def test_auto_falls_back_to_dense_with_one_line_notice(no_weights):
-    with pytest.warns(UserWarning, match="using the classical dense matcher") as rec:
-        cfg = M.resolve_matcher(MatchConfig())
-    assert cfg.matcher == "dense" and len(rec) == 1 and "\n" not in str(rec[0].message)
-    assert M.resolve_matcher(MatchConfig(matcher="sift")).matcher == "sift"
+def _plane_pair(plane_scene):
+    img_a, img_b, cam_a, cam_b, _ = plane_scene
+    return [img_a, img_b], [cam_a, cam_b], [0, 1]
+
+
+def test_auto_without_learned_weights_keeps_dense_with_one_line_notice(no_weights, plane_scene, monkeypatch):
+    imgs, cams, ids = _plane_pair(plane_scene)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # plentiful dense matches: the learned matcher is never needed
+        ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_min_matches=100))
+    assert ms.meta["pair_matchers"] == {"0-1": "dense"} and ms.count(0, 1) >= 100
+    monkeypatch.setattr(M.DenseFlowMatcher, "match", lambda self, a, b: M._empty())  # a pair dense flow loses
+    with pytest.warns(UserWarning, match="matcher auto: .*not installed") as rec:
+        ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False))
+    notices = [r for r in rec if "matcher auto" in str(r.message)]
+    assert len(notices) == 1 and "\n" not in str(notices[0].message)
+    assert ms.meta["pair_matchers"] == {"0-1": "dense"} and ms.count(0, 1) == 0
 
 
 needs_packaged = pytest.mark.skipif(
@@ -352,9 +364,16 @@ def test_weights_found_in_installed_package():
     for cls in (M.AlikedLightGlueMatcher, M.DiskLightGlueMatcher):
         paths = cls.weight_paths()
         assert all(p.parent == folder and p.is_file() for p in paths), paths
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")  # no fallback notice
-        assert M.resolve_matcher(MatchConfig()).matcher == M.AUTO_LEARNED
+    assert M.learned_available(MatchConfig())
+
+
+@needs_packaged
+def test_auto_adds_the_learned_matcher_where_dense_flow_is_thin(plane_scene, monkeypatch):
+    imgs, cams, ids = _plane_pair(plane_scene)
+    monkeypatch.setattr(M.DenseFlowMatcher, "match", lambda self, a, b: M._empty())
+    cfg = MatchConfig(cache=False, max_keypoints=1024, learned_resize=480)
+    ms = compute_matches(imgs, cams, ids, cfg)
+    assert ms.meta["pair_matchers"] == {"0-1": M.AUTO_LEARNED} and ms.count(0, 1) >= 200
 
 
 @needs_packaged

