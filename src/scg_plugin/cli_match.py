@@ -92,8 +92,8 @@ def run_matching(
         draw_matches(by_id[i], by_id[j], pa, pb, out_dir / f"matches_{i}_{j}.png", max_lines=max_lines, seed=config.seed)
 
     cached = " (cached)" if ms.meta.get("cache_hit") else ""
-    matcher = ms.meta.get("config", {}).get("matcher", config.matcher)  # "auto" resolved
-    table = Table(title=f"{matcher} matches, views {ms.view_ids}{cached}")
+    used = sorted(set(ms.meta.get("pair_matchers", {}).values()))  # "auto" uses dense, learned or both
+    table = Table(title=f"{config.matcher} ({', '.join(used) or config.matcher}) matches, views {ms.view_ids}{cached}")
     for col in ("pair", "raw", "MAGSAC", "epipolar", "final"):
         table.add_column(col, justify="right")
     for p in ms.pairs():

