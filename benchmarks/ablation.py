@@ -79,15 +79,29 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-def splice_block(text: str, key: str, block: str, source: str = "README") -> str:
-    """``text`` with the lines between ``<!-- ablation:KEY -->`` and ``<!-- /ablation:KEY -->`` replaced by ``block``."""
+def splice_block(text: str, key: str, block: str, source: str = "README", prefix: str = "ablation") -> str:
+    """``text`` with the lines between ``<!-- PREFIX:KEY -->`` and ``<!-- /PREFIX:KEY -->`` replaced by ``block``."""
     from splat_framework.errors import DataError
 
-    start, end = f"<!-- ablation:{key} -->", f"<!-- /ablation:{key} -->"
+    start, end = f"<!-- {prefix}:{key} -->", f"<!-- /{prefix}:{key} -->"
     i, j = text.find(start), text.find(end)
     if i < 0 or j < i:
         raise DataError(f"{source}: no '{start}' ... '{end}' markers to put the {key} table between")
     return text[: i + len(start)] + "\n" + block.strip("\n") + "\n" + text[j:]
+
+
+def publish(json_path: Path, payload, table: str, readme: Path | None, key: str, prefix: str = "ablation") -> None:
+    """Write a benchmark's JSON and Markdown (``json_path`` with ``.md``), splice the table into ``readme``
+    between its ``<!-- PREFIX:KEY -->`` markers when given, and print the table."""
+    import json
+
+    from splat_framework.io import atomic_write_text
+
+    atomic_write_text(json_path, json.dumps(payload, indent=1))
+    atomic_write_text(json_path.with_suffix(".md"), table)
+    if readme is not None:
+        atomic_write_text(readme, splice_block(readme.read_text(encoding="utf-8"), key, table, str(readme), prefix))
+    print(table)
 
 
 def ablation_markdown(

@@ -22,7 +22,6 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import statistics
@@ -107,9 +106,7 @@ def main(argv: list[str] | None = None) -> Path:
     import torch
 
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from ablation import splice_block
-
-    from splat_framework.io import atomic_write_text
+    from ablation import publish
 
     args = parse_args(argv)
     if args.threads:
@@ -123,13 +120,7 @@ def main(argv: list[str] | None = None) -> Path:
             records.append(rec)
             print(f"{data} {matcher}: {rec['total']} matches {rec['per_pair']} in {rec['seconds']:.1f} s", flush=True)
     command = "python benchmarks/matchers.py " + " ".join(sys.argv[1:] if argv is None else argv)
-    atomic_write_text(args.json, json.dumps(records, indent=1))
-    table = markdown(records, command)
-    atomic_write_text(args.json.with_suffix(".md"), table)
-    if args.readme is not None:
-        atomic_write_text(args.readme, splice_block(args.readme.read_text(encoding="utf-8"), "matchers", table,
-                                                    str(args.readme)))
-    print(table)
+    publish(args.json, records, markdown(records, command), args.readme, "matchers")
     return args.json
 
 

@@ -127,6 +127,21 @@ def test_raw_matcher_output_convention(plane_scene):
         assert np.median(err) < 0.6, (name, np.median(err))
 
 
+def test_dense_matches_stay_off_flat_regions(plane_scene):
+    """A white band (as Blender's background) gets no dense matches: flow there is the smoothness prior's guess."""
+    img_a, img_b, *_ = plane_scene
+    flat = (slice(None), slice(0, W // 3))
+    a, b = img_a.copy(), img_b.copy()
+    a[flat] = 1.0
+    b[flat] = 1.0
+    keep_all = get_matcher("dense", min_texture=0.0, max_matches=0).match(a, b)[0]
+    textured = get_matcher("dense", min_texture=MatchConfig().min_texture, max_matches=0).match(a, b)[0]
+    in_flat = lambda p: (p[:, 0] < W // 3 - 3).sum()  # noqa: E731  (3 px: the 5x5 window at the edge)
+    assert in_flat(keep_all) > 1000
+    assert in_flat(textured) == 0
+    assert len(textured) > 0.5 * (len(keep_all) - in_flat(keep_all))  # the textured part keeps its matches
+
+
 def test_registry_and_config():
     assert {"sift", "dense", "loftr", "disk-lightglue", "aliked-lightglue"} <= set(MATCHERS)
     assert MatchConfig().matcher == "auto"

@@ -170,3 +170,40 @@ def test_config_json_checksum_detects_edits(tmp_path):
     with pytest.raises(DataError, match="truncated or corrupt"):
         read_json(path)
     assert torch.isfinite(trainer.model.params["means"]).all()
+
+
+def test_profiled_step_names_its_phases_and_costs_nothing_when_off(tmp_path):
+    from splat_framework.profiling import exclusive, profiling, section
+
+    with section("ignored"):  # off: a plain no-op
+        pass
+    trainer = Trainer(tiny_config(tmp_path / "run", steps=4, progress=False, checkpoint_every=2))
+    trainer.train_step(0)
+    trainer.save(1)
+    before = {k: v.detach().clone() for k, v in trainer.model.params.items()}
+    with profiling("cpu") as totals:
+        trainer.train_step(1)
+        with pytest.raises(RuntimeError, match="already on"):
+            with profiling():
+                pass
+    for key in ("step", "step/forward/projection", "step/forward/binning", "step/forward/compositing",
+                "step/loss/photometric", "step/backward/compositing backward", "step/backward/projection backward",
+                "step/optimizer", "step/finiteness checks"):
+        assert totals[key] > 0, key
+    ex = exclusive(totals)
+    assert sum(ex.values()) == pytest.approx(totals["step"], rel=1e-6)  # exclusive times partition the step
+    assert all(v > -1e-9 for v in ex.values())
+    assert "ignored" not in totals
+    # a snapshot is loaded back exactly (the benchmark profiles from snapshots)
+    trainer.train_step(2)
+    assert trainer.load(trainer.checkpoint_dir / "step-0000001.ckpt") == 1
+    assert all(torch.equal(before[k], v) for k, v in trainer.model.params.items())
+
+
+def test_first_nonfinite_names_the_tensor():
+    from splat_framework.trainer import _first_nonfinite
+
+    ok = torch.ones(3)
+    assert _first_nonfinite({"a": ok, "b": None}) is None
+    assert _first_nonfinite({"a": ok, "b": torch.tensor([1.0, float("nan")]), "c": torch.tensor([float("inf")])}) == "b"
+    assert _first_nonfinite({}) is None

@@ -80,7 +80,7 @@ __all__ = [
 ]
 
 #: Bump when the matching pipeline changes in a way that invalidates caches.
-CACHE_VERSION = 2
+CACHE_VERSION = 3
 
 Pts = np.ndarray  # [M, 2] float32 continuous pixel coordinates
 
@@ -120,6 +120,9 @@ class MatchConfig(BaseModel):
 
     dense_oversample: float = Field(3.0, ge=1.0)
     """Dense: flow candidates kept before verification, as a multiple of max_matches."""
+
+    min_texture: float = Field(1e-6, ge=0.0)
+    """Dense: drop flow matches whose 5x5 structure tensor (grey in [0, 1]) has a smaller minimum eigenvalue than this at either end (1e-6: a gradient of about a quarter grey level per pixel, below 8-bit quantisation): in flat areas the flow comes from its smoothness prior, not the image (aperture problem), e.g. a white background (0 = keep all)."""
 
     min_confidence: float = Field(0.0, ge=0.0, le=1.0)
     """LoFTR / LightGlue: minimum match confidence, on top of the network's own threshold."""
@@ -191,6 +194,14 @@ def to_gray_u8(img: Any) -> np.ndarray:
     import cv2
 
     return cv2.cvtColor(to_uint8_rgb(img), cv2.COLOR_RGB2GRAY)
+
+
+def texture(gray_u8: np.ndarray) -> np.ndarray:
+    """[H, W] uint8 -> [H, W] float32 minimum eigenvalue of the 5x5 structure tensor of grey in [0, 1]
+    (Shi-Tomasi; ~0 where the image is flat, so a match there is not determined by the image)."""
+    import cv2
+
+    return cv2.cornerMinEigenVal(gray_u8.astype(np.float32) / 255.0, 5, 3)
 
 
 def _empty() -> tuple[Pts, Pts]:
@@ -381,6 +392,7 @@ class DenseFlowMatcher:
         max_matches: int = 12000,
         grid_cell: int = 16,
         seed: int = 0,
+        min_texture: float = 0.0,
     ) -> None:
         if preset not in _DIS_PRESETS:
             raise ValueError(f"unknown DIS preset {preset!r}; choose one of {sorted(_DIS_PRESETS)}")
@@ -389,6 +401,7 @@ class DenseFlowMatcher:
         self.max_matches = int(max_matches)
         self.grid_cell = int(grid_cell)
         self.seed = int(seed)
+        self.min_texture = float(min_texture)
 
     @classmethod
     def from_config(cls, config: MatchConfig) -> "DenseFlowMatcher":
@@ -399,6 +412,7 @@ class DenseFlowMatcher:
             max_matches=n,
             grid_cell=config.grid_cell,
             seed=config.seed,
+            min_texture=config.min_texture,
         )
 
     def flows(self, gray_a: np.ndarray, gray_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -429,6 +443,9 @@ class DenseFlowMatcher:
         back = cv2.remap(f_ba, xb, yb, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         err = np.hypot(xb + back[..., 0] - xs, yb + back[..., 1] - ys)
         ok = inside & (err < self.fb_threshold) & np.isfinite(err)
+        if self.min_texture > 0:  # both ends on image structure, not on the flow's smoothness prior
+            tex_b = cv2.remap(texture(gb), xb, yb, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            ok &= (texture(ga) >= self.min_texture) & (tex_b >= self.min_texture)
         pa = np.stack([xs[ok], ys[ok]], axis=-1) + 0.5
         pb = np.stack([xb[ok], yb[ok]], axis=-1) + 0.5
         pb = pb * np.array([sx, sy], np.float32)  # continuous coords scale linearly

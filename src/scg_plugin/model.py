@@ -20,6 +20,7 @@ from splat_framework.cameras import Camera
 from splat_framework.data.resolve import user_cache_dir
 from splat_framework.model.gaussians import FALLBACK_POINTS, GaussianModel, random_init
 from splat_framework.model.ops import remove
+from splat_framework.profiling import section
 
 from .losses import rendering_geometry_loss
 from .ray_gaussians import (
@@ -212,9 +213,11 @@ class SCGaussianModel(GaussianModel):
         g = len(self.bundle)
         if cfg.lambda_gp > 0:
             pos = self.positions()[:g]
-            losses["gp"] = cfg.lambda_gp * gaussian_position_loss(pos, self.bundle, self.train_cameras)
+            with section("gaussian position"):
+                losses["gp"] = cfg.lambda_gp * gaussian_position_loss(pos, self.bundle, self.train_cameras)
         if cfg.lambda_rg > 0 and step >= cfg.rg_start:
-            losses["rg"] = cfg.lambda_rg * self._rg_loss(outputs, camera)
+            with section("rendering geometry"):
+                losses["rg"] = cfg.lambda_rg * self._rg_loss(outputs, camera)
         return losses
 
     def _rg_loss(self, outputs, camera: Camera) -> Tensor:

@@ -41,30 +41,36 @@ def _mask_bhw1(mask: Tensor, like: Tensor) -> Tensor:
     return m
 
 
-def _gaussian_window(window: int, sigma: float, channels: int, like: Tensor) -> Tensor:
+def _gaussian_1d(window: int, sigma: float, like: Tensor) -> Tensor:
+    """[window] normalised Gaussian taps (the 3DGS reference window is its outer product)."""
     r = window // 2
     x = torch.tensor([math.exp(-((i - r) ** 2) / (2 * sigma**2)) for i in range(window)], dtype=torch.float64)
-    g = (x / x.sum()).to(device=like.device, dtype=like.dtype)
-    return (g[:, None] @ g[None, :]).expand(channels, 1, window, window).contiguous()
+    return (x / x.sum()).to(device=like.device, dtype=like.dtype)
+
+
+def gaussian_blur(t: Tensor, window: int = 11, sigma: float = 1.5) -> Tensor:
+    """[B, C, H, W] -> [B, C, H, W]: each channel convolved with the window x window Gaussian, zero padded.
+
+    Separable (a row pass, then a column pass): 2 * window taps per pixel instead of
+    window^2, and equal to the 2D convolution with zero padding (zero rows stay zero)."""
+    c, pad = t.shape[1], window // 2
+    g = _gaussian_1d(window, sigma, t)
+    t = F.conv2d(t, g.reshape(1, 1, 1, window).expand(c, 1, 1, window), padding=(0, pad), groups=c)
+    return F.conv2d(t, g.reshape(1, 1, window, 1).expand(c, 1, window, 1), padding=(pad, 0), groups=c)
 
 
 def ssim_map(pred: Tensor, gt: Tensor, window: int = 11, sigma: float = 1.5) -> Tensor:
-    """Per-pixel SSIM [B, H, W, C] exactly as the 3DGS reference (zero padding, C1, C2)."""
+    """Per-pixel SSIM [B, H, W, C] exactly as the 3DGS reference (zero padding, C1, C2).
+
+    The five local means (x, y, x^2, y^2, xy) come from one separable blur of their stack."""
     if pred.shape != gt.shape:
         raise ValueError(f"shape mismatch {tuple(pred.shape)} vs {tuple(gt.shape)}")
     x, y = _to_bchw(pred), _to_bchw(gt)
-    c = x.shape[1]
-    w = _gaussian_window(window, sigma, c, x)
-    pad = window // 2
-
-    def blur(t: Tensor) -> Tensor:
-        return F.conv2d(t, w, padding=pad, groups=c)
-
-    mu1, mu2 = blur(x), blur(y)
+    mu1, mu2, ex2, ey2, exy = gaussian_blur(torch.cat([x, y, x * x, y * y, x * y], 1), window, sigma).chunk(5, 1)
     mu1_sq, mu2_sq, mu12 = mu1 * mu1, mu2 * mu2, mu1 * mu2
-    s1 = blur(x * x) - mu1_sq
-    s2 = blur(y * y) - mu2_sq
-    s12 = blur(x * y) - mu12
+    s1 = ex2 - mu1_sq
+    s2 = ey2 - mu2_sq
+    s12 = exy - mu12
     m = ((2 * mu12 + C1) * (2 * s12 + C2)) / ((mu1_sq + mu2_sq + C1) * (s1 + s2 + C2))
     return m.permute(0, 2, 3, 1)
 

@@ -47,12 +47,13 @@ from typing import Callable, Sequence
 
 import numpy as np
 import torch
+from torch import Tensor
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 from rich.text import Text
 
-from .checkpoint import CheckpointError, list_checkpoints, load_latest, save_checkpoint
+from .checkpoint import CheckpointError, list_checkpoints, load_checkpoint, load_latest, save_checkpoint
 from .config import TrainConfig, config_payload, resolve_steps, save_config
 from .data import DataError, DataManager, load_scene, resolve_data_path
 from .data.datamanager import estimate_image_bytes
@@ -60,6 +61,7 @@ from .evaluation import evaluate
 from .io import atomic_write_json, read_json
 from .metrics import psnr
 from .model.strategy import DefaultStrategy
+from .profiling import section
 from .registry import get_method
 
 console = Console(stderr=True)
@@ -290,6 +292,15 @@ def _stop_signals(trainer: "Trainer"):
                 pass
 
 
+def _first_nonfinite(tensors: dict[str, Tensor | None]) -> str | None:
+    """Name of the first tensor holding a NaN or inf (None when all are finite), with one host sync."""
+    names = [k for k, t in tensors.items() if t is not None]
+    if not names:
+        return None
+    ok = torch.stack([torch.isfinite(tensors[k]).all() for k in names]).tolist()
+    return next((k for k, good in zip(names, ok) if not good), None)
+
+
 def _numpy_state_to_payload() -> dict:
     name, keys, pos, has_gauss, cached = np.random.get_state()
     return {"name": name, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos),
@@ -444,6 +455,11 @@ class Trainer:
         self.lr_factor = float(ck.get("lr_factor", 1.0))
         self.start_step = int(ck["step"])
 
+    def load(self, path: Path) -> int:
+        """Load the training state of one checkpoint file (CheckpointError if it does not verify); its step."""
+        self._load_state(Path(path), load_checkpoint(path))
+        return self.start_step
+
     def restore(self) -> bool:
         """Load the newest good checkpoint (``--resume``); False when there is none.
 
@@ -488,42 +504,54 @@ class Trainer:
 
     def train_step(self, step: int) -> tuple[dict, float] | None:
         """One optimisation step; None when it was skipped (non-finite loss or gradients)."""
+        with section("step"):
+            return self._train_step(step)
+
+    def _train_step(self, step: int) -> tuple[dict, float] | None:
         model = self.model
         model.on_step_start(step)
         self._set_learning_rates(step)
         camera, batch = self.datamanager.next_train(step)
-        outputs = model.get_outputs(camera, self.background)
-        losses = model.get_loss_dict(outputs, batch, camera, step)
-        loss = sum(losses.values())
+        with section("forward"):
+            outputs = model.get_outputs(camera, self.background)
+        with section("loss"):
+            losses = model.get_loss_dict(outputs, batch, camera, step)
+            loss = sum(losses.values())
         if not torch.isfinite(loss):
             return self._fault(step, "loss")
         densify = model.densify_now(step)
         if densify:
             self.strategy.step_pre_backward(model.params, self.optimizers, self.strategy_state, step, outputs.meta)
-        loss.backward()
-        for k, p in model.params.items():
-            if p.grad is not None and not torch.isfinite(p.grad).all():
-                return self._fault(step, f"gradient of {k}")
-        keys = model.trainable_keys(step)
-        for k, opt in self.optimizers.items():
-            if keys is None or k in keys:
-                opt.step()
-            opt.zero_grad(set_to_none=True)
-        for k in self.optimizers:
-            if not torch.isfinite(model.params[k].detach()).all():
-                return self._fault(step, f"parameter {k}", corrupted=True)
+        with section("backward"):
+            loss.backward()
+        with section("finiteness checks"):
+            bad = _first_nonfinite({k: p.grad for k, p in model.params.items()})
+        if bad is not None:
+            return self._fault(step, f"gradient of {bad}")
+        with section("optimizer"):
+            keys = model.trainable_keys(step)
+            for k, opt in self.optimizers.items():
+                if keys is None or k in keys:
+                    opt.step()
+                opt.zero_grad(set_to_none=True)
+        with section("finiteness checks"):
+            bad = _first_nonfinite({k: model.params[k].detach() for k in self.optimizers})
+        if bad is not None:
+            return self._fault(step, f"parameter {bad}", corrupted=True)
         self.nonfinite_streak = 0
         n_before = model.num_gaussians
-        model.after_optimizer_step(step, losses, self.optimizers, self.strategy_state)
+        with section("model hooks"):
+            model.after_optimizer_step(step, losses, self.optimizers, self.strategy_state)
         # a hook that added/removed rows (e.g. SCGaussian's match filter) resized the
         # strategy state itself; this step's screen-space statistics no longer line up
         if densify and model.num_gaussians == n_before:
-            with torch.no_grad():
-                model.prepare_for_strategy()
-            self.strategy.step_post_backward(model.params, self.optimizers, self.strategy_state, step, outputs.meta)
-        with torch.no_grad():
+            with section("densification"):
+                with torch.no_grad():
+                    model.prepare_for_strategy()
+                self.strategy.step_post_backward(model.params, self.optimizers, self.strategy_state, step, outputs.meta)
+        with section("metrics"), torch.no_grad():
             train_psnr = float(psnr(outputs.rgb.detach().clamp(0, 1), batch["image"]))
-        return {k: float(v.detach()) for k, v in losses.items()} | {"loss": float(loss.detach())}, train_psnr
+            return {k: float(v.detach()) for k, v in losses.items()} | {"loss": float(loss.detach())}, train_psnr
 
     def _fault(self, step: int, what: str, corrupted: bool = False) -> None:
         """Count a skipped step; restore the last checkpoint (halved lr) when faults persist."""

@@ -25,6 +25,7 @@ from ..cameras import Camera
 from ..config import TrainConfig
 from ..data.scene import SceneData
 from ..losses import photometric_loss
+from ..profiling import section
 from ..render import RenderOutput, rasterize, rgb_to_sh
 
 FALLBACK_POINTS = 10_000
@@ -245,9 +246,10 @@ class GaussianModel(nn.Module):
     ) -> dict[str, Tensor]:
         """Loss terms; the trainer minimises their sum."""
         gt = batch["image"]
-        return {
-            "photometric": photometric_loss(outputs.rgb, gt, lambda_dssim=self.config.model.lambda_dssim)
-        }
+        with section("photometric"):
+            return {
+                "photometric": photometric_loss(outputs.rgb, gt, lambda_dssim=self.config.model.lambda_dssim)
+            }
 
     @classmethod
     def from_checkpoint(cls, config: TrainConfig, scene_scale: float, checkpoint: dict) -> "GaussianModel":

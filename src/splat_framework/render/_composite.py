@@ -31,6 +31,7 @@ from torch import Tensor
 from torch.autograd.function import once_differentiable
 
 from ._kernels import ALPHA_MAX, T_MIN, get_kernels
+from ..profiling import section
 from ._threads import thread_policy
 _DUMMY_LOGIT = -1.0e4  # exp() == 0 in float32 and float64
 
@@ -131,20 +132,22 @@ def _iter_chunks(fp: Footprints, grid: TileGrid, chunk_pairs: int, tile_done: Te
     pos = 0
     first = True
     while pos < v:
-        if first:
-            cnt = (fp.tx1 - fp.tx0 + 1) * (fp.ty1 - fp.ty0 + 1)
-        else:
-            if bool(tile_done.all()):
-                return
-            cnt = _alive_counts(tile_done, fp, pos, grid)
-        cum = torch.cumsum(cnt, 0)
-        limit = torch.tensor([chunk_pairs], device=cum.device, dtype=cum.dtype)
-        take = max(int(torch.searchsorted(cum, limit, right=True)), 1)
-        sel = pos + torch.nonzero(cnt[:take] > 0).squeeze(1)
-        pos += take
-        if sel.numel() == 0:
-            continue
-        yield _chunk_pairs(fp, sel, grid, tile_done)
+        with section("binning"):
+            if first:
+                cnt = (fp.tx1 - fp.tx0 + 1) * (fp.ty1 - fp.ty0 + 1)
+            else:
+                if bool(tile_done.all()):
+                    return
+                cnt = _alive_counts(tile_done, fp, pos, grid)
+            cum = torch.cumsum(cnt, 0)
+            limit = torch.tensor([chunk_pairs], device=cum.device, dtype=cum.dtype)
+            take = max(int(torch.searchsorted(cum, limit, right=True)), 1)
+            sel = pos + torch.nonzero(cnt[:take] > 0).squeeze(1)
+            pos += take
+            if sel.numel() == 0:
+                continue
+            chunk = _chunk_pairs(fp, sel, grid, tile_done)
+        yield chunk
         first = False
 
 
@@ -293,7 +296,7 @@ class _Composite(torch.autograd.Function):
     @staticmethod
     @once_differentiable
     def backward(ctx, g_rgb, g_depth, g_alpha):  # type: ignore[override]
-        with thread_policy(ctx.saved_tensors[0].device):
+        with thread_policy(ctx.saved_tensors[0].device), section("compositing backward"):
             return _Composite._backward(ctx, g_rgb, g_depth, g_alpha)
 
     @staticmethod

@@ -10,6 +10,7 @@ import torch
 from torch import Tensor
 
 from ._kernels import ALPHA_MIN  # a pixel receives a Gaussian only if alpha >= 1/255
+from ..profiling import section
 from ._threads import thread_policy
 from .sh import sh_to_color
 
@@ -162,7 +163,7 @@ class ProjectFn(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, *grads):  # type: ignore[override]
-        with thread_policy(ctx.leaves[0].device):
+        with thread_policy(ctx.leaves[0].device), section("projection backward"):
             pairs = [
                 (o, g) for o, g in zip(ctx.outs, grads) if g is not None and o.requires_grad
             ]

@@ -19,6 +19,7 @@ from torch import Tensor
 
 from ._composite import TileGrid, composite, pixel_basis, tile_footprints
 from ._project import ProjectFn, footprint, project_and_shade, reference_radii
+from ..profiling import section
 from ._threads import thread_policy
 
 __all__ = ["RenderOutput", "rasterize"]
@@ -214,14 +215,15 @@ def _rasterize(
     # ------------------------------------------------- projection, colours
     cfg = (width, height, near_plane, far_plane, eps2d, sh_degree)
     proj_inputs = (means, quats, scales, colors, viewmat, K)
-    if torch.is_grad_enabled() and any(t.requires_grad for t in proj_inputs):
-        # one autograd node whose backward runs under the rasterizer's thread policy
-        means2d, conics, cov2d, depths, valid, rgb_g = ProjectFn.apply(*proj_inputs, cfg)
-        if means2d.requires_grad:
-            means2d.retain_grad()
-    else:
-        means2d, conics, cov2d, depths, valid, rgb_g = project_and_shade(*proj_inputs, *cfg)
-    ext_x, ext_y, ok, qmax = footprint(cov2d, opacities, valid)
+    with section("projection"):
+        if torch.is_grad_enabled() and any(t.requires_grad for t in proj_inputs):
+            # one autograd node whose backward runs under the rasterizer's thread policy
+            means2d, conics, cov2d, depths, valid, rgb_g = ProjectFn.apply(*proj_inputs, cfg)
+            if means2d.requires_grad:
+                means2d.retain_grad()
+        else:
+            means2d, conics, cov2d, depths, valid, rgb_g = project_and_shade(*proj_inputs, *cfg)
+        ext_x, ext_y, ok, qmax = footprint(cov2d, opacities, valid)
     grid = TileGrid(
         tile=tile_size,
         ntx=(width + tile_size - 1) // tile_size,
@@ -229,16 +231,18 @@ def _rasterize(
         width=width,
         height=height,
     )
-    fp = tile_footprints(means2d, ext_x, ext_y, ok, depths, cov2d, qmax, grid)
+    with section("binning"):
+        fp = tile_footprints(means2d, ext_x, ext_y, ok, depths, cov2d, qmax, grid)
 
     # --------------------------------------------------------- compositing
     basis = pixel_basis(tile_size, device, dtype)
     if chunk_pairs is None:
         chunk_pairs = 128 * grid.n_tiles
-    rgb, depth, alpha = composite(
-        means2d, conics, opacities, rgb_g.to(dtype), depths, background, fp, grid, basis, block,
-        chunk_pairs,
-    )
+    with section("compositing"):
+        rgb, depth, alpha = composite(
+            means2d, conics, opacities, rgb_g.to(dtype), depths, background, fp, grid, basis, block,
+            chunk_pairs,
+        )
     if depth_mode == "expected":
         depth = torch.where(alpha > 0, depth / alpha.clamp_min(1e-12), torch.zeros_like(depth))
 

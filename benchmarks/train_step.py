@@ -1,0 +1,239 @@
+"""Where a real training step spends its time: whole steps of `3dgs` and `scgaussian` on a real scene.
+
+For each method, a real run (default: fern, 3 views, the method's default schedule)
+is trained once and snapshotted at iterations 0, 500 and 1000 (full training state:
+parameters, optimizers, densification statistics, RNG). Each snapshot is then
+loaded into a fresh trainer, ``--warmup`` steps are run and ``--steps`` steps are
+timed, with the phases of the step measured by :mod:`splat_framework.profiling`
+sections (projection, binning, compositing forward and backward, photometric
+loss, rendering-geometry loss, the rest of backward, finiteness checks,
+optimizer, densification, model hooks, metrics). A second pass of the same steps
+under ``torch.profiler`` gives the time spent inside tensor operations; the rest
+of the wall time is Python, dispatch and host-sync overhead.
+
+Snapshots are kept under ``--work`` (default ``$SPLAT_CACHE/bench-train-step``,
+else ``~/.cache/splat/bench-train-step``) and reused, so comparing two versions
+of the code costs the profiling only: run the script once per source tree,
+alternating (``PYTHONPATH=/path/to/other/src python benchmarks/train_step.py``),
+and compare the step times of runs taken at the same load.
+
+Usage:
+    SPLAT_DATA=../shared/data python benchmarks/train_step.py [--data llff/fern --views 3]
+        [--methods 3dgs scgaussian] [--at 0 500 1000] [--steps 20] [--warmup 3]
+        [--json benchmarks/results/train_step.json] [--readme README.md]
+
+``--readme`` replaces the block between ``<!-- bench:train_step -->`` and
+``<!-- /bench:train_step -->``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import shutil
+import sys
+import time
+from datetime import date
+from pathlib import Path
+
+#: Phases reported, as (label, section paths whose exclusive time they sum; "*" = any parent).
+PHASES: list[tuple[str, tuple[str, ...]]] = [
+    ("projection (forward)", ("step/forward/projection",)),
+    ("binning", ("step/forward/binning", "step/forward/compositing/binning")),
+    ("compositing forward", ("step/forward/compositing",)),
+    ("other forward (activations, SH concat)", ("step/forward",)),
+    ("photometric loss (L1 + SSIM) forward", ("step/loss/photometric",)),
+    ("rendering-geometry loss forward", ("step/loss/rendering geometry",)),
+    ("other loss forward", ("step/loss", "step/loss/gaussian position")),
+    ("compositing backward", ("step/backward/compositing backward",)),
+    ("projection backward", ("step/backward/projection backward",)),
+    ("other backward (SSIM, L1, L_rg, activations)", ("step/backward",)),
+    ("finiteness checks", ("step/finiteness checks",)),
+    ("optimizer", ("step/optimizer",)),
+    ("densification", ("step/densification",)),
+    ("model hooks (SCGaussian cache-and-filter)", ("step/model hooks",)),
+    ("metrics (train PSNR, loss to float)", ("step/metrics",)),
+    ("rest of the step (data, schedules, densify stats)", ("step",)),
+]
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--data", default="llff/fern")
+    p.add_argument("--views", type=int, default=3)
+    p.add_argument("--methods", nargs="+", default=["3dgs", "scgaussian"])
+    p.add_argument("--at", nargs="+", type=int, default=[0, 500, 1000], help="snapshot iterations")
+    p.add_argument("--train-steps", type=int, default=1000, help="length of the run the snapshots come from")
+    p.add_argument("--steps", type=int, default=20, help="timed steps per snapshot")
+    p.add_argument("--warmup", type=int, default=3, help="untimed steps before timing")
+    p.add_argument("--no-torch-profiler", action="store_true", help="skip the op-time pass")
+    p.add_argument("--work", type=Path, default=None, help="snapshot folder")
+    p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
+    p.add_argument("--json", type=Path, default=Path("benchmarks/results/train_step.json"))
+    p.add_argument("--readme", type=Path, default=None)
+    return p.parse_args(argv)
+
+
+def work_dir(arg: Path | None) -> Path:
+    if arg is not None:
+        return arg
+    base = os.environ.get("SPLAT_CACHE")
+    return (Path(base) if base else Path.home() / ".cache" / "splat") / "bench-train-step"
+
+
+def method_config(method: str, data: str, views: int, steps: int, output: Path):
+    from splat_framework.registry import get_method
+
+    base = get_method(method).default_config()
+    return base.model_copy(update={
+        "data": data, "views": views, "steps": steps, "output": output, "overwrite": True,
+        "checkpoint_every": 500, "save_renders": False, "progress": True,
+    })
+
+
+def snapshots(method: str, args: argparse.Namespace) -> dict[int, Path]:
+    """{iteration: checkpoint file} of the method's reference run, training it when missing."""
+    from splat_framework.checkpoint import checkpoint_path
+    from splat_framework.trainer import Trainer
+
+    folder = work_dir(args.work) / f"{args.data.replace('/', '-')}-v{args.views}-{method}-{args.train_steps}"
+    snaps = {s: folder / "snapshots" / f"step-{s:06d}.pt" for s in args.at}
+    if all(p.is_file() for p in snaps.values()):
+        return snaps
+    (folder / "snapshots").mkdir(parents=True, exist_ok=True)
+    every = math.gcd(*[s for s in args.at if 0 < s < args.train_steps]) or args.train_steps
+    config = method_config(method, args.data, args.views, args.train_steps, folder / "run")
+    config = config.model_copy(update={"checkpoint_every": every})
+
+    def keep(trainer, step: int) -> None:  # periodic checkpoints exist for steps < train_steps only
+        if step in snaps and step < args.train_steps:
+            shutil.copyfile(checkpoint_path(trainer.checkpoint_dir, step), snaps[step])
+
+    print(f"{method}: training the reference run ({args.train_steps} steps) for snapshots {args.at}", flush=True)
+    trainer = Trainer(config, callbacks=[keep])
+    if 0 in snaps:
+        trainer.save(0)
+        shutil.copyfile(checkpoint_path(trainer.checkpoint_dir, 0), snaps[0])
+    metrics = trainer.train()
+    final = checkpoint_path(trainer.checkpoint_dir, args.train_steps)
+    if args.train_steps in snaps:
+        shutil.copyfile(final, snaps[args.train_steps])
+    (folder / "snapshots" / "metrics.json").write_text(json.dumps(metrics["mean"]))
+    return snaps
+
+
+def time_steps(trainer, start: int, steps: int, warmup: int, device) -> dict:
+    """Section totals (s per step) and wall time of ``steps`` steps after ``warmup`` untimed ones."""
+    from splat_framework.profiling import exclusive, profiling
+
+    for k in range(warmup):
+        trainer.train_step(start + k)
+    first = start + warmup
+    t0 = time.perf_counter()
+    with profiling(device) as totals:
+        for k in range(steps):
+            trainer.train_step(first + k)
+    wall = time.perf_counter() - t0
+    ex = exclusive(totals)
+    phases = {}
+    for label, keys in PHASES:
+        phases[label] = sum(ex.get(k, 0.0) for k in keys) / steps
+    return {"step_s": wall / steps, "phases_s": phases, "sections_s": {k: v / steps for k, v in totals.items()}}
+
+
+def op_time(trainer, start: int, steps: int) -> dict:
+    """Fraction of the wall time spent inside tensor operations (torch.profiler, CPU)."""
+    import torch
+    from torch.profiler import ProfilerActivity, profile
+
+    t0 = time.perf_counter()
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        for k in range(steps):
+            trainer.train_step(start + k)
+    wall = time.perf_counter() - t0
+    events = prof.key_averages()
+    ops_us = sum(e.self_cpu_time_total for e in events if e.key.startswith("aten::"))
+    top = sorted((e for e in events if e.key.startswith("aten::")), key=lambda e: -e.self_cpu_time_total)[:12]
+    del torch
+    return {
+        "wall_s": wall / steps,
+        "ops_s": ops_us / 1e6 / steps,
+        "top_ops": [{"op": e.key, "ms_per_step": e.self_cpu_time_total / 1e3 / steps, "calls_per_step": e.count / steps}
+                    for e in top],
+    }
+
+
+def measure(method: str, args: argparse.Namespace) -> list[dict]:
+    import torch
+
+    from splat_framework.trainer import Trainer
+
+    snaps = snapshots(method, args)
+    out_dir = work_dir(args.work) / "scratch"
+    config = method_config(method, args.data, args.views, args.train_steps, out_dir).model_copy(
+        update={"progress": False, "checkpoint_every": 0})
+    trainer = Trainer(config)
+    records = []
+    for at, path in sorted(snaps.items()):
+        trainer.load(path)
+        n = trainer.model.num_gaussians
+        rec = {"method": method, "at": at, "num_gaussians": n,
+               **time_steps(trainer, at, args.steps, args.warmup, trainer.device)}
+        if not args.no_torch_profiler:
+            trainer.load(path)
+            rec["profiler"] = op_time(trainer, at, args.steps)
+        records.append(rec)
+        print(f"{method} @ {at}: {n} Gaussians, {rec['step_s'] * 1e3:.0f} ms/step "
+              f"({1 / rec['step_s']:.2f} it/s)", flush=True)
+    del torch
+    return records
+
+
+def markdown(records: list[dict], info: dict, command: str) -> str:
+    cols = [f"`{r['method']}` @ {r['at']} ({r['num_gaussians']:,} G)" for r in records]
+    lines = ["| ms per step | " + " | ".join(cols) + " |", "|---|" + "--:|" * len(cols)]
+    for label, _ in PHASES:
+        vals = [r["phases_s"][label] * 1e3 for r in records]
+        if max(vals) < 0.05:
+            continue
+        lines.append(f"| {label} | " + " | ".join(f"{v:.1f}" for v in vals) + " |")
+    lines.append("| **whole step** | " + " | ".join(f"**{r['step_s'] * 1e3:.0f}**" for r in records) + " |")
+    lines.append("| steps per second | " + " | ".join(f"{1 / r['step_s']:.2f}" for r in records) + " |")
+    if all("profiler" in r for r in records):
+        lines.append("| inside tensor ops (torch.profiler) | " + " | ".join(
+            f"{100 * r['profiler']['ops_s'] / r['profiler']['wall_s']:.0f} %" for r in records) + " |")
+    lines += [
+        "",
+        f"Machine: {info['cpu_model']}, {info['cpu_count']} cores, {info['torch_threads']} torch threads, "
+        f"torch {info['torch']}, SPLAT_COMPILE={info['splat_compile']}, load average at start "
+        f"{info.get('loadavg_at_start')}; {date.today()}.",
+        f"Reproduce: `{command}`",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> Path:
+    import torch
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from ablation import publish
+    from rasterizer import machine_info
+
+    args = parse_args(argv)
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    info = machine_info("cpu", args.threads) | {"data": args.data, "views": args.views, "steps": args.steps,
+                                                 "python_platform": platform.platform()}
+    records = [r for m in args.methods for r in measure(m, args)]
+    command = "python benchmarks/train_step.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    publish(args.json, {"machine": info, "records": records}, markdown(records, info, command), args.readme,
+            "train_step", prefix="bench")
+    return args.json
+
+
+if __name__ == "__main__":
+    main()
