@@ -30,12 +30,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import platform
 import shutil
 import sys
 import time
+from contextlib import contextmanager
 from datetime import date
 from pathlib import Path
 
@@ -90,13 +90,12 @@ def method_config(method: str, data: str, views: int, steps: int, output: Path):
     base = get_method(method).default_config()
     return base.model_copy(update={
         "data": data, "views": views, "steps": steps, "output": output, "overwrite": True,
-        "checkpoint_every": 500, "save_renders": False, "progress": True,
+        "checkpoint_every": 0, "save_renders": False, "progress": True,
     })
 
 
 def snapshots(method: str, args: argparse.Namespace) -> dict[int, Path]:
     """{iteration: checkpoint file} of the method's reference run, training it when missing."""
-    from splat_framework.checkpoint import checkpoint_path
     from splat_framework.trainer import Trainer
 
     folder = work_dir(args.work) / f"{args.data.replace('/', '-')}-v{args.views}-{method}-{args.train_steps}"
@@ -104,30 +103,28 @@ def snapshots(method: str, args: argparse.Namespace) -> dict[int, Path]:
     if all(p.is_file() for p in snaps.values()):
         return snaps
     (folder / "snapshots").mkdir(parents=True, exist_ok=True)
-    every = math.gcd(*[s for s in args.at if 0 < s < args.train_steps]) or args.train_steps
     config = method_config(method, args.data, args.views, args.train_steps, folder / "run")
-    config = config.model_copy(update={"checkpoint_every": every})
 
-    def keep(trainer, step: int) -> None:  # periodic checkpoints exist for steps < train_steps only
-        if step in snaps and step < args.train_steps:
-            shutil.copyfile(checkpoint_path(trainer.checkpoint_dir, step), snaps[step])
+    def keep(trainer, step: int) -> None:
+        if step in snaps:
+            shutil.copyfile(trainer.save(step), snaps[step])
 
     print(f"{method}: training the reference run ({args.train_steps} steps) for snapshots {args.at}", flush=True)
     trainer = Trainer(config, callbacks=[keep])
-    if 0 in snaps:
-        trainer.save(0)
-        shutil.copyfile(checkpoint_path(trainer.checkpoint_dir, 0), snaps[0])
+    keep(trainer, 0)
     metrics = trainer.train()
-    final = checkpoint_path(trainer.checkpoint_dir, args.train_steps)
-    if args.train_steps in snaps:
-        shutil.copyfile(final, snaps[args.train_steps])
     (folder / "snapshots" / "metrics.json").write_text(json.dumps(metrics["mean"]))
     return snaps
 
 
 def time_steps(trainer, start: int, steps: int, warmup: int, device) -> dict:
-    """Section totals (s per step) and wall time of ``steps`` steps after ``warmup`` untimed ones."""
-    from splat_framework.profiling import exclusive, profiling
+    """Section totals (s per step) and wall time of ``steps`` steps after ``warmup`` untimed ones.
+
+    Code older than the profiling sections (a baseline checkout) gets the wall time only."""
+    try:
+        from splat_framework.profiling import exclusive, profiling
+    except ImportError:
+        exclusive, profiling = dict, _no_sections
 
     for k in range(warmup):
         trainer.train_step(start + k)
@@ -142,6 +139,21 @@ def time_steps(trainer, start: int, steps: int, warmup: int, device) -> dict:
     for label, keys in PHASES:
         phases[label] = sum(ex.get(k, 0.0) for k in keys) / steps
     return {"step_s": wall / steps, "phases_s": phases, "sections_s": {k: v / steps for k, v in totals.items()}}
+
+
+@contextmanager
+def _no_sections(device):
+    yield {}
+
+
+def load_snapshot(trainer, path: Path) -> None:
+    """``trainer.load`` (older code: its private loader)."""
+    if hasattr(trainer, "load"):
+        trainer.load(path)
+    else:
+        from splat_framework.checkpoint import load_checkpoint
+
+        trainer._load_state(path, load_checkpoint(path))
 
 
 def op_time(trainer, start: int, steps: int) -> dict:
@@ -174,16 +186,22 @@ def measure(method: str, args: argparse.Namespace) -> list[dict]:
     snaps = snapshots(method, args)
     out_dir = work_dir(args.work) / "scratch"
     config = method_config(method, args.data, args.views, args.train_steps, out_dir).model_copy(
-        update={"progress": False, "checkpoint_every": 0})
+        update={"progress": False})
     trainer = Trainer(config)
+    try:
+        from splat_framework.render._kernels import compile_requested
+    except ImportError:  # older code: the environment variable only
+        compiled = os.environ.get("SPLAT_COMPILE", "0") == "1"
+    else:
+        compiled = compile_requested()
     records = []
     for at, path in sorted(snaps.items()):
-        trainer.load(path)
+        load_snapshot(trainer, path)
         n = trainer.model.num_gaussians
-        rec = {"method": method, "at": at, "num_gaussians": n,
+        rec = {"method": method, "at": at, "num_gaussians": n, "compiled": compiled,
                **time_steps(trainer, at, args.steps, args.warmup, trainer.device)}
         if not args.no_torch_profiler:
-            trainer.load(path)
+            load_snapshot(trainer, path)
             rec["profiler"] = op_time(trainer, at, args.steps)
         records.append(rec)
         print(f"{method} @ {at}: {n} Gaussians, {rec['step_s'] * 1e3:.0f} ms/step "
@@ -193,7 +211,8 @@ def measure(method: str, args: argparse.Namespace) -> list[dict]:
 
 
 def markdown(records: list[dict], info: dict, command: str) -> str:
-    cols = [f"`{r['method']}` @ {r['at']} ({r['num_gaussians']:,} G)" for r in records]
+    cols = [f"`{r['method']}` @ {r['at']} ({r['num_gaussians']:,} G{', compiled' if r.get('compiled') else ''})"
+            for r in records]
     lines = ["| ms per step | " + " | ".join(cols) + " |", "|---|" + "--:|" * len(cols)]
     for label, _ in PHASES:
         vals = [r["phases_s"][label] * 1e3 for r in records]
@@ -208,7 +227,7 @@ def markdown(records: list[dict], info: dict, command: str) -> str:
     lines += [
         "",
         f"Machine: {info['cpu_model']}, {info['cpu_count']} cores, {info['torch_threads']} torch threads, "
-        f"torch {info['torch']}, SPLAT_COMPILE={info['splat_compile']}, load average at start "
+        f"torch {info['torch']}, load average at start "
         f"{info.get('loadavg_at_start')}; {date.today()}.",
         f"Reproduce: `{command}`",
         "",

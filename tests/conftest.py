@@ -9,6 +9,8 @@ import pytest
 def _private_cache(tmp_path_factory, monkeypatch):
     """Generated scenes and match caches go to this session's temp folder, never ~/.cache."""
     monkeypatch.setenv("SPLAT_CACHE", str(tmp_path_factory.getbasetemp() / "splatcache"))
+    # eager kernels unless a test asks for torch.compile (a compile costs seconds; see test_compiled_training_step)
+    monkeypatch.setenv("SPLAT_COMPILE", "0")
 
 
 def _tiny_run(tmp_path_factory) -> Path:

@@ -1,5 +1,6 @@
 """Method registry, config variants and the training CLI's argument handling (no training)."""
 
+import os
 import subprocess
 import sys
 import time
@@ -65,6 +66,51 @@ def test_variant_files_override_base(tmp_path, monkeypatch):
     c = methods["smaller"].default_config()
     assert c.model.sh_degree == 1 and c.strategy.enabled is False and c.method == "smaller"
     assert methods["3dgs"].default_config().model.sh_degree == 3
+
+
+def test_user_folder_wins_and_a_broken_variant_package_warns(tmp_path, monkeypatch):
+    eps = [
+        EntryPoint("3dgs", "splat_framework.methods.gaussian_splatting:spec_3dgs", registry.ENTRY_POINT_GROUP),
+        EntryPoint("splat_framework", "splat_framework.configs", registry.CONFIG_ENTRY_POINT_GROUP),
+        EntryPoint("gone", "no_such_package_xyz.configs", registry.CONFIG_ENTRY_POINT_GROUP),
+    ]
+    _fake_eps(monkeypatch, eps)
+    (tmp_path / "3dgs-frustum.toml").write_text('base = "3dgs"\ndescription = "mine"\n')
+    monkeypatch.setenv("SPLAT_CONFIG_PATH", str(tmp_path))
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        dirs = registry.default_config_dirs()
+        methods = registry.discover_methods()
+    assert dirs[0] == tmp_path and (REPO / "src" / "splat_framework" / "configs") in dirs
+    assert any("gone" in str(x.message) and "cannot be located" in str(x.message) for x in w)
+    assert methods["3dgs-frustum"].description == "mine"
+
+
+@pytest.mark.slow
+def test_variants_survive_a_wheel_install(tmp_path):
+    """Built as a wheel (not editable) and imported from it, every variant is still registered."""
+    import shutil
+    import zipfile
+
+    project = tmp_path / "project"  # a copy: setuptools writes build/ next to pyproject.toml
+    shutil.copytree(REPO / "src", project / "src", ignore=shutil.ignore_patterns("*.egg-info", "__pycache__"))
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(REPO / name, project / name)
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w",
+                    str(tmp_path), str(project)], check=True, capture_output=True, timeout=300)
+    wheel = next(tmp_path.glob("splat-*.whl"))
+    site = tmp_path / "site"
+    zipfile.ZipFile(wheel).extractall(site)
+    code = ("from splat_framework.registry import discover_methods; m = discover_methods(); "
+            "print(sorted(m)); import scg_plugin; print(scg_plugin.__file__)")
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    env.pop("SPLAT_CONFIG_PATH", None)
+    out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True,
+                         timeout=120, check=True).stdout
+    names, where = out.strip().splitlines()
+    assert where.startswith(str(site))  # really the wheel's copy, not the checkout
+    expected = sorted(f.stem for f in (REPO / "src").glob("*/configs/*.toml"))
+    assert len(expected) >= 11 and all(f"'{n}'" in names for n in expected), names
 
 
 def test_bad_override_names_the_field():

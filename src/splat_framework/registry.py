@@ -4,15 +4,19 @@ A package declares methods in the entry-point group ``splat_framework.methods``;
 each entry point names a :class:`MethodSpec`. Named config variants (paper
 ablation rows) are TOML files::
 
-    # configs/scgaussian-no-rg.toml
+    # src/scg_plugin/configs/scgaussian-no-rg.toml
     base = "scgaussian"
     description = "SCGaussian without the rendering-geometry loss"
     [overrides.model]
     lambda_rg = 0.0
 
-found in the repository's ``configs/`` folder and in any folder listed in
-``$SPLAT_CONFIG_PATH`` (os.pathsep-separated). A variant keeps its own name, so
-runs of different variants never share an output folder.
+shipped as package data: a package lists the packages holding its variants in
+the entry-point group ``splat_framework.configs`` (``scg_plugin =
+"scg_plugin.configs"``), so they are found the same way from a checkout, an
+editable install or a wheel. Folders listed in ``$SPLAT_CONFIG_PATH``
+(os.pathsep-separated) come first: a user's file of the same name wins. A
+variant keeps its own name, so runs of different variants never share an
+output folder.
 
 Importing this module and listing methods never imports torch.
 """
@@ -20,6 +24,7 @@ Importing this module and listing methods never imports torch.
 from __future__ import annotations
 
 import importlib
+import importlib.resources
 import os
 import sys
 import tomllib
@@ -30,6 +35,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 ENTRY_POINT_GROUP = "splat_framework.methods"
+CONFIG_ENTRY_POINT_GROUP = "splat_framework.configs"
 
 
 @dataclass(frozen=True)
@@ -65,13 +71,20 @@ class MethodSpec:
 
 
 def default_config_dirs() -> list[Path]:
+    """Folders searched for TOML variants, in precedence order: ``$SPLAT_CONFIG_PATH``, then the
+    packages named in the ``splat_framework.configs`` entry points (package data)."""
     dirs = []
     env = os.environ.get("SPLAT_CONFIG_PATH")
     if env:
         dirs += [Path(p) for p in env.split(os.pathsep) if p]
-    repo_configs = Path(__file__).resolve().parents[2] / "configs"
-    if repo_configs.is_dir():
-        dirs.append(repo_configs)
+    for ep in entry_points(group=CONFIG_ENTRY_POINT_GROUP):
+        try:
+            folder = Path(str(importlib.resources.files(ep.value)))
+        except (ImportError, TypeError, ValueError) as e:  # a broken plugin must not kill the CLI
+            warnings.warn(f"config variants '{ep.name}' ({ep.value}) cannot be located: {e}", stacklevel=2)
+            continue
+        if folder.is_dir():
+            dirs.append(folder)
     return dirs
 
 
@@ -95,8 +108,10 @@ def _load_entry_points(group: str) -> dict[str, MethodSpec]:
 
 def _load_variants(base: dict[str, MethodSpec], dirs: list[Path]) -> dict[str, MethodSpec]:
     variants: dict[str, MethodSpec] = {}
-    files = sorted(f for d in dirs for f in d.glob("*.toml"))
-    pending = {f.stem: f for f in files}
+    pending: dict[str, Path] = {}
+    for d in dirs:  # the first folder with a name wins
+        for f in sorted(d.glob("*.toml")):
+            pending.setdefault(f.stem, f)
     resolved = dict(base)
     progress = True
     while pending and progress:  # variants may build on other variants

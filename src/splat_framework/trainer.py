@@ -56,12 +56,14 @@ from rich.text import Text
 from .checkpoint import CheckpointError, list_checkpoints, load_checkpoint, load_latest, save_checkpoint
 from .config import TrainConfig, config_payload, resolve_steps, save_config
 from .data import DataError, DataManager, load_scene, resolve_data_path
+from .data.resolve import user_cache_dir
 from .data.datamanager import estimate_image_bytes
 from .evaluation import evaluate
 from .io import atomic_write_json, read_json
 from .metrics import psnr
 from .model.strategy import DefaultStrategy
 from .profiling import section
+from .render import set_compile
 from .registry import get_method
 
 console = Console(stderr=True)
@@ -260,7 +262,7 @@ def _config_diff(old: dict, new: dict, prefix: str = "") -> list[str]:
     return out
 
 
-_RUN_ONLY_FIELDS = ("resume", "overwrite", "progress", "output", "device", "eval_every", "save_renders")
+_RUN_ONLY_FIELDS = ("resume", "overwrite", "progress", "output", "device", "eval_every", "save_renders", "compile")
 
 
 @contextmanager
@@ -328,6 +330,7 @@ class Trainer:
         self.callbacks = list(callbacks)
         self.run_dir = prepare_run_dir(self.config)
         self.device = torch.device(self.config.device)
+        set_compile(self.config.use_compile, user_cache_dir() / "inductor")
         self.timing: dict[str, float] = {}
         self.generator = seed_everything(self.config.seed)
         t0 = time.perf_counter()

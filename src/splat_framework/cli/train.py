@@ -1,7 +1,8 @@
 """``splat-train METHOD --data PATH [options]``: train a registered method.
 
 Every registered method (entry points of group ``splat_framework.methods``) and
-every config variant in ``configs/`` is a subcommand. Heavy modules (torch,
+every config variant (package data found through the ``splat_framework.configs``
+entry points, see ``splat_framework.registry``) is a subcommand. Heavy modules (torch,
 cv2) are imported only after the arguments are parsed, so ``--help`` is fast.
 """
 

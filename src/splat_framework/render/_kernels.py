@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 import os
 import warnings
+from pathlib import Path
 
 import torch
 from torch import Tensor
@@ -201,14 +202,29 @@ def bwd_round_fused(
 
 
 _KERNELS: dict[str, object] = {}
+_SETTING: dict[str, bool] = {"compile": False}
+
+
+def set_compile(enabled: bool, cache_dir: Path | None = None) -> None:
+    """Compile the per-round kernels from now on (``SPLAT_COMPILE=0/1`` in the environment still wins).
+
+    ``cache_dir``: where torch's inductor keeps compiled kernels across processes
+    (``TORCHINDUCTOR_CACHE_DIR``; left alone when the user set it), so a later run
+    loads them in seconds instead of compiling again."""
+    _SETTING["compile"] = bool(enabled)
+    if enabled and cache_dir is not None:
+        os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", str(cache_dir))
 
 
 def compile_requested() -> bool:
-    return os.environ.get("SPLAT_COMPILE", "0").strip().lower() in ("1", "true", "yes", "on")
+    env = os.environ.get("SPLAT_COMPILE", "").strip().lower()
+    if env:
+        return env in ("1", "true", "yes", "on")
+    return _SETTING["compile"]
 
 
 def get_kernels():
-    """(fwd_round, bwd_round): compiled when SPLAT_COMPILE=1, else eager."""
+    """(fwd_round, bwd_round): compiled when requested (``set_compile`` or SPLAT_COMPILE=1), else eager."""
     if not compile_requested():
         return fwd_round, bwd_round
     if "compiled" not in _KERNELS:

@@ -1,0 +1,1 @@
+"""SCGaussian's named config variants (the paper's ablation and matcher rows), shipped as package data."""

@@ -1,0 +1,1 @@
+"""Named config variants of the built-in methods, shipped as package data."""
