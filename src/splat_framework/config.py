@@ -32,9 +32,6 @@ class _StepsMarker:
 
 
 STEPS_MARKER = _StepsMarker()
-
-COMPILE_MIN_STEPS = 300
-"""``compile="auto"`` compiles for CPU runs of at least this many iterations (see ``benchmarks/train_step.py``)."""
 Steps = Annotated[int, STEPS_MARKER]
 """An iteration count that ``--steps`` rescales with the schedule."""
 
@@ -161,8 +158,8 @@ class TrainConfig(SplatConfig):
     """Write test-view renders (render, ground truth, depth) into the run folder."""
     progress: bool = True
     """Show the rich progress bar."""
-    compile: Literal["auto", "on", "off"] = "auto"
-    """Fuse the rasterizer's compositing kernels with torch.compile (eager fallback on any failure; compiled kernels cached under $SPLAT_CACHE/inductor). auto: on CPU for runs of at least COMPILE_MIN_STEPS iterations, where the one-off compile pays for itself; SPLAT_COMPILE=0/1 overrides."""
+    compile: bool = False
+    """Fuse the rasterizer's compositing kernels with torch.compile (eager fallback on any failure; compiled kernels cached under $SPLAT_CACHE/inductor; SPLAT_COMPILE=0/1 overrides). Off by default: on real fern training steps on a 2-core CPU it was no faster (benchmarks/train_step.py)."""
     model: GaussianModelConfig = Field(default_factory=GaussianModelConfig)
     """Model options."""
     strategy: DensifyConfig = Field(default_factory=DensifyConfig)
@@ -173,13 +170,6 @@ class TrainConfig(SplatConfig):
     @property
     def total_steps(self) -> int:
         return self.steps if self.steps is not None else self.default_steps
-
-    @property
-    def use_compile(self) -> bool:
-        """Whether this run compiles the rasterizer's kernels (``compile`` resolved for its device and length)."""
-        if self.compile == "auto":
-            return self.device.startswith("cpu") and self.total_steps >= COMPILE_MIN_STEPS
-        return self.compile == "on"
 
 
 # ----------------------------------------------------------------- helpers

@@ -330,7 +330,7 @@ class Trainer:
         self.callbacks = list(callbacks)
         self.run_dir = prepare_run_dir(self.config)
         self.device = torch.device(self.config.device)
-        set_compile(self.config.use_compile, user_cache_dir() / "inductor")
+        set_compile(self.config.compile, user_cache_dir() / "inductor")
         self.timing: dict[str, float] = {}
         self.generator = seed_everything(self.config.seed)
         t0 = time.perf_counter()
