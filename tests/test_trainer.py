@@ -227,3 +227,13 @@ def test_compile_setting_reaches_the_kernels_and_the_environment_wins(tmp_path, 
         assert not _kernels.compile_requested()
     finally:
         _kernels.set_compile(False)
+
+
+def test_trainer_checks_the_strategy_conventions(tmp_path, monkeypatch):
+    """A model whose parameters and optimizers break the densification ops' conventions fails at start-up."""
+    from splat_framework.model.gaussians import GaussianModel
+
+    real = GaussianModel.make_optimizers
+    monkeypatch.setattr(GaussianModel, "make_optimizers", lambda self: {k: v for k, v in real(self).items() if k != "quats"})
+    with pytest.raises(ValueError, match="quats.*no optimizer"):
+        Trainer(tiny_config(tmp_path / "run", steps=5, progress=False))

@@ -350,6 +350,7 @@ class Trainer:
         self.timing["init_s"] = time.perf_counter() - t0 - sum(getattr(self.model, "init_timing", {}).values())
         self.optimizers = self.model.make_optimizers()
         self.strategy = DefaultStrategy(self.config.strategy)
+        self.strategy.check_sanity(self.model.params, self.optimizers)  # a model breaking the ops conventions fails here
         self.strategy_state = self.strategy.initialize_state(scene_scale=self.model.scene_scale)
         self.start_step = 0
         self.nonfinite_streak = 0
