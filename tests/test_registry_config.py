@@ -199,3 +199,37 @@ def test_bad_cli_values_exit_2_with_one_line(tmp_path):
     )
     assert r.returncode == 2, r.stderr
     assert r.stderr.strip().count("\n") == 0 and "missing" in r.stderr and "Traceback" not in r.stderr
+
+
+@pytest.mark.parametrize("args, field", [
+    (["--steps", "0"], "steps"),
+    (["--steps", "-5"], "steps"),
+    (["--model.init-num-points", "-5"], "init_num_points"),
+    (["--model.init-num-points", "0"], "init_num_points"),
+    (["--checkpoint-every", "-1"], "checkpoint_every"),
+    (["--optim.sh0-lr", "nan"], "sh0_lr"),
+    (["--optim.sh0-lr", "-1"], "sh0_lr"),
+    (["--optim.sh0-lr", "1e39"], "sh0_lr"),
+    (["--strategy.reset-every", "0"], "reset_every"),
+    (["--device", "bogus"], "device"),
+    (["--device", "cuda:7"], "cuda:7"),
+])
+def test_out_of_range_numbers_and_devices_exit_2_naming_the_field(tmp_path, args, field):
+    r = subprocess.run(
+        [sys.executable, "-m", "splat_framework.cli.train", "3dgs", "--data", "synthetic/forward-tiny",
+         "--output", str(tmp_path / "run"), "--no-progress", *args],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert r.returncode == 2, (r.returncode, r.stderr[-2000:])
+    assert r.stderr.strip().count("\n") == 0 and field in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert not (tmp_path / "run").exists()  # rejected before anything is written
+
+
+def test_scgaussian_may_start_from_rays_only_and_ranges_hold_in_toml_overrides():
+    from scg_plugin.method import config_scgaussian
+
+    assert apply_overrides(config_scgaussian(), {"model": {"init_num_points": 0}}).model.init_num_points == 0
+    with pytest.raises(ValidationError, match="init_num_points"):
+        apply_overrides(config_scgaussian(), {"model": {"init_num_points": -5}})
+    with pytest.raises(ValidationError, match="z_lr"):
+        apply_overrides(config_scgaussian(), {"model": {"z_lr": float("nan")}})

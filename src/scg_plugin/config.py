@@ -6,7 +6,7 @@ from typing import Literal
 
 from pydantic import Field
 
-from splat_framework.config import GaussianModelConfig, Steps, TrainConfig
+from splat_framework.config import GaussianModelConfig, LearningRate, Period, Steps, TrainConfig
 
 from .matching import MatchConfig
 
@@ -16,7 +16,7 @@ class SCGModelConfig(GaussianModelConfig):
 
     init: Literal["random", "frustum"] = "random"
     """Placement of random ordinary Gaussians (the init_num_points extra ones, the sparse-prior fill, or all of them when matches are too few); ray-based Gaussians always start on the matched rays."""
-    init_num_points: int = 10_000
+    init_num_points: int = Field(10_000, ge=0)
     """Random ordinary Gaussians at start beside the ray-based ones, placed as 3DGS's reference init (0 = ordinary ones come only from densification). Matched rays cover only textured surfaces; without these, densification alone does not fill the rest in 1000 iterations (lego 19.76 -> 20.80, fern 20.70 -> 20.92 with the dense matcher)."""
     matching: MatchConfig = Field(default_factory=MatchConfig)
     """Matching prior."""
@@ -26,9 +26,9 @@ class SCGModelConfig(GaussianModelConfig):
     """two-stage: z warm-up with L_gp, then L_photo + delta*L_rg (public code); single-stage: L_photo + beta*L_gp + delta*L_rg from the start (paper text)."""
     warmup_steps: Steps = 2000
     """Iterations of the z warm-up (two-stage schedule; 0 = no warm-up)."""
-    warmup_lr: float = 0.03
+    warmup_lr: LearningRate = 0.03
     """Warm-up step size of z as a fraction of each view's depth range (Adam lr), halved every warmup_lr_halve_every."""
-    warmup_lr_halve_every: Steps = 500
+    warmup_lr_halve_every: Period = 500
     """Halve the warm-up learning rate every this many warm-up iterations."""
     lambda_gp: float = Field(0.0, ge=0)
     """beta: weight of the Gaussian-position loss during main training."""
@@ -42,11 +42,11 @@ class SCGModelConfig(GaussianModelConfig):
     """Single-stage: cache during main iterations [0, cache_until), then apply (two-stage caches during the warm-up)."""
     filter_eta_px: float = Field(2.0, gt=0)
     """eta: drop matches whose best reprojection error (pixels, worse of both directions) exceeds this."""
-    z_lr: float = 1.6e-4
+    z_lr: LearningRate = 1.6e-4
     """Learning rate of ray depths during main training, times the scene scale (decays like the position lr)."""
-    min_matches: int = 50
+    min_matches: int = Field(50, ge=0)
     """Below this many verified matches the run warns and falls back to random ordinary Gaussians."""
-    sparse_matches: int = 1000
+    sparse_matches: int = Field(1000, ge=0)
     """Below this many verified matches the prior is too sparse to grow a model from: the run warns and adds max(init_num_points, 10000) random ordinary Gaussians alongside the ray-based ones (0 = never)."""
 
 

@@ -14,11 +14,12 @@ can rescale the whole schedule proportionally.
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import tyro
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 SCHEMA_VERSION = 1
 """Version of the saved ``config.json`` layout; bump on incompatible change."""
@@ -32,8 +33,20 @@ class _StepsMarker:
 
 
 STEPS_MARKER = _StepsMarker()
-Steps = Annotated[int, STEPS_MARKER]
-"""An iteration count that ``--steps`` rescales with the schedule."""
+Steps = Annotated[int, STEPS_MARKER, Field(ge=0)]
+"""An iteration count (>= 0) that ``--steps`` rescales with the schedule."""
+Period = Annotated[int, STEPS_MARKER, Field(ge=1)]
+"""An interval in iterations (>= 1: it divides the step number) that ``--steps`` rescales."""
+LearningRate = Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)]
+"""An Adam learning rate, in (0, 1]."""
+Fraction = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
+"""A number in [0, 1]."""
+Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+"""A finite number > 0."""
+NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+"""A finite number >= 0."""
+
+_DEVICE = re.compile(r"^(cpu|mps|meta|(cuda|xpu)(:\d+)?)$")
 
 
 class SplatConfig(BaseModel):
@@ -49,17 +62,17 @@ class DensifyConfig(SplatConfig):
 
     enabled: bool = True
     """Run densification at all (False keeps the initial Gaussians only)."""
-    prune_opa: float = 0.005
+    prune_opa: Annotated[float, Field(ge=0, lt=1, allow_inf_nan=False)] = 0.005
     """Prune Gaussians whose opacity falls below this."""
-    grow_grad2d: float = 0.0002
+    grow_grad2d: NonNegative = 0.0002
     """Grow Gaussians whose mean screen-space gradient (NDC units) exceeds this."""
-    grow_scale3d: float = 0.01
+    grow_scale3d: Positive = 0.01
     """Clone below / split above this largest scale, relative to the scene scale."""
-    grow_scale2d: float = 0.05
+    grow_scale2d: Positive = 0.05
     """Also split Gaussians whose screen radius / image size exceeds this (only before refine_scale2d_stop_iter)."""
-    prune_scale3d: float = 0.1
+    prune_scale3d: Positive = 0.1
     """After the first opacity reset, prune Gaussians larger than this (relative to the scene scale)."""
-    prune_scale2d: float = 0.15
+    prune_scale2d: Positive = 0.15
     """Prune Gaussians whose screen radius exceeds this fraction of the image size (until refine_scale2d_stop_iter)."""
     refine_scale2d_stop_iter: Steps = 0
     """Stop the 2D-size pruning after this iteration (0 = never use it)."""
@@ -67,9 +80,9 @@ class DensifyConfig(SplatConfig):
     """First iteration at which densification runs."""
     refine_stop_iter: Steps = 2500
     """Last iteration at which densification runs."""
-    reset_every: Steps = 3000
+    reset_every: Period = 3000
     """Reset opacities to 2*prune_opa every this many iterations."""
-    refine_every: int = 100
+    refine_every: int = Field(100, ge=1)
     """Densify every this many iterations (not rescaled by --steps, so short runs do not densify more often)."""
     pause_refine_after_reset: Steps = 0
     """Skip densification for this many iterations after an opacity reset."""
@@ -86,19 +99,19 @@ class DensifyConfig(SplatConfig):
 class OptimConfig(SplatConfig):
     """Learning rates of the Gaussian parameters (Adam, one optimizer per group)."""
 
-    means_lr: float = 1.6e-4
+    means_lr: LearningRate = 1.6e-4
     """Initial position learning rate, multiplied by the scene scale."""
-    means_lr_final: float = 1.6e-6
+    means_lr_final: LearningRate = 1.6e-6
     """Final position learning rate (exponential decay over the run), times the scene scale."""
-    scales_lr: float = 5e-3
+    scales_lr: LearningRate = 5e-3
     """Log-scale learning rate."""
-    quats_lr: float = 1e-3
+    quats_lr: LearningRate = 1e-3
     """Rotation learning rate."""
-    opacities_lr: float = 5e-2
+    opacities_lr: LearningRate = 5e-2
     """Opacity-logit learning rate."""
-    sh0_lr: float = 2.5e-3
+    sh0_lr: LearningRate = 2.5e-3
     """Base colour (SH degree 0) learning rate."""
-    shN_lr: float = 2.5e-3 / 20
+    shN_lr: LearningRate = 2.5e-3 / 20
     """Higher SH coefficients learning rate."""
 
 
@@ -107,17 +120,17 @@ class GaussianModelConfig(SplatConfig):
 
     init: Literal["random", "frustum"] = "random"
     """Initialisation: "random" = the 3DGS reference's (uniform in the scene's content box, or the box of the training frusta when the dataset defines none; grey); "frustum" = random points inside the training frusta (uniform in inverse depth) coloured by the pixel they lie on."""
-    init_num_points: int = 10_000
+    init_num_points: int = Field(10_000, ge=1)
     """Number of random initial Gaussians."""
-    init_opacity: float = 0.1
+    init_opacity: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = 0.1
     """Initial opacity of every Gaussian."""
-    init_scale: float = 1.0
+    init_scale: Positive = 1.0
     """Multiplier of the initial scale (mean distance to the 3 nearest neighbours)."""
     sh_degree: int = Field(3, ge=0, le=3)
     """Highest spherical-harmonics degree."""
-    sh_degree_interval: Steps = 500
+    sh_degree_interval: Period = 500
     """Raise the active SH degree by one every this many iterations."""
-    lambda_dssim: float = 0.2
+    lambda_dssim: Fraction = 0.2
     """Weight of the D-SSIM term in the photometric loss."""
     depth_mode: Literal["accumulated", "expected"] = "expected"
     """Depth reported in outputs and renders."""
@@ -132,20 +145,20 @@ class TrainConfig(SplatConfig):
     """Dataset folder; a relative path that does not exist is looked up under $SPLAT_DATA; synthetic/forward and synthetic/object are generated on first use."""
     format: Literal["auto", "llff", "blender", "dtu", "colmap"] = "auto"
     """Dataset format; auto detects it from the folder's contents."""
-    views: int | Literal["all"] = 3
+    views: Annotated[int, Field(ge=1)] | Literal["all"] = 3
     """Number of training views (few-shot split rules of the dataset), or all."""
-    downscale: float | None = None
+    downscale: Positive | None = None
     """Image downscale factor (default: the dataset's protocol, e.g. 8 for LLFF, 2 for Blender)."""
-    steps: int | None = None
+    steps: Annotated[int, Field(ge=1)] | None = None
     """Total optimisation iterations; rescales the method's whole schedule proportionally (default: the method's)."""
     default_steps: tyro.conf.Suppress[int] = 3000
     """The method's own total iterations, which its schedule fields are written for."""
     output: Path | None = None
     """Run folder (default outputs/<scene>/<method>/<timestamp>)."""
-    seed: int = 0
+    seed: int = Field(0, ge=0, lt=2**32)
     """Random seed for everything (initialisation, view order, matching)."""
     device: str = "cpu"
-    """Torch device, e.g. cpu or cuda."""
+    """Torch device: cpu, cuda, cuda:N, mps or xpu[:N] (checked against what torch has when training starts)."""
     resume: bool = False
     """Continue the run in --output from its last good checkpoint."""
     overwrite: bool = False
@@ -166,6 +179,14 @@ class TrainConfig(SplatConfig):
     """Densification options."""
     optim: OptimConfig = Field(default_factory=OptimConfig)
     """Learning rates."""
+
+    @field_validator("device")
+    @classmethod
+    def _device_name(cls, v: str) -> str:
+        v = v.strip().lower()
+        if not _DEVICE.match(v):
+            raise ValueError(f"{v!r} is not a torch device; use cpu, cuda, cuda:N, mps or xpu[:N]")
+        return v
 
     @property
     def total_steps(self) -> int:

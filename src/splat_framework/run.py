@@ -8,6 +8,7 @@ import torch
 
 from .checkpoint import load_latest
 from .config import read_config_json
+from .devices import resolve_device
 from .errors import CheckpointError, DataError
 from .registry import get_method
 
@@ -29,6 +30,7 @@ def load_trained_model(run_dir: Path, device: str | None = None, scene_scale: fl
     config = type(spec.default_config()).model_validate(raw)
     if device is not None:
         config = config.model_copy(update={"device": device})
+    resolve_device(config.device, "--device" if device is not None else str(cfg_path))
     found = load_latest(run_dir / "checkpoints")
     if found is None:
         raise CheckpointError(f"{run_dir / 'checkpoints'}: no valid checkpoint")

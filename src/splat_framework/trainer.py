@@ -57,6 +57,7 @@ from .checkpoint import CheckpointError, list_checkpoints, load_checkpoint, load
 from .config import TrainConfig, config_payload, resolve_steps, save_config
 from .data import DataError, DataManager, load_scene, resolve_data_path
 from .data.resolve import user_cache_dir
+from .devices import resolve_device
 from .data.datamanager import estimate_image_bytes
 from .evaluation import evaluate
 from .io import atomic_write_json, read_json
@@ -328,8 +329,8 @@ class Trainer:
     def __init__(self, config: TrainConfig, callbacks: Sequence[Callable[["Trainer", int], None]] = ()):
         self.config = resolve_steps(config)
         self.callbacks = list(callbacks)
+        self.device = resolve_device(self.config.device)  # before anything is written
         self.run_dir = prepare_run_dir(self.config)
-        self.device = torch.device(self.config.device)
         set_compile(self.config.compile, user_cache_dir() / "inductor")
         self.timing: dict[str, float] = {}
         self.generator = seed_everything(self.config.seed)
