@@ -90,6 +90,22 @@ def splice_block(text: str, key: str, block: str, source: str = "README", prefix
     return text[: i + len(start)] + "\n" + block.strip("\n") + "\n" + text[j:]
 
 
+def footer(command: str, threads: int | None = None) -> list[str]:
+    """The Markdown lines under a benchmark table: machine, torch threads, load average, date, command."""
+    try:
+        load = f", load average {os.getloadavg()[0]:.2f}"
+    except OSError:
+        load = ""
+    torch_threads = f", {threads} torch threads" if threads else ""
+    return [
+        "",
+        f"Machine: {platform.platform()}, Python {platform.python_version()}, {os.cpu_count()} CPU cores"
+        f"{torch_threads}{load}; {date.today()}.",
+        f"Reproduce: `{command}`",
+        "",
+    ]
+
+
 def publish(json_path: Path, payload, table: str, readme: Path | None, key: str, prefix: str = "ablation") -> None:
     """Write a benchmark's JSON and Markdown (``json_path`` with ``.md``), splice the table into ``readme``
     between its ``<!-- PREFIX:KEY -->`` markers when given, and print the table."""
@@ -119,11 +135,7 @@ def ablation_markdown(
         sections.setdefault((r["data"], r["views"]), []).append(r)
     steps = f"{args.steps} iterations" if args.steps else "each method's default iterations"
     seeds = ", ".join(str(s) for s in args.seeds)
-    footer = [
-        f"Machine: {platform.platform()}, Python {platform.python_version()}, {os.cpu_count()} CPU cores; {date.today()}.",
-        f"Reproduce: `{command}`",
-        "",
-    ]
+    tail = footer(command)[1:]
     out: dict[str, str] = {}
     for (data, views), rs in sections.items():
         rs = sorted(rs, key=lambda r: order.get(r["method"], len(order)))
@@ -159,7 +171,7 @@ def ablation_markdown(
         if figures and key in figures:
             link = Path(os.path.relpath(figures[key].resolve(), base.resolve())).as_posix()
             lines += [f"![Test views of `{data}`: ground truth, then one row per config]({link})", ""]
-        out[key] = "\n".join(lines + footer)
+        out[key] = "\n".join(lines + tail)
     return out
 
 

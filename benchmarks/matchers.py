@@ -22,12 +22,9 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import statistics
 import sys
 import time
-from datetime import date
 from pathlib import Path
 
 MATCHER_ROWS = ["dense", "sift", "disk-lightglue", "aliked-lightglue"]
@@ -91,15 +88,9 @@ def markdown(records: list[dict], command: str) -> str:
         matched = sum(c > 0 for c in counts)
         lines.append(f"| `{r['data']}` ({r['views']} views) | `{r['matcher']}` | {matched} of {len(counts)} | "
                      f"{spread} | {r['total']:,} | {r['seconds']:.1f} |")
-    torch_threads = records[0].get("threads") if records else None
-    lines += [
-        "",
-        f"Machine: {platform.platform()}, Python {platform.python_version()}, {os.cpu_count()} CPU cores, "
-        f"{torch_threads} torch threads; {date.today()}.",
-        f"Reproduce: `{command}`",
-        "",
-    ]
-    return "\n".join(lines)
+    from ablation import footer
+
+    return "\n".join(lines + footer(command, records[0].get("threads") if records else None))
 
 
 def main(argv: list[str] | None = None) -> Path:

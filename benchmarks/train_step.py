@@ -36,7 +36,6 @@ import shutil
 import sys
 import time
 from contextlib import contextmanager
-from datetime import date
 from pathlib import Path
 
 #: Phases reported, as (label, section paths whose exclusive time they sum; "*" = any parent).
@@ -158,7 +157,6 @@ def load_snapshot(trainer, path: Path) -> None:
 
 def op_time(trainer, start: int, steps: int) -> dict:
     """Fraction of the wall time spent inside tensor operations (torch.profiler, CPU)."""
-    import torch
     from torch.profiler import ProfilerActivity, profile
 
     t0 = time.perf_counter()
@@ -169,7 +167,6 @@ def op_time(trainer, start: int, steps: int) -> dict:
     events = prof.key_averages()
     ops_us = sum(e.self_cpu_time_total for e in events if e.key.startswith("aten::"))
     top = sorted((e for e in events if e.key.startswith("aten::")), key=lambda e: -e.self_cpu_time_total)[:12]
-    del torch
     return {
         "wall_s": wall / steps,
         "ops_s": ops_us / 1e6 / steps,
@@ -179,8 +176,6 @@ def op_time(trainer, start: int, steps: int) -> dict:
 
 
 def measure(method: str, args: argparse.Namespace) -> list[dict]:
-    import torch
-
     from splat_framework.trainer import Trainer
 
     snaps = snapshots(method, args)
@@ -206,7 +201,6 @@ def measure(method: str, args: argparse.Namespace) -> list[dict]:
         records.append(rec)
         print(f"{method} @ {at}: {n} Gaussians, {rec['step_s'] * 1e3:.0f} ms/step "
               f"({1 / rec['step_s']:.2f} it/s)", flush=True)
-    del torch
     return records
 
 
@@ -224,15 +218,9 @@ def markdown(records: list[dict], info: dict, command: str) -> str:
     if all("profiler" in r for r in records):
         lines.append("| inside tensor ops (torch.profiler) | " + " | ".join(
             f"{100 * r['profiler']['ops_s'] / r['profiler']['wall_s']:.0f} %" for r in records) + " |")
-    lines += [
-        "",
-        f"Machine: {info['cpu_model']}, {info['cpu_count']} cores, {info['torch_threads']} torch threads, "
-        f"torch {info['torch']}, load average at start "
-        f"{info.get('loadavg_at_start')}; {date.today()}.",
-        f"Reproduce: `{command}`",
-        "",
-    ]
-    return "\n".join(lines)
+    from ablation import footer
+
+    return "\n".join(lines + footer(command, info["torch_threads"]))
 
 
 def main(argv: list[str] | None = None) -> Path:

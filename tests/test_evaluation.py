@@ -175,3 +175,27 @@ def test_scgaussian_report_measures_distance_to_surface():
 
     no_gt = model.report(_NoDepth(dm))
     assert "ray_depth_rel_err_median" not in no_gt and "match_reprojection_px_median" in no_gt
+
+
+@pytest.mark.parametrize("device, where", [("bogus", "config.json"), ("cuda:7", "config.json")])
+def test_a_run_saved_with_an_unusable_device_is_one_line_exit_2(run_dir, tmp_path, monkeypatch, capsys, device, where):
+    """splat-eval of a run whose config.json names a device torch does not have: exit 2, the file named."""
+    import shutil
+    import sys
+
+    from splat_framework.cli.eval import entrypoint
+    from splat_framework.config import read_config_json, save_config
+    from splat_framework.registry import get_method
+
+    run = tmp_path / "run"
+    shutil.copytree(run_dir, run)
+    method, raw = read_config_json(run / "config.json")
+    config = type(get_method(method).default_config()).model_validate(raw)
+    save_config(config.model_copy(update={"device": device}), run / "config.json")  # a valid checksum
+    before = (run / "metrics.json").read_bytes()
+    monkeypatch.setattr(sys, "argv", ["splat-eval", str(run)])
+    with pytest.raises(SystemExit) as e:
+        entrypoint()
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and err.strip().count("\n") == 0 and where in err and device in err, err
+    assert (run / "metrics.json").read_bytes() == before
