@@ -215,15 +215,16 @@ def test_compile_setting_reaches_the_kernels_and_the_environment_wins(tmp_path, 
 
     monkeypatch.delenv("SPLAT_COMPILE", raising=False)
     monkeypatch.delenv("TORCHINDUCTOR_CACHE_DIR", raising=False)
-    assert get_method("3dgs").default_config().compile is False
+    assert get_method("3dgs").default_config().compile is True
+    assert get_method("scgaussian").default_config().compile is True
     try:
-        Trainer(tiny_config(tmp_path / "run", steps=20, progress=False, compile=True))
+        Trainer(tiny_config(tmp_path / "run", steps=20, progress=False))  # the default: compiled
         assert _kernels.compile_requested()
         assert os.environ["TORCHINDUCTOR_CACHE_DIR"] == str(Path(os.environ["SPLAT_CACHE"]) / "inductor")
         monkeypatch.setenv("SPLAT_COMPILE", "0")  # the environment wins
         assert not _kernels.compile_requested()
         monkeypatch.delenv("SPLAT_COMPILE")
-        Trainer(tiny_config(tmp_path / "run2", steps=20, progress=False))  # the default: eager
+        Trainer(tiny_config(tmp_path / "run2", steps=20, progress=False, compile=False))
         assert not _kernels.compile_requested()
     finally:
         _kernels.set_compile(False)

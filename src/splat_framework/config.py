@@ -168,8 +168,8 @@ class TrainConfig(SplatConfig):
     """Write test-view renders (render, ground truth, depth) into the run folder."""
     progress: bool = True
     """Show the rich progress bar."""
-    compile: bool = False
-    """Fuse the rasterizer's compositing kernels with torch.compile (eager fallback on any failure; compiled kernels cached under $SPLAT_CACHE/inductor; SPLAT_COMPILE=0/1 overrides). Off by default: on real fern training steps on a 2-core CPU it was no faster (benchmarks/train_step.py)."""
+    compile: bool = True
+    """Fuse the rasterizer's compositing kernels with torch.compile, for training and for rendering this run later (eager fallback on any failure; compiled kernels cached under $SPLAT_CACHE/inductor: about 40 s the first time on a 2-core CPU, seconds after; SPLAT_COMPILE=0/1 overrides). On real fern training steps on a 2-core CPU: 2.1-2.4x faster than eager (benchmarks/train_step.py)."""
     model: GaussianModelConfig = Field(default_factory=GaussianModelConfig)
     """Model options."""
     strategy: DensifyConfig = Field(default_factory=DensifyConfig)

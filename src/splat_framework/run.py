@@ -8,9 +8,11 @@ import torch
 
 from .checkpoint import load_latest
 from .config import read_config_json
+from .data.resolve import user_cache_dir
 from .devices import resolve_device
 from .errors import CheckpointError, DataError
 from .registry import get_method
+from .render import set_compile
 
 
 def load_trained_model(run_dir: Path, device: str | None = None, scene_scale: float = 1.0):
@@ -36,6 +38,7 @@ def load_trained_model(run_dir: Path, device: str | None = None, scene_scale: fl
         raise CheckpointError(f"{run_dir / 'checkpoints'}: no valid checkpoint")
     _, ck = found
     model = spec.model_class().from_checkpoint(config, scene_scale, ck).to(config.device)
+    set_compile(config.compile, user_cache_dir() / "inductor")
     return config, model
 
 

@@ -140,37 +140,43 @@ def bwd_round(
 
 
 # --------------------------------------------------------------------------- fused
-# Functional versions with the scans unrolled over the (static) block size, so that
-# torch.compile can fuse each round into a few loops. Same math as the eager ones.
+# Pixel-major versions for torch.compile: the round's B pairs are unrolled (B is
+# static) and each step works on [nA, npx] arrays, so inductor fuses the whole
+# round into one loop over (tile, pixel) that keeps alpha, T and the running sums
+# in registers instead of writing [nA, B, npx] intermediates between a dozen eager
+# kernels. Same math as the eager functions above (equal to float rounding).
 
 
-def _alpha_fused(logits: Tensor) -> Tensor:
-    alpha = logits.exp().clamp(max=ALPHA_MAX)
+def _logit_px(coef: Tensor, basis: Tensor, b: int) -> Tensor:
+    """[nA, npx] log(o G) of pair ``b`` at the tile's pixels (coef [nA, B, 6])."""
+    c = coef[:, b, :]
+    return (
+        c[:, 0:1]
+        + c[:, 1:2] * basis[1]
+        + c[:, 2:3] * basis[2]
+        + c[:, 3:4] * basis[3]
+        + c[:, 4:5] * basis[4]
+        + c[:, 5:6] * basis[5]
+    )
+
+
+def _alpha_fused(logit: Tensor) -> Tensor:
+    alpha = torch.exp(torch.clamp(logit, max=_LOG_ALPHA_MAX))
     return torch.where(alpha < ALPHA_MIN, 0.0, alpha)
 
 
-def _scan_mul(om: Tensor, t0: Tensor) -> tuple[Tensor, Tensor]:
-    ts = [t0]
-    for i in range(om.shape[1]):
-        ts.append(ts[-1] * om[:, i])
-    t_all = torch.stack(ts, 1)
-    return t_all[:, 1:], t_all[:, :-1]
-
-
-def _scan_add(x: Tensor, s0: Tensor) -> Tensor:
-    ss = [s0]
-    for i in range(x.shape[1]):
-        ss.append(ss[-1] + x[:, i])
-    return torch.stack(ss[1:], 1)
-
-
 def fwd_round_fused(rows: Tensor, tc: Tensor, basis: Tensor, t_carry: Tensor) -> tuple[Tensor, Tensor]:
-    alpha = _alpha_fused(_alpha_logits(coefficients(rows[..., :6], tc), basis))
-    t_after, t_before = _scan_mul(1.0 - alpha, t_carry)
-    w = torch.where(t_after >= T_MIN, alpha * t_before, 0.0)
-    contrib = torch.bmm(rows[..., 6:].transpose(1, 2), w)
-    t_last = t_after[:, -1, :]
-    return contrib, torch.where(t_last >= T_MIN, t_last, 0.0)
+    coef = coefficients(rows[..., :6], tc)
+    feat = rows[..., 6:]
+    t = t_carry
+    contrib = t_carry.new_zeros(t_carry.shape[0], feat.shape[2], t_carry.shape[1])
+    for b in range(rows.shape[1]):
+        alpha = _alpha_fused(_logit_px(coef, basis, b))
+        t_after = t * (1.0 - alpha)
+        w = torch.where(t_after >= T_MIN, alpha * t, 0.0)
+        contrib = contrib + feat[:, b, :, None] * w[:, None, :]
+        t = t_after
+    return contrib, torch.where(t >= T_MIN, t, 0.0)
 
 
 def bwd_round_fused(
@@ -184,21 +190,31 @@ def bwd_round_fused(
 ) -> tuple[Tensor, Tensor]:
     gp = rows[..., :6]
     coef = coefficients(gp, tc)
-    logits = _alpha_logits(coef, basis)
-    alpha = _alpha_fused(logits)
-    om = 1.0 - alpha
-    t_after, t_before = _scan_mul(om, t_carry)
-    incl = t_after >= T_MIN
-    w = torch.where(incl, alpha * t_before, 0.0)
-    h = torch.bmm(rows[..., 6:], g_t)
-    cs = _scan_add(w * h, prefix)
-    s = total[:, None, :] - cs
-    dp = torch.where(incl & (logits < _LOG_ALPHA_MAX), alpha * (t_before * h - s / om), 0.0)
+    feat = rows[..., 6:]
+    t = t_carry
+    cs = prefix
+    dps, ws = [], []
+    for b in range(rows.shape[1]):
+        logit = _logit_px(coef, basis, b)
+        alpha = _alpha_fused(logit)
+        om = 1.0 - alpha
+        t_after = t * om
+        incl = t_after >= T_MIN
+        w = torch.where(incl, alpha * t, 0.0)
+        h = (feat[:, b, :, None] * g_t).sum(1)
+        cs = cs + w * h
+        dps.append(torch.where(incl & (logit < _LOG_ALPHA_MAX), alpha * (t * h - (total - cs) / om), 0.0))
+        ws.append(w)
+        t = t_after
+    # the reductions over pixels as two small GEMMs (one fused loop would keep
+    # a dozen [nA, npx] temporaries per pair alive)
+    dp = torch.stack(dps, 1)
+    w = torch.stack(ws, 1)
     na, b, npx = dp.shape
     gc = torch.mm(dp.reshape(na * b, npx), basis.T).reshape(na, b, 6)
     g_feat = torch.bmm(g_t, w.transpose(1, 2)).transpose(1, 2)
     g_rows = torch.cat([coefficients_backward(gp, tc, coef, gc), g_feat], dim=-1)
-    return g_rows, cs[:, -1, :]
+    return g_rows, cs
 
 
 _KERNELS: dict[str, object] = {}
@@ -240,15 +256,18 @@ def get_kernels():
 
 
 def _with_fallback(compiled, eager):
+    """``compiled``, or ``eager`` after any failure and for single-tile rounds (a
+    size-1 dimension would make torch.compile specialise and compile again)."""
     state = {"ok": True}
 
     def run(*args):
-        if state["ok"]:
+        if state["ok"] and args[0].shape[0] > 1:
             try:
                 return compiled(*args)
             except Exception as exc:  # pragma: no cover - depends on the toolchain
                 state["ok"] = False
-                warnings.warn(f"SPLAT_COMPILE: compiled kernel failed ({exc!r}); using eager")
+                first = (str(exc).strip().splitlines() or [""])[0][:200]
+                warnings.warn(f"compiled rasterizer kernels unavailable ({type(exc).__name__}: {first}); using eager")
         return eager(*args)
 
     return run

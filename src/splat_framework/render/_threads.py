@@ -10,7 +10,9 @@ cores it gets ~2.5x slower than with 1 thread (measured: 50k Gaussians at
 ``SPLAT_THREADS`` sets the number of torch threads used inside the rasterizer
 on CPU:
     "auto" (default): min(torch's setting, CPUs - threads of other processes
-        that are runnable right now), at least 1 (Linux /proc; elsewhere
+        that are runnable right now), at least 1, rounded down to a power of
+        two when below torch's setting (each thread count is a separate
+        torch.compile specialisation of the kernels) (Linux /proc; elsewhere
         torch's setting);
     an integer: exactly that many;
     "off": never touch torch's setting.
@@ -67,6 +69,8 @@ def choose_threads(device: torch.device) -> int | None:
     if others is None:
         return None
     n = max(1, min(cur, (os.cpu_count() or cur) - others))
+    if n < cur:  # a power of two: each count is a separate torch.compile specialisation
+        n = 1 << (n.bit_length() - 1)
     return n if n != cur else None
 
 
