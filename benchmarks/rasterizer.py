@@ -5,6 +5,11 @@ frustum of a 504x378 pinhole camera (fx = fy = 407, principal point at the centr
 like LLFF fern at 1/8 resolution): pixel position uniform over the image (+5 % margin),
 camera depth z ~ U[2, 10]; per-axis scales exp(N(log(0.01 * 8), 0.3)) (about 1 % of the
 depth range), random rotations, opacities ~ U(0.05, 0.95), RGB colours ~ U(0, 1).
+This "opaque" scene terminates early (mean alpha 1.0). The "translucent" scene is the
+same but with opacities drawn from those of a real training run: the `3dgs` fern run of
+``benchmarks/train_step.py`` at iteration 500 (quantiles 5 / 25 / 50 / 75 / 95 % =
+0.006 / 0.029 / 0.10 / 0.22 / 0.99, linear in between), so most pixels see many
+Gaussians before they terminate, as in training.
 
 Reported per N: median wall time of the forward pass without grad ("render"), the
 training forward (grad enabled), and forward + backward of a loss mixing rgb, depth
@@ -34,7 +39,24 @@ WIDTH, HEIGHT, FOCAL = 504, 378, 407.0
 DEFAULT_SIZES = [10_000, 50_000, 100_000, 200_000]
 
 
-def make_scene(n: int, device: str, seed: int = 0):
+#: (cumulative probability, opacity) of the fern `3dgs` run at iteration 500 (see the docstring)
+TRANSLUCENT_OPACITY_QUANTILES = [(0.0, 0.004), (0.05, 0.006), (0.25, 0.029), (0.5, 0.10), (0.75, 0.217),
+                                 (0.95, 0.991), (1.0, 0.995)]
+SCENES = ("opaque", "translucent")
+
+
+def _translucent_opacities(u):
+    """Inverse CDF (piecewise linear through TRANSLUCENT_OPACITY_QUANTILES) of uniforms ``u``."""
+    import torch
+
+    p = torch.tensor([q for q, _ in TRANSLUCENT_OPACITY_QUANTILES])
+    o = torch.tensor([v for _, v in TRANSLUCENT_OPACITY_QUANTILES])
+    k = torch.searchsorted(p, u.contiguous(), right=True).clamp(1, len(p) - 1)
+    t = (u - p[k - 1]) / (p[k] - p[k - 1])
+    return o[k - 1] + t * (o[k] - o[k - 1])
+
+
+def make_scene(n: int, device: str, seed: int = 0, scene: str = "opaque"):
     import torch
 
     g = torch.Generator().manual_seed(seed)
@@ -45,6 +67,8 @@ def make_scene(n: int, device: str, seed: int = 0):
     quats = torch.randn(n, 4, generator=g)
     scales = torch.exp(math.log(0.01 * 8.0) + 0.3 * torch.randn(n, 3, generator=g))
     opacities = 0.05 + 0.9 * torch.rand(n, generator=g)
+    if scene == "translucent":
+        opacities = _translucent_opacities(torch.rand(n, generator=g))
     colors = torch.rand(n, 3, generator=g)
     viewmat = torch.eye(4)
     K = torch.tensor([[FOCAL, 0.0, WIDTH / 2], [0.0, FOCAL, HEIGHT / 2], [0.0, 0.0, 1.0]])
@@ -61,7 +85,7 @@ def _maxrss_bytes() -> int:
     return r if sys.platform == "darwin" else r * 1024
 
 
-def run_one(n: int, device: str, repeats: int, warmup: int) -> dict:
+def run_one(n: int, device: str, repeats: int, warmup: int, scene: str = "opaque") -> dict:
     """Measure one size in this process (called in a fresh subprocess)."""
     import torch
 
@@ -77,7 +101,7 @@ def run_one(n: int, device: str, repeats: int, warmup: int) -> dict:
     out = rasterize(*small, viewmat, K, WIDTH, HEIGHT)
     ((out.rgb * ws[0]).sum() + out.depth.sum()).backward()
     del out, small, ws
-    params, viewmat, K, (w_rgb, w_depth, w_alpha) = make_scene(n, device)
+    params, viewmat, K, (w_rgb, w_depth, w_alpha) = make_scene(n, device, scene=scene)
 
     def forward():
         return rasterize(*params, viewmat, K, WIDTH, HEIGHT)
@@ -138,6 +162,7 @@ def run_one(n: int, device: str, repeats: int, warmup: int) -> dict:
         peak = max(_maxrss_bytes() - rss0, 0)
     return {
         "n": n,
+        "scene": scene,
         "visible": visible,
         "mean_alpha": round(n_alpha, 4),
         "render_median_s": statistics.median(t_render),
@@ -186,8 +211,10 @@ def machine_info(device: str, threads: int | None) -> dict:
 
 
 def render_table(results: list[dict], info: dict, mode: str) -> str:
+    """``mode``: "eager" / "compiled" (opaque scene) or "eager translucent" / "compiled translucent"."""
+    scene = "translucent" if mode.endswith("translucent") else "opaque"
     lines = [
-        f"### {mode} (SPLAT_COMPILE={'1' if mode == 'compiled' else '0'})",
+        f"### {mode.split()[0]}, {scene} scene (SPLAT_COMPILE={'1' if mode.startswith('compiled') else '0'})",
         "",
         "| N | visible | mean alpha | render (no grad) median | forward median | fwd+bwd median"
         " | fwd+bwd min | peak memory | first call | busy |",
@@ -328,6 +355,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--compile", action="store_true", help="benchmark with SPLAT_COMPILE=1 (fused kernels)")
     ap.add_argument("--modes", nargs="+", choices=["eager", "compiled"], default=None,
                     help="run several modes (default: eager, or compiled with --compile)")
+    ap.add_argument("--scenes", nargs="+", choices=SCENES, default=list(SCENES),
+                    help="opaque (early termination bounds the work) and/or translucent (training-like opacities)")
+    ap.add_argument("--scene", choices=SCENES, default="opaque", help=argparse.SUPPRESS)
     ap.add_argument("--json", type=str, default=None, help="write results as JSON here")
     ap.add_argument("--md", type=str, default=None, help="write the table as Markdown here")
     ap.add_argument("--from-json", type=str, default=None,
@@ -350,7 +380,7 @@ def main(argv: list[str] | None = None) -> None:
 
         if args.threads:
             torch.set_num_threads(args.threads)
-        print(json.dumps(run_one(args.worker, args.device, args.repeats, args.warmup)))
+        print(json.dumps(run_one(args.worker, args.device, args.repeats, args.warmup, args.scene)))
         return
 
     import torch
@@ -360,13 +390,13 @@ def main(argv: list[str] | None = None) -> None:
     info = machine_info(args.device, args.threads)
     modes = args.modes if args.modes else (["compiled"] if args.compile else ["eager"])
     all_results: dict[str, list[dict]] = {}
-    for mode in modes:
+    for mode, scene in [(m, sc) for sc in args.scenes for m in modes]:
         env = os.environ.copy()
         env["SPLAT_COMPILE"] = "1" if mode == "compiled" else "0"
         results = []
         for n in args.sizes:
             cmd = [sys.executable, os.path.abspath(__file__), "--worker", str(n), "--device", args.device,
-                   "--repeats", str(args.repeats), "--warmup", str(args.warmup)]
+                   "--repeats", str(args.repeats), "--warmup", str(args.warmup), "--scene", scene]
             if args.threads:
                 cmd += ["--threads", str(args.threads)]
             proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
@@ -376,14 +406,15 @@ def main(argv: list[str] | None = None) -> None:
             res = json.loads(proc.stdout.strip().splitlines()[-1])
             results.append(res)
             print(
-                f"[{mode}] N={n:>7,}: render {res['render_median_s'] * 1e3:6.0f} ms,"
+                f"[{mode}, {scene}] N={n:>7,}: render {res['render_median_s'] * 1e3:6.0f} ms,"
                 f" forward {res['forward_median_s'] * 1e3:6.0f} ms,"
                 f" fwd+bwd {res['fwd_bwd_median_s'] * 1e3:6.0f} ms (median of {args.repeats}),"
                 f" peak {res['peak_memory_mb']:.0f} MiB",
                 flush=True,
             )
-        all_results[mode] = results
-        print_rich(results, info, mode)
+        key = mode if scene == "opaque" else f"{mode} translucent"
+        all_results[key] = results
+        print_rich(results, info, key)
     if args.json:
         os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
         with open(args.json, "w") as f:

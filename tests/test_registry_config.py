@@ -233,3 +233,40 @@ def test_scgaussian_may_start_from_rays_only_and_ranges_hold_in_toml_overrides()
         apply_overrides(config_scgaussian(), {"model": {"init_num_points": -5}})
     with pytest.raises(ValidationError, match="z_lr"):
         apply_overrides(config_scgaussian(), {"model": {"z_lr": float("nan")}})
+
+
+def test_broken_variants_warn_in_one_line_and_fail_only_when_asked_for(tmp_path, monkeypatch):
+    """A variant with a wrong type, a TOML syntax error or a circular base: one warning line each naming
+    the file, every other method still works (``--help`` included), and asking for the broken variant
+    exits 2 with one line naming the file and the field."""
+    (tmp_path / "bad-type.toml").write_text('base = "3dgs"\n[overrides.model]\nsh_degree = "three"\n')
+    (tmp_path / "bad-syntax.toml").write_text('base = "3dgs"\n[overrides\nsteps = 3\n')
+    (tmp_path / "loop-a.toml").write_text('base = "loop-b"\n')
+    (tmp_path / "loop-b.toml").write_text('base = "loop-a"\n')
+    (tmp_path / "not-a-table.toml").write_text('base = "3dgs"\noverrides = 3\n')
+    env = {**os.environ, "SPLAT_CONFIG_PATH": str(tmp_path)}
+
+    def cli(*args):
+        return subprocess.run([sys.executable, "-m", "splat_framework.cli.train", *args], capture_output=True,
+                              text=True, timeout=120, env=env)
+
+    r = cli("--help")
+    assert r.returncode == 0 and "scgaussian" in r.stdout and "bad-type" not in r.stdout
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 5 and all(x.startswith("warning: ") for x in lines), r.stderr
+    for name in ("bad-type.toml", "bad-syntax.toml", "loop-a.toml", "loop-b.toml", "not-a-table.toml"):
+        assert sum(name in x for x in lines) == 1, (name, r.stderr)
+    assert any("bad-type.toml" in x and "model.sh_degree" in x for x in lines)
+    r = cli("3dgs", "--help")
+    assert r.returncode == 0 and "--model.sh-degree" in r.stdout
+    r = cli("bad-type", "--data", "synthetic/forward-tiny", "--output", str(tmp_path / "run"))
+    assert r.returncode == 2
+    err = r.stderr.strip().splitlines()
+    assert err[-1].startswith("error: ") and "bad-type.toml" in err[-1] and "model.sh_degree" in err[-1], r.stderr
+    assert "Traceback" not in r.stderr and not (tmp_path / "run").exists()
+    monkeypatch.setenv("SPLAT_CONFIG_PATH", str(tmp_path))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", registry.VariantWarning)
+        assert registry.get_method("3dgs").name == "3dgs"
+        with pytest.raises(DataError, match="bad-type.toml.*model.sh_degree"):
+            registry.get_method("bad-type")

@@ -109,6 +109,7 @@ def _load_entry_points(group: str) -> dict[str, MethodSpec]:
 def _load_variants(base: dict[str, MethodSpec], dirs: list[Path]) -> dict[str, MethodSpec]:
     variants: dict[str, MethodSpec] = {}
     pending: dict[str, Path] = {}
+    _BROKEN.clear()
     for d in dirs:  # the first folder with a name wins
         for f in sorted(d.glob("*.toml")):
             pending.setdefault(f.stem, f)
@@ -120,31 +121,66 @@ def _load_variants(base: dict[str, MethodSpec], dirs: list[Path]) -> dict[str, M
             try:
                 doc = tomllib.loads(f.read_text())
             except (OSError, tomllib.TOMLDecodeError) as e:
-                warnings.warn(f"{f}: unreadable config variant ({e}); ignored", stacklevel=2)
+                warnings.warn(f"{f}: unreadable config variant ({e}); ignored", VariantWarning, stacklevel=2)
                 del pending[name]
                 continue
             parent = doc.get("base")
+            overrides = doc.get("overrides", {})
+            if not isinstance(parent, str) or not isinstance(overrides, dict):
+                warnings.warn(f"{f}: a variant needs base = \"METHOD\" and an [overrides] table; ignored",
+                              VariantWarning, stacklevel=2)
+                del pending[name]
+                continue
             if parent not in resolved:
                 if parent in pending:
                     continue
-                warnings.warn(f"{f}: base method '{parent}' is not registered; ignored", stacklevel=2)
+                warnings.warn(f"{f}: base method '{parent}' is not registered; ignored", VariantWarning, stacklevel=2)
                 del pending[name]
                 continue
             p = resolved[parent]
 
             spec = MethodSpec(
                 name=name,
-                description=doc.get("description", f"{parent} variant"),
+                description=str(doc.get("description", f"{parent} variant")),
                 config_factory=p.config_factory,
                 model=p.model,
-                overrides=_merge(p.overrides, doc.get("overrides", {})),
+                overrides=_merge(p.overrides, overrides),
             )
-            resolved[name] = variants[name] = spec
             del pending[name]
+            problem = _invalid_config(spec)
+            if problem:
+                _BROKEN[name] = f"{f}: config variant '{name}' is invalid: {problem}"
+                warnings.warn(f"{_BROKEN[name]}; ignored", VariantWarning, stacklevel=2)
+                continue
+            resolved[name] = variants[name] = spec
             progress = True
     for name, f in pending.items():
-        warnings.warn(f"{f}: variant '{name}' has a base that does not resolve (missing or circular); ignored", stacklevel=2)
+        warnings.warn(f"{f}: variant '{name}' has a base that does not resolve (missing or circular); ignored",
+                      VariantWarning, stacklevel=2)
     return variants
+
+
+class VariantWarning(UserWarning):
+    """A config variant was skipped (unreadable, invalid, or its base does not resolve)."""
+
+
+#: name -> one-line reason, for variants found but skipped because their config is invalid
+_BROKEN: dict[str, str] = {}
+
+
+def _invalid_config(spec: MethodSpec) -> str | None:
+    """One line naming the fields of ``spec``'s config that fail validation, or None."""
+    from pydantic import ValidationError
+
+    try:
+        spec.default_config()
+    except ValidationError as e:
+        return "; ".join(
+            f"{'.'.join(str(x) for x in err['loc']) or 'config'}: {err['msg']}" for err in e.errors()
+        )
+    except (TypeError, ValueError) as e:  # e.g. an overrides table that is not a table
+        return str(e).splitlines()[0] if str(e) else type(e).__name__
+    return None
 
 
 def _merge(a: dict, b: dict) -> dict:
@@ -169,8 +205,18 @@ def discover_methods(config_dirs: list[Path] | None = None) -> dict[str, MethodS
     return specs
 
 
+def invalid_variant(name: str) -> str | None:
+    """Why the variant ``name`` was skipped by the last discovery (one line naming its file), or None."""
+    return _BROKEN.get(name)
+
+
 def get_method(name: str) -> MethodSpec:
+    """The method or variant ``name``; a variant skipped as invalid raises DataError naming its file."""
     methods = discover_methods()
+    if name not in methods and invalid_variant(name):
+        from .errors import DataError
+
+        raise DataError(invalid_variant(name))
     if name not in methods:
         known = ", ".join(sorted(methods))
         raise KeyError(f"unknown method '{name}' (registered: {known})")

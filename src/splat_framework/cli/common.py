@@ -14,6 +14,7 @@ from __future__ import annotations
 import errno
 import signal
 import sys
+import warnings
 from contextlib import contextmanager, nullcontext
 from typing import Callable
 
@@ -71,6 +72,12 @@ def _config_errors_in_one_line():
         yield
 
 
+def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Warnings on the command line: ``warning: MESSAGE`` on one line (no source line)."""
+    text = str(message).strip().splitlines()
+    print(f"warning: {text[0] if text else category.__name__}", file=file or sys.stderr)
+
+
 def _sigterm_as_interrupt(signum, frame):
     raise KeyboardInterrupt
 
@@ -81,6 +88,7 @@ def run_cli(main: Callable[[], object]) -> None:
 
     from ..errors import CheckpointError, DataError
 
+    warnings.showwarning = _one_line_warning
     try:
         signal.signal(signal.SIGTERM, _sigterm_as_interrupt)
     except ValueError:  # not the main thread

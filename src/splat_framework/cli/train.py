@@ -25,8 +25,16 @@ def build_parser_type():
 def main(args: list[str] | None = None) -> dict:
     import tyro
 
+    from ..errors import DataError
+    from ..registry import invalid_variant
+
+    parser_type = build_parser_type()
+    argv = sys.argv[1:] if args is None else args
+    asked = next((a for a in argv if not a.startswith("-")), None)
+    if asked and invalid_variant(asked):  # one line naming the file, not tyro's "invalid choice"
+        raise DataError(invalid_variant(asked))
     config = tyro.cli(
-        build_parser_type(),
+        parser_type,
         args=args,
         prog="splat-train",
         description="Train a Gaussian-splatting method. Run 'splat-train METHOD --help' for its options.",

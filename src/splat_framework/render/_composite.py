@@ -261,28 +261,29 @@ class _Composite(torch.autograd.Function):
         out = torch.zeros(n_tiles, f, npx, device=device, dtype=dtype)
         t_state = torch.ones(n_tiles, npx, device=device, dtype=dtype)  # 0 once a pixel stopped
         tile_done = torch.zeros(n_tiles, dtype=torch.bool, device=device)
+        keep_rounds = any(ctx.needs_input_grad[:6])  # the backward replays the rounds
         ar = torch.arange(block, device=device)
         rounds = []
         for gid_sorted, tile_count, tile_offset in _iter_chunks(fp, grid, chunk_pairs, tile_done):
             pc = gid_sorted.numel()
             gid_pad = torch.cat([gid_sorted, gid_sorted.new_full((1,), n)])
             active = torch.nonzero(tile_count > 0).squeeze(1)
-            r = 0
+            start = tile_offset.index_select(0, active)  # next pair of each active tile's list
+            end = start + tile_count.index_select(0, active)
             while active.numel() > 0:
-                slot = r * block + ar
-                cnt_a = tile_count[active]
-                idx = tile_offset[active][:, None] + slot[None, :]
-                gid = gid_pad[torch.where(slot[None, :] < cnt_a[:, None], idx, pc)]
+                idx = start[:, None] + ar
+                gid = gid_pad[torch.where(idx < end[:, None], idx, pc)]  # [nA, B], padded with the dummy
                 t_carry = t_state.index_select(0, active)
                 rows = table.index_select(0, gid.reshape(-1)).reshape(gid.shape + (table.shape[1],))
                 contrib, t_new = fwd_round(rows, tile_centers.index_select(0, active), basis, t_carry)
                 out.index_add_(0, active, contrib)
-                rounds.append((active, gid, t_carry))
                 t_state.index_copy_(0, active, t_new)
-                alive = (t_new > 0).any(1)
-                tile_done[active[~alive]] = True
-                active = active[(cnt_a > (r + 1) * block) & alive]
-                r += 1
+                if keep_rounds:
+                    rounds.append((active, gid, t_carry))
+                start = start + block
+                more = torch.nonzero((start < end) & (t_new > 0).any(1)).squeeze(1)
+                active, start, end = active[more], start[more], end[more]
+            tile_done |= ~(t_state > 0).any(1)  # read by _iter_chunks before the next chunk
         ctx.rounds = rounds
         img = tiles_to_image(out, grid)  # [H, W, 5]
         alpha = img[..., 4:5]
