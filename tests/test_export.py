@@ -169,3 +169,12 @@ def test_default_output_and_bad_run_dir(run_dir, tmp_path, monkeypatch, capsys):
     assert e.value.code == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error:") and "config.json" in err and "\n" not in err
+    # --ply naming an existing folder: exit 2, one line, nothing written
+    (tmp_path / "a_dir").mkdir()
+    monkeypatch.setattr(sys, "argv", ["splat-export", str(copy), "--ply", str(tmp_path / "a_dir")])
+    with pytest.raises(SystemExit) as e:
+        entrypoint()
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error:") and "a_dir" in err and "is a folder" in err and "\n" not in err
+    assert not any((tmp_path / "a_dir").iterdir())

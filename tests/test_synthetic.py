@@ -414,6 +414,12 @@ def test_cli(tmp_path):
 
     out = main(SceneArgs(kind="object", out=tmp_path / "o", width=32, height=32, views=3, seed=2))
     assert (out / "transforms_train.json").is_file() and (out / "train" / "r_2.png").is_file()
+    # --out naming an existing file: exit 2 with one line, the file untouched
+    (tmp_path / "file").write_text("mine")
+    r = subprocess.run([sys.executable, "-m", "splat_framework.cli.scene", "forward", "--out", str(tmp_path / "file")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and r.stderr.strip().startswith("error:") and "\n" not in r.stderr.strip(), r.stderr
+    assert "is not a folder" in r.stderr and (tmp_path / "file").read_text() == "mine"
     # --help must not import torch or cv2
     code = ("import sys; import splat_framework.cli.scene as s; "
             "assert 'torch' not in sys.modules and 'cv2' not in sys.modules, sorted(sys.modules)")

@@ -82,6 +82,11 @@ def test_default_run_dirs_are_new_timestamped_folders(tmp_path, monkeypatch):
     assert a != b and a.parent == b.parent == Path("outputs") / "forward-tiny" / "3dgs"
     assert a.is_dir() and b.is_dir()
     assert not default_run_dir(cfg).exists()
+    # the scene name comes from the resolved path: "--data some/dir/.." stays under outputs/
+    (tmp_path / "some" / "dir").mkdir(parents=True)
+    for data, scene in (("some/dir/..", "some"), ("some/dir/../..", tmp_path.name), ("/", "scene")):
+        run = default_run_dir(cfg.model_copy(update={"data": data}))
+        assert run.parts[:3] == ("outputs", scene, "3dgs") and ".." not in run.parts, run
 
 
 def test_run_folder_rules(tmp_path):

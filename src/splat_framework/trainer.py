@@ -107,7 +107,11 @@ def _say(message: str, style: str | None = None) -> None:
 
 # ------------------------------------------------------------------ run dir
 def default_run_dir(config: TrainConfig) -> Path:
-    scene = Path(config.data).name or "scene"
+    """outputs/SCENE/METHOD/TIMESTAMP, SCENE the last name of the resolved --data path (so that
+    ``--data some/dir/..`` cannot put the run outside ``outputs/``)."""
+    scene = Path(config.data).resolve().name
+    if scene in ("", ".", "..") or not scene.isprintable():
+        scene = "scene"
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     base = Path("outputs") / scene / config.method / stamp
     run_dir, k = base, 1

@@ -21,11 +21,14 @@ class ExportArgs:
 
 
 def main(args: ExportArgs) -> Path:
+    from ..errors import DataError
     from ..export import export_ply
     from ..run import load_trained_model
 
-    _, model = load_trained_model(args.run_dir, args.device)
     out = args.ply if args.ply is not None else Path(args.run_dir) / "point_cloud.ply"
+    if out.is_dir():
+        raise DataError(f"{out}: is a folder; --ply names the file to write (e.g. {out / 'point_cloud.ply'})")
+    _, model = load_trained_model(args.run_dir, args.device)
     export_ply(model, out)
     print(f"wrote {model.num_gaussians} Gaussians to {out}")
     return out

@@ -44,6 +44,7 @@ def main(args: SceneArgs) -> Path:
     from rich.table import Table
 
     from ..data.synthetic.generate import DEFAULTS, ensure_generated, generate_scene
+    from ..errors import DataError
 
     console = Console()
     dflt = DEFAULTS[args.kind]
@@ -54,6 +55,8 @@ def main(args: SceneArgs) -> Path:
         n_views=args.views or dflt["n_views"],
         seed=args.seed,
     )
+    if args.out is not None and args.out.exists() and not args.out.is_dir():
+        raise DataError(f"{args.out}: exists and is not a folder (--out names the scene folder to write)")
     t0 = time.perf_counter()
     with console.status(f"rendering the {args.kind} scene ({params['width']}x{params['height']})..."):
         if args.out is None:
@@ -86,7 +89,9 @@ def main(args: SceneArgs) -> Path:
 
 
 def entrypoint() -> None:
-    main(tyro.cli(SceneArgs))
+    from .common import run_cli
+
+    run_cli(lambda: main(tyro.cli(SceneArgs)))
 
 
 if __name__ == "__main__":
