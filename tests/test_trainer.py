@@ -102,8 +102,13 @@ def test_run_folder_rules(tmp_path):
         prepare_run_dir(cfg.model_copy(update={"resume": True, "overwrite": True}))
     with pytest.raises(DataError, match="--output"):
         prepare_run_dir(cfg.model_copy(update={"resume": True, "output": None}))
+    # partial files of a run killed mid-write (kill -9) are removed when the run starts again
+    stale = [run / "checkpoints" / ".step-0000020.ckpt.ab12cd.tmp", run / ".metrics.json.x1y2.tmp"]
+    for f in stale:
+        f.write_bytes(b"\0" * 1000)
     assert prepare_run_dir(cfg.model_copy(update={"resume": True})) == run
     assert (run / "checkpoints" / "step-0000010.ckpt").exists()
+    assert not any(f.exists() for f in stale) and (run / "notes.txt").exists()
     # --overwrite: the old run's checkpoints and metrics cannot leak into the new one
     prepare_run_dir(cfg.model_copy(update={"overwrite": True}))
     assert not (run / "checkpoints" / "step-0000010.ckpt").exists() and not (run / "metrics.json").exists()

@@ -84,9 +84,19 @@ def save_checkpoint(folder: Path, step: int, payload: dict, keep: int = KEEP) ->
     for old in stale + current[:-keep]:
         if old != path:
             old.unlink(missing_ok=True)
-    for stale in Path(folder).glob(".step-*.ckpt.*.tmp"):  # left by a killed process
-        stale.unlink(missing_ok=True)
+    remove_stale_temporaries(folder)
     return path
+
+
+def remove_stale_temporaries(folder: Path) -> list[Path]:
+    """Delete the hidden ``.NAME.*.tmp`` files of atomic writes that a killed process left in
+    ``folder`` (never a complete file: those are renamed into place). Returns what was removed."""
+    removed = []
+    for stale in Path(folder).glob(".*.tmp") if Path(folder).is_dir() else ():
+        if stale.is_file():
+            stale.unlink(missing_ok=True)
+            removed.append(stale)
+    return removed
 
 
 def list_checkpoints(folder: Path) -> list[Path]:

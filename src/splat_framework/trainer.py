@@ -53,7 +53,14 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 from rich.table import Table
 from rich.text import Text
 
-from .checkpoint import CheckpointError, list_checkpoints, load_checkpoint, load_latest, save_checkpoint
+from .checkpoint import (
+    CheckpointError,
+    list_checkpoints,
+    load_checkpoint,
+    load_latest,
+    remove_stale_temporaries,
+    save_checkpoint,
+)
 from .config import TrainConfig, config_payload, resolve_steps, save_config
 from .data import DataError, DataManager, load_scene, resolve_data_path
 from .data.resolve import user_cache_dir
@@ -148,6 +155,8 @@ def prepare_run_dir(config: TrainConfig) -> Path:
                 old.unlink(missing_ok=True)
             (run_dir / "metrics.json").unlink(missing_ok=True)
     run_dir.mkdir(parents=True, exist_ok=True)
+    for folder in (run_dir, run_dir / "checkpoints", run_dir / "renders"):  # partial files of a killed run
+        remove_stale_temporaries(folder)
     return run_dir
 
 
