@@ -1,6 +1,8 @@
 """Evaluation: depth metrics against GT depth, labelled pictures, comparison figure, SCGaussian structure report."""
 
 import json
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -199,3 +201,29 @@ def test_a_run_saved_with_an_unusable_device_is_one_line_exit_2(run_dir, tmp_pat
     err = capsys.readouterr().err
     assert e.value.code == 2 and err.strip().count("\n") == 0 and where in err and device in err, err
     assert (run / "metrics.json").read_bytes() == before
+
+
+def test_an_edited_or_unsigned_config_is_refused_unless_trusted(run_dir, tmp_path):
+    """config.json stripped of its checksum (or edited): splat-eval exits 2 naming the file and the flag;
+    with --trust-edited-config it is used."""
+    import shutil
+
+    from splat_framework.io import CHECKSUM_KEY
+
+    run = tmp_path / "run"
+    shutil.copytree(run_dir, run, ignore=shutil.ignore_patterns("renders"))
+    payload = json.loads((run / "config.json").read_text())
+    del payload[CHECKSUM_KEY]
+    (run / "config.json").write_text(json.dumps(payload))
+    before = (run / "metrics.json").read_bytes()
+
+    def cli(*args):
+        return subprocess.run([sys.executable, "-m", "splat_framework.cli.eval", str(run), "--no-renders", *args],
+                              capture_output=True, text=True, timeout=300)
+
+    r = cli()
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0, r.stderr
+    assert "config.json" in r.stderr and "no checksum" in r.stderr and "--trust-edited-config" in r.stderr
+    assert (run / "metrics.json").read_bytes() == before
+    r = cli("--trust-edited-config")
+    assert r.returncode == 0, r.stderr

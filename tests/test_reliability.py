@@ -24,6 +24,7 @@ from splat_framework.checkpoint import (
 )
 from splat_framework.cli.common import run_cli
 from splat_framework.config import apply_overrides
+from splat_framework.errors import DataError
 from splat_framework.io import atomic_write_json, read_json
 from splat_framework.model.gaussians import GaussianModel
 from splat_framework.registry import get_method
@@ -94,6 +95,12 @@ def test_resume_reproduces_uninterrupted_run_3dgs(tmp_path):
     # stop mid densification window (15) so grad statistics, SH degree, Adam
     # moments and RNG state all have to travel through the checkpoint
     resumed, mb = interrupted_then_resumed(cfg_fn, tmp_path / "b", stop=15)
+    # a resume may change run options (device, progress, ...) but never the experiment
+    saved = (tmp_path / "b" / "config.json").read_bytes()
+    with pytest.raises(DataError, match=r"config.json: --resume cannot change the experiment: seed \(0 -> 5\)"):
+        Trainer(cfg_fn(tmp_path / "b", resume=True, seed=5))
+    assert (tmp_path / "b" / "config.json").read_bytes() == saved
+    Trainer(cfg_fn(tmp_path / "b", resume=True, progress=False, eval_every=7))
     assert straight.model.num_gaussians != 300, "densification should have run"
     assert_same_params(straight.model, resumed.model)
     assert mb["mean"]["psnr"] == pytest.approx(ma["mean"]["psnr"], abs=1e-6)

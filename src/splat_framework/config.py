@@ -238,16 +238,22 @@ def save_config(config: TrainConfig, path: Path) -> None:
     atomic_write_json(path, config_payload(config))
 
 
-def read_config_json(path: Path) -> tuple[str, dict]:
-    """(method name, raw config dict) of a saved run, checksum verified; never executes code."""
-    from .errors import DataError
-    from .io import read_json
+def read_config_json(path: Path, trust_edits: bool = False) -> tuple[str, dict]:
+    """(method name, raw config dict) of a saved run; never executes code.
 
-    payload = read_json(path)
+    The checksum written with the config must be present and match, unless
+    ``trust_edits`` (the CLIs' ``--trust-edited-config``): a config edited by hand,
+    or stripped of its checksum, is refused by default."""
+    from .errors import DataError
+    from .io import CHECKSUM_KEY, read_json
+
+    payload = read_json(path, verify=not trust_edits)
     if payload.get("schema_version") != SCHEMA_VERSION:
         raise DataError(
             f"{path}: config schema version {payload.get('schema_version')} is not {SCHEMA_VERSION}"
         )
+    if not trust_edits and CHECKSUM_KEY not in payload:
+        raise DataError(f"{path}: no checksum (edited by hand?); pass --trust-edited-config to use it anyway")
     cfg = payload.get("config")
     if not isinstance(cfg, dict) or "method" not in cfg:
         raise DataError(f"{path}: no method in the saved config")

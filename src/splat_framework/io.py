@@ -89,10 +89,11 @@ def atomic_write_json(path: Path, obj: dict, checksum: bool = True) -> None:
     atomic_write_text(path, json.dumps(payload, indent=2, allow_nan=True) + "\n")
 
 
-def read_json(path: Path, require_checksum: bool = False) -> dict:
+def read_json(path: Path, require_checksum: bool = False, verify: bool = True) -> dict:
     """Read a JSON object written by :func:`atomic_write_json` and verify its checksum.
 
-    Files without a checksum are accepted unless ``require_checksum``. Raises
+    Files without a checksum are accepted unless ``require_checksum``; ``verify=False``
+    skips the checksum entirely (a file the user edited on purpose). Raises
     DataError (one line) when the file is unreadable, not JSON, or its checksum
     does not match (truncated, corrupt or edited by hand).
     """
@@ -106,6 +107,8 @@ def read_json(path: Path, require_checksum: bool = False) -> dict:
     if not isinstance(payload, dict):
         raise DataError(f"{path}: expected a JSON object")
     stored = payload.get(CHECKSUM_KEY)
+    if not verify:
+        return payload
     if stored is None:
         if require_checksum:
             raise DataError(f"{path}: no checksum")

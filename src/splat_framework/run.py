@@ -15,16 +15,18 @@ from .registry import get_method
 from .render import set_compile
 
 
-def load_trained_model(run_dir: Path, device: str | None = None, scene_scale: float = 1.0):
+def load_trained_model(run_dir: Path, device: str | None = None, scene_scale: float = 1.0,
+                       trust_edits: bool = False):
     """(config, model) of ``run_dir`` from its newest good checkpoint, without loading the dataset.
 
-    ``scene_scale`` only scales learning rates, which rendering and exporting do not use.
+    ``scene_scale`` only scales learning rates, which rendering and exporting do not use;
+    ``trust_edits``: accept a config.json without a valid checksum (see ``read_config_json``).
     """
     run_dir = Path(run_dir)
     cfg_path = run_dir / "config.json"
     if not cfg_path.is_file():
         raise DataError(f"{cfg_path}: not a run folder (config.json missing)")
-    method, raw = read_config_json(cfg_path)
+    method, raw = read_config_json(cfg_path, trust_edits)
     try:
         spec = get_method(method)
     except KeyError as e:
@@ -42,11 +44,11 @@ def load_trained_model(run_dir: Path, device: str | None = None, scene_scale: fl
     return config, model
 
 
-def load_run(run_dir: Path, device: str | None = None):
+def load_run(run_dir: Path, device: str | None = None, trust_edits: bool = False):
     """(config, datamanager, model) of ``run_dir``, the model holding the newest good checkpoint."""
     from .data import DataManager, load_scene, resolve_data_path
 
-    config, model = load_trained_model(run_dir, device)
+    config, model = load_trained_model(run_dir, device, trust_edits=trust_edits)
     scene = load_scene(resolve_data_path(config.data), format=config.format, views=config.views, downscale=config.downscale)
     model.scene_scale = float(scene.scene_radius)
     return config, DataManager(scene, device=config.device, seed=config.seed), model

@@ -344,6 +344,8 @@ class Trainer:
         self.callbacks = list(callbacks)
         self.device = resolve_device(self.config.device)  # before anything is written
         self.run_dir = prepare_run_dir(self.config)
+        if self.config.resume:
+            self._check_saved_config()  # before any data or model work
         set_compile(self.config.compile, user_cache_dir() / "inductor")
         self.timing: dict[str, float] = {}
         self.generator = seed_everything(self.config.seed)
@@ -374,8 +376,6 @@ class Trainer:
         self.stop_reason: str | None = None
         self._train_prior_s = 0.0
         self._train_t0: float | None = None
-        if self.config.resume:
-            self._check_saved_config()
         self.write_config()
 
     # ------------------------------------------------------------- config
@@ -403,9 +403,12 @@ class Trainer:
             old.pop(k, None)
             new.pop(k, None)
         diff = _config_diff(old, new)
-        if diff:
+        if diff:  # a resumed run must be the same experiment, or its results mean nothing
             shown = ", ".join(diff[:4]) + (f" and {len(diff) - 4} more" if len(diff) > 4 else "")
-            _say(f"warning: resuming with options that differ from the saved run: {shown}", "yellow")
+            raise DataError(
+                f"{path}: --resume cannot change the experiment: {shown} "
+                f"(resume with the saved settings, or start a new run)"
+            )
 
     # ------------------------------------------------------------ checkpoints
     @property

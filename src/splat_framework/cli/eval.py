@@ -16,6 +16,8 @@ class EvalArgs:
     """Run folder written by splat-train."""
     device: str | None = None
     """Torch device (default: the run's)."""
+    trust_edited_config: bool = False
+    """Use the run's config.json even when its checksum is missing or does not match (edited by hand)."""
     renders: bool = True
     """Rewrite the test-view pictures into RUN_DIR/renders."""
 
@@ -27,7 +29,7 @@ def main(args: EvalArgs) -> dict:
     from ..run import background_for, load_run
     from ..trainer import print_summary
 
-    config, dm, model = load_run(args.run_dir, args.device)
+    config, dm, model = load_run(args.run_dir, args.device, args.trust_edited_config)
     results = evaluate(model, dm, background_for(dm.scene, config.device), args.run_dir / "renders" if args.renders else None)
     path = args.run_dir / "metrics.json"
     metrics = read_json(path) if path.is_file() else {"method": config.method, "data": config.data, "timing": {}}

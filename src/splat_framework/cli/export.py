@@ -18,6 +18,8 @@ class ExportArgs:
     """Output PLY file (default RUN_DIR/point_cloud.ply)."""
     device: str = "cpu"
     """Torch device used to load the checkpoint."""
+    trust_edited_config: bool = False
+    """Use the run's config.json even when its checksum is missing or does not match (edited by hand)."""
 
 
 def main(args: ExportArgs) -> Path:
@@ -28,7 +30,7 @@ def main(args: ExportArgs) -> Path:
     out = args.ply if args.ply is not None else Path(args.run_dir) / "point_cloud.ply"
     if out.is_dir():
         raise DataError(f"{out}: is a folder; --ply names the file to write (e.g. {out / 'point_cloud.ply'})")
-    _, model = load_trained_model(args.run_dir, args.device)
+    _, model = load_trained_model(args.run_dir, args.device, trust_edits=args.trust_edited_config)
     export_ply(model, out)
     print(f"wrote {model.num_gaussians} Gaussians to {out}")
     return out

@@ -26,6 +26,8 @@ class RenderArgs:
     """Also write a colour-mapped depth video next to the RGB one (<out>_depth.mp4)."""
     device: str | None = None
     """Torch device (default: the run's)."""
+    trust_edited_config: bool = False
+    """Use the run's config.json even when its checksum is missing or does not match (edited by hand)."""
 
 
 def camera_path(kind: str, dm, frames: int) -> tuple[str, list]:
@@ -52,7 +54,7 @@ def main(args: RenderArgs) -> Path:
         raise DataError(f"--frames must be >= 1, got {args.frames}")
     if args.fps < 1:
         raise DataError(f"--fps must be >= 1, got {args.fps}")
-    config, dm, model = load_run(args.run_dir, args.device)
+    config, dm, model = load_run(args.run_dir, args.device, args.trust_edited_config)
     bg = background_for(dm.scene, config.device)
     if args.path == "test":
         out = args.out or args.run_dir / "renders"
