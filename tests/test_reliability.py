@@ -314,6 +314,27 @@ def test_sigint_in_process_saves_checkpoint(tmp_path):
     assert signal.getsignal(signal.SIGINT) is before  # handlers restored
 
 
+def test_a_second_sigint_during_the_checkpoint_write_waits_for_it(tmp_path, monkeypatch):
+    """Two SIGINTs close together: the second arrives while the stop's checkpoint is being written;
+    the write completes (nothing is lost) and the run ends as interrupted."""
+    def send_sigint(trainer, step):
+        if step == 3:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    real_save = trainer_mod.save_checkpoint
+
+    def save_with_a_second_signal(folder, step, payload, *a, **kw):
+        if step == 3:
+            os.kill(os.getpid(), signal.SIGINT)  # handled here, in the middle of the save
+        return real_save(folder, step, payload, *a, **kw)
+
+    monkeypatch.setattr(trainer_mod, "save_checkpoint", save_with_a_second_signal)
+    out = tmp_path / "run"
+    with pytest.raises(TrainingInterrupted, match="SIGINT at step 3/"):
+        Trainer(fixed_config("3dgs", out, default_steps=20, checkpoint_every=0), [send_sigint]).train()
+    assert load_latest(out / "checkpoints")[1]["step"] == 3
+
+
 def _cli(args, env, **kw):
     return subprocess.run([PY, "-m", "splat_framework.cli.train", *args], env=env, capture_output=True, text=True, **kw)
 

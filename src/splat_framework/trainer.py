@@ -283,13 +283,15 @@ _RUN_ONLY_FIELDS = ("resume", "overwrite", "progress", "output", "device", "eval
 def _stop_signals(trainer: "Trainer"):
     """Turn SIGINT/SIGTERM into a stop request the loop checks between steps.
 
-    A second signal while stopping raises KeyboardInterrupt at once.
+    A second signal while stopping raises KeyboardInterrupt at once, except while a
+    checkpoint is being written: that write finishes first (the stop then ends the run).
     """
 
     def handler(signum, frame):
-        if trainer.stop_reason is not None:
+        if trainer.stop_reason is None:
+            trainer.request_stop(signal.Signals(signum).name)
+        elif not getattr(trainer, "_saving", False):  # a checkpoint being written is never cut short
             raise KeyboardInterrupt
-        trainer.request_stop(signal.Signals(signum).name)
 
     sigs = (signal.SIGINT, signal.SIGTERM)
     old = {}
@@ -444,8 +446,14 @@ class Trainer:
         }
 
     def save(self, step: int) -> Path:
-        """Write the checkpoint of ``step`` (CheckpointError, one line, on failure)."""
-        return save_checkpoint(self.checkpoint_dir, step, self.state_payload(step))
+        """Write the checkpoint of ``step`` (CheckpointError, one line, on failure).
+
+        A stop signal that arrives meanwhile waits for the write to finish."""
+        self._saving = True
+        try:
+            return save_checkpoint(self.checkpoint_dir, step, self.state_payload(step))
+        finally:
+            self._saving = False
 
     def _load_state(self, path: Path, ck: dict) -> None:
         dev = self.device
