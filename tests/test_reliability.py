@@ -335,6 +335,27 @@ def test_a_second_sigint_during_the_checkpoint_write_waits_for_it(tmp_path, monk
     assert load_latest(out / "checkpoints")[1]["step"] == 3
 
 
+def test_a_stop_during_setup_leaves_no_empty_run_folder(tmp_path, monkeypatch):
+    """Ctrl-C during the setup (SCGaussian: matching and warm-up) of a new run: the empty run folder is
+    removed and the message says nothing was trained; for a resumed run the folder is left as it was."""
+    def interrupted(*a, **kw):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(GaussianModel, "from_data", classmethod(interrupted))
+    out = tmp_path / "run"
+    with pytest.raises(TrainingInterrupted, match="before any training step: nothing was trained.*removed"):
+        Trainer(fixed_config("3dgs", out, default_steps=20))
+    assert not out.exists()
+    monkeypatch.undo()
+    with pytest.raises(TrainingInterrupted, match="test stop at step 3/"):
+        Trainer(fixed_config("3dgs", out, default_steps=20), [stop_at(3)]).train()
+    files = sorted(p.relative_to(out) for p in out.rglob("*"))
+    monkeypatch.setattr(GaussianModel, "from_data", classmethod(interrupted))
+    with pytest.raises(TrainingInterrupted, match=r"is unchanged \(continue with --resume\)"):
+        Trainer(fixed_config("3dgs", out, default_steps=20, resume=True))
+    assert sorted(p.relative_to(out) for p in out.rglob("*")) == files
+
+
 def _cli(args, env, **kw):
     return subprocess.run([PY, "-m", "splat_framework.cli.train", *args], env=env, capture_output=True, text=True, **kw)
 

@@ -90,7 +90,8 @@ DENSIFY_GROWTH = 3
 
 
 class TrainingInterrupted(Exception):
-    """SIGINT/SIGTERM arrived; a checkpoint was written. The CLIs exit with code 130."""
+    """SIGINT/SIGTERM arrived; the message says what was saved (a checkpoint, or nothing during
+    setup). The CLIs exit with code 130."""
 
     cli_exit_code = 130
     cli_prefix = "stopped"
@@ -345,9 +346,18 @@ class Trainer:
         self.config = resolve_steps(config)
         self.callbacks = list(callbacks)
         self.device = resolve_device(self.config.device)  # before anything is written
+        out = self.config.output
+        fresh = out is None or not Path(out).exists() or (Path(out).is_dir() and not any(Path(out).iterdir()))
         self.run_dir = prepare_run_dir(self.config)
         if self.config.resume:
             self._check_saved_config()  # before any data or model work
+        try:
+            self._setup()
+        except KeyboardInterrupt:
+            raise TrainingInterrupted(self._setup_interrupted(fresh)) from None
+
+    def _setup(self) -> None:
+        """Data, model (SCGaussian: matching, warm-up), optimizers and strategy."""
         set_compile(self.config.compile, user_cache_dir() / "inductor")
         self.timing: dict[str, float] = {}
         self.generator = seed_everything(self.config.seed)
@@ -379,6 +389,14 @@ class Trainer:
         self._train_prior_s = 0.0
         self._train_t0: float | None = None
         self.write_config()
+
+    def _setup_interrupted(self, fresh: bool) -> str:
+        """The one-line message of a stop during setup; a run folder this run created (still empty) is removed."""
+        what = "interrupted during setup (data, matching, warm-up), before any training step"
+        if fresh and self.run_dir.is_dir() and not any(self.run_dir.iterdir()):
+            self.run_dir.rmdir()
+            return f"{what}: nothing was trained, {self.run_dir} removed (start the run again)"
+        return f"{what}: {self.run_dir} is unchanged" + (" (continue with --resume)" if self.config.resume else "")
 
     # ------------------------------------------------------------- config
     def config_payload(self) -> dict:
