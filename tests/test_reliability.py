@@ -144,6 +144,40 @@ def test_corrupt_checkpoint_on_resume_falls_back_to_previous(tmp_path, capsys):
         Trainer(cfg_fn(out, resume=True)).restore()
 
 
+@pytest.mark.parametrize("damage", ["missing parameter", "wrong shape", "float64", "optimizer shape", "rows differ"])
+def test_a_checkpoint_with_a_valid_checksum_but_wrong_contents_falls_back(tmp_path, capsys, damage):
+    """A checksum proves the bytes, not the layout: a newest checkpoint with a missing parameter, a wrong
+    shape or dtype is reported in one line and the previous one is used, by --resume and by splat-eval,
+    splat-render and splat-export (load_trained_model)."""
+    from splat_framework.run import load_trained_model
+
+    out = tmp_path / "run"
+    cfg_fn = lambda out, **kw: fixed_config("3dgs", out, checkpoint_every=5, **kw)  # noqa: E731
+    with pytest.raises(TrainingInterrupted):
+        Trainer(cfg_fn(out), [stop_at(10)]).train()
+    ck = load_checkpoint(checkpoint_path(out / "checkpoints", 10))
+    params = ck["params"]
+    if damage == "missing parameter":
+        del params["shN"]
+    elif damage == "wrong shape":
+        params["means"] = params["means"][:, :2].contiguous()
+    elif damage == "float64":
+        params["means"] = params["means"].double()
+    elif damage == "optimizer shape":
+        ck["optimizers"]["means"]["state"][0]["exp_avg"] = torch.zeros(3, 3)
+    else:
+        params["opacities"] = params["opacities"][:-1]
+    save_checkpoint(out / "checkpoints", 10, ck)  # a valid checksum over the wrong contents
+    capsys.readouterr()
+    resumed = Trainer(cfg_fn(out, resume=True))
+    assert resumed.restore() and resumed.start_step == 5
+    bad = [line for line in capsys.readouterr().err.splitlines() if "step-0000010.ckpt" in line]
+    assert len(bad) == 1 and "previous checkpoint" in bad[0], bad
+    with pytest.warns(UserWarning, match="step-0000010.ckpt.*previous checkpoint"):
+        _, model = load_trained_model(out)
+    assert model.num_gaussians == resumed.model.num_gaussians
+
+
 def test_checkpoint_verification_unit(tmp_path):
     folder = tmp_path / "ck"
     save_checkpoint(folder, 1, {"step": 1, "params": {"x": torch.ones(3)}})

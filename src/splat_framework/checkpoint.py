@@ -19,9 +19,10 @@ import io
 import re
 import warnings
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Mapping, TypeVar
 
 import torch
+from torch import Tensor
 
 from .errors import CheckpointError  # noqa: F401  (re-exported)
 from .io import atomic_write_bytes
@@ -29,6 +30,7 @@ from .io import atomic_write_bytes
 MAGIC = b"SPLATCKPT1\n"
 KEEP = 2
 _NAME = re.compile(r"^step-(\d+)\.ckpt$")
+T = TypeVar("T")
 
 
 def checkpoint_path(folder: Path, step: int) -> Path:
@@ -133,18 +135,64 @@ def _warn(message: str) -> None:
     warnings.warn(message, stacklevel=3)
 
 
+def check_structure(path: Path, ck: dict, like: Mapping[str, Tensor] | None = None) -> None:
+    """Raise CheckpointError (one line naming ``path``) unless the payload has the layout
+    training and rendering rely on: ``params`` a non-empty dict of float32 tensors with one
+    common row count (one row per Gaussian), each optimizer's moments shaped like its
+    parameter, and, given ``like`` (a model's parameters), the same names and per-row shapes.
+    A checksum proves the bytes are what was written, not that the writer was this code."""
+    params = ck.get("params")
+    if not isinstance(params, dict) or not params or not all(torch.is_tensor(v) for v in params.values()):
+        raise CheckpointError(f"{path}: 'params' is not a dict of tensors")
+    for k, v in params.items():
+        if v.dtype != torch.float32 or v.dim() == 0:
+            raise CheckpointError(f"{path}: params[{k!r}] is {v.dtype} {tuple(v.shape)}, expected float32 rows")
+    rows = {v.shape[0] for v in params.values()}
+    if len(rows) != 1:
+        raise CheckpointError(f"{path}: params have different row counts {sorted(rows)}")
+    if like is not None:
+        if set(params) != set(like):
+            raise CheckpointError(f"{path}: params {sorted(params)} do not match the model's {sorted(like)}")
+        for k, v in params.items():
+            if v.shape[1:] != like[k].shape[1:]:
+                raise CheckpointError(
+                    f"{path}: params[{k!r}] rows are {tuple(v.shape[1:])}, the model's {tuple(like[k].shape[1:])}"
+                )
+    optimizers = ck.get("optimizers", {})
+    if not isinstance(optimizers, dict):
+        raise CheckpointError(f"{path}: 'optimizers' is not a dict")
+    for k, o in optimizers.items():
+        states = o.get("state", {}) if isinstance(o, dict) else None
+        if k not in params or not isinstance(states, dict):
+            raise CheckpointError(f"{path}: optimizer {k!r} has no parameter or no state")
+        for st in states.values():
+            for name, t in (st.items() if isinstance(st, dict) else ()):
+                if torch.is_tensor(t) and t.dim() > 0 and t.shape != params[k].shape:
+                    raise CheckpointError(f"{path}: optimizer {k!r} {name} is {tuple(t.shape)}, "
+                                          f"params[{k!r}] {tuple(params[k].shape)}")
+
+
 def load_latest(
-    folder: Path, map_location="cpu", report: Callable[[str], None] | None = None
-) -> tuple[Path, dict] | None:
+    folder: Path,
+    map_location="cpu",
+    report: Callable[[str], None] | None = None,
+    accept: Callable[[Path, dict], T] | None = None,
+) -> tuple[Path, T] | None:
     """The newest checkpoint in ``folder`` that verifies, or None when none does.
 
-    Each bad file is reported through ``report(message)`` (default: a warning)
-    before the previous one is tried.
+    ``accept(path, payload)`` (default: :func:`check_structure`, returning the payload)
+    turns a verified payload into what the caller needs and may raise CheckpointError
+    to reject it. Each rejected file is reported through ``report(message)`` (default:
+    a warning) before the previous one is tried.
     """
     report = report or _warn
     for path in reversed(list_checkpoints(folder)):
         try:
-            return path, load_checkpoint(path, map_location)
+            ck = load_checkpoint(path, map_location)
+            if accept is None:
+                check_structure(path, ck)
+                return path, ck
+            return path, accept(path, ck)
         except CheckpointError as e:
             report(f"{e}; trying the previous checkpoint")
     return None

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import torch
 
-from .checkpoint import load_latest
+from .checkpoint import check_structure, load_latest
 from .config import read_config_json
 from .data.resolve import user_cache_dir
 from .devices import resolve_device
@@ -35,13 +35,32 @@ def load_trained_model(run_dir: Path, device: str | None = None, scene_scale: fl
     if device is not None:
         config = config.model_copy(update={"device": device})
     resolve_device(config.device, "--device" if device is not None else str(cfg_path))
-    found = load_latest(run_dir / "checkpoints")
+
+    def rebuild(path: Path, ck: dict):
+        check_structure(path, ck)
+        try:
+            model = spec.model_class().from_checkpoint(config, scene_scale, ck)
+            _renders(model)
+        except (KeyError, ValueError, TypeError, IndexError, RuntimeError) as e:  # e.g. wrong per-row shapes
+            first = (str(e).splitlines() or [""])[0]
+            raise CheckpointError(f"{path}: not a {method} model ({type(e).__name__}: {first})") from None
+        return model
+
+    found = load_latest(run_dir / "checkpoints", accept=rebuild)
     if found is None:
         raise CheckpointError(f"{run_dir / 'checkpoints'}: no valid checkpoint")
-    _, ck = found
-    model = spec.model_class().from_checkpoint(config, scene_scale, ck).to(config.device)
+    model = found[1].to(config.device)
     set_compile(config.compile, user_cache_dir() / "inductor")
     return config, model
+
+
+def _renders(model) -> None:
+    """Render a 4x4 image of ``model`` (raises if its parameters do not fit the rasterizer)."""
+    from .cameras import Camera, intrinsics
+
+    cam = Camera(K=intrinsics(4.0, 4.0, 2.0, 2.0), world_to_cam=torch.eye(4), width=4, height=4)
+    with torch.no_grad():
+        model.get_outputs(cam)
 
 
 def load_run(run_dir: Path, device: str | None = None, trust_edits: bool = False):

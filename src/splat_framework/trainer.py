@@ -55,6 +55,7 @@ from rich.text import Text
 
 from .checkpoint import (
     CheckpointError,
+    check_structure,
     list_checkpoints,
     load_checkpoint,
     load_latest,
@@ -476,10 +477,6 @@ class Trainer:
     def _load_state(self, path: Path, ck: dict) -> None:
         dev = self.device
         old = self.model.params
-        if set(ck["params"]) != set(old.keys()):
-            raise CheckpointError(
-                f"{path}: checkpoint parameters {sorted(ck['params'])} do not match the model's {sorted(old.keys())}"
-            )
         self.model.params = torch.nn.ParameterDict(
             {k: torch.nn.Parameter(v.to(dev), requires_grad=old[k].requires_grad) for k, v in ck["params"].items()}
         )
@@ -504,7 +501,7 @@ class Trainer:
 
     def load(self, path: Path) -> int:
         """Load the training state of one checkpoint file (CheckpointError if it does not verify); its step."""
-        self._load_state(Path(path), load_checkpoint(path))
+        self._restore_from(Path(path), load_checkpoint(path))
         return self.start_step
 
     def restore(self) -> bool:
@@ -514,7 +511,7 @@ class Trainer:
         the previous one is used; CheckpointError when checkpoint files exist
         but none verifies.
         """
-        found = load_latest(self.checkpoint_dir, report=lambda msg: _say(f"warning: {msg}", "yellow"))
+        found = self._load_latest_state()
         if found is None:
             if list_checkpoints(self.checkpoint_dir):
                 raise CheckpointError(
@@ -522,7 +519,6 @@ class Trainer:
                 )
             return False
         path, ck = found
-        self._load_state(path, ck)
         self.skipped_steps = int(ck.get("skipped_steps", 0))
         self.restores = int(ck.get("restores", 0))
         timing = dict(ck.get("timing", {}))
@@ -530,6 +526,24 @@ class Trainer:
         self.timing.update(timing)
         _say(f"resumed from {path} (step {self.start_step})", "cyan")
         return True
+
+    def _load_latest_state(self) -> tuple[Path, dict] | None:
+        """Load the newest checkpoint that verifies and restores (see :meth:`_restore_from`);
+        a bad newer one is reported and the previous one tried."""
+        return load_latest(
+            self.checkpoint_dir, report=lambda msg: _say(f"warning: {msg}", "yellow"), accept=self._restore_from
+        )
+
+    def _restore_from(self, path: Path, ck: dict) -> dict:
+        """Load a verified payload into the trainer after checking its structure against the model
+        (parameter names and per-row shapes, float32, optimizer moments); CheckpointError otherwise."""
+        check_structure(path, ck, self.model.params)
+        try:
+            self._load_state(path, ck)
+        except (KeyError, ValueError, TypeError, IndexError, RuntimeError) as e:  # e.g. a crafted model_state
+            first = (str(e).splitlines() or [""])[0]
+            raise CheckpointError(f"{path}: cannot restore ({type(e).__name__}: {first})") from None
+        return ck
 
     def request_stop(self, reason: str = "stop requested") -> None:
         """Stop after the current step, writing a checkpoint (what SIGINT/SIGTERM do)."""
@@ -618,11 +632,10 @@ class Trainer:
                 f"training diverged: {why}; {self.restores} checkpoint restores with lower learning rates did not help "
                 f"({self.skipped_steps} steps skipped)"
             )
-        found = load_latest(self.checkpoint_dir, report=lambda msg: _say(f"warning: {msg}", "yellow"))
+        found = self._load_latest_state()
         if found is None:
             raise TrainingDiverged(f"training diverged: {why} and no checkpoint to restore ({self.skipped_steps} steps skipped)")
         path, ck = found
-        self._load_state(path, ck)
         self.restores += 1
         self.lr_factor *= 0.5
         self.nonfinite_streak = 0
