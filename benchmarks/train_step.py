@@ -8,7 +8,8 @@ timed, with the phases of the step measured by :mod:`splat_framework.profiling`
 sections (projection, binning, compositing forward and backward, photometric
 loss, rendering-geometry loss, the rest of backward, finiteness checks,
 optimizer, densification, model hooks, metrics). A second pass of the same steps
-under ``torch.profiler`` gives the time spent inside tensor operations; the rest
+under ``torch.profiler`` gives the time spent inside tensor operations (ATen
+operators and compiled graphs); the rest
 of the wall time is Python, dispatch and host-sync overhead.
 
 Snapshots are kept under ``--work`` (default ``$SPLAT_CACHE/bench-train-step``,
@@ -156,7 +157,7 @@ def load_snapshot(trainer, path: Path) -> None:
 
 
 def op_time(trainer, start: int, steps: int) -> dict:
-    """Fraction of the wall time spent inside tensor operations (torch.profiler, CPU)."""
+    """Fraction of the wall time spent inside ATen operators and compiled graphs (torch.profiler, CPU)."""
     from torch.profiler import ProfilerActivity, profile
 
     t0 = time.perf_counter()
@@ -165,14 +166,20 @@ def op_time(trainer, start: int, steps: int) -> dict:
             trainer.train_step(start + k)
     wall = time.perf_counter() - t0
     events = prof.key_averages()
-    ops_us = sum(e.self_cpu_time_total for e in events if e.key.startswith("aten::"))
-    top = sorted((e for e in events if e.key.startswith("aten::")), key=lambda e: -e.self_cpu_time_total)[:12]
+    ops = [e for e in events if _is_tensor_op(e.key)]
+    ops_us = sum(e.self_cpu_time_total for e in ops)
+    top = sorted(ops, key=lambda e: -e.self_cpu_time_total)[:12]
     return {
         "wall_s": wall / steps,
         "ops_s": ops_us / 1e6 / steps,
         "top_ops": [{"op": e.key, "ms_per_step": e.self_cpu_time_total / 1e3 / steps, "calls_per_step": e.count / steps}
                     for e in top],
     }
+
+
+def _is_tensor_op(key: str) -> bool:
+    """An ATen operator or a call of a torch.compile'd graph (its fused kernels run inside it)."""
+    return key.startswith("aten::") or key.startswith("## Call CompiledFxGraph")
 
 
 def measure(method: str, args: argparse.Namespace) -> list[dict]:

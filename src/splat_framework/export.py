@@ -21,6 +21,7 @@ Gaussian attributes.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -106,12 +107,15 @@ def export_ply(model, path: Path) -> Path:
     return write_ply(path, gaussians_for_export(model))
 
 
+_MAX_HEADER_LINES = 10_000
+
+
 def _read_header(f, path: Path) -> tuple[str, int, list[tuple[str, str]], list[str]]:
     if f.readline().strip() != b"ply":
         raise DataError(f"{path}: not a PLY file")
     fmt, n_vertex, props, order = None, None, [], []
     element = None
-    while True:
+    for lineno in range(2, _MAX_HEADER_LINES + 2):
         line = f.readline()
         if not line:
             raise DataError(f"{path}: PLY header has no end_header")
@@ -120,21 +124,31 @@ def _read_header(f, path: Path) -> tuple[str, int, list[tuple[str, str]], list[s
             continue
         if words[0] == "end_header":
             break
-        if words[0] == "format":
-            fmt = words[1]
-        elif words[0] == "element":
-            element = words[1]
-            order.append(element)
-            if element == "vertex":
-                n_vertex = int(words[2])
-            elif n_vertex is None:
-                raise DataError(f"{path}: PLY element '{element}' before 'vertex' is not supported")
-        elif words[0] == "property" and element == "vertex":
-            if words[1] == "list":
-                raise DataError(f"{path}: list properties in 'vertex' are not supported")
-            if words[1] not in _PLY_TYPES:
-                raise DataError(f"{path}: unknown PLY property type '{words[1]}'")
-            props.append((words[2], _PLY_TYPES[words[1]]))
+        try:
+            if words[0] == "format":
+                fmt = words[1]
+            elif words[0] == "element":
+                element = words[1]
+                order.append(element)
+                if element == "vertex":
+                    n_vertex = int(words[2])
+                    if n_vertex < 0:
+                        raise ValueError("negative count")
+                elif n_vertex is None:
+                    raise DataError(f"{path}: PLY element '{element}' before 'vertex' is not supported")
+            elif words[0] == "property" and element == "vertex":
+                if words[1] == "list":
+                    raise DataError(f"{path}: list properties in 'vertex' are not supported")
+                if words[1] not in _PLY_TYPES:
+                    raise DataError(f"{path}: unknown PLY property type '{words[1]}'")
+                if any(words[2] == name for name, _ in props):
+                    raise DataError(f"{path}: PLY property '{words[2]}' appears twice")
+                props.append((words[2], _PLY_TYPES[words[1]]))
+        except (IndexError, ValueError):
+            shown = line[:80].decode("ascii", "replace").strip()
+            raise DataError(f"{path}: malformed PLY header line {lineno}: {shown!r}") from None
+    else:
+        raise DataError(f"{path}: PLY header has no end_header within {_MAX_HEADER_LINES} lines")
     if fmt not in ("binary_little_endian", "binary_big_endian"):
         raise DataError(f"{path}: PLY format '{fmt}' is not supported (binary only)")
     if n_vertex is None:
@@ -160,9 +174,10 @@ def load_ply(path: Path, device: str | torch.device = "cpu") -> dict[str, Tensor
         fmt, n, props, names = _read_header(f, path)
         endian = "<" if fmt == "binary_little_endian" else ">"
         dtype = np.dtype([(name, endian + t) for name, t in props])
+        available = os.fstat(f.fileno()).st_size - f.tell()
+        if n * dtype.itemsize > available:  # checked before allocating anything of that size
+            raise DataError(f"{path}: PLY file is truncated ({available} of {n * dtype.itemsize} vertex bytes)")
         data = f.read(n * dtype.itemsize)
-    if len(data) < n * dtype.itemsize:
-        raise DataError(f"{path}: PLY file is truncated ({len(data)} of {n * dtype.itemsize} vertex bytes)")
     v = np.frombuffer(data, dtype=dtype, count=n)
     required = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity"] + [f"scale_{i}" for i in range(3)] + [
         f"rot_{i}" for i in range(4)
@@ -170,7 +185,10 @@ def load_ply(path: Path, device: str | torch.device = "cpu") -> dict[str, Tensor
     missing = [r for r in required if r not in names]
     if missing:
         raise DataError(f"{path}: not a Gaussian-splat PLY (missing {', '.join(missing)})")
-    rest = sorted((p for p in names if p.startswith("f_rest_")), key=lambda s: int(s.split("_")[-1]))
+    rest = [p for p in names if p.startswith("f_rest_")]
+    if sorted(rest) != sorted(f"f_rest_{i}" for i in range(len(rest))):
+        raise DataError(f"{path}: f_rest properties are not f_rest_0 ... f_rest_{len(rest) - 1}")
+    rest = [f"f_rest_{i}" for i in range(len(rest))]
     if len(rest) % 3:
         raise DataError(f"{path}: {len(rest)} f_rest properties is not a multiple of 3")
     k1 = len(rest) // 3

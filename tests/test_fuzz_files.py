@@ -1,0 +1,219 @@
+"""Crafted and fuzzed files: every PLY, TOML variant, config.json and checkpoint ends in a result or a
+one-line DataError / CheckpointError naming the file, never another exception (issue 17, item 11 and
+the fuzz harness)."""
+
+from __future__ import annotations
+
+import io
+import tempfile
+import warnings
+from pathlib import Path
+
+import pytest
+import torch
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from splat_framework import registry
+from splat_framework.checkpoint import MAGIC, check_structure, load_checkpoint, save_checkpoint
+from splat_framework.config import read_config_json, save_config
+from splat_framework.errors import CheckpointError, DataError
+from splat_framework.export import load_ply, write_ply
+
+FUZZ = settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+def _gaussians(n=5, k1=3):
+    g = torch.Generator().manual_seed(n)
+    return {
+        "means": torch.randn(n, 3, generator=g), "quats": torch.randn(n, 4, generator=g),
+        "scales": torch.randn(n, 3, generator=g), "opacities": torch.randn(n, generator=g),
+        "sh0": torch.randn(n, 1, 3, generator=g), "shN": torch.randn(n, k1, 3, generator=g),
+    }
+
+
+def _valid_ply() -> bytes:
+    with tempfile.TemporaryDirectory() as d:
+        return write_ply(Path(d) / "g.ply", _gaussians()).read_bytes()
+
+
+VALID_PLY = _valid_ply()
+HEADER, BODY = VALID_PLY.split(b"end_header\n", 1)
+
+
+def _one_line_error(fn, *kinds):
+    """Call ``fn``; it returns, or raises one of ``kinds`` with a one-line message. Returns the message or None."""
+    try:
+        fn()
+    except kinds as e:
+        msg = str(e)
+        assert msg and "\n" not in msg, msg
+        return msg
+    return None
+
+
+# ------------------------------------------------------------------ PLY, crafted
+def _with_header(lines: list[str], body: bytes = BODY) -> bytes:
+    return ("\n".join(lines) + "\n").encode() + body
+
+
+def _header_lines() -> list[str]:
+    return HEADER.decode().splitlines() + ["end_header"]
+
+
+def _replace(lines, prefix, new):
+    return [new if ln.startswith(prefix) else ln for ln in lines]
+
+
+CRAFTED = {
+    "truncated body": VALID_PLY[:-7],
+    "vertex count larger than the file": _with_header(_replace(_header_lines(), "element vertex", "element vertex 99999999999")),
+    "vertex count beyond int64": _with_header(_replace(_header_lines(), "element vertex", "element vertex 1" + "0" * 30)),
+    "negative vertex count": _with_header(_replace(_header_lines(), "element vertex", "element vertex -3")),
+    "vertex count not a number": _with_header(_replace(_header_lines(), "element vertex", "element vertex many")),
+    "element without a count": _with_header(_replace(_header_lines(), "element vertex", "element vertex")),
+    "unknown property type": _with_header(_replace(_header_lines(), "property float x", "property float128 x")),
+    "property without a name": _with_header(_replace(_header_lines(), "property float x", "property float")),
+    "duplicate property": _with_header(_replace(_header_lines(), "property float y", "property float x")),
+    "f_rest with a bad suffix": _with_header(_replace(_header_lines(), "property float f_rest_0", "property float f_rest_zero")),
+    "format without a value": _with_header(_replace(_header_lines(), "format", "format")),
+    "ascii format": _with_header(_replace(_header_lines(), "format", "format ascii 1.0")),
+    "no end_header": HEADER + b"\n",
+    "empty": b"",
+    "not a ply": b"solid cube\n",
+}
+
+
+@pytest.mark.parametrize("case", sorted(CRAFTED))
+def test_crafted_ply_files_give_one_line_errors(tmp_path, case):
+    path = tmp_path / "bad.ply"
+    path.write_bytes(CRAFTED[case])
+    msg = _one_line_error(lambda: load_ply(path), DataError)
+    assert msg is not None and str(path) in msg, (case, msg)
+
+
+# ------------------------------------------------------------------ PLY, fuzzed
+@FUZZ
+@given(st.data())
+def test_fuzzed_ply_files_load_or_raise_data_error(data):
+    kind = data.draw(st.sampled_from(["bytes", "cut", "flip", "header line"]))
+    if kind == "bytes":
+        blob = data.draw(st.binary(max_size=400))
+        if data.draw(st.booleans()):
+            blob = b"ply\n" + blob
+    elif kind == "cut":
+        blob = VALID_PLY[: data.draw(st.integers(0, len(VALID_PLY)))]
+    elif kind == "flip":
+        blob = bytearray(VALID_PLY)
+        for _ in range(data.draw(st.integers(1, 8))):
+            i = data.draw(st.integers(0, len(HEADER) + 20))
+            blob[i] = data.draw(st.integers(0, 255))
+        blob = bytes(blob)
+    else:
+        lines = _header_lines()
+        i = data.draw(st.integers(1, len(lines) - 1))
+        words = data.draw(st.lists(st.sampled_from(
+            ["element", "vertex", "face", "property", "float", "uchar", "list", "x", "f_rest_1", "-1", "0", "7",
+             "99999999999999999999", "format", "binary_big_endian", "end_header", "comment", "\x00"]), max_size=4))
+        lines.insert(i, " ".join(words))
+        blob = _with_header(lines)
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "f.ply"
+        path.write_bytes(blob)
+        _one_line_error(lambda: load_ply(path), DataError)
+
+
+# ------------------------------------------------------------------ TOML variants
+TOML_PIECES = ['base = "3dgs"', 'base = "nope"', "base = 3", '[overrides]', '[overrides.model]', "steps = 5",
+               "steps = -1", 'sh_degree = "three"', "sh_degree = 2", "overrides = 3", "[[overrides]]", "x = [1, 2",
+               'description = "d"', "description = 5", "[overrides.strategy]", "refine_every = 0", "= 1", "\x00"]
+
+
+@FUZZ
+@given(st.lists(st.sampled_from(TOML_PIECES), max_size=6))
+def test_fuzzed_toml_variants_never_break_discovery(pieces):
+    with tempfile.TemporaryDirectory() as d:
+        (Path(d) / "fuzzed.toml").write_text("\n".join(pieces) + "\n")
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            methods = registry.discover_methods([Path(d)])
+        assert "3dgs" in methods and "scgaussian" in methods
+        for w in caught:
+            assert "\n" not in str(w.message), str(w.message)
+        if "fuzzed" in methods:
+            methods["fuzzed"].default_config()  # a variant that was accepted builds its config
+
+
+# ------------------------------------------------------------------ config.json
+def _valid_config_json() -> bytes:
+    cfg = registry.get_method("3dgs").default_config()
+    with tempfile.TemporaryDirectory() as d:
+        save_config(cfg, Path(d) / "config.json")
+        return (Path(d) / "config.json").read_bytes()
+
+
+VALID_CONFIG = _valid_config_json()
+
+
+@FUZZ
+@given(st.data())
+def test_fuzzed_config_json_reads_or_raises_data_error(data):
+    blob = bytearray(VALID_CONFIG)
+    if data.draw(st.booleans()):
+        blob = blob[: data.draw(st.integers(0, len(blob)))]
+    for _ in range(data.draw(st.integers(0, 4))):
+        if blob:
+            blob[data.draw(st.integers(0, len(blob) - 1))] = data.draw(st.integers(0, 255))
+    trust = data.draw(st.booleans())
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "config.json"
+        path.write_bytes(bytes(blob))
+        _one_line_error(lambda: read_config_json(path, trust_edits=trust), DataError)
+
+
+# ------------------------------------------------------------------ checkpoints
+PAYLOADS = {
+    "not a dict": [1, 2],
+    "no params": {"step": 1},
+    "params not a dict": {"step": 1, "params": [torch.ones(2)]},
+    "empty params": {"step": 1, "params": {}},
+    "a scalar parameter": {"step": 1, "params": {"x": torch.tensor(1.0)}},
+    "int parameter": {"step": 1, "params": {"x": torch.ones(3, dtype=torch.int64)}},
+    "rows differ": {"step": 1, "params": {"x": torch.ones(3), "y": torch.ones(4)}},
+    "optimizers not a dict": {"step": 1, "params": {"x": torch.ones(3)}, "optimizers": 5},
+    "optimizer for nothing": {"step": 1, "params": {"x": torch.ones(3)}, "optimizers": {"z": {"state": {}}}},
+    "moments of another shape": {"step": 1, "params": {"x": torch.ones(3)},
+                                 "optimizers": {"x": {"state": {0: {"exp_avg": torch.ones(5)}}}}},
+}
+
+
+@pytest.mark.parametrize("case", sorted(PAYLOADS))
+def test_checkpoint_payloads_with_a_valid_checksum_are_checked(tmp_path, case):
+    buf = io.BytesIO()
+    torch.save(PAYLOADS[case], buf)
+    import hashlib
+
+    data = buf.getvalue()
+    path = tmp_path / "step-0000001.ckpt"
+    path.write_bytes(MAGIC + hashlib.sha256(data).hexdigest().encode() + b"\n" + data)
+
+    def load_and_check():
+        check_structure(path, load_checkpoint(path))
+
+    msg = _one_line_error(load_and_check, CheckpointError)
+    assert msg is not None and str(path) in msg, (case, msg)
+
+
+@FUZZ
+@given(st.data())
+def test_fuzzed_checkpoint_files_load_or_raise_checkpoint_error(data):
+    with tempfile.TemporaryDirectory() as d:
+        good = save_checkpoint(Path(d), 1, {"step": 1, "params": {"x": torch.ones(3)}})
+        blob = bytearray(good.read_bytes())
+        if data.draw(st.booleans()):
+            blob = blob[: data.draw(st.integers(0, len(blob)))]
+        for _ in range(data.draw(st.integers(0, 4))):
+            if blob:
+                blob[data.draw(st.integers(0, len(blob) - 1))] = data.draw(st.integers(0, 255))
+        good.write_bytes(bytes(blob))
+        _one_line_error(lambda: check_structure(good, load_checkpoint(good)), CheckpointError)
