@@ -248,3 +248,40 @@ def test_trainer_checks_the_strategy_conventions(tmp_path, monkeypatch):
     monkeypatch.setattr(GaussianModel, "make_optimizers", lambda self: {k: v for k, v in real(self).items() if k != "quats"})
     with pytest.raises(ValueError, match="quats.*no optimizer"):
         Trainer(tiny_config(tmp_path / "run", steps=5, progress=False))
+
+
+def test_the_model_picks_the_strategy_and_the_trainer_runs_any_strategy(tmp_path, monkeypatch):
+    """The densification strategy is a seam: a model's ``make_strategy`` may return any Strategy
+    subclass (here one that counts its calls and never densifies), and the trainer runs it."""
+    from splat_framework.model.gaussians import GaussianModel
+    from splat_framework.model.strategy import DefaultStrategy, Strategy
+
+    class Counting(Strategy):
+        def __init__(self):
+            self.calls = {"sanity": 0, "pre": 0, "post": 0}
+
+        def initialize_state(self, scene_scale=1.0):
+            return {"scene_scale": scene_scale, "seen": 0}
+
+        def check_sanity(self, params, optimizers):
+            self.calls["sanity"] += 1
+
+        def step_pre_backward(self, params, optimizers, state, step, info):
+            self.calls["pre"] += 1
+
+        def step_post_backward(self, params, optimizers, state, step, info):
+            self.calls["post"] += 1
+            state["seen"] += 1
+            return {}
+
+    assert isinstance(Trainer(tiny_config(tmp_path / "default", steps=4, progress=False)).strategy, DefaultStrategy)
+    monkeypatch.setattr(GaussianModel, "make_strategy", lambda self: Counting())
+    trainer = Trainer(tiny_config(tmp_path / "run", steps=12, progress=False))
+    n0 = trainer.model.num_gaussians
+    trainer.train()
+    s = trainer.strategy
+    assert isinstance(s, Counting) and s.calls == {"sanity": 1, "pre": 12, "post": 12}
+    assert trainer.strategy_state["seen"] == 12 and trainer.model.num_gaussians == n0  # never densified
+    monkeypatch.setattr(GaussianModel, "make_strategy", lambda self: object())
+    with pytest.raises(TypeError, match="not a Strategy"):
+        Trainer(tiny_config(tmp_path / "run2", steps=4, progress=False))

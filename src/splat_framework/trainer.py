@@ -70,7 +70,7 @@ from .data.datamanager import estimate_image_bytes
 from .evaluation import evaluate
 from .io import atomic_write_json, read_json
 from .metrics import psnr
-from .model.strategy import DefaultStrategy
+from .model.strategy import Strategy
 from .profiling import section
 from .render import set_compile
 from .registry import get_method
@@ -378,7 +378,9 @@ class Trainer:
         self.timing.update(getattr(self.model, "init_timing", {}))
         self.timing["init_s"] = time.perf_counter() - t0 - sum(getattr(self.model, "init_timing", {}).values())
         self.optimizers = self.model.make_optimizers()
-        self.strategy = DefaultStrategy(self.config.strategy)
+        self.strategy = self.model.make_strategy()
+        if not isinstance(self.strategy, Strategy):
+            raise TypeError(f"{type(self.model).__name__}.make_strategy() returned {type(self.strategy).__name__}, not a Strategy")
         self.strategy.check_sanity(self.model.params, self.optimizers)  # a model breaking the ops conventions fails here
         self.strategy_state = self.strategy.initialize_state(scene_scale=self.model.scene_scale)
         self.start_step = 0

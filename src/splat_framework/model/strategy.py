@@ -35,10 +35,54 @@ from torch import Tensor
 from splat_framework.config import DensifyConfig
 from splat_framework.model.ops import duplicate, remove, reset_opa, split
 
-__all__ = ["DefaultStrategy", "DensifyConfig"]
+__all__ = ["DefaultStrategy", "DensifyConfig", "Strategy"]
 
 
-class DefaultStrategy:
+class Strategy:
+    """What the trainer calls to grow and prune Gaussians: the seam a plugin overrides.
+
+    A model picks its strategy in ``GaussianModel.make_strategy`` (default:
+    :class:`DefaultStrategy`); a plugin returns its own subclass there (an
+    MCMC-style relocation, anchor growing, ...) without touching the trainer. A
+    strategy sees plain dicts only, never the model: ``params`` (name -> [N, ...]
+    tensors, one row per Gaussian), ``optimizers`` (name -> optimizer of that one
+    tensor), its own ``state`` (checkpointed by the trainer; tensors with one row
+    per Gaussian must be resized by whoever adds or removes rows) and ``info``
+    (the rasterizer's meta dict). Every method has a do-nothing default, so a
+    subclass overrides only what it needs; this base used as is never densifies.
+    """
+
+    def initialize_state(self, scene_scale: float = 1.0) -> dict[str, Any]:
+        """Fresh running state (saved in every checkpoint)."""
+        return {"scene_scale": float(scene_scale)}
+
+    def check_sanity(self, params: Mapping[str, Tensor], optimizers: Mapping[str, torch.optim.Optimizer]) -> None:
+        """Raise ValueError when ``params`` / ``optimizers`` break this strategy's conventions."""
+
+    def step_pre_backward(
+        self,
+        params: Mapping[str, Tensor],
+        optimizers: Mapping[str, torch.optim.Optimizer],
+        state: MutableMapping[str, Any],
+        step: int,
+        info: Mapping[str, Any],
+    ) -> None:
+        """Before ``loss.backward()`` (e.g. ask the rasterizer to keep a gradient)."""
+
+    def step_post_backward(
+        self,
+        params: Mapping[str, Tensor],
+        optimizers: Mapping[str, torch.optim.Optimizer],
+        state: MutableMapping[str, Any],
+        step: int,
+        info: Mapping[str, Any],
+    ) -> dict[str, int]:
+        """After the optimizers stepped: grow / prune rows in place (resizing ``optimizers``
+        and ``state`` with ``model.ops``); returns counts of what changed (for logs)."""
+        return {}
+
+
+class DefaultStrategy(Strategy):
     """3DGS adaptive density control with gsplat's interface.
 
     ``info`` is the rasterizer's meta dict: "means2d" [N, 2] (or [C, N, 2])
