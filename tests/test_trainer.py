@@ -285,3 +285,23 @@ def test_the_model_picks_the_strategy_and_the_trainer_runs_any_strategy(tmp_path
     monkeypatch.setattr(GaussianModel, "make_strategy", lambda self: object())
     with pytest.raises(TypeError, match="not a Strategy"):
         Trainer(tiny_config(tmp_path / "run2", steps=4, progress=False))
+
+
+def test_a_model_hook_that_resizes_the_model_is_said_and_counted(tmp_path, monkeypatch, capsys):
+    """When after_optimizer_step adds or removes rows, that step's densification is skipped (its
+    screen-space statistics no longer line up): one note the first time, the count in metrics.json."""
+    from splat_framework.model import ops
+    from splat_framework.model.gaussians import GaussianModel
+
+    def drop_one_row(self, step, losses, optimizers, strategy_state):
+        if step in (3, 6):
+            mask = torch.zeros(self.num_gaussians, dtype=torch.bool)
+            mask[-1] = True
+            ops.remove(self.params, optimizers, strategy_state, mask)
+
+    monkeypatch.setattr(GaussianModel, "after_optimizer_step", drop_one_row)
+    capsys.readouterr()
+    metrics = Trainer(tiny_config(tmp_path / "run", steps=10, progress=False)).train()
+    notes = [ln for ln in capsys.readouterr().err.splitlines() if "densification skips" in ln]
+    assert len(notes) == 1 and "step 3" in notes[0], notes
+    assert metrics["densify_skipped_steps"] == 2

@@ -386,6 +386,7 @@ class Trainer:
         self.start_step = 0
         self.nonfinite_streak = 0
         self.skipped_steps = 0
+        self.densify_skipped = 0  # steps whose model hook resized the model, so the strategy did not run
         self.restores = 0
         self.lr_factor = 1.0
         self.stop_reason: str | None = None
@@ -462,6 +463,7 @@ class Trainer:
             "numpy_rng": _numpy_state_to_payload(),
             "lr_factor": self.lr_factor,
             "skipped_steps": self.skipped_steps,
+            "densify_skipped_steps": self.densify_skipped,
             "restores": self.restores,
             "timing": timing,
         }
@@ -522,6 +524,7 @@ class Trainer:
             return False
         path, ck = found
         self.skipped_steps = int(ck.get("skipped_steps", 0))
+        self.densify_skipped = int(ck.get("densify_skipped_steps", 0))
         self.restores = int(ck.get("restores", 0))
         timing = dict(ck.get("timing", {}))
         self._train_prior_s = float(timing.pop("train_s", 0.0))
@@ -607,7 +610,12 @@ class Trainer:
             model.after_optimizer_step(step, losses, self.optimizers, self.strategy_state)
         # a hook that added/removed rows (e.g. SCGaussian's match filter) resized the
         # strategy state itself; this step's screen-space statistics no longer line up
-        if densify and model.num_gaussians == n_before:
+        if densify and model.num_gaussians != n_before:
+            if not self.densify_skipped:
+                _say(f"note: step {step}: {type(model).__name__}.after_optimizer_step changed the Gaussians "
+                     f"({n_before} -> {model.num_gaussians}); densification skips such steps (counted in metrics.json)")
+            self.densify_skipped += 1
+        elif densify:
             with section("densification"):
                 with torch.no_grad():
                     model.prepare_for_strategy()
@@ -710,6 +718,7 @@ class Trainer:
             "num_gaussians": self.model.num_gaussians,
             "render_fps": results["fps"],
             "skipped_steps": self.skipped_steps,
+            "densify_skipped_steps": self.densify_skipped,
             "restores": self.restores,
             "lpips_note": results["lpips_note"],
         }
