@@ -375,8 +375,8 @@ class Trainer:
         spec = get_method(self.config.method)
         t0 = time.perf_counter()
         self.model = spec.model_class().from_data(self.config, self.datamanager, self.generator).to(self.device)
-        self.timing.update(getattr(self.model, "init_timing", {}))
-        self.timing["init_s"] = time.perf_counter() - t0 - sum(getattr(self.model, "init_timing", {}).values())
+        self.timing.update(self.model.init_timing)
+        self.timing["init_s"] = time.perf_counter() - t0 - sum(self.model.init_timing.values())
         self.optimizers = self.model.make_optimizers()
         self.strategy = self.model.make_strategy()
         if not isinstance(self.strategy, Strategy):
@@ -455,7 +455,7 @@ class Trainer:
             "strategy_state": {
                 k: (v.detach().cpu() if torch.is_tensor(v) else v) for k, v in self.strategy_state.items()
             },
-            "model_state": self.model.extra_state() if hasattr(self.model, "extra_state") else {},
+            "model_state": self.model.extra_state(),
             "torch_rng": torch.get_rng_state(),
             "cuda_rng": torch.cuda.get_rng_state_all() if self.device.type == "cuda" else [],
             "generator_rng": self.generator.get_state(),
@@ -484,7 +484,7 @@ class Trainer:
         self.model.params = torch.nn.ParameterDict(
             {k: torch.nn.Parameter(v.to(dev), requires_grad=old[k].requires_grad) for k, v in ck["params"].items()}
         )
-        if ck.get("model_state") and hasattr(self.model, "load_extra_state"):
+        if ck.get("model_state"):
             self.model.load_extra_state(ck["model_state"])
         self.optimizers = self.model.make_optimizers()
         for k, o in self.optimizers.items():
@@ -722,9 +722,10 @@ class Trainer:
             "restores": self.restores,
             "lpips_note": results["lpips_note"],
         }
-        metrics["init_stats"] = getattr(self.model, "init_stats", {})
-        if hasattr(self.model, "report"):
-            metrics["model_report"] = self.model.report(self.datamanager)
+        metrics["init_stats"] = dict(self.model.init_stats)
+        report = self.model.report(self.datamanager)
+        if report is not None:
+            metrics["model_report"] = report
         atomic_write_json(self.run_dir / "metrics.json", metrics)  # OSError (disk full): one line in the CLI
         print_summary(metrics, self.run_dir)
         return metrics

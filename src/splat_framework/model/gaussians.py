@@ -17,6 +17,8 @@ handles them generically. Methods customise training through the hooks
 from __future__ import annotations
 
 import math
+from types import MappingProxyType
+from typing import Any, Mapping
 
 import torch
 from torch import Tensor, nn
@@ -125,6 +127,12 @@ class GaussianModel(nn.Module):
         colors: [M, 3] initial colours in [0, 1].
     """
 
+    init_timing: Mapping[str, float] = MappingProxyType({})
+    """Seconds per named set-up phase done in ``from_data`` (e.g. matching, warm-up), added to
+    metrics.json's timing; a subclass sets its own dict on the instance."""
+    init_stats: Mapping[str, Any] = MappingProxyType({})
+    """Numbers about the initialisation (e.g. match counts), written to metrics.json."""
+
     def __init__(self, config: TrainConfig, scene_scale: float, points: Tensor, colors: Tensor):
         super().__init__()
         self.config = config
@@ -223,6 +231,18 @@ class GaussianModel(nn.Module):
         """Hook after the optimizers stepped (caching, filtering). A hook that adds or
         removes rows must resize ``optimizers`` and ``strategy_state`` with ``model.ops``."""
 
+    # ------------------------------------------------------- state, report
+    def extra_state(self) -> dict:
+        """Model state beyond ``params`` to checkpoint (tensors on CPU); see :meth:`load_extra_state`."""
+        return {}
+
+    def load_extra_state(self, state: dict) -> None:
+        """Restore what :meth:`extra_state` returned (called after ``params`` were loaded)."""
+
+    def report(self, datamanager) -> dict | None:
+        """Method-specific numbers for metrics.json's ``model_report`` at the end of training (None: none)."""
+        return None
+
     # ---------------------------------------------------------------- render
     def positions(self) -> Tensor:
         """[N, 3] world positions of all Gaussians."""
@@ -269,6 +289,6 @@ class GaussianModel(nn.Module):
         model.params = nn.ParameterDict(
             {k: nn.Parameter(v, requires_grad=v.is_floating_point()) for k, v in checkpoint["params"].items()}
         )
-        if checkpoint.get("model_state") and hasattr(model, "load_extra_state"):
+        if checkpoint.get("model_state"):
             model.load_extra_state(checkpoint["model_state"])
         return model
