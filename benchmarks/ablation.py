@@ -177,13 +177,14 @@ def ablation_markdown(
 
 def main(argv: list[str] | None = None) -> Path:
     from splat_framework.io import atomic_write_text
-    from splat_framework.sweep import Grid, merge_dicts, parse_override, parse_views, run_sweep, scene_slug
+    from splat_framework.config import deep_merge
+    from splat_framework.sweep import Grid, parse_override, parse_views, run_sweep, scene_slug
 
     args = parse_args(argv)
     out = args.out or Path("benchmarks/results") / f"ablation-{scene_slug(args.data[0])}"
     overrides: dict = {}
     for text in args.override:
-        overrides = merge_dicts(overrides, parse_override(text))
+        overrides = deep_merge(overrides, parse_override(text))
     grid = Grid(
         methods=list(args.methods), data=list(args.data), views=[parse_views(v) for v in args.views],
         seeds=list(args.seeds), steps=args.steps, overrides=overrides,

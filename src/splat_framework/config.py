@@ -213,17 +213,16 @@ def apply_overrides(config: SplatConfig, overrides: dict[str, Any]) -> SplatConf
     ``overrides`` mirrors the config's nesting, e.g. ``{"model": {"use_rg": False}}``.
     Unknown keys raise ``pydantic.ValidationError`` naming the field.
     """
-    data = config.model_dump()
+    return type(config).model_validate(deep_merge(config.model_dump(), overrides))
 
-    def merge(dst: dict, src: dict) -> None:
-        for k, v in src.items():
-            if isinstance(v, dict) and isinstance(dst.get(k), dict):
-                merge(dst[k], v)
-            else:
-                dst[k] = v
 
-    merge(data, overrides)
-    return type(config).model_validate(data)
+def deep_merge(a: dict, b: dict) -> dict:
+    """``b`` merged into a copy of ``a``: nested dicts are merged key by key, any other value of
+    ``b`` replaces ``a``'s. The one merge rule of configs, variants and sweeps."""
+    out = {k: (deep_merge(v, {}) if isinstance(v, dict) else v) for k, v in a.items()}
+    for k, v in b.items():
+        out[k] = deep_merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
 
 
 def config_payload(config: TrainConfig) -> dict:

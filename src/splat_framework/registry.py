@@ -107,6 +107,8 @@ def _load_entry_points(group: str) -> dict[str, MethodSpec]:
 
 
 def _load_variants(base: dict[str, MethodSpec], dirs: list[Path]) -> dict[str, MethodSpec]:
+    from .config import deep_merge
+
     variants: dict[str, MethodSpec] = {}
     pending: dict[str, Path] = {}
     _BROKEN.clear()
@@ -144,7 +146,7 @@ def _load_variants(base: dict[str, MethodSpec], dirs: list[Path]) -> dict[str, M
                 description=str(doc.get("description", f"{parent} variant")),
                 config_factory=p.config_factory,
                 model=p.model,
-                overrides=_merge(p.overrides, overrides),
+                overrides=deep_merge(p.overrides, overrides),
             )
             del pending[name]
             problem = _invalid_config(spec)
@@ -181,16 +183,6 @@ def _invalid_config(spec: MethodSpec) -> str | None:
     except (TypeError, ValueError) as e:  # e.g. an overrides table that is not a table
         return str(e).splitlines()[0] if str(e) else type(e).__name__
     return None
-
-
-def _merge(a: dict, b: dict) -> dict:
-    out = {k: (dict(v) if isinstance(v, dict) else v) for k, v in a.items()}
-    for k, v in b.items():
-        if isinstance(v, dict) and isinstance(out.get(k), dict):
-            out[k] = _merge(out[k], v)
-        else:
-            out[k] = v
-    return out
 
 
 def discover_methods(config_dirs: list[Path] | None = None) -> dict[str, MethodSpec]:

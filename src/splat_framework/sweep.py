@@ -285,14 +285,6 @@ def parse_override(text: str) -> dict:
     return out
 
 
-def merge_dicts(a: dict, b: dict) -> dict:
-    """``b`` merged into a copy of ``a`` (nested dicts merged, other values replaced)."""
-    out = {k: (merge_dicts(v, {}) if isinstance(v, dict) else v) for k, v in a.items()}
-    for k, v in b.items():
-        out[k] = merge_dicts(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
-    return out
-
-
 # -------------------------------------------------------------- resources
 def available_cores() -> int:
     try:
@@ -364,7 +356,7 @@ def one_line(e: BaseException, limit: int = 240) -> str:
 
 def build_config(spec: dict):
     """The validated TrainConfig of a run spec (no torch import)."""
-    from .config import apply_overrides
+    from .config import apply_overrides, deep_merge
     from .registry import get_method
 
     try:
@@ -381,7 +373,7 @@ def build_config(spec: dict):
     }
     if spec.get("steps") is not None:
         fixed["steps"] = spec["steps"]
-    return apply_overrides(base, merge_dicts(spec.get("overrides") or {}, fixed))
+    return apply_overrides(base, deep_merge(spec.get("overrides") or {}, fixed))
 
 
 def execute_run(spec: dict, threads: int | None = None) -> dict:

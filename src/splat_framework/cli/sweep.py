@@ -67,7 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def settings_from_args(args: argparse.Namespace) -> dict:
     """Grid-file settings overridden by the command line, normalised."""
-    from ..sweep import SweepError, load_grid_file, merge_dicts, normalise_settings, parse_override
+    from ..config import deep_merge
+    from ..sweep import SweepError, load_grid_file, normalise_settings, parse_override
 
     settings = load_grid_file(args.grid) if args.grid is not None else {}
     cli = normalise_settings(
@@ -80,7 +81,7 @@ def settings_from_args(args: argparse.Namespace) -> dict:
     settings.update(cli)
     overrides = settings.get("overrides", {})
     for text in args.override:
-        overrides = merge_dicts(overrides, parse_override(text))
+        overrides = deep_merge(overrides, parse_override(text))
     settings["overrides"] = overrides
     for key in ("methods", "data"):
         if not settings.get(key):
