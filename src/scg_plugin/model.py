@@ -17,7 +17,7 @@ import torch
 from torch import Tensor, nn
 
 from splat_framework.cameras import Camera
-from splat_framework.data.resolve import user_cache_dir
+from splat_framework.data.cache_dir import user_cache_dir
 from splat_framework.model.gaussians import FALLBACK_POINTS, GaussianModel, random_init
 from splat_framework.model.ops import remove
 from splat_framework.profiling import section

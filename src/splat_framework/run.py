@@ -8,7 +8,7 @@ import torch
 
 from .checkpoint import check_structure, load_latest
 from .config import read_config_json
-from .data.resolve import user_cache_dir
+from .data.cache_dir import user_cache_dir
 from .devices import resolve_device
 from .errors import CheckpointError, DataError
 from .registry import get_method

@@ -64,7 +64,7 @@ from .checkpoint import (
 )
 from .config import TrainConfig, config_payload, resolve_steps, save_config
 from .data import DataError, DataManager, load_scene, resolve_data_path
-from .data.resolve import user_cache_dir
+from .data.cache_dir import user_cache_dir
 from .devices import resolve_device
 from .data.datamanager import estimate_image_bytes
 from .evaluation import evaluate

@@ -38,9 +38,3 @@ def resolve_data_path(spec: str | Path) -> Path:
             return candidate
     where = f"$SPLAT_DATA={env}" if env else "$SPLAT_DATA, which is not set"
     raise DataError(f"{text}: no such dataset folder (also looked in {where})")
-
-
-def user_cache_dir() -> Path:
-    """Where generated scenes and match caches go: ``$SPLAT_CACHE``, else ``~/.cache/splat``."""
-    env = os.environ.get("SPLAT_CACHE")
-    return Path(env).expanduser() if env else Path.home() / ".cache" / "splat"

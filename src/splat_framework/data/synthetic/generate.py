@@ -13,6 +13,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
+from ..cache_dir import user_cache_dir
 from ..scene import DataError
 from .raycast import Scene, cast_rays
 from .scenes import (
@@ -309,8 +310,6 @@ def scene_params(name: str) -> dict:
 
 def default_cache_dir() -> Path:
     """``$SPLAT_CACHE/synthetic`` if ``SPLAT_CACHE`` is set, else ``~/.cache/splat/synthetic``."""
-    from ..resolve import user_cache_dir
-
     return user_cache_dir() / "synthetic"
 
 
