@@ -36,4 +36,5 @@ def run_dir(tmp_path_factory):
     """Folder of a finished tiny 3dgs run (shared by the export, evaluation and render tests)."""
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("SPLAT_CACHE", str(tmp_path_factory.getbasetemp() / "splatcache"))
+        mp.setenv("SPLAT_COMPILE", "0")  # module fixtures run before the autouse one above
         yield _tiny_run(tmp_path_factory)
