@@ -412,7 +412,8 @@ def test_fused_kernel_variant_matches(monkeypatch):
     from splat_framework.render import _composite, _kernels
 
     monkeypatch.setattr(
-        _composite, "get_kernels", lambda: (_kernels.fwd_round_fused, _kernels.bwd_round_fused)
+        _composite, "get_kernels",
+        lambda: (_kernels.gathering_fwd(_kernels.fwd_round_fused), _kernels.gathering_bwd(_kernels.bwd_round_fused)),
     )
     _compare(50, 31, 30, 22, torch.float64, tile_size=8, block=5, chunk_pairs=40)
     test_clamped_alpha_opacity_one()

@@ -273,9 +273,7 @@ class _Composite(torch.autograd.Function):
             while active.numel() > 0:
                 idx = start[:, None] + ar
                 gid = gid_pad[torch.where(idx < end[:, None], idx, pc)]  # [nA, B], padded with the dummy
-                t_carry = t_state.index_select(0, active)
-                rows = table.index_select(0, gid.reshape(-1)).reshape(gid.shape + (table.shape[1],))
-                contrib, t_new = fwd_round(rows, tile_centers.index_select(0, active), basis, t_carry)
+                contrib, t_new, t_carry = fwd_round(table, gid, tile_centers, active, basis, t_state)
                 out.index_add_(0, active, contrib)
                 t_state.index_copy_(0, active, t_new)
                 if keep_rounds:
@@ -320,15 +318,7 @@ class _Composite(torch.autograd.Function):
         _, bwd_round = get_kernels()
         for active, gid, t_carry in ctx.rounds:
             na, b = gid.shape
-            g_rows, new_prefix = bwd_round(
-                table.index_select(0, gid.reshape(-1)).reshape(na, b, table.shape[1]),
-                tile_centers.index_select(0, active),
-                basis,
-                t_carry,
-                g_out.index_select(0, active),
-                total.index_select(0, active),
-                prefix.index_select(0, active),
-            )
+            g_rows, new_prefix = bwd_round(table, gid, tile_centers, active, basis, t_carry, g_out, total, prefix)
             prefix.index_copy_(0, active, new_prefix)
             grads.index_add_(0, gid.reshape(-1), g_rows.reshape(na * b, 6 + f))
         grads = grads[:n]

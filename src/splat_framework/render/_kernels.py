@@ -217,6 +217,35 @@ def bwd_round_fused(
     return g_rows, cs
 
 
+# --------------------------------------------------------------------------- gathers
+# What the compositing loop calls: a round's inputs gathered from the per-Gaussian table and
+# the per-tile state, then the kernel. Compiled, the gathers become indirect loads inside the
+# fused loop instead of separate index_select passes.
+
+
+def gathering_fwd(round_fn):
+    """(table [N+1, 6+F], gid [nA, B], tile_centers [T, 2], active [nA], basis, t_state [T, npx])
+    -> (contribution [nA, F, npx], transmittance leaving [nA, npx], transmittance entering [nA, npx])."""
+
+    def run(table: Tensor, gid: Tensor, tile_centers: Tensor, active: Tensor, basis: Tensor, t_state: Tensor):
+        t_carry = t_state[active]
+        contrib, t_new = round_fn(table[gid], tile_centers[active], basis, t_carry)
+        return contrib, t_new, t_carry
+
+    return run
+
+
+def gathering_bwd(round_fn):
+    """(table, gid, tile_centers, active, basis, t_carry [nA, npx], g_out [T, F, npx], total [T, npx],
+    prefix [T, npx]) -> (grads [nA, B, 6+F] of the gathered rows, new prefix [nA, npx])."""
+
+    def run(table: Tensor, gid: Tensor, tile_centers: Tensor, active: Tensor, basis: Tensor, t_carry: Tensor,
+            g_out: Tensor, total: Tensor, prefix: Tensor):
+        return round_fn(table[gid], tile_centers[active], basis, t_carry, g_out[active], total[active], prefix[active])
+
+    return run
+
+
 _KERNELS: dict[str, object] = {}
 _SETTING: dict[str, bool] = {"compile": False}
 
@@ -241,17 +270,18 @@ def compile_requested() -> bool:
 
 def get_kernels():
     """(fwd_round, bwd_round): compiled when requested (``set_compile`` or SPLAT_COMPILE=1), else eager."""
+    eager = (gathering_fwd(fwd_round), gathering_bwd(bwd_round))
     if not compile_requested():
-        return fwd_round, bwd_round
+        return eager
     if "compiled" not in _KERNELS:
         try:
             _KERNELS["compiled"] = (
-                _with_fallback(torch.compile(fwd_round_fused, dynamic=True), fwd_round),
-                _with_fallback(torch.compile(bwd_round_fused, dynamic=True), bwd_round),
+                _with_fallback(torch.compile(gathering_fwd(fwd_round_fused), dynamic=True), eager[0]),
+                _with_fallback(torch.compile(gathering_bwd(bwd_round_fused), dynamic=True), eager[1]),
             )
         except Exception as exc:  # pragma: no cover - depends on the toolchain
             warnings.warn(f"SPLAT_COMPILE: torch.compile unavailable ({exc}); using eager")
-            _KERNELS["compiled"] = (fwd_round, bwd_round)
+            _KERNELS["compiled"] = eager
     return _KERNELS["compiled"]
 
 
@@ -261,7 +291,7 @@ def _with_fallback(compiled, eager):
     state = {"ok": True}
 
     def run(*args):
-        if state["ok"] and args[0].shape[0] > 1:
+        if state["ok"] and args[1].shape[0] > 1:  # args[1]: the round's [nA, B] pair ids
             try:
                 return compiled(*args)
             except Exception as exc:  # pragma: no cover - depends on the toolchain
