@@ -4,6 +4,7 @@ the fuzz harness)."""
 
 from __future__ import annotations
 
+import hashlib
 import io
 import tempfile
 import warnings
@@ -191,8 +192,6 @@ PAYLOADS = {
 def test_checkpoint_payloads_with_a_valid_checksum_are_checked(tmp_path, case):
     buf = io.BytesIO()
     torch.save(PAYLOADS[case], buf)
-    import hashlib
-
     data = buf.getvalue()
     path = tmp_path / "step-0000001.ckpt"
     path.write_bytes(MAGIC + hashlib.sha256(data).hexdigest().encode() + b"\n" + data)

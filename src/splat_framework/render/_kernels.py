@@ -2,9 +2,10 @@
 
 One *round* is a dense block of ``B`` (tile, Gaussian) pairs for each of ``nA``
 active tiles, evaluated against the tile's ``npx`` pixels. The functions here
-are pure tensor code: eager by default, optionally compiled with
-``torch.compile`` (set ``SPLAT_COMPILE=1``), which fuses the elementwise chains
-into a few loops. Any failure to compile falls back to eager with a warning.
+are pure tensor code: eager, or their pixel-major twins compiled with
+``torch.compile`` (what ``set_compile`` chose, the default for training runs;
+``SPLAT_COMPILE=0/1`` wins), which fuse a whole round into one loop. Any failure
+to compile falls back to eager with a one-line warning.
 
 Shapes:
     rows:    [nA, B, 6 + F] per-pair Gaussian data (u, v, a, b, c, log o | features)

@@ -139,9 +139,9 @@ def rasterize(
             kernels (default: what ``set_compile`` chose, eager until called;
             eager fallback on any compile failure).
         SPLAT_THREADS: CPU threads inside the rasterizer; "auto" (default)
-            halves torch's thread count while the load average exceeds the
-            CPU count (OpenMP spin-waiting is slow on an oversubscribed CPU),
-            an integer fixes it, "off" leaves torch's setting alone.
+            uses the cores other processes leave free, rounded down to a power
+            of two (OpenMP spin-waiting is slow on an oversubscribed CPU), an
+            integer fixes it, "off" leaves torch's setting alone.
 
     Returns:
         RenderOutput with
