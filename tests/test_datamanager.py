@@ -75,6 +75,19 @@ def test_blender_white_background(tmp_path):
     assert torch.allclose(batch["image"], torch.ones(4, 4, 3))
 
 
+def test_alpha_of_rgba_images_only(tmp_path):
+    """DataManager.alpha: an RGBA image's own alpha at the training size; None for RGB and for DTU's eval masks."""
+    root = make_blender(tmp_path / "b", 3, 3, size=8)
+    arr = np.full((8, 8, 4), 200, np.uint8)
+    arr[:, :4, 3] = 0  # left half transparent
+    cv2.imwrite(str(root / "train" / "r_0.png"), arr)
+    dm = DataManager(load_scene(root))
+    a = dm.alpha(0)
+    assert a.shape == (4, 4) and a.dtype == np.float32
+    assert np.allclose(a[:, :2], 0.0) and np.allclose(a[:, 2:], 200 / 255)
+    assert DataManager(load_scene(make_dtu(tmp_path / "d", 49), views=3)).alpha(0) is None
+
+
 def test_dtu_masks(tmp_path):
     scene = load_scene(make_dtu(tmp_path / "d", 49), views=3)
     dm = DataManager(scene)

@@ -117,6 +117,26 @@ def test_matcher_accuracy_on_plane(plane_scene, name):
     assert ms.stats[(0, 1)]["final"] == len(pa) <= 2000
 
 
+def test_alpha_masks_drop_background_matches(plane_scene, tmp_path):
+    """Matches with an end where the image's alpha is 0 are dropped before verification, and masks key the cache."""
+    img_a, img_b, cam_a, cam_b, _ = plane_scene
+    cfg = MatchConfig(matcher="dense", max_matches=2000)
+    mask_a = np.ones((H, W), np.float32)
+    mask_a[:, : W // 2] = 0.0  # left half of view A is "background"
+    full = compute_matches([img_a, img_b], [cam_a, cam_b], [0, 1], cfg, tmp_path)
+    masked = compute_matches([img_a, img_b], [cam_a, cam_b], [0, 1], cfg, tmp_path, masks=[mask_a, None])
+    assert not masked.meta["cache_hit"], "a mask must change the cache key"
+    pa_full, pa = full.get(0, 1)[0], masked.get(0, 1)[0]
+    assert (pa_full[:, 0] < W // 2).sum() > 100
+    assert len(pa) >= 100 and (pa[:, 0] >= W // 2).all()
+    assert masked.stats[(0, 1)]["off_mask"] > 0
+    off = compute_matches([img_a, img_b], [cam_a, cam_b], [0, 1], cfg.model_copy(update={"alpha_mask": False}),
+                          masks=[mask_a, None])
+    assert (off.get(0, 1)[0][:, 0] < W // 2).any(), "alpha_mask=False ignores the masks"
+    with pytest.raises(ValueError, match="mask is"):
+        compute_matches([img_a, img_b], [cam_a, cam_b], [0, 1], cfg, masks=[mask_a[:10], None])
+
+
 def test_raw_matcher_output_convention(plane_scene):
     """Raw matcher outputs obey the +0.5 convention (error small without any offset)."""
     img_a, img_b, *_, H_ab = plane_scene

@@ -73,6 +73,7 @@ __all__ = [
     "fundamental_from_cameras",
     "get_matcher",
     "magsac_inliers",
+    "on_foreground",
     "mutual_ratio_match",
     "packaged_weights_dir",
     "learned_available",
@@ -138,6 +139,9 @@ class MatchConfig(BaseModel):
 
     magsac_confidence: float = Field(0.999, gt=0.0, lt=1.0)
     """Fundamental-matrix MAGSAC confidence."""
+
+    alpha_mask: bool = True
+    """Drop matches with an end where the image's own alpha channel is 0 (RGBA images such as Blender's renders: the background), as the public SCGaussian code does with its blender_mask; images without alpha are unaffected."""
 
     epipolar_check: bool = True
     """Also reject matches far from the epipolar lines of the known camera poses."""
@@ -1048,9 +1052,10 @@ def cache_key(
     cameras: list["Camera"] | None,
     view_ids: list[int],
     config: MatchConfig,
+    masks: list[np.ndarray | None] | None = None,
 ) -> str:
-    """sha1 over (pipeline version, config, view ids, image bytes, camera matrices); for "auto" also
-    whether the learned weights are installed (its result depends on it)."""
+    """sha1 over (pipeline version, config, view ids, image bytes, camera matrices, foreground masks); for
+    "auto" also whether the learned weights are installed (its result depends on it)."""
     h = hashlib.sha1()
     head = {"version": CACHE_VERSION, "config": config.model_dump(mode="json"), "view_ids": [int(v) for v in view_ids]}
     if config.matcher == AUTO:
@@ -1067,14 +1072,33 @@ def cache_key(
             h.update(f"{cam.width}x{cam.height}".encode())
     else:
         h.update(b"no-cameras")
+    for k, m in enumerate(masks or []):  # views without a mask leave the key as before masks existed
+        if m is not None:
+            h.update(f"mask{k}".encode() + hashlib.sha1(np.ascontiguousarray(m, np.float32).tobytes()).digest())
     return h.hexdigest()
 
 
+def on_foreground(pts: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
+    """[M] bool: ``mask`` [H, W] (alpha, 0 = background) is > 0 at the pixel holding each continuous point [M, 2]
+    (all True without a mask)."""
+    if mask is None:
+        return np.ones(len(pts), bool)
+    h, w = mask.shape
+    x = np.clip(np.floor(pts[:, 0]).astype(np.int64), 0, w - 1)
+    y = np.clip(np.floor(pts[:, 1]).astype(np.int64), 0, h - 1)
+    return mask[y, x] > 0
+
+
 def _verified(matcher: Matcher, img_a: np.ndarray, img_b: np.ndarray, F_known: np.ndarray | None,
-              config: MatchConfig, seed: int) -> tuple[Pts, Pts, dict[str, int], str | None]:
-    """One pair through ``matcher``, verification and the balanced cap: (pts_a, pts_b, counts, warning)."""
+              config: MatchConfig, seed: int, masks: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
+              ) -> tuple[Pts, Pts, dict[str, int], str | None]:
+    """One pair through ``matcher``, the foreground masks, verification and the balanced cap:
+    (pts_a, pts_b, counts, warning)."""
     pa, pb = matcher.match(img_a, img_b)
-    pa, pb, counts, warn = verify_pair(pa, pb, config, F_known)
+    n_raw = len(pa)
+    keep = on_foreground(pa, masks[0]) & on_foreground(pb, masks[1])
+    pa, pb, counts, warn = verify_pair(pa[keep], pb[keep], config, F_known)
+    counts["off_mask"], counts["raw"] = n_raw - int(keep.sum()), n_raw
     if config.max_matches > 0 and len(pa) > config.max_matches:
         h, w = img_a.shape[:2]
         idx = balanced_sample(pa, config.max_matches, w, h, config.grid_cell, seed)
@@ -1089,6 +1113,7 @@ def compute_matches(
     view_ids: list[int],
     config: MatchConfig | None = None,
     cache_dir: Path | str | None = None,
+    masks: list[np.ndarray | None] | None = None,
 ) -> MatchSet:
     """Verified matches between every pair of the given views.
 
@@ -1099,6 +1124,8 @@ def compute_matches(
         view_ids: dataset index of each view (the MatchSet's keys), unique.
         config: matching settings (default MatchConfig()).
         cache_dir: folder for the on-disk cache (None = no cache).
+        masks: per view, a foreground mask [H, W] (the image's alpha, 0 =
+            background) or None; used when ``config.alpha_mask`` is on.
 
     Returns:
         MatchSet over all pairs (i, j), i < j, of ``view_ids``.
@@ -1107,18 +1134,24 @@ def compute_matches(
     if len(images) != len(view_ids) or (cameras is not None and len(cameras) != len(view_ids)):
         raise ValueError(f"{len(images)} images, {None if cameras is None else len(cameras)} cameras and "
                          f"{len(view_ids)} view ids: they must be one per view")
+    if masks is not None and len(masks) != len(view_ids):
+        raise ValueError(f"{len(masks)} masks for {len(view_ids)} views: give one per view (None where absent)")
     if len(set(int(v) for v in view_ids)) != len(view_ids):
         raise ValueError(f"view ids must be unique, got {list(view_ids)}")
     order = np.argsort(np.asarray(view_ids, np.int64), kind="stable")
     ids = [int(view_ids[k]) for k in order]
     imgs = [_to_hwc(images[k]) for k in order]
     cams = None if cameras is None else [cameras[k] for k in order]
+    fg = [None] * len(ids) if masks is None or not config.alpha_mask else [masks[k] for k in order]
+    for v, im, m in zip(ids, imgs, fg):
+        if m is not None and tuple(m.shape) != tuple(im.shape[:2]):
+            raise ValueError(f"view {v}: mask is {m.shape[1]}x{m.shape[0]} but image is {im.shape[1]}x{im.shape[0]}")
     if cams is not None:
         for v, im, cam in zip(ids, imgs, cams):
             if (cam.width, cam.height) != (im.shape[1], im.shape[0]):
                 raise ValueError(f"view {v}: camera is {cam.width}x{cam.height} but image is {im.shape[1]}x{im.shape[0]}")
 
-    key = cache_key(imgs, cams, ids, config)
+    key = cache_key(imgs, cams, ids, config, fg)
     cache_path = None
     if cache_dir is not None:
         cache_path = Path(cache_dir) / f"matches-{key[:24]}.npz"
@@ -1144,7 +1177,9 @@ def compute_matches(
         for b in range(a + 1, len(ids)):
             pair = (ids[a], ids[b])
             F_known = fundamental_from_cameras(cams[a], cams[b]) if (cams is not None and config.epipolar_check) else None
-            pa, pb, counts, warn = _verified(matcher, imgs[a], imgs[b], F_known, config, config.seed + 7919 * a + b)
+            pair_masks = (fg[a], fg[b])
+            pa, pb, counts, warn = _verified(matcher, imgs[a], imgs[b], F_known, config, config.seed + 7919 * a + b,
+                                             pair_masks)
             name = AUTO_DENSE if config.matcher == AUTO else config.matcher
             if config.matcher == AUTO and counts["final"] < config.auto_min_matches:
                 if not learned_tried:
@@ -1158,7 +1193,8 @@ def compute_matches(
                             stacklevel=2,
                         )
                 if learned is not None:
-                    alt = _verified(learned, imgs[a], imgs[b], F_known, config, config.seed + 7919 * a + b)
+                    alt = _verified(learned, imgs[a], imgs[b], F_known, config, config.seed + 7919 * a + b,
+                                    pair_masks)
                     if alt[2]["final"] > counts["final"]:
                         (pa, pb, counts, warn), name = alt, AUTO_LEARNED
             matches[pair] = (pa.astype(np.float32), pb.astype(np.float32))

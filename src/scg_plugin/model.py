@@ -44,7 +44,8 @@ def compute_match_set(config, datamanager):
     cameras = [c.to("cpu") for c, _ in views]
     ids = [int(b["index"]) for _, b in views]
     cache_dir = user_cache_dir() / "matches" if config.model.matching.cache else None
-    return compute_matches(images, cameras, ids, config.model.matching, cache_dir)
+    masks = [datamanager.alpha(i) for i in ids] if config.model.matching.alpha_mask else None
+    return compute_matches(images, cameras, ids, config.model.matching, cache_dir, masks)
 
 
 def match_pairs(match_set, view_ids: list[int]):

@@ -1,7 +1,7 @@
 """Datasets: parsers, few-shot splits, image decoding and the data manager."""
 
 from .datamanager import DataManager
-from .images import load_image, read_image_size
+from .images import load_alpha, load_image, read_image_size
 from .parsers import detect_format, load_scene
 from .resolve import resolve_data_path
 from .scene import DataError, SceneData
@@ -15,6 +15,7 @@ __all__ = [
     "detect_format",
     "dtu_split",
     "llff_split",
+    "load_alpha",
     "load_image",
     "load_scene",
     "read_image_size",

@@ -31,7 +31,7 @@ import torch
 from torch import Tensor
 
 from ..cameras import Camera
-from .images import load_depth, load_image, load_mask, read_image_size, scaled_size
+from .images import load_alpha, load_depth, load_image, load_mask, read_image_size, scaled_size
 from .scene import DataError, SceneData
 
 Batch = dict
@@ -138,6 +138,14 @@ class DataManager:
         if scene.depth_paths is not None:
             batch["depth"] = self._tensor(load_depth(scene.depth_paths[i], size)[:, :, None])
         return batch
+
+    def alpha(self, index: int) -> np.ndarray | None:
+        """[H, W] float32 alpha channel of camera ``index``'s own image file (0 = background), or None without one.
+
+        Only images that carry alpha (RGBA renders such as Blender's) have it;
+        evaluation masks (``mask_paths``, DTU) are not alpha and never appear here.
+        """
+        return load_alpha(Path(self.scene.image_paths[index]), scale=self.scene.image_scale)
 
     def _tensor(self, a: np.ndarray) -> Tensor:
         return torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32)).to(self.device)

@@ -146,8 +146,6 @@ def load_image(
     Returns:
         [H, W, 3] float32 array in [0, 1].
     """
-    import cv2
-
     path = Path(path)
     if not (scale > 0 and np.isfinite(scale)):
         raise DataError(f"{path}: invalid image scale {scale!r}")
@@ -173,7 +171,13 @@ def load_image(
             raise DataError(f"{path}: unsupported channel count {c}")
     else:
         raise DataError(f"{path}: unsupported image shape {arr.shape}")
-    img = np.ascontiguousarray(img, dtype=np.float32)
+    return _rescale(np.ascontiguousarray(img, dtype=np.float32), scale)
+
+
+def _rescale(img: np.ndarray, scale: float) -> np.ndarray:
+    """[H, W(, C)] float32 resized by ``scale`` (INTER_AREA when shrinking), clipped to [0, 1]."""
+    import cv2
+
     if scale != 1.0:
         h, w = img.shape[:2]
         size = scaled_size(w, h, scale)
@@ -181,6 +185,21 @@ def load_image(
             interp = cv2.INTER_AREA if scale < 1.0 else cv2.INTER_LINEAR
             img = cv2.resize(img, size, interpolation=interp)
     return np.clip(img, 0.0, 1.0)
+
+
+def load_alpha(path: Path | str, *, scale: float = 1.0) -> np.ndarray | None:
+    """The image's own alpha channel as float32 [H, W] in [0, 1], or None when it has none.
+
+    Same size as :func:`load_image` with the same ``scale``. RGBA renders such
+    as Blender's carry their foreground mask this way (0 = background).
+    """
+    path = Path(path)
+    if not (scale > 0 and np.isfinite(scale)):
+        raise DataError(f"{path}: invalid image scale {scale!r}")
+    arr = _decode(path, _read_bytes(path))
+    if arr.ndim != 3 or arr.shape[2] not in (2, 4):
+        return None
+    return _rescale(np.ascontiguousarray(_to_float(path, arr)[:, :, -1]), scale)
 
 
 def load_mask(path: Path | str, size: tuple[int, int]) -> np.ndarray:
