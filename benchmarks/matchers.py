@@ -43,8 +43,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 
 def training_views(data: str, views: int):
-    """(images float32 [H, W, 3], cameras, dataset ids) of the few-shot training views, as training sees them."""
-    from splat_framework.data.images import load_image
+    """(images float32 [H, W, 3], cameras, dataset ids, alpha masks or None) of the few-shot training views,
+    as training sees them."""
+    from splat_framework.data.images import load_alpha, load_image
     from splat_framework.data.parsers import load_scene
     from splat_framework.data.resolve import resolve_data_path
 
@@ -52,7 +53,8 @@ def training_views(data: str, views: int):
     ids = [int(i) for i in scene.train_indices]
     imgs = [load_image(scene.image_paths[i], scale=scene.image_scale, white_background=scene.white_background)
             for i in ids]
-    return [getattr(im, "numpy", lambda im=im: im)() for im in imgs], [scene.cameras[i] for i in ids], ids
+    masks = [load_alpha(scene.image_paths[i], scale=scene.image_scale) for i in ids]
+    return imgs, [scene.cameras[i] for i in ids], ids, masks
 
 
 def match_config(spec: str):
@@ -67,10 +69,10 @@ def match_config(spec: str):
 def measure(data: str, views: int, matcher: str) -> dict:
     from scg_plugin.matching import compute_matches
 
-    imgs, cams, ids = training_views(data, views)
+    imgs, cams, ids, masks = training_views(data, views)
     config = match_config(matcher)
     t0 = time.perf_counter()
-    ms = compute_matches(imgs, cams, ids, config)
+    ms = compute_matches(imgs, cams, ids, config, masks=masks)
     seconds = time.perf_counter() - t0
     per_pair = {f"{a}-{b}": int(c["final"]) for (a, b), c in ms.stats.items()}
     return {"data": data, "views": views, "matcher": matcher, "seconds": seconds, "total": ms.total(),

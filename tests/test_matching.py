@@ -388,6 +388,34 @@ def test_auto_without_learned_weights_keeps_dense_with_one_line_notice(no_weight
     assert ms.meta["pair_matchers"] == {"0-1": "dense"} and ms.count(0, 1) == 0
 
 
+def test_auto_picks_the_matcher_by_view_angle(plane_scene, monkeypatch):
+    """auto: dense flow on narrow pairs, the learned matcher alone on pairs wider than auto_flow_max_angle."""
+    imgs, cams, ids = _plane_pair(plane_scene)  # optical axes 7 degrees apart
+    assert 6.0 < M.view_angle(*cams) < 8.0
+    assert M.view_angle(cams[0], cams[0]) == pytest.approx(0.0, abs=1e-4)
+    calls = []
+
+    class FakeLearned:
+        @classmethod
+        def from_config(cls, config):
+            return cls()
+
+        def match(self, a, b):
+            calls.append("learned")
+            return M.DenseFlowMatcher(max_matches=2000).match(a, b)
+
+    monkeypatch.setitem(MATCHERS, M.AUTO_LEARNED, FakeLearned)
+    monkeypatch.setattr(M, "learned_available", lambda config: True)
+    ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_min_matches=100))
+    assert ms.meta["pair_matchers"] == {"0-1": "dense"} and calls == []
+    ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_flow_max_angle=5.0))
+    assert ms.meta["pair_matchers"] == {"0-1": M.AUTO_LEARNED} and calls == ["learned"] and ms.count(0, 1) >= 100
+    monkeypatch.setattr(M, "learned_available", lambda config: False)  # wide pair, no weights: dense + one notice
+    with pytest.warns(UserWarning, match=r"matcher auto: pair \(0, 1\) is wide \(7 degrees\).*not installed"):
+        ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_flow_max_angle=5.0))
+    assert ms.meta["pair_matchers"] == {"0-1": "dense"} and ms.count(0, 1) >= 100
+
+
 def test_auto_cache_key_depends_on_learned_weights(plane_scene, monkeypatch, tmp_path):
     imgs, cams, ids = _plane_pair(plane_scene)
     monkeypatch.setattr(M, "learned_available", lambda config: True)
