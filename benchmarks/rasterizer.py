@@ -124,12 +124,12 @@ def run_one(n: int, device: str, repeats: int, warmup: int, scene: str = "opaque
         p.grad = None
     sync()
 
-    from splat_framework.render._threads import _others_running
+    from splat_framework.resources import others_running
 
     t_render, t_fwd, t_fb, busy = [], [], [], []
     visible = n_alpha = None
     for _ in range(repeats):
-        busy.append(_others_running() if device == "cpu" else None)
+        busy.append(others_running() if device == "cpu" else None)
         sync()
         t0 = time.perf_counter()
         with torch.no_grad():

@@ -191,7 +191,7 @@ def measure(method: str, args: argparse.Namespace) -> list[dict]:
         update={"progress": False})
     trainer = Trainer(config)
     try:
-        from splat_framework.render._kernels import compile_requested
+        from splat_framework.render import compile_requested
     except ImportError:  # older code: the environment variable only
         compiled = os.environ.get("SPLAT_COMPILE", "0") == "1"
     else:

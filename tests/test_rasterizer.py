@@ -490,16 +490,16 @@ def test_thread_policy(monkeypatch):
     cpu = torch.device("cpu")
     monkeypatch.setattr(torch, "get_num_threads", lambda: 4)
     monkeypatch.setattr(_threads.os, "cpu_count", lambda: 4)
-    real = _threads._others_running()
+    real = _threads.others_running()
     assert real is None or real >= 0
     monkeypatch.delenv("SPLAT_THREADS", raising=False)
-    monkeypatch.setattr(_threads, "_others_running", lambda: 2)
+    monkeypatch.setattr(_threads, "others_running", lambda: 2)
     assert _threads.choose_threads(cpu) == 2  # two CPUs busy elsewhere
-    monkeypatch.setattr(_threads, "_others_running", lambda: 7)
+    monkeypatch.setattr(_threads, "others_running", lambda: 7)
     assert _threads.choose_threads(cpu) == 1
-    monkeypatch.setattr(_threads, "_others_running", lambda: 0)
+    monkeypatch.setattr(_threads, "others_running", lambda: 0)
     assert _threads.choose_threads(cpu) is None
-    monkeypatch.setattr(_threads, "_others_running", lambda: None)
+    monkeypatch.setattr(_threads, "others_running", lambda: None)
     assert _threads.choose_threads(cpu) is None
     monkeypatch.setenv("SPLAT_THREADS", "1")
     assert _threads.choose_threads(cpu) == 1

@@ -31,7 +31,7 @@ def _to_bchw(img: Tensor) -> Tensor:
     return img.permute(0, 3, 1, 2)
 
 
-def _mask_bhw1(mask: Tensor, like: Tensor) -> Tensor:
+def mask_bhw1(mask: Tensor, like: Tensor) -> Tensor:
     """Mask as float [B, H, W, 1] broadcastable against ``like`` ([H,W,C] or [B,H,W,C])."""
     m = mask.to(like.dtype)
     if like.dim() == 3:
@@ -84,7 +84,7 @@ def l1_loss(pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> Tensor:
     """Mean absolute error; with ``mask``, the mean over masked pixels (all channels)."""
     if mask is None:
         return (pred - gt).abs().mean()
-    m = _mask_bhw1(mask, pred)
+    m = mask_bhw1(mask, pred)
     err = (pred - gt).abs().reshape(m.shape[0], *pred.shape[-3:]) * m
     return err.sum() / (m.sum() * pred.shape[-1]).clamp_min(1e-8)
 
@@ -99,7 +99,7 @@ def photometric_loss(pred: Tensor, gt: Tensor, lambda_dssim: float = 0.2, mask: 
     if mask is None:
         s = ssim(pred, gt)
     else:
-        m = _mask_bhw1(mask, pred)
+        m = mask_bhw1(mask, pred)
         smap = ssim_map(pred, gt) * m
         s = smap.sum() / (m.sum() * pred.shape[-1]).clamp_min(1e-8)
     return (1.0 - lambda_dssim) * l1 + lambda_dssim * (1.0 - s)

@@ -30,13 +30,13 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from splat_framework.losses import _mask_bhw1, ssim
+from splat_framework.losses import mask_bhw1, ssim
 
 VGG16_FILE = "vgg16-397923af.pth"  # torchvision VGG16_Weights.IMAGENET1K_V1
 
 
 def _composite_white(pred: Tensor, gt: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
-    m = _mask_bhw1(mask, pred)
+    m = mask_bhw1(mask, pred)
     if pred.dim() == 3:
         m = m[0]
     return pred * m + (1 - m), gt * m + (1 - m)
@@ -49,7 +49,7 @@ def psnr(pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> float:
     if mask is None:
         mse = ((pred - gt) ** 2).mean()
     else:
-        m = (_mask_bhw1(mask, pred) >= 1.0).to(pred.dtype)  # object pixels, as the reference's `mask == 1.`
+        m = (mask_bhw1(mask, pred) >= 1.0).to(pred.dtype)  # object pixels, as the reference's `mask == 1.`
         se = ((pred - gt) ** 2).reshape(m.shape[0], *pred.shape[-3:]) * m
         denom = m.sum() * pred.shape[-1]
         if denom <= 0:

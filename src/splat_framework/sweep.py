@@ -55,6 +55,7 @@ from typing import Any, Callable, Iterable
 
 from .errors import DataError
 from .io import atomic_write_json, atomic_write_text
+from .resources import available_cores, available_memory_bytes
 
 METRICS = ("psnr", "ssim", "lpips", "avg")
 """Test metrics reported per run (``metrics.json`` ``mean``)."""
@@ -286,41 +287,13 @@ def parse_override(text: str) -> dict:
 
 
 # -------------------------------------------------------------- resources
-def available_cores() -> int:
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except (AttributeError, OSError):
-        return max(1, os.cpu_count() or 1)
-
-
-def available_memory_gb() -> float | None:
-    """Memory available to new processes (psutil, /proc/meminfo, or sysconf); None when unknown."""
-    try:
-        import psutil  # optional
-
-        return psutil.virtual_memory().available / 2**30
-    except Exception:
-        pass
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) / 2**20
-    except OSError:
-        pass
-    try:
-        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") / 2**30
-    except (ValueError, OSError, AttributeError):
-        return None
-
-
 def default_workers(mem_per_run_gb: float = DEFAULT_MEM_PER_RUN_GB) -> int:
     """``max(1, min(cores // 2, available memory / per-run estimate))``."""
     cores = available_cores()
     n = cores // 2
-    mem = available_memory_gb()
+    mem = available_memory_bytes()
     if mem is not None and mem_per_run_gb > 0:
-        n = min(n, int(mem // mem_per_run_gb))
+        n = min(n, int(mem / 2**30 // mem_per_run_gb))
     return max(1, n)
 
 

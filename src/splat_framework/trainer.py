@@ -74,6 +74,7 @@ from .model.strategy import Strategy
 from .profiling import section
 from .render import set_compile
 from .registry import get_method
+from .resources import available_memory_bytes, physical_memory_bytes
 
 console = Console(stderr=True)
 
@@ -180,41 +181,6 @@ def image_memory_budget() -> int | None:
     """The decoded-image cache budget from ``$SPLAT_IMAGE_MEMORY_BUDGET`` (None = unlimited)."""
     text = os.environ.get(MEMORY_ENV, "").strip()
     return parse_bytes(text) if text else None
-
-
-def _cgroup_limit() -> int | None:
-    for path in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
-        try:
-            text = Path(path).read_text().strip()
-        except OSError:
-            continue
-        if text.isdigit() and int(text) < 2**60:
-            return int(text)
-    return None
-
-
-def physical_memory_bytes() -> int | None:
-    """Total RAM this process may use (physical pages, capped by a cgroup limit), or None."""
-    try:
-        total = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (ValueError, OSError, AttributeError):
-        return None
-    limit = _cgroup_limit()
-    return min(total, limit) if limit else total
-
-
-def available_memory_bytes() -> int | None:
-    """RAM available to new allocations (MemAvailable, else SC_AVPHYS_PAGES), or None where unknown."""
-    try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemAvailable:"):
-                return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (ValueError, OSError, AttributeError):
-        return None
 
 
 def _gb(n: float) -> str:

@@ -32,7 +32,7 @@ from typing import Callable, Mapping, MutableMapping
 import torch
 from torch import Tensor
 
-from ..render._project import quat_to_rotmat  # one definition, shared with the rasterizer
+from ..render import quat_to_rotmat  # one definition, shared with the rasterizer
 
 Params = MutableMapping[str, Tensor]
 Optimizers = Mapping[str, torch.optim.Optimizer]

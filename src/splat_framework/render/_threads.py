@@ -26,27 +26,7 @@ from contextlib import contextmanager
 
 import torch
 
-
-def _others_running() -> int | None:
-    """Runnable threads of other processes right now (None if unknown).
-
-    /proc/loadavg's 4th field counts all runnable threads, including this
-    process's; those are subtracted using /proc/self/task/*/stat."""
-    try:
-        with open("/proc/loadavg") as f:
-            running = int(f.read().split()[3].split("/")[0])
-        own = 0
-        for tid in os.listdir("/proc/self/task"):
-            try:
-                with open(f"/proc/self/task/{tid}/stat") as f:
-                    st = f.read()
-            except OSError:
-                continue
-            if st[st.rindex(")") + 2] == "R":
-                own += 1
-        return max(running - own, 0)
-    except (OSError, ValueError, IndexError):
-        return None
+from ..resources import others_running
 
 
 def choose_threads(device: torch.device) -> int | None:
@@ -65,7 +45,7 @@ def choose_threads(device: torch.device) -> int | None:
         return n if n > 0 and n != cur else None
     if cur <= 1:
         return None
-    others = _others_running()
+    others = others_running()
     if others is None:
         return None
     n = max(1, min(cur, (os.cpu_count() or cur) - others))
