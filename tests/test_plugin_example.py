@@ -37,7 +37,9 @@ def test_example_plugin_is_listed_and_trains(plugin_site, tmp_path):
     out = tmp_path / "run"
     r = subprocess.run(
         [sys.executable, "-m", "splat_framework.cli.train", "flat-3dgs", "--data", "synthetic/forward-tiny",
-         "--steps", "20", "--output", str(out), "--no-progress"],
+         "--steps", "20", "--output", str(out), "--no-progress",
+         # the plugin's PruneOnlyStrategy: at step 10, drop Gaussians whose opacity sank below the start's 0.1
+         "--strategy.refine-every", "10", "--strategy.prune-opa", "0.1", "--model.init-num-points", "2000"],
         capture_output=True, text=True, env=env, timeout=600,
     )
     assert r.returncode == 0, r.stderr[-3000:]
@@ -46,3 +48,7 @@ def test_example_plugin_is_listed_and_trains(plugin_site, tmp_path):
 
     cfg = json.loads((out / "config.json").read_text())["config"]
     assert cfg["method"] == "flat-3dgs" and cfg["model"]["sh_degree"] == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["strategy"] == "splat_example_plugin.model.PruneOnlyStrategy"
+    n = metrics["num_gaussians"]
+    assert 0 < n < 2000, f"the plugin's strategy prunes and never grows: {n} Gaussians from 2000"

@@ -20,7 +20,6 @@ from scg_plugin.ray_gaussians import (
 from splat_framework.config import apply_overrides
 from splat_framework.data import DataManager, load_scene
 from splat_framework.data.synthetic import generate_scene
-from splat_framework.model.strategy import DefaultStrategy
 
 
 @pytest.fixture(scope="module")
@@ -169,7 +168,8 @@ def test_ray_gaussians_move_only_along_their_rays(scene):
 
 
 def _refine_once(model, cfg, dm):
-    strategy = DefaultStrategy(cfg.strategy)
+    strategy = model.make_strategy()  # RayGaussianStrategy: keeps the Gaussians of matches
+    assert type(strategy).__name__ == "RayGaussianStrategy"
     opts = model.make_optimizers()
     state = strategy.initialize_state(1.0)
     cam, _ = dm.next_train(0)

@@ -85,7 +85,6 @@ def test_config_defaults_and_docstrings():
         0.005, 0.0002, 0.01, 0.1, 0.15,
     )
     assert (c.refine_start_iter, c.refine_stop_iter, c.reset_every, c.refine_every) == (500, 2500, 3000, 100)
-    assert c.never_prune_key is None and c.child_defaults == {}
     for name, field in DensifyConfig.model_fields.items():
         assert field.description, f"{name} has no docstring"
     with pytest.raises(ValidationError):
@@ -240,18 +239,29 @@ def test_invisible_rows_do_not_accumulate():
     torch.testing.assert_close(state["grad2d"][0], torch.tensor(50.0))  # 1.0 * W/2
 
 
-def test_never_prune_key_protects_rows():
+class KeepRays(DefaultStrategy):
+    """The extension hooks as a model with per-row flags uses them: rows flagged is_ray are never
+    pruned, and clone / split children are not ray rows."""
+
+    def protected_rows(self, params):
+        return params["is_ray"].detach() > 0.5
+
+    def child_values(self, params):
+        return {"is_ray": 0.0}
+
+
+def test_protected_rows_are_never_pruned():
     params, opts = make_params(4, is_ray=[1.0, 0.0, 1.0, 0.0])
     with torch.no_grad():
         params["opacities"][:] = -20.0  # opacity ~ 0
         params["scales"][:] = math.log(100.0)  # huge
-    strat = DefaultStrategy(cfg(never_prune_key="is_ray", reset_every=20, refine_scale2d_stop_iter=1000, grow_scale2d=1e6))
+    strat = KeepRays(cfg(reset_every=20, refine_scale2d_stop_iter=1000, grow_scale2d=1e6))
     state = strat.initialize_state(1.0)
     radii = torch.full((4,), 1000, dtype=torch.int32)  # huge on screen too
     counts = strat.step_post_backward(params, opts, state, 30, fake_info(4, {}, radii=radii))
     assert counts["n_prune"] == 2
     assert params["is_ray"].tolist() == [1.0, 1.0]
-    # without the key they all go
+    # without the hook they all go
     params, opts = make_params(4, is_ray=[1.0, 0.0, 1.0, 0.0])
     with torch.no_grad():
         params["opacities"][:] = -20.0
@@ -260,13 +270,13 @@ def test_never_prune_key_protects_rows():
     assert params["means"].shape[0] == 0
 
 
-def test_child_defaults_on_clone_and_split():
+def test_child_values_on_clone_and_split():
     params, opts = make_params(4, is_ray=[1.0, 1.0, 0.0, 0.0])
     with torch.no_grad():
         params["scales"][1] = math.log(0.05)  # row 1: ray parent, split
         params["scales"][3] = math.log(0.05)  # row 3: ordinary, split
     old_means = params["means"].detach().clone()
-    strat = DefaultStrategy(cfg(never_prune_key="is_ray", child_defaults={"is_ray": 0.0}))
+    strat = KeepRays(cfg())
     strat.check_sanity(params, opts)
     state = strat.initialize_state(1.0)
     counts = strat.step_post_backward(params, opts, state, 10, fake_info(4, {0: 1e-4, 1: 1e-4, 3: 1e-4}))
@@ -354,3 +364,22 @@ def test_full_sequence_grows_then_prunes():
     assert sum(h[2]["n_clone"] for h in history) > 0
     assert sum(h[2]["n_prune"] for h in history) > 0
     assert sizes[-1] < max(sizes)
+
+
+def test_configs_saved_before_the_ray_rule_moved_still_load():
+    """config.json of older runs holds strategy.never_prune_key / child_defaults (now SCGaussian's
+    RayGaussianStrategy): they are dropped on reading, and SCGaussian models use that strategy."""
+    from scg_plugin.method import config_scgaussian
+    from scg_plugin.strategy import RayGaussianStrategy
+
+    from splat_framework.config import TrainConfig, upgrade_saved_config
+
+    for config in (TrainConfig(method="3dgs"), config_scgaussian()):
+        raw = config.model_dump(mode="json")
+        raw["strategy"] |= {"never_prune_key": "is_match", "child_defaults": {"is_ray": 0.0}}
+        with pytest.raises(ValidationError):
+            type(config).model_validate(raw)
+        assert type(config).model_validate(upgrade_saved_config(raw)) == config
+    params, opts = make_params(3, is_ray=[1.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="is_match"):
+        RayGaussianStrategy(cfg()).check_sanity(params, opts)

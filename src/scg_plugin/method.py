@@ -29,8 +29,6 @@ def config_scgaussian() -> SCGTrainConfig:
             refine_start_iter=500,
             refine_stop_iter=1000,
             reset_every=200,
-            never_prune_key="is_match",
-            child_defaults={"is_ray": 0.0, "is_match": 0.0},
         ),
     )
 

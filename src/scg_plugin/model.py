@@ -1,11 +1,11 @@
 """SCGaussian model: hybrid ray-based + ordinary Gaussians with matching-prior losses.
 
 Rows ``[0, G)`` of the parameter dict are the Gaussians of matches (two per
-match, rows 2m and 2m+1). They are never pruned (``is_match`` is the strategy's
-``never_prune_key``) and densification appends children at the end, so these
+match, rows 2m and 2m+1). They are never pruned (:class:`RayGaussianStrategy`)
+and densification appends children at the end, so these
 rows keep their order for the whole run. While ``is_ray`` is set a row's
 position is ``ray_o + z * ray_d`` and only ``z`` moves it; children of such
-rows are ordinary Gaussians (the strategy's ``child_defaults``).
+rows are ordinary Gaussians (the strategy's ``child_values``).
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from splat_framework.model.ops import remove
 from splat_framework.profiling import section
 
 from .losses import rendering_geometry_loss
+from .strategy import RayGaussianStrategy
 from .ray_gaussians import (
     MatchCache,
     RayBundle,
@@ -192,6 +193,9 @@ class SCGaussianModel(GaussianModel):
             lr = cfg.z_lr * self.scene_scale * ratio
         for g in optimizers["z"].param_groups:
             g["lr"] = lr
+
+    def make_strategy(self) -> RayGaussianStrategy:
+        return RayGaussianStrategy(self.config.strategy)
 
     def prepare_for_strategy(self) -> None:
         p = self.params

@@ -87,10 +87,6 @@ class DensifyConfig(SplatConfig):
     """Use the absolute-gradient criterion (AbsGS); raise grow_grad2d accordingly."""
     revised_opacity: bool = False
     """Use the revised opacity for cloned/split Gaussians (Rota Bulo et al. 2024)."""
-    never_prune_key: str | None = None
-    """Parameter key of a 0/1 flag; rows whose flag is set are never pruned."""
-    child_defaults: dict[str, float] = Field(default_factory=dict)
-    """Values given to newly created (cloned or split) rows for these parameter keys."""
 
 
 class OptimConfig(SplatConfig):
@@ -237,6 +233,21 @@ def save_config(config: TrainConfig, path: Path) -> None:
     atomic_write_json(path, config_payload(config))
 
 
+#: Fields that config.json files of this schema may still hold but the configs no longer have:
+#: ``(section, field)``. SCGaussian's never-prune flag and child rule moved from DensifyConfig into
+#: its own strategy class (their values were fixed by the method, never a user's choice).
+MOVED_FIELDS = (("strategy", "never_prune_key"), ("strategy", "child_defaults"))
+
+
+def upgrade_saved_config(cfg: dict) -> dict:
+    """A copy of a saved config dict without the :data:`MOVED_FIELDS` (runs written before they moved)."""
+    out = dict(cfg)
+    for section, name in MOVED_FIELDS:
+        if isinstance(out.get(section), dict) and name in out[section]:
+            out[section] = {k: v for k, v in out[section].items() if k != name}
+    return out
+
+
 def read_config_json(path: Path, trust_edits: bool = False) -> tuple[str, dict]:
     """(method name, raw config dict) of a saved run; never executes code.
 
@@ -256,4 +267,4 @@ def read_config_json(path: Path, trust_edits: bool = False) -> tuple[str, dict]:
     cfg = payload.get("config")
     if not isinstance(cfg, dict) or "method" not in cfg:
         raise DataError(f"{path}: no method in the saved config")
-    return cfg["method"], cfg
+    return cfg["method"], upgrade_saved_config(cfg)

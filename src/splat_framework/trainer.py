@@ -62,7 +62,7 @@ from .checkpoint import (
     remove_stale_temporaries,
     save_checkpoint,
 )
-from .config import TrainConfig, config_payload, resolve_steps, save_config
+from .config import TrainConfig, config_payload, resolve_steps, save_config, upgrade_saved_config
 from .data import DataError, DataManager, load_scene, resolve_data_path
 from .data.cache_dir import user_cache_dir
 from .devices import resolve_device
@@ -385,7 +385,7 @@ class Trainer:
         except DataError as e:
             _say(f"warning: {e}; it will be rewritten", "yellow")
             return
-        old = dict(saved.get("config", {}))
+        old = upgrade_saved_config(dict(saved.get("config", {})))
         new = self.config_payload()["config"]
         if old.get("method") not in (None, new["method"]):
             raise DataError(f"{path}: the run was trained with method {old['method']!r}, not {new['method']!r}")
@@ -682,6 +682,7 @@ class Trainer:
             "per_view": results["per_view"],
             "timing": self.timing,
             "num_gaussians": self.model.num_gaussians,
+            "strategy": f"{type(self.strategy).__module__}.{type(self.strategy).__qualname__}",
             "render_fps": results["fps"],
             "skipped_steps": self.skipped_steps,
             "densify_skipped_steps": self.densify_skipped,

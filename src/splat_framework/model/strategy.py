@@ -18,11 +18,11 @@ Typical loop::
         counts = strategy.step_post_backward(params, optimizers, state, step, out.meta)
         for opt in optimizers.values(): opt.step(); opt.zero_grad(set_to_none=True)
 
-Extension points (SCGaussian): ``never_prune_key`` names a per-row flag in
-``params``; flagged rows (> 0.5) are never pruned. ``child_defaults`` gives
-values that rows newly created by clone/split take for the named keys (e.g.
-``{"is_ray": 0.0}``); a split parent stays in its row (keeping its flag) and
-only the appended child is new.
+Extension points of :class:`DefaultStrategy` for models with extra per-row
+parameters (SCGaussian's ray flags): ``protected_rows`` marks rows that are never
+pruned, ``child_values`` gives the values that rows newly created by clone/split
+take for named keys (e.g. ``{"is_ray": 0.0}``); a split parent stays in its row
+(keeping its flags) and only the appended child is new.
 """
 
 from __future__ import annotations
@@ -119,12 +119,18 @@ class DefaultStrategy(Strategy):
             groups = opt.param_groups
             if len(groups) != 1 or len(groups[0]["params"]) != 1 or groups[0]["params"][0] is not params[key]:
                 raise ValueError(f"optimizer {key!r} must hold exactly params[{key!r}] in one param group")
-        cfg = self.config
-        if cfg.never_prune_key is not None and cfg.never_prune_key not in params:
-            raise ValueError(f"never_prune_key {cfg.never_prune_key!r} is not in params")
-        for key in cfg.child_defaults:
+        for key in self.child_values(params):
             if key not in params:
-                raise ValueError(f"child_defaults key {key!r} is not in params")
+                raise ValueError(f"child value for {key!r}, which is not in params")
+
+    # ----------------------------------------------------------------- hooks
+    def protected_rows(self, params: Mapping[str, Tensor]) -> Tensor | None:
+        """[N] bool of rows never pruned, or None (default: every row may be pruned)."""
+        return None
+
+    def child_values(self, params: Mapping[str, Tensor]) -> dict[str, float]:
+        """Values that rows created by clone / split take for these keys (default: copies of the parent)."""
+        return {}
 
     # ----------------------------------------------------------------- steps
     def step_pre_backward(
@@ -222,7 +228,7 @@ class DefaultStrategy(Strategy):
         if step < cfg.refine_scale2d_stop_iter:
             is_split |= state["radii"] > cfg.grow_scale2d
         n_clone, n_split = int(is_clone.sum()), int(is_split.sum())
-        children = dict(cfg.child_defaults)
+        children = self.child_values(params)
         if n_clone > 0:
             duplicate(params, optimizers, state, is_clone, child_values=children)
         # clones are appended after all original rows and are not split
@@ -240,9 +246,9 @@ class DefaultStrategy(Strategy):
             is_prune |= max_scale > cfg.prune_scale3d * state["scene_scale"]
             if step < cfg.refine_scale2d_stop_iter:
                 is_prune |= state["radii"] > cfg.prune_scale2d
-        if cfg.never_prune_key is not None:
-            flag = params[cfg.never_prune_key].detach()
-            is_prune &= ~(flag.reshape(flag.shape[0]) > 0.5)
+        protected = self.protected_rows(params)
+        if protected is not None:
+            is_prune &= ~protected
         n_prune = int(is_prune.sum())
         if n_prune > 0:
             remove(params, optimizers, state, is_prune)

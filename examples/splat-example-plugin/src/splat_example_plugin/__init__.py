@@ -1,4 +1,4 @@
-"""A minimal splat plugin: 3DGS with view-independent (SH degree 0) colour.
+"""A minimal splat plugin: 3DGS with view-independent (SH degree 0) colour and a prune-only densification strategy.
 
 A plugin is a package that names a ``MethodSpec`` in the entry-point group
 ``splat_framework.methods``. Its config factory must stay torch-free (it is read

@@ -1,15 +1,47 @@
-"""The example plugin's model: the framework's GaussianModel with one extra loss term."""
+"""The example plugin's model and densification strategy.
+
+The model is the framework's GaussianModel with one extra loss term; its
+strategy shows the densification seam: a ``Strategy`` subclass that sees only
+the parameter and optimizer dicts, returned by the model's ``make_strategy``.
+"""
 
 import torch
 
 from splat_framework.model.gaussians import GaussianModel
+from splat_framework.model.ops import remove
+from splat_framework.model.strategy import Strategy
+
+
+class PruneOnlyStrategy(Strategy):
+    """Never grows the model: every ``every`` iterations removes the Gaussians whose opacity is below
+    ``min_opacity`` (the toy counterpart of gsplat's strategies, on the same interface)."""
+
+    def __init__(self, min_opacity: float, every: int) -> None:
+        self.min_opacity = float(min_opacity)
+        self.every = int(every)
+
+    def check_sanity(self, params, optimizers):
+        if "opacities" not in params:
+            raise ValueError("PruneOnlyStrategy needs params['opacities']")
+
+    def step_post_backward(self, params, optimizers, state, step, info):
+        if step == 0 or step % self.every:
+            return {}
+        drop = torch.sigmoid(params["opacities"].detach().flatten()) < self.min_opacity
+        n = int(drop.sum())
+        if 0 < n < drop.numel():  # never empty the model
+            remove(params, optimizers, state, drop)
+        return {"n_prune": n}
 
 
 class FlatGaussianModel(GaussianModel):
-    """3DGS whose Gaussians are gently pushed towards isotropy (a toy regulariser)."""
+    """3DGS whose Gaussians are gently pushed towards isotropy (a toy regulariser), pruned but never grown."""
 
     def get_loss_dict(self, outputs, batch, camera, step):
         losses = super().get_loss_dict(outputs, batch, camera, step)
         s = self.params["scales"]
         losses["isotropy"] = 0.01 * (s - s.mean(dim=1, keepdim=True)).abs().mean()
         return losses
+
+    def make_strategy(self):
+        return PruneOnlyStrategy(self.config.strategy.prune_opa, self.config.strategy.refine_every)
