@@ -15,8 +15,9 @@ Usage:
     python benchmarks/matchers.py --data dtu/scan37:3 --json /tmp/m.json \\
         --matchers aliked-lightglue:learned_resize=0,max_keypoints=4096 aliked-lightglue
 
-``--readme`` replaces the block between ``<!-- ablation:matchers -->`` and
-``<!-- /ablation:matchers -->``.
+``--readme`` replaces the block between ``<!-- ablation:KEY -->`` and
+``<!-- /ablation:KEY -->`` (``--key``, default ``matchers``; the README's table
+of the default ``auto`` uses ``--key matchers-auto``).
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--threads", type=int, default=None, help="torch threads (default: all cores)")
     p.add_argument("--json", type=Path, default=Path("benchmarks/results/matchers.json"))
     p.add_argument("--readme", type=Path, default=None, help="splice the table into this file's matcher markers")
+    p.add_argument("--key", default="matchers", help="README marker key: <!-- ablation:KEY --> ... <!-- /ablation:KEY -->")
     return p.parse_args(argv)
 
 
@@ -113,7 +115,7 @@ def main(argv: list[str] | None = None) -> Path:
             records.append(rec)
             print(f"{data} {matcher}: {rec['total']} matches {rec['per_pair']} in {rec['seconds']:.1f} s", flush=True)
     command = "python benchmarks/matchers.py " + " ".join(sys.argv[1:] if argv is None else argv)
-    publish(args.json, records, markdown(records, command), args.readme, "matchers")
+    publish(args.json, records, markdown(records, command), args.readme, args.key)
     return args.json
 
 
