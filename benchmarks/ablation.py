@@ -23,7 +23,7 @@ it; ``--readme README.md`` replaces the block between the markers
 table of that scene (so the README's Results section is generated, not typed).
 
 A killed run of this script, started again with the same options, trains only
-the missing runs.
+the missing runs; ``--no-train`` writes the tables from the runs finished so far.
 """
 
 from __future__ import annotations
@@ -76,6 +76,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--md", type=Path, default=None, help="where to write the table (default <out>/ablation.md)")
     p.add_argument("--readme", type=Path, default=None, help="splice each scene's table into this file's ablation markers")
     p.add_argument("--no-live", action="store_true", help="plain progress lines instead of the live table")
+    p.add_argument("--no-train", action="store_true",
+                   help="train nothing: tables from the runs already finished (rows say how many seeds they hold)")
     return p.parse_args(argv)
 
 
@@ -160,6 +162,8 @@ def ablation_markdown(
                          v("total_s", ".1f"), v("peak_rss_mb", ".0f")]
                 if r["n_failed"]:
                     label += f" ({r['n_failed']} of {r['n_runs']} seeds failed)"
+                elif r["n_ok"] < r["n_runs"]:
+                    label += f" ({r['n_ok']} of {r['n_runs']} seeds run)"
             lines.append(f"| {label} | `{r['method']}` | " + " | ".join(cells) + " |")
         lines.append("")
         errors = [f"- `{r['method']}`, {e}" for r in rs for e in r["errors"]]
@@ -191,7 +195,7 @@ def main(argv: list[str] | None = None) -> Path:
     )
     result = run_sweep(
         grid, out, backend=args.backend, workers=args.workers, threads=args.threads, address=args.address,
-        live=False if args.no_live else None,
+        live=False if args.no_live else None, dry_run=args.no_train,
     )
     command = "python benchmarks/ablation.py " + " ".join(sys.argv[1:] if argv is None else argv)
     md_path = args.md or out / "ablation.md"
