@@ -135,6 +135,8 @@ def test_alpha_masks_drop_background_matches(plane_scene, tmp_path):
     assert (off.get(0, 1)[0][:, 0] < W // 2).any(), "alpha_mask=False ignores the masks"
     with pytest.raises(ValueError, match="mask is"):
         compute_matches([img_a, img_b], [cam_a, cam_b], [0, 1], cfg, masks=[mask_a[:10], None])
+    with pytest.raises(ValueError, match="1 masks for 2 views"):
+        compute_matches([img_a, img_b], [cam_a, cam_b], [0, 1], cfg, masks=[mask_a])
 
 
 def test_raw_matcher_output_convention(plane_scene):
