@@ -99,6 +99,38 @@ def test_dtu_masks(tmp_path):
     assert len(dm.eval_views()) == 25
 
 
+def test_dark_backdrop_rule():
+    """Dark and dark over the run above it (1/6 of the height): backdrop; a dark patch under a bright row is not."""
+    from splat_framework.data.images import dark_backdrop_mask
+
+    img = np.full((24, 5, 3), 0.5, np.float32)
+    img[:12] = 0.05  # unlit backdrop on top
+    img[20:23, 1] = 0.0  # a dark object part lower down: 3 dark rows under a bright one
+    img[0:3, 4] = 0.2  # bright enough (> 30/255) at the top of the last column
+    m = dark_backdrop_mask(img)  # run = 4 rows
+    assert m[:12, :4].all() and not m[12:].any()
+    assert not m[:6, 4].any() and m[6:12, 4].all()  # rows 3-5 have a bright pixel within their run
+    assert dark_backdrop_mask(img, run=1.0)[:12, :4].all()  # the window is clipped at the top edge
+
+
+def test_backdrop_only_on_scenes_that_declare_one(tmp_path):
+    """DTU batches carry the backdrop mask of their own image; LLFF batches do not."""
+    from splat_framework.data.images import dark_backdrop_mask
+
+    root = make_dtu(tmp_path / "d", 49)
+    for i in (22, 25, 28):  # the training views: a black band on top
+        img = cv2.imread(str(root / "images_4" / f"{i:06d}.png"))
+        img[:5] = 0
+        cv2.imwrite(str(root / "images_4" / f"{i:06d}.png"), img)
+    dm = DataManager(load_scene(root, views=3))
+    _, batch = dm.next_train(0)
+    expect = dark_backdrop_mask(batch["image"].numpy())
+    assert batch["backdrop"].shape == (12, 16, 1) and expect[:5].all()
+    assert torch.equal(batch["backdrop"][..., 0].bool(), torch.from_numpy(expect))
+    llff = DataManager(load_scene(make_llff(tmp_path / "l", 10), views=3))
+    assert "backdrop" not in llff.next_train(0)[1]
+
+
 def test_memory_budget_lazy(llff_scene):
     eager = DataManager(llff_scene)
     lazy = DataManager(llff_scene, memory_budget_bytes=100)

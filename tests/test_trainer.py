@@ -16,12 +16,9 @@ from splat_framework.data.datamanager import view_bytes
 from splat_framework.evaluation import evaluate
 from splat_framework.io import read_json
 from splat_framework.registry import get_method
-from splat_framework.trainer import (
-    Trainer,
-    default_run_dir,
-    parse_bytes,
-    prepare_run_dir,
-)
+from splat_framework.memory_plan import parse_bytes
+from splat_framework.run_folder import default_run_dir, prepare_run_dir
+from splat_framework.trainer import Trainer
 
 
 @pytest.fixture(autouse=True)
@@ -151,7 +148,7 @@ def test_memory_budget_from_environment(tmp_path, monkeypatch):
 
 
 def test_impossible_memory_is_reported_before_training(tmp_path, monkeypatch, capsys):
-    import splat_framework.trainer as tr
+    import splat_framework.memory_plan as tr
 
     monkeypatch.setattr(tr, "physical_memory_bytes", lambda: 8 * 2**20)  # 8 MiB machine
     with pytest.raises(DataError, match="needs about .* of memory"):
@@ -305,3 +302,25 @@ def test_a_model_hook_that_resizes_the_model_is_said_and_counted(tmp_path, monke
     notes = [ln for ln in capsys.readouterr().err.splitlines() if "densification skips" in ln]
     assert len(notes) == 1 and "step 3" in notes[0], notes
     assert metrics["densify_skipped_steps"] == 2
+
+
+def test_backdrop_loss_makes_the_backdrop_empty_and_black(tmp_path):
+    """With a ``backdrop`` mask in the batch: its mean rendered alpha is a loss term whose
+    gradient lowers opacities, and the photometric target is black there; weight 0 turns it off."""
+    trainer = Trainer(tiny_config(tmp_path / "run", steps=1, progress=False))
+    model = trainer.model
+    cam, batch = trainer.datamanager.next_train(0)
+    back = torch.zeros_like(batch["image"][..., :1])
+    back[: back.shape[0] // 2] = 1.0
+    out = model.get_outputs(cam, trainer.background)
+    losses = model.get_loss_dict(out, batch | {"backdrop": back}, cam, 0)
+    mean_alpha = float((out.alpha * back).sum() / back.sum())
+    assert mean_alpha > 0.1 and float(losses["backdrop"]) == pytest.approx(mean_alpha, rel=1e-5)
+    black = model.get_loss_dict(out, batch | {"image": batch["image"] * (1 - back)}, cam, 0)
+    assert float(losses["photometric"]) == pytest.approx(float(black["photometric"]), rel=1e-6)
+    losses["backdrop"].backward()
+    assert float(model.params["opacities"].grad.sum()) > 0  # gradient descent lowers opacity
+
+    off = model.config.model.model_copy(update={"backdrop_weight": 0.0})
+    model.config = model.config.model_copy(update={"model": off})
+    assert set(model.get_loss_dict(out, batch | {"backdrop": back}, cam, 0)) == {"photometric"}

@@ -32,6 +32,20 @@ class _StepsMarker:
 
 
 STEPS_MARKER = _StepsMarker()
+
+
+class _RunOptionMarker:
+    """Annotation marker: this field says how a run is carried out, not what is trained.
+
+    Run options (output folder, device, progress bar, resume, ...) may differ
+    between a run and its ``--resume``; every other field is the experiment and
+    must not (see :func:`experiment_fields`)."""
+
+    def __repr__(self) -> str:  # pragma: no cover - cosmetic
+        return "RunOption"
+
+
+RUN_OPTION = _RunOptionMarker()
 Steps = Annotated[int, STEPS_MARKER, Field(ge=0)]
 """An iteration count (>= 0) that ``--steps`` rescales with the schedule."""
 Period = Annotated[int, STEPS_MARKER, Field(ge=1)]
@@ -125,6 +139,8 @@ class GaussianModelConfig(SplatConfig):
     """Raise the active SH degree by one every this many iterations."""
     lambda_dssim: Fraction = 0.2
     """Weight of the D-SSIM term in the photometric loss."""
+    backdrop_weight: NonNegative = 1.0
+    """On scenes with an unlit backdrop (DTU's black studio background; see data.images.dark_backdrop_mask): weight of the mean rendered alpha over the backdrop, whose target colour is also set to black, so that it stays empty space instead of dark Gaussians that occlude the object from other views (the public SCGaussian and DNGaussian code do this on DTU); 0 = off."""
     depth_mode: Literal["accumulated", "expected"] = "expected"
     """Depth reported in outputs and renders."""
 
@@ -146,25 +162,25 @@ class TrainConfig(SplatConfig):
     """Total optimisation iterations; rescales the method's whole schedule proportionally (default: the method's)."""
     default_steps: tyro.conf.Suppress[int] = 3000
     """The method's own total iterations, which its schedule fields are written for."""
-    output: Path | None = None
+    output: Annotated[Path | None, RUN_OPTION] = None
     """Run folder (default outputs/<scene>/<method>/<timestamp>)."""
     seed: int = Field(0, ge=0, lt=2**32)
     """Random seed for everything (initialisation, view order, matching)."""
-    device: str = "cpu"
+    device: Annotated[str, RUN_OPTION] = "cpu"
     """Torch device: cpu, cuda, cuda:N, mps, ... (checked against what torch has before a run starts)."""
-    resume: bool = False
+    resume: Annotated[bool, RUN_OPTION] = False
     """Continue the run in --output from its last good checkpoint."""
-    overwrite: bool = False
+    overwrite: Annotated[bool, RUN_OPTION] = False
     """Allow writing into an existing non-empty --output folder."""
-    eval_every: Steps = 0
+    eval_every: Annotated[Steps, RUN_OPTION] = 0
     """Evaluate the test views every this many iterations (0 = only at the end)."""
     checkpoint_every: Steps = 1000
     """Write a checkpoint every this many iterations (and always at the end)."""
-    save_renders: bool = True
+    save_renders: Annotated[bool, RUN_OPTION] = True
     """Write test-view renders (render, ground truth, depth) into the run folder."""
-    progress: bool = True
+    progress: Annotated[bool, RUN_OPTION] = True
     """Show the rich progress bar."""
-    compile: bool = True
+    compile: Annotated[bool, RUN_OPTION] = True
     """Fuse the rasterizer's compositing kernels with torch.compile, for training and for rendering this run later (eager fallback on any failure; compiled kernels cached under $SPLAT_CACHE/inductor: about 40 s the first time on a 2-core CPU, seconds after; SPLAT_COMPILE=0/1 overrides). On real fern training steps on a 2-core CPU: 1.85-3.0x faster than eager (benchmarks/train_step.py)."""
     model: GaussianModelConfig = Field(default_factory=GaussianModelConfig)
     """Model options."""
@@ -181,6 +197,11 @@ class TrainConfig(SplatConfig):
 # ----------------------------------------------------------------- helpers
 def _is_steps_field(info) -> bool:
     return any(m is STEPS_MARKER for m in info.metadata)
+
+
+def experiment_fields(config_cls: type[SplatConfig]) -> set[str]:
+    """Top-level fields of ``config_cls`` that define the experiment: all but those marked :data:`RUN_OPTION`."""
+    return {name for name, info in config_cls.model_fields.items() if not any(m is RUN_OPTION for m in info.metadata)}
 
 
 def scale_schedule(config: SplatConfig, factor: float) -> SplatConfig:

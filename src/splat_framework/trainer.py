@@ -35,60 +35,36 @@ Reliability contract:
 from __future__ import annotations
 
 import math
-import os
-import random
-import re
 import signal
 import time
 from contextlib import contextmanager
-from datetime import datetime
 from pathlib import Path
 from typing import Callable, Sequence
 
-import numpy as np
 import torch
 from torch import Tensor
-from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-from rich.table import Table
-from rich.text import Text
 
-from .checkpoint import (
-    CheckpointError,
-    check_structure,
-    list_checkpoints,
-    load_checkpoint,
-    load_latest,
-    remove_stale_temporaries,
-    save_checkpoint,
-)
-from .config import TrainConfig, config_payload, resolve_steps, save_config, upgrade_saved_config
+from .checkpoint import CheckpointError, check_structure, list_checkpoints, load_checkpoint, load_latest, save_checkpoint
+from .config import TrainConfig, config_payload, experiment_fields, resolve_steps, save_config, upgrade_saved_config
+from .console import console, print_summary, say, training_progress
 from .data import DataError, DataManager, load_scene, resolve_data_path
 from .data.cache_dir import user_cache_dir
 from .devices import resolve_device
-from .data.datamanager import estimate_image_bytes
 from .evaluation import evaluate
 from .io import atomic_write_json, read_json
+from .memory_plan import image_memory_budget, plan_memory
 from .metrics import psnr
 from .model.strategy import Strategy
 from .profiling import section
 from .render import set_compile
 from .registry import get_method
-from .resources import available_memory_bytes, physical_memory_bytes
-
-console = Console(stderr=True)
+from .rng import restore_rng_state, rng_state, seed_everything
+from .run_folder import prepare_run_dir
 
 MAX_NONFINITE = 20
 """Consecutive non-finite steps tolerated before restoring the last checkpoint."""
 MAX_RESTORES = 2
 """Checkpoint restores (each halving the learning rates) before giving up."""
-MEMORY_ENV = "SPLAT_IMAGE_MEMORY_BUDGET"
-"""Environment variable: cap on the decoded-image cache, in bytes ("512M", "2G", "1.5GiB" accepted)."""
-BYTES_PER_GAUSSIAN = 2048
-"""Rough memory of one Gaussian during training: 59 floats of parameters, their
-gradients, two Adam moments, strategy statistics and projection intermediates."""
-DENSIFY_GROWTH = 3
-"""Assumed growth of the Gaussian count through densification (memory estimate only)."""
 
 
 class TrainingInterrupted(Exception):
@@ -110,129 +86,7 @@ class _Restart(Exception):
     """Internal: a checkpoint was restored; continue the loop from ``Trainer.start_step``."""
 
 
-def _say(message: str, style: str | None = None) -> None:
-    """One line on stderr, never wrapped, never parsed as markup."""
-    console.print(Text(message, style=style or ""), soft_wrap=True)
-
-
-# ------------------------------------------------------------------ run dir
-def default_run_dir(config: TrainConfig) -> Path:
-    """outputs/SCENE/METHOD/TIMESTAMP, SCENE the last name of the resolved --data path (so that
-    ``--data some/dir/..`` cannot put the run outside ``outputs/``)."""
-    scene = Path(config.data).resolve().name
-    if scene in ("", ".", "..") or not scene.isprintable():
-        scene = "scene"
-    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    base = Path("outputs") / scene / config.method / stamp
-    run_dir, k = base, 1
-    while run_dir.exists():  # two runs started in the same second
-        run_dir = base.with_name(f"{stamp}-{k}")
-        k += 1
-    return run_dir
-
-
-def prepare_run_dir(config: TrainConfig) -> Path:
-    """The run folder; never silently overwrite an existing run.
-
-    Raises DataError (one line, exit code 2 in the CLIs) when ``--output``
-    exists and is not empty and neither ``--resume`` nor ``--overwrite`` is
-    given. With ``--overwrite`` the old checkpoints and metrics are removed so
-    that nothing of the previous run can be mistaken for this one's.
-    """
-    if config.resume and config.overwrite:
-        raise DataError("--resume and --overwrite exclude each other (continue the run, or start it again)")
-    if config.output is None:
-        if config.resume:
-            raise DataError("--resume needs --output RUN_FOLDER (the run to continue)")
-        run_dir = default_run_dir(config)
-    else:
-        run_dir = Path(config.output)
-        if run_dir.exists() and not run_dir.is_dir():
-            raise DataError(f"{run_dir}: --output exists and is not a folder")
-        if run_dir.exists() and any(run_dir.iterdir()) and not (config.resume or config.overwrite):
-            raise DataError(
-                f"{run_dir}: run folder exists and is not empty (use --resume to continue it or --overwrite to replace it)"
-            )
-        if config.overwrite and run_dir.is_dir():
-            for old in list_checkpoints(run_dir / "checkpoints"):
-                old.unlink(missing_ok=True)
-            (run_dir / "metrics.json").unlink(missing_ok=True)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    for folder in (run_dir, run_dir / "checkpoints", run_dir / "renders"):  # partial files of a killed run
-        remove_stale_temporaries(folder)
-    return run_dir
-
-
-# ------------------------------------------------------------------- memory
-_UNITS = {"": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}
-
-
-def parse_bytes(text: str | int) -> int:
-    """``"123"``, ``"512K"``, ``"2G"``, ``"1.5GiB"``, ``"3GB"`` -> bytes (binary units)."""
-    if isinstance(text, int):
-        return text
-    m = re.fullmatch(r"\s*(\d+(?:\.\d*)?|\.\d+)\s*([kKmMgGtT]?)(?:i?[bB])?\s*", str(text))
-    if m is None:
-        raise DataError(f"{MEMORY_ENV}={text!r}: not a size (examples: 800000000, 512M, 2G)")
-    return int(float(m.group(1)) * _UNITS[m.group(2).upper()])
-
-
-def image_memory_budget() -> int | None:
-    """The decoded-image cache budget from ``$SPLAT_IMAGE_MEMORY_BUDGET`` (None = unlimited)."""
-    text = os.environ.get(MEMORY_ENV, "").strip()
-    return parse_bytes(text) if text else None
-
-
-def _gb(n: float) -> str:
-    return f"{n / 2**30:.2f} GiB" if n >= 2**28 else f"{n / 2**20:.0f} MiB"
-
-
-def plan_memory(scene, config: TrainConfig, budget: int | None) -> int | None:
-    """Check that a run fits in memory before any decoding; return the image-cache budget to use.
-
-    Estimate: decoded images (those the budget lets us cache) + Gaussians
-    (``BYTES_PER_GAUSSIAN`` each, times ``DENSIFY_GROWTH`` when densifying).
-    Raises DataError when that exceeds the machine's RAM; warns (one line)
-    when it exceeds the currently free RAM. Without a budget, images that
-    would take more than half the RAM are decoded on demand instead.
-    """
-    total = physical_memory_bytes()
-    img = estimate_image_bytes(scene)
-    if total is not None and budget is None and img > total // 2:
-        budget = total // 4
-        _say(
-            f"warning: decoded images need {_gb(img)} (more than half of the {_gb(total)} of RAM): "
-            f"caching {_gb(budget)} and decoding the rest on demand (set {MEMORY_ENV} to choose)",
-            "yellow",
-        )
-    cached = img if budget is None else min(img, budget)
-    n = max(int(getattr(config.model, "init_num_points", 0) or 0), 10_000)
-    growth = DENSIFY_GROWTH if config.strategy.enabled else 1
-    gauss = n * BYTES_PER_GAUSSIAN * growth
-    need = cached + gauss
-    if total is not None and need > total:
-        raise DataError(
-            f"{scene.root}: the run needs about {_gb(need)} of memory (images {_gb(cached)}, "
-            f"Gaussians {_gb(gauss)}) but the machine has {_gb(total)}; lower {MEMORY_ENV}, "
-            "--downscale or --model.init-num-points"
-        )
-    free = available_memory_bytes()
-    if free is not None and need > free:
-        _say(
-            f"warning: the run needs about {_gb(need)} of memory but only {_gb(free)} is free; it may swap or be killed",
-            "yellow",
-        )
-    return budget
-
-
 # -------------------------------------------------------------------- misc
-def seed_everything(seed: int) -> torch.Generator:
-    random.seed(seed)
-    np.random.seed(seed % 2**32)
-    torch.manual_seed(seed)
-    return torch.Generator().manual_seed(seed)
-
-
 def _config_diff(old: dict, new: dict, prefix: str = "") -> list[str]:
     out = []
     for k in sorted(set(old) | set(new)):
@@ -242,9 +96,6 @@ def _config_diff(old: dict, new: dict, prefix: str = "") -> list[str]:
         elif a != b:
             out.append(f"{prefix}{k} ({a} -> {b})")
     return out
-
-
-_RUN_ONLY_FIELDS = ("resume", "overwrite", "progress", "output", "device", "eval_every", "save_renders", "compile")
 
 
 @contextmanager
@@ -285,17 +136,6 @@ def _first_nonfinite(tensors: dict[str, Tensor | None]) -> str | None:
         return None
     ok = torch.stack([torch.isfinite(tensors[k]).all() for k in names]).tolist()
     return next((k for k, good in zip(names, ok) if not good), None)
-
-
-def _numpy_state_to_payload() -> dict:
-    name, keys, pos, has_gauss, cached = np.random.get_state()
-    return {"name": name, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos),
-            "has_gauss": int(has_gauss), "cached": float(cached)}
-
-
-def _numpy_state_from_payload(s: dict) -> None:
-    keys = s["keys"].numpy().astype(np.uint32)
-    np.random.set_state((s["name"], keys, s["pos"], s["has_gauss"], s["cached"]))
 
 
 # ---------------------------------------------------------------- trainer
@@ -383,15 +223,15 @@ class Trainer:
         try:
             saved = read_json(path)
         except DataError as e:
-            _say(f"warning: {e}; it will be rewritten", "yellow")
+            say(f"warning: {e}; it will be rewritten", "yellow")
             return
         old = upgrade_saved_config(dict(saved.get("config", {})))
         new = self.config_payload()["config"]
         if old.get("method") not in (None, new["method"]):
             raise DataError(f"{path}: the run was trained with method {old['method']!r}, not {new['method']!r}")
-        for k in _RUN_ONLY_FIELDS:
-            old.pop(k, None)
-            new.pop(k, None)
+        experiment = experiment_fields(type(self.config))
+        old = {k: v for k, v in old.items() if k in experiment}
+        new = {k: v for k, v in new.items() if k in experiment}
         diff = _config_diff(old, new)
         if diff:  # a resumed run must be the same experiment, or its results mean nothing
             shown = ", ".join(diff[:4]) + (f" and {len(diff) - 4} more" if len(diff) > 4 else "")
@@ -422,11 +262,7 @@ class Trainer:
                 k: (v.detach().cpu() if torch.is_tensor(v) else v) for k, v in self.strategy_state.items()
             },
             "model_state": self.model.extra_state(),
-            "torch_rng": torch.get_rng_state(),
-            "cuda_rng": torch.cuda.get_rng_state_all() if self.device.type == "cuda" else [],
-            "generator_rng": self.generator.get_state(),
-            "python_rng": random.getstate(),
-            "numpy_rng": _numpy_state_to_payload(),
+            **rng_state(self.generator, self.device),
             "lr_factor": self.lr_factor,
             "skipped_steps": self.skipped_steps,
             "densify_skipped_steps": self.densify_skipped,
@@ -458,14 +294,7 @@ class Trainer:
         self.strategy_state = {
             k: (v.to(dev) if torch.is_tensor(v) else v) for k, v in ck["strategy_state"].items()
         }
-        torch.set_rng_state(ck["torch_rng"])
-        if ck.get("cuda_rng") and dev.type == "cuda":
-            torch.cuda.set_rng_state_all(ck["cuda_rng"])
-        self.generator.set_state(ck["generator_rng"])
-        if "python_rng" in ck:
-            random.setstate(ck["python_rng"])
-        if "numpy_rng" in ck:
-            _numpy_state_from_payload(ck["numpy_rng"])
+        restore_rng_state(ck, self.generator, dev)
         self.lr_factor = float(ck.get("lr_factor", 1.0))
         self.start_step = int(ck["step"])
 
@@ -495,14 +324,14 @@ class Trainer:
         timing = dict(ck.get("timing", {}))
         self._train_prior_s = float(timing.pop("train_s", 0.0))
         self.timing.update(timing)
-        _say(f"resumed from {path} (step {self.start_step})", "cyan")
+        say(f"resumed from {path} (step {self.start_step})", "cyan")
         return True
 
     def _load_latest_state(self) -> tuple[Path, dict] | None:
         """Load the newest checkpoint that verifies and restores (see :meth:`_restore_from`);
         a bad newer one is reported and the previous one tried."""
         return load_latest(
-            self.checkpoint_dir, report=lambda msg: _say(f"warning: {msg}", "yellow"), accept=self._restore_from
+            self.checkpoint_dir, report=lambda msg: say(f"warning: {msg}", "yellow"), accept=self._restore_from
         )
 
     def _restore_from(self, path: Path, ck: dict) -> dict:
@@ -578,7 +407,7 @@ class Trainer:
         # strategy state itself; this step's screen-space statistics no longer line up
         if densify and model.num_gaussians != n_before:
             if not self.densify_skipped:
-                _say(f"note: step {step}: {type(model).__name__}.after_optimizer_step changed the Gaussians "
+                say(f"note: step {step}: {type(model).__name__}.after_optimizer_step changed the Gaussians "
                      f"({n_before} -> {model.num_gaussians}); densification skips such steps (counted in metrics.json)")
             self.densify_skipped += 1
         elif densify:
@@ -599,7 +428,7 @@ class Trainer:
         self.skipped_steps += 1
         self.nonfinite_streak += 1
         if self.nonfinite_streak == 1 and not corrupted:
-            _say(f"warning: step {step}: non-finite {what}, step skipped", "yellow")
+            say(f"warning: step {step}: non-finite {what}, step skipped", "yellow")
         if not corrupted and self.nonfinite_streak < MAX_NONFINITE:
             return None
         why = f"non-finite {what} at step {step}" + ("" if corrupted else f" ({self.nonfinite_streak} steps in a row)")
@@ -615,14 +444,14 @@ class Trainer:
         self.restores += 1
         self.lr_factor *= 0.5
         self.nonfinite_streak = 0
-        _say(f"warning: {why}: restored {path.name} (step {self.start_step}), learning rates x{self.lr_factor:g}", "yellow")
+        say(f"warning: {why}: restored {path.name} (step {self.start_step}), learning rates x{self.lr_factor:g}", "yellow")
         raise _Restart()
 
     # ------------------------------------------------------------------- run
     def train(self) -> dict:
         cfg = self.config
         if cfg.resume and not self.restore():
-            _say(f"warning: {self.checkpoint_dir}: no checkpoint to resume from; training from the start", "yellow")
+            say(f"warning: {self.checkpoint_dir}: no checkpoint to resume from; training from the start", "yellow")
         total = cfg.total_steps
         last = {"loss": float("nan")}
         tpsnr = float("nan")
@@ -630,7 +459,7 @@ class Trainer:
         # without a terminal (logs, CI) the live bar cannot render: print a line every 5% instead
         plain_log = cfg.progress and not console.is_terminal
         plain_every = max(total // 20, 1)
-        with _stop_signals(self), _progress(cfg.progress and console.is_terminal) as progress:
+        with _stop_signals(self), training_progress(cfg.progress and console.is_terminal) as progress:
             task = progress.add_task(
                 "train", total=total, completed=self.start_step, loss=math.nan, psnr=math.nan, n=self.model.num_gaussians
             )
@@ -648,14 +477,14 @@ class Trainer:
                 progress.update(task, completed=step, loss=last["loss"], psnr=tpsnr, n=self.model.num_gaussians)
                 if plain_log and (step % plain_every == 0 or step == total):
                     rate = (step - self.start_step) / max(time.perf_counter() - self._train_t0, 1e-9)
-                    _say(f"step {step}/{total}  loss {last['loss']:.4f}  PSNR {tpsnr:.2f}  {self.model.num_gaussians} gaussians  {rate:.2f} it/s")
+                    say(f"step {step}/{total}  loss {last['loss']:.4f}  PSNR {tpsnr:.2f}  {self.model.num_gaussians} gaussians  {rate:.2f} it/s")
                 saved = False
                 if cfg.checkpoint_every and step % cfg.checkpoint_every == 0 and step < total:
                     self.save(step)
                     saved = True
                 if cfg.eval_every and step % cfg.eval_every == 0 and step < total:
                     m = evaluate(self.model, self.datamanager, self.background)
-                    _say(f"step {step}: test PSNR {m['mean']['psnr']:.2f}")
+                    say(f"step {step}: test PSNR {m['mean']['psnr']:.2f}")
                 for cb in self.callbacks:
                     cb(self, step)
                 if self.stop_reason is not None:
@@ -696,55 +525,6 @@ class Trainer:
         atomic_write_json(self.run_dir / "metrics.json", metrics)  # OSError (disk full): one line in the CLI
         print_summary(metrics, self.run_dir)
         return metrics
-
-
-@contextmanager
-def _progress(enabled: bool):
-    progress = Progress(
-        TextColumn("[bold]{task.description}"),
-        BarColumn(),
-        TextColumn("{task.completed}/{task.total}"),
-        TextColumn("[cyan]loss {task.fields[loss]:.4f}"),
-        TextColumn("[green]PSNR {task.fields[psnr]:.2f}"),
-        TextColumn("[magenta]{task.fields[n]} gaussians"),
-        _SpeedColumn(),
-        TimeElapsedColumn(),
-        TimeRemainingColumn(),
-        console=console,
-        disable=not enabled,
-    )
-    with progress:
-        yield progress
-
-
-class _SpeedColumn(TextColumn):
-    def __init__(self):
-        super().__init__("")
-
-    def render(self, task):
-        speed = task.finished_speed or task.speed
-        return Text(f"{speed:.2f} it/s" if speed else "-- it/s")
-
-
-def print_summary(metrics: dict, run_dir: Path) -> None:
-    """The final rich table: test metrics, Gaussian count and time per phase."""
-    table = Table(title=f"{metrics['method']} on {metrics['data']}")
-    table.add_column("metric")
-    table.add_column("value", justify="right")
-    for k, v in metrics["mean"].items():
-        table.add_row(f"test {k}", "n/a" if v is None else f"{v:.4f}")
-    table.add_row("gaussians", str(metrics["num_gaussians"]))
-    table.add_row("steps", str(metrics["steps"]))
-    if metrics.get("skipped_steps"):
-        table.add_row("skipped steps", str(metrics["skipped_steps"]))
-    if metrics.get("render_fps"):
-        table.add_row("render fps", f"{metrics['render_fps']:.1f}")
-    for k, v in metrics["timing"].items():
-        table.add_row(k, f"{v:.1f}")
-    table.add_row("run folder", str(run_dir))
-    Console().print(table)
-    if metrics.get("lpips_note"):
-        _say(f"LPIPS not computed: {metrics['lpips_note']}", "yellow")
 
 
 def train(config: TrainConfig, callbacks: Sequence[Callable[[Trainer, int], None]] = ()) -> dict:

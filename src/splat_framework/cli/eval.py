@@ -27,7 +27,7 @@ def main(args: EvalArgs) -> dict:
     from ..evaluation import evaluate
     from ..io import atomic_write_json, read_json
     from ..run import background_for, load_run
-    from ..trainer import print_summary
+    from ..console import print_summary
 
     config, dm, model = load_run(args.run_dir, args.device, args.trust_edited_config)
     results = evaluate(model, dm, background_for(dm.scene, config.device), args.run_dir / "renders" if args.renders else None)

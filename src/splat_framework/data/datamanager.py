@@ -5,7 +5,8 @@ once, into float32 tensors on the device:
 
 - ``image`` [H, W, 3] in [0, 1] (RGBA composited per ``scene.white_background``),
 - ``mask`` [H, W, 1] in {0, 1} when the scene has masks,
-- ``depth`` [H, W, 1] camera z (0 = no surface) when the scene has depth maps.
+- ``depth`` [H, W, 1] camera z (0 = no surface) when the scene has depth maps,
+- ``backdrop`` [H, W, 1] in {0, 1} (1 = unlit backdrop) when ``scene.dark_backdrop``.
 
 Training order: shuffled epochs over the training views. The permutation of
 epoch ``e`` is drawn from a ``torch.Generator`` seeded from ``(seed, e)``
@@ -31,16 +32,16 @@ import torch
 from torch import Tensor
 
 from ..cameras import Camera
-from .images import load_alpha, load_depth, load_image, load_mask, read_image_size, scaled_size
+from .images import dark_backdrop_mask, load_alpha, load_depth, load_image, load_mask, read_image_size, scaled_size
 from .scene import DataError, SceneData
 
 Batch = dict
 
 
 def view_bytes(scene: SceneData, i: int) -> int:
-    """Bytes of the decoded float32 tensors (image, mask, depth) of camera ``i``."""
+    """Bytes of the decoded float32 tensors (image, mask, depth, backdrop) of camera ``i``."""
     cam = scene.cameras[i]
-    per_pixel = 3 + (scene.mask_paths is not None) + (scene.depth_paths is not None)
+    per_pixel = 3 + (scene.mask_paths is not None) + (scene.depth_paths is not None) + scene.dark_backdrop
     return cam.width * cam.height * per_pixel * 4
 
 
@@ -137,6 +138,8 @@ class DataManager:
             batch["mask"] = self._tensor(load_mask(scene.mask_paths[i], size)[:, :, None])
         if scene.depth_paths is not None:
             batch["depth"] = self._tensor(load_depth(scene.depth_paths[i], size)[:, :, None])
+        if scene.dark_backdrop:
+            batch["backdrop"] = self._tensor(dark_backdrop_mask(img)[:, :, None])
         return batch
 
     def alpha(self, index: int) -> np.ndarray | None:

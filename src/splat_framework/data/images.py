@@ -202,6 +202,34 @@ def load_alpha(path: Path | str, *, scale: float = 1.0) -> np.ndarray | None:
     return _rescale(np.ascontiguousarray(_to_float(path, arr)[:, :, -1]), scale)
 
 
+BACKDROP_LEVEL = 30 / 255
+"""A backdrop pixel's brightest channel is below this (the public SCGaussian/DNGaussian DTU rule)."""
+BACKDROP_RUN = 1 / 6
+"""... and so are the pixels above it over this fraction of the image height (50 rows of DTU's 300)."""
+
+
+def dark_backdrop_mask(image: np.ndarray, level: float = BACKDROP_LEVEL, run: float = BACKDROP_RUN) -> np.ndarray:
+    """[H, W] bool: the unlit backdrop of an [H, W, 3] image in [0, 1] (DTU's black studio background).
+
+    A pixel is backdrop when its brightest channel is below ``level`` and so is
+    every pixel above it in the same column, up to ``run`` * H rows (fewer at the
+    top edge). Dark parts of an object lit from above (a black handle under a
+    bright table edge) fail the run and are kept. This is the rule of the public
+    SCGaussian code (``train.py``: max channel < 30/255 and the 49 rows above,
+    at 400x300), written relative to the image height so it holds at any scale.
+    """
+    if image.ndim != 3 or image.shape[2] < 3:
+        raise ValueError(f"expected an [H, W, 3] image, got shape {image.shape}")
+    dark = image[:, :, :3].max(axis=2) < level
+    h = dark.shape[0]
+    n = max(1, int(round(run * h)))
+    # dark pixels in the window [max(0, y - n + 1), y] of each column, from a cumulative sum
+    c = np.concatenate([np.zeros((1, dark.shape[1]), np.int64), np.cumsum(dark, axis=0)])
+    rows = np.arange(h)
+    top = np.maximum(rows - n + 1, 0)
+    return (c[rows + 1] - c[top]) == (rows + 1 - top)[:, None]
+
+
 def load_mask(path: Path | str, size: tuple[int, int]) -> np.ndarray:
     """Decode a foreground mask to float32 [H, W] in [0, 1] at ``size`` = (W, H).
 

@@ -31,6 +31,9 @@ class SceneData:
         scene_center: [3] centre of the region of interest (world).
         scene_radius: radius of that region (used for random init and lr scaling).
         masked_metrics: compute PSNR/SSIM on mask pixels only (DTU protocol).
+        dark_backdrop: the photos have an unlit backdrop that is empty space
+            (DTU's black studio background): training batches carry its mask
+            (:func:`~splat_framework.data.images.dark_backdrop_mask`).
         content_box: (min corner, max corner) of an axis-aligned world box
             around the scene content where the dataset defines one (Blender:
             the reference code's [-1.3, 1.3]^3; DTU: the unit sphere's cube);
@@ -50,6 +53,7 @@ class SceneData:
     scene_center: tuple[float, float, float] = (0.0, 0.0, 0.0)
     scene_radius: float = 1.0
     masked_metrics: bool = False
+    dark_backdrop: bool = False
     content_box: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
     extras: dict = field(default_factory=dict)
 

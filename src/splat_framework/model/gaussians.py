@@ -271,12 +271,20 @@ class GaussianModel(nn.Module):
     def get_loss_dict(
         self, outputs: RenderOutput, batch: dict, camera: Camera, step: int
     ) -> dict[str, Tensor]:
-        """Loss terms; the trainer minimises their sum."""
+        """Loss terms; the trainer minimises their sum.
+
+        ``photometric`` always; ``backdrop`` (mean alpha [H, W, 1] over the batch's
+        ``backdrop`` mask, whose target colour becomes black) on scenes with one.
+        """
+        cfg = self.config.model
         gt = batch["image"]
+        backdrop = batch.get("backdrop")
+        losses = {}
+        if backdrop is not None and cfg.backdrop_weight > 0:
+            gt = gt * (1.0 - backdrop)
+            losses["backdrop"] = cfg.backdrop_weight * (outputs.alpha * backdrop).sum() / backdrop.sum().clamp_min(1.0)
         with section("photometric"):
-            return {
-                "photometric": photometric_loss(outputs.rgb, gt, lambda_dssim=self.config.model.lambda_dssim)
-            }
+            return {"photometric": photometric_loss(outputs.rgb, gt, lambda_dssim=cfg.lambda_dssim)} | losses
 
     @classmethod
     def from_checkpoint(cls, config: TrainConfig, scene_scale: float, checkpoint: dict) -> "GaussianModel":

@@ -127,5 +127,6 @@ def load_dtu(root: Path, *, views: Views = "all", downscale: float | None = None
         white_background=False,
         mask_paths=mask_paths,
         masked_metrics=mask_paths is not None,
+        dark_backdrop=True,
         content_box=((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0)),
     )
