@@ -159,6 +159,23 @@ def test_steps_rescale_the_whole_schedule():
     assert same.strategy.refine_stop_iter == DensifyConfig().refine_stop_iter
 
 
+def test_steps_per_view_rule():
+    """scgaussian: 250 iterations per training view, at least its 1000; --steps and --views all keep their meaning."""
+    from scg_plugin.method import config_scgaussian
+
+    base = config_scgaussian()
+    assert base.steps_per_view == 250
+    three = base.model_copy(update={"views": 3})
+    assert resolve_steps(three) == three and three.total_steps == 1000
+    eight = resolve_steps(base.model_copy(update={"views": 8}))
+    assert eight.total_steps == 2000 and eight.strategy.refine_stop_iter == 2000
+    assert eight == resolve_steps(base.model_copy(update={"views": 8, "steps": 2000}))
+    assert resolve_steps(eight) == eight  # a resumed run resolves to the same schedule
+    assert resolve_steps(base.model_copy(update={"views": 8, "steps": 500})).total_steps == 500
+    assert resolve_steps(base.model_copy(update={"views": "all"})).total_steps == 1000
+    assert resolve_steps(TrainConfig(views=40)).total_steps == 3000  # 3dgs: no rule
+
+
 def test_config_json_roundtrip_with_schema_version(tmp_path):
     from scg_plugin.method import config_scgaussian
 

@@ -206,13 +206,13 @@ def test_ray_gaussians_survive_pruning(scene):
 
 def test_too_few_matches_warn_and_fall_back_to_ordinary_gaussians(scene, monkeypatch, tmp_path):
     """Texture-less views (simulated: the matcher finds nothing) must not crash or train nothing."""
-    import scg_plugin.model as scg_model
+    import scg_plugin.startup as startup
     from scg_plugin.matching import MatchSet
     from splat_framework.trainer import Trainer
 
     sc, _, _ = scene
     monkeypatch.setattr(
-        scg_model, "compute_match_set",
+        startup, "compute_match_set",
         lambda config, dm: MatchSet(view_ids=[int(i) for i in dm.scene.train_indices], matches={}),
     )
     cfg = config_scgaussian().model_copy(update=dict(data=str(sc.root), steps=10, output=tmp_path / "run", progress=False, save_renders=False))
@@ -225,14 +225,14 @@ def test_too_few_matches_warn_and_fall_back_to_ordinary_gaussians(scene, monkeyp
 
 def test_sparse_prior_warns_and_adds_random_ordinary_gaussians(scene, monkeypatch):
     """A prior of a few hundred matches (wide baselines, DTU) keeps its ray Gaussians and gets a random start too."""
-    import scg_plugin.model as scg_model
+    import scg_plugin.startup as startup
     from scg_plugin.matching import MatchSet
 
     sc, dm, depths = scene
     uv_a, uv_b, _ = true_correspondences(dm, depths, 0, 1, n=100)
     ids = [int(i) for i in sc.train_indices]
     monkeypatch.setattr(
-        scg_model, "compute_match_set",
+        startup, "compute_match_set",
         lambda config, dm: MatchSet(view_ids=ids, matches={(ids[0], ids[1]): (uv_a.numpy(), uv_b.numpy())}),
     )
     cfg = apply_overrides(config_scgaussian(), {"model": {"warmup_steps": 50}})
@@ -254,13 +254,14 @@ def test_sparse_prior_warns_and_adds_random_ordinary_gaussians(scene, monkeypatc
 
 def test_triangulation_without_matches_falls_back_to_the_reference_random_init(scene, monkeypatch):
     import scg_plugin.model as scg_model
+    import scg_plugin.startup as startup
     from scg_plugin.matching import MatchSet
     from scg_plugin.method import config_3dgs_triang
     from splat_framework.model.gaussians import FALLBACK_POINTS, frustum_box
 
     sc, dm, _ = scene
     monkeypatch.setattr(
-        scg_model, "compute_match_set",
+        startup, "compute_match_set",
         lambda config, dm: MatchSet(view_ids=[int(i) for i in sc.train_indices], matches={}),
     )
     with pytest.warns(UserWarning, match="too few triangulated matches"):

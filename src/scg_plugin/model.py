@@ -17,44 +17,17 @@ import torch
 from torch import Tensor, nn
 
 from splat_framework.cameras import Camera
-from splat_framework.data.cache_dir import user_cache_dir
 from splat_framework.model.gaussians import FALLBACK_POINTS, GaussianModel, random_init
 from splat_framework.model.ops import remove
 from splat_framework.profiling import section
 
 from .losses import rendering_geometry_loss
 from .strategy import RayGaussianStrategy
-from .ray_gaussians import (
-    MatchCache,
-    RayBundle,
-    build_ray_bundle,
-    gaussian_position_loss,
-    pixel_errors,
-    warm_up,
-)
+from .ray_gaussians import MatchCache, RayBundle, gaussian_position_loss, pixel_errors
+from . import startup
+from .startup import match_pairs, ordinary_points, ray_prior, warm_up_prior
 
 RAY_KEYS = ("z", "ray_o", "ray_d", "is_ray", "is_match")
-
-
-def compute_match_set(config, datamanager):
-    """Matches between all pairs of training views (cached on disk)."""
-    from .matching import compute_matches
-
-    views = datamanager.train_views()
-    images = [b["image"].cpu().numpy() for _, b in views]
-    cameras = [c.to("cpu") for c, _ in views]
-    ids = [int(b["index"]) for _, b in views]
-    cache_dir = user_cache_dir() / "matches" if config.model.matching.cache else None
-    masks = [datamanager.alpha(i) for i in ids] if config.model.matching.alpha_mask else None
-    return compute_matches(images, cameras, ids, config.model.matching, cache_dir, masks)
-
-
-def match_pairs(match_set, view_ids: list[int]):
-    """(i, j, uv_i, uv_j) with i, j positions in the training-view list."""
-    pos = {v: k for k, v in enumerate(view_ids)}
-    for i, j in match_set.pairs():
-        uv_i, uv_j = match_set.get(i, j)
-        yield pos[i], pos[j], uv_i, uv_j
 
 
 class SCGaussianModel(GaussianModel):
@@ -75,52 +48,14 @@ class SCGaussianModel(GaussianModel):
     # ------------------------------------------------------------------ build
     @classmethod
     def from_data(cls, config, datamanager, generator):
-        cfg = config.model
+        """The three start-up steps of :mod:`scg_plugin.startup` (prior, warm-up, ordinary Gaussians), then the model."""
         views = datamanager.train_views()
         cameras = [c for c, _ in views]
         images = [b["image"] for _, b in views]
-        ids = [int(b["index"]) for _, b in views]
         timing, stats = {}, {}
-        t0 = time.perf_counter()
-        match_set = compute_match_set(config, datamanager)
-        timing["matching_s"] = time.perf_counter() - t0
-        cpu_cams = [c.to("cpu") for c in cameras]
-        bundle = build_ray_bundle(match_pairs(match_set, ids), cpu_cams, generator)
-        n_matches = len(bundle) // 2
-        n_fill = max(cfg.init_num_points, FALLBACK_POINTS)
-        if n_matches < cfg.min_matches:
-            warnings.warn(
-                f"only {n_matches} verified matches between the {len(ids)} training views "
-                f"(fewer than min_matches={cfg.min_matches}): falling back to {n_fill} random ordinary Gaussians",
-                stacklevel=2,
-            )
-            bundle = None
-        t0 = time.perf_counter()
-        if bundle is not None and cfg.schedule == "two-stage" and cfg.warmup_steps > 0:
-            cache = MatchCache(bundle) if cfg.cache_filter else None
-            z = warm_up(bundle, cpu_cams, cfg.warmup_steps, cfg.warmup_lr, cfg.warmup_lr_halve_every, cache)
-            if cache is not None:
-                bundle.z = cache.best_z
-                keep = cache.keep_mask(cfg.filter_eta_px)
-                stats["filtered_matches"] = int((~keep).sum()) // 2
-                bundle = bundle.select(keep)
-            else:
-                bundle.z = z
-        timing["warmup_s"] = time.perf_counter() - t0
-        # ordinary Gaussians at start (none for SCGaussian's default unless the prior is missing or sparse)
-        sparse = bundle is not None and n_matches < cfg.sparse_matches
-        if sparse:
-            warnings.warn(
-                f"only {n_matches} verified matches between the {len(ids)} training views "
-                f"(fewer than sparse_matches={cfg.sparse_matches}): adding {n_fill} random ordinary Gaussians",
-                stacklevel=2,
-            )
-        n_rand = n_fill if bundle is None or sparse else cfg.init_num_points
-        if n_rand > 0:
-            pts, cols = random_init(cfg.init, datamanager.scene, cameras, images, n_rand, generator)
-        else:
-            pts = torch.zeros(0, 3, device=images[0].device)
-            cols = torch.zeros(0, 3, device=images[0].device)
+        bundle, n_matches = ray_prior(config, datamanager, generator, timing)
+        bundle = warm_up_prior(bundle, [c.to("cpu") for c in cameras], config.model, timing, stats)
+        pts, cols = ordinary_points(config.model, datamanager, bundle, n_matches, generator)
         model = cls(config, datamanager.scene.scene_radius, pts, cols, bundle, cameras, images)
         model.init_timing = timing
         model.init_stats = stats | {"num_matches": len(bundle) // 2 if bundle is not None else 0}
@@ -354,7 +289,7 @@ class TriangulatedGaussianModel(GaussianModel):
         images = [b["image"] for _, b in views]
         ids = [int(b["index"]) for _, b in views]
         t0 = time.perf_counter()
-        match_set = compute_match_set(config, datamanager)
+        match_set = startup.compute_match_set(config, datamanager)
         timing = {"matching_s": time.perf_counter() - t0}
         pts, cols = [], []
         for i, j, uv_i, uv_j in match_pairs(match_set, ids):

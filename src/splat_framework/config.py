@@ -162,6 +162,8 @@ class TrainConfig(SplatConfig):
     """Total optimisation iterations; rescales the method's whole schedule proportionally (default: the method's)."""
     default_steps: tyro.conf.Suppress[int] = 3000
     """The method's own total iterations, which its schedule fields are written for."""
+    steps_per_view: tyro.conf.Suppress[int] = 0
+    """The method's rule for more training views: without --steps, a run of N views (an integer --views) trains max(default_steps, N x this) iterations, its schedule rescaled as --steps would (0 = default_steps whatever N)."""
     output: Annotated[Path | None, RUN_OPTION] = None
     """Run folder (default outputs/<scene>/<method>/<timestamp>)."""
     seed: int = Field(0, ge=0, lt=2**32)
@@ -217,11 +219,20 @@ def scale_schedule(config: SplatConfig, factor: float) -> SplatConfig:
 
 
 def resolve_steps(config: TrainConfig) -> TrainConfig:
-    """Apply ``--steps``: rescale the schedule so it fits the requested total."""
-    if config.steps is None or config.steps == config.default_steps:
+    """The config with its total iterations settled and the schedule rescaled to fit them.
+
+    The total is ``--steps`` when given, else the method's ``steps_per_view``
+    rule when it asks for more than ``default_steps``, else ``default_steps``;
+    a resolved config resolves to itself (so a resumed run sees the same schedule).
+    """
+    steps = config.steps
+    if steps is None and config.steps_per_view > 0 and isinstance(config.views, int):
+        rule = config.steps_per_view * config.views
+        steps = rule if rule > config.default_steps else None
+    if steps is None or steps == config.default_steps:
         return config
-    scaled = scale_schedule(config, config.steps / config.default_steps)
-    return scaled.model_copy(update={"default_steps": config.steps})
+    scaled = scale_schedule(config, steps / config.default_steps)
+    return scaled.model_copy(update={"default_steps": steps, "steps": steps})
 
 
 def apply_overrides(config: SplatConfig, overrides: dict[str, Any]) -> SplatConfig:

@@ -1,0 +1,119 @@
+"""SCGaussian's start-up, one named step each, in the order :meth:`SCGaussianModel.from_data` runs them.
+
+1. :func:`ray_prior`: match every pair of training views (:func:`compute_match_set`,
+   cached on disk) and bind two ray-based Gaussians to each verified match
+   (:class:`~scg_plugin.ray_gaussians.RayBundle`); None when fewer than
+   ``min_matches`` were found (one warning).
+2. :func:`warm_up_prior`: the first stage of the two-stage schedule: optimise the
+   depths ``z`` alone with L_gp, keep each match's best depths and drop the
+   matches whose reprojection error stays above ``filter_eta_px`` (cache and filter).
+3. :func:`ordinary_points`: the ordinary (free) Gaussians to start with:
+   ``init_num_points`` random ones, or at least ``FALLBACK_POINTS`` when the
+   prior is missing or sparse (one warning).
+
+Each step returns what the next needs and records its own wall time.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+
+import torch
+from torch import Tensor
+
+from splat_framework.cameras import Camera
+from splat_framework.data.cache_dir import user_cache_dir
+from splat_framework.model.gaussians import FALLBACK_POINTS, random_init
+
+from .ray_gaussians import MatchCache, RayBundle, build_ray_bundle, warm_up
+
+
+def compute_match_set(config, datamanager):
+    """Matches between all pairs of training views (cached on disk)."""
+    from .matching import compute_matches
+
+    views = datamanager.train_views()
+    images = [b["image"].cpu().numpy() for _, b in views]
+    cameras = [c.to("cpu") for c, _ in views]
+    ids = [int(b["index"]) for _, b in views]
+    cache_dir = user_cache_dir() / "matches" if config.model.matching.cache else None
+    masks = [datamanager.alpha(i) for i in ids] if config.model.matching.alpha_mask else None
+    return compute_matches(images, cameras, ids, config.model.matching, cache_dir, masks)
+
+
+def match_pairs(match_set, view_ids: list[int]):
+    """(i, j, uv_i, uv_j) with i, j positions in the training-view list."""
+    pos = {v: k for k, v in enumerate(view_ids)}
+    for i, j in match_set.pairs():
+        uv_i, uv_j = match_set.get(i, j)
+        yield pos[i], pos[j], uv_i, uv_j
+
+
+def ray_prior(config, datamanager, generator: torch.Generator, timing: dict) -> tuple[RayBundle | None, int]:
+    """Step 1: (the ray bundle of the verified matches or None, the number of matches found).
+
+    ``timing["matching_s"]`` is set."""
+    cfg = config.model
+    views = datamanager.train_views()
+    ids = [int(b["index"]) for _, b in views]
+    t0 = time.perf_counter()
+    match_set = compute_match_set(config, datamanager)
+    timing["matching_s"] = time.perf_counter() - t0
+    bundle = build_ray_bundle(match_pairs(match_set, ids), [c.to("cpu") for c, _ in views], generator)
+    n_matches = len(bundle) // 2
+    if n_matches < cfg.min_matches:
+        warnings.warn(
+            f"only {n_matches} verified matches between the {len(ids)} training views "
+            f"(fewer than min_matches={cfg.min_matches}): falling back to "
+            f"{max(cfg.init_num_points, FALLBACK_POINTS)} random ordinary Gaussians",
+            stacklevel=3,
+        )
+        return None, n_matches
+    return bundle, n_matches
+
+
+def warm_up_prior(bundle: RayBundle | None, cameras: list[Camera], cfg, timing: dict, stats: dict) -> RayBundle | None:
+    """Step 2: the bundle after the z warm-up and cache-and-filter (two-stage schedule only).
+
+    ``cameras`` are the training cameras on the CPU; ``timing["warmup_s"]`` and
+    (when filtering) ``stats["filtered_matches"]`` are set."""
+    t0 = time.perf_counter()
+    if bundle is not None and cfg.schedule == "two-stage" and cfg.warmup_steps > 0:
+        cache = MatchCache(bundle) if cfg.cache_filter else None
+        z = warm_up(bundle, cameras, cfg.warmup_steps, cfg.warmup_lr, cfg.warmup_lr_halve_every, cache)
+        if cache is not None:
+            bundle.z = cache.best_z
+            keep = cache.keep_mask(cfg.filter_eta_px)
+            stats["filtered_matches"] = int((~keep).sum()) // 2
+            bundle = bundle.select(keep)
+        else:
+            bundle.z = z
+    timing["warmup_s"] = time.perf_counter() - t0
+    return bundle
+
+
+def ordinary_points(
+    cfg, datamanager, bundle: RayBundle | None, n_matches: int, generator: torch.Generator
+) -> tuple[Tensor, Tensor]:
+    """Step 3: (points [N, 3], colours [N, 3]) of the ordinary Gaussians to start with, on the images' device.
+
+    ``init_num_points`` random ones (none for the only-ray variant), or
+    ``max(init_num_points, FALLBACK_POINTS)`` when there is no prior or fewer
+    than ``sparse_matches`` matches (one warning)."""
+    views = datamanager.train_views()
+    cameras = [c for c, _ in views]
+    images = [b["image"] for _, b in views]
+    n_fill = max(cfg.init_num_points, FALLBACK_POINTS)
+    sparse = bundle is not None and n_matches < cfg.sparse_matches
+    if sparse:
+        warnings.warn(
+            f"only {n_matches} verified matches between the {len(views)} training views "
+            f"(fewer than sparse_matches={cfg.sparse_matches}): adding {n_fill} random ordinary Gaussians",
+            stacklevel=3,
+        )
+    n_rand = n_fill if bundle is None or sparse else cfg.init_num_points
+    if n_rand > 0:
+        return random_init(cfg.init, datamanager.scene, cameras, images, n_rand, generator)
+    empty = torch.zeros(0, 3, device=images[0].device)
+    return empty, empty.clone()
