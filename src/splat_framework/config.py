@@ -139,8 +139,8 @@ class GaussianModelConfig(SplatConfig):
     """Raise the active SH degree by one every this many iterations."""
     lambda_dssim: Fraction = 0.2
     """Weight of the D-SSIM term in the photometric loss."""
-    backdrop_weight: NonNegative = 1.0
-    """On scenes with an unlit backdrop (DTU's black studio background; see data.images.dark_backdrop_mask): weight of the mean rendered alpha over the backdrop, whose target colour is also set to black, so that it stays empty space instead of dark Gaussians that occlude the object from other views (the public SCGaussian and DNGaussian code do this on DTU); 0 = off."""
+    backdrop_weight: NonNegative = 0.0
+    """On scenes with an unlit backdrop (DTU's black studio background; see data.images.dark_backdrop_mask): weight of the mean rendered alpha over the backdrop, whose target colour is also set to black, so that it stays empty space, as the public SCGaussian and DNGaussian code do on DTU with weight 1 (0 = off, the default: on DTU scan37, 3 views, 1000 iterations, seed 0, weight 1 moved masked PSNR from 15.37 to 14.96 for scgaussian and from 9.37 to 9.52 for 3dgs)."""
     depth_mode: Literal["accumulated", "expected"] = "expected"
     """Depth reported in outputs and renders."""
 
@@ -162,8 +162,8 @@ class TrainConfig(SplatConfig):
     """Total optimisation iterations; rescales the method's whole schedule proportionally (default: the method's)."""
     default_steps: tyro.conf.Suppress[int] = 3000
     """The method's own total iterations, which its schedule fields are written for."""
-    steps_per_view: tyro.conf.Suppress[int] = 0
-    """The method's rule for more training views: without --steps, a run of N views (an integer --views) trains max(default_steps, N x this) iterations, its schedule rescaled as --steps would (0 = default_steps whatever N)."""
+    schedule_views: tyro.conf.Suppress[int] = 0
+    """The number of training views the method's default schedule is written for: without --steps, a run of N > this views (an integer --views) trains default_steps x N / this iterations, its whole schedule rescaled as --steps would (0 = default_steps whatever N)."""
     output: Annotated[Path | None, RUN_OPTION] = None
     """Run folder (default outputs/<scene>/<method>/<timestamp>)."""
     seed: int = Field(0, ge=0, lt=2**32)
@@ -221,14 +221,14 @@ def scale_schedule(config: SplatConfig, factor: float) -> SplatConfig:
 def resolve_steps(config: TrainConfig) -> TrainConfig:
     """The config with its total iterations settled and the schedule rescaled to fit them.
 
-    The total is ``--steps`` when given, else the method's ``steps_per_view``
-    rule when it asks for more than ``default_steps``, else ``default_steps``;
-    a resolved config resolves to itself (so a resumed run sees the same schedule).
+    The total is ``--steps`` when given, else ``default_steps``, scaled by
+    views / ``schedule_views`` when the run has more training views than the
+    method's schedule is written for (each view is then seen as often); a
+    resolved config resolves to itself (so a resumed run sees the same schedule).
     """
     steps = config.steps
-    if steps is None and config.steps_per_view > 0 and isinstance(config.views, int):
-        rule = config.steps_per_view * config.views
-        steps = rule if rule > config.default_steps else None
+    if steps is None and config.schedule_views > 0 and isinstance(config.views, int) and config.views > config.schedule_views:
+        steps = int(round(config.default_steps * config.views / config.schedule_views))
     if steps is None or steps == config.default_steps:
         return config
     scaled = scale_schedule(config, steps / config.default_steps)

@@ -22,8 +22,8 @@ from splat_framework.config import (
     save_config,
 )
 from splat_framework.errors import DataError
+from support import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 
 
 def _fake_eps(monkeypatch, eps):
@@ -159,20 +159,24 @@ def test_steps_rescale_the_whole_schedule():
     assert same.strategy.refine_stop_iter == DensifyConfig().refine_stop_iter
 
 
-def test_steps_per_view_rule():
-    """scgaussian: 250 iterations per training view, at least its 1000; --steps and --views all keep their meaning."""
+def test_more_views_than_the_schedule_is_written_for_scale_it():
+    """scgaussian's schedule is written for 4 views: 8 train twice as long; --steps and --views all keep their meaning."""
     from scg_plugin.method import config_scgaussian
 
     base = config_scgaussian()
-    assert base.steps_per_view == 250
-    three = base.model_copy(update={"views": 3})
-    assert resolve_steps(three) == three and three.total_steps == 1000
+    assert base.schedule_views == 4
+    for views in (3, 4):
+        same = base.model_copy(update={"views": views})
+        assert resolve_steps(same) == same and same.total_steps == 1000
     eight = resolve_steps(base.model_copy(update={"views": 8}))
     assert eight.total_steps == 2000 and eight.strategy.refine_stop_iter == 2000
     assert eight == resolve_steps(base.model_copy(update={"views": 8, "steps": 2000}))
     assert resolve_steps(eight) == eight  # a resumed run resolves to the same schedule
+    assert resolve_steps(base.model_copy(update={"views": 6})).total_steps == 1500
     assert resolve_steps(base.model_copy(update={"views": 8, "steps": 500})).total_steps == 500
     assert resolve_steps(base.model_copy(update={"views": "all"})).total_steps == 1000
+    short = base.model_copy(update={"views": 8, "default_steps": 40})  # a test's short schedule stays short
+    assert resolve_steps(short).total_steps == 80
     assert resolve_steps(TrainConfig(views=40)).total_steps == 3000  # 3dgs: no rule
 
 

@@ -15,8 +15,8 @@ import pytest
 from splat_framework import sweep
 from splat_framework.cli import sweep as cli_sweep
 from splat_framework.sweep import Grid, SweepError, run_sweep
+from support import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 TINY = {"model": {"init_num_points": 300}, "save_renders": False, "compile": False}
 """Keeps the end-to-end runs to about a second of training each (eager kernels: Ray's workers do not
 see the test environment's SPLAT_COMPILE=0, and compiling there took minutes)."""

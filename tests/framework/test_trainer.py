@@ -306,8 +306,9 @@ def test_a_model_hook_that_resizes_the_model_is_said_and_counted(tmp_path, monke
 
 def test_backdrop_loss_makes_the_backdrop_empty_and_black(tmp_path):
     """With a ``backdrop`` mask in the batch: its mean rendered alpha is a loss term whose
-    gradient lowers opacities, and the photometric target is black there; weight 0 turns it off."""
-    trainer = Trainer(tiny_config(tmp_path / "run", steps=1, progress=False))
+    gradient lowers opacities, and the photometric target is black there; weight 0 (the default) turns it off."""
+    model_options = {"init_num_points": 500, "backdrop_weight": 1.0}
+    trainer = Trainer(tiny_config(tmp_path / "run", steps=1, progress=False, model=model_options))
     model = trainer.model
     cam, batch = trainer.datamanager.next_train(0)
     back = torch.zeros_like(batch["image"][..., :1])
@@ -322,5 +323,6 @@ def test_backdrop_loss_makes_the_backdrop_empty_and_black(tmp_path):
     assert float(model.params["opacities"].grad.sum()) > 0  # gradient descent lowers opacity
 
     off = model.config.model.model_copy(update={"backdrop_weight": 0.0})
+    assert type(off)().backdrop_weight == 0.0  # the default
     model.config = model.config.model_copy(update={"model": off})
     assert set(model.get_loss_dict(out, batch | {"backdrop": back}, cam, 0)) == {"photometric"}

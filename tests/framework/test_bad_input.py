@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from splat_framework.data import DataError, DataManager, load_image, load_scene, read_image_size, resolve_data_path
-from test_parsers import llff_row, make_blender, make_colmap, make_dtu, make_llff, write_png
+from support import llff_row, make_blender, make_colmap, make_dtu, make_llff, write_png
 
 
 def raises_data_error(fn, *match: str) -> str:

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
 
 import pytest
 
@@ -17,8 +15,8 @@ from splat_framework.data.splits import (
     linspace_pick,
     llff_split,
 )
+from support import DATA
 
-DATA = Path(os.environ.get("SPLAT_DATA") or Path(__file__).resolve().parents[1].parent / "shared" / "data")
 
 
 def test_llff_fern_protocol_numbers():

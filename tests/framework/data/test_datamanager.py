@@ -9,7 +9,7 @@ import torch
 
 from splat_framework.data import DataError, DataManager, load_image, load_scene
 from splat_framework.data.images import read_image_size
-from test_parsers import make_blender, make_dtu, make_llff, write_png
+from support import make_blender, make_dtu, make_llff, write_png
 
 
 @pytest.fixture

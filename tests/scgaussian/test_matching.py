@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import time
 import warnings
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -26,9 +25,10 @@ from scg_plugin.matching import (
     magsac_inliers,
 )
 from splat_framework.cameras import Camera, intrinsics, look_at
+from support import DATA
 
 W, H = 320, 240
-FERN = Path(__file__).resolve().parents[2] / "shared" / "data" / "llff" / "fern"
+FERN = DATA / "llff" / "fern"
 
 
 # ------------------------------------------------------------ synthetic scene

@@ -6,7 +6,6 @@ Skipped with a reason when the data folder is absent (a user's machine).
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 import numpy as np
@@ -14,8 +13,8 @@ import pytest
 import torch
 
 from splat_framework.data import DataManager, load_scene
+from support import DATA
 
-DATA = Path(os.environ.get("SPLAT_DATA") or Path(__file__).resolve().parents[1].parent / "shared" / "data")
 
 pytestmark = pytest.mark.integration
 

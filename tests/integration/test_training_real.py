@@ -8,7 +8,6 @@ produced by benchmarks/full_run.py and benchmarks/ablation.py.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import pytest
@@ -16,8 +15,8 @@ import pytest
 from splat_framework.evaluation import evaluate
 from splat_framework.registry import get_method
 from splat_framework.trainer import Trainer
+from support import DATA
 
-DATA = Path(os.environ.get("SPLAT_DATA") or Path(__file__).resolve().parents[1].parent / "shared" / "data")
 FERN = DATA / "llff" / "fern"
 
 pytestmark = [
