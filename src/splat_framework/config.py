@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import tyro
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 SCHEMA_VERSION = 1
 """Version of the saved ``config.json`` layout; bump on incompatible change."""
@@ -271,12 +271,21 @@ def save_config(config: TrainConfig, path: Path) -> None:
 MOVED_FIELDS = (("strategy", "never_prune_key"), ("strategy", "child_defaults"))
 
 
-def upgrade_saved_config(cfg: dict) -> dict:
-    """A copy of a saved config dict without the :data:`MOVED_FIELDS` (runs written before they moved)."""
+def upgrade_saved_config(cfg: dict, config_cls: type[TrainConfig] | None = None) -> dict:
+    """A copy of a saved config dict without the :data:`MOVED_FIELDS` (runs written before they moved).
+
+    With ``config_cls``, fields added since the file was written take their
+    defaults (as ``config.json`` would hold them now); a dict that does not
+    validate is returned as it is, for the caller to report."""
     out = dict(cfg)
     for section, name in MOVED_FIELDS:
         if isinstance(out.get(section), dict) and name in out[section]:
             out[section] = {k: v for k, v in out[section].items() if k != name}
+    if config_cls is not None:
+        try:
+            out = json.loads(config_cls.model_validate(out).model_dump_json())
+        except ValidationError:
+            pass
     return out
 
 

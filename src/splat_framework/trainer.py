@@ -225,7 +225,7 @@ class Trainer:
         except DataError as e:
             say(f"warning: {e}; it will be rewritten", "yellow")
             return
-        old = upgrade_saved_config(dict(saved.get("config", {})))
+        old = upgrade_saved_config(dict(saved.get("config", {})), type(self.config))
         new = self.config_payload()["config"]
         if old.get("method") not in (None, new["method"]):
             raise DataError(f"{path}: the run was trained with method {old['method']!r}, not {new['method']!r}")

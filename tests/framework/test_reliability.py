@@ -101,6 +101,14 @@ def test_resume_reproduces_uninterrupted_run_3dgs(tmp_path):
         Trainer(cfg_fn(tmp_path / "b", resume=True, seed=5))
     assert (tmp_path / "b" / "config.json").read_bytes() == saved
     Trainer(cfg_fn(tmp_path / "b", resume=True, progress=False, eval_every=7))
+    # a run written before a field existed resumes: the field takes its default
+    from splat_framework.io import CHECKSUM_KEY, atomic_write_json, read_json
+
+    payload = read_json(tmp_path / "b" / "config.json")
+    payload.pop(CHECKSUM_KEY, None)
+    del payload["config"]["schedule_views"], payload["config"]["model"]["backdrop_weight"]
+    atomic_write_json(tmp_path / "b" / "config.json", payload)
+    Trainer(cfg_fn(tmp_path / "b", resume=True))
     assert straight.model.num_gaussians != 300, "densification should have run"
     assert_same_params(straight.model, resumed.model)
     assert mb["mean"]["psnr"] == pytest.approx(ma["mean"]["psnr"], abs=1e-6)
