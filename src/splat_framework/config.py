@@ -24,28 +24,23 @@ SCHEMA_VERSION = 1
 """Version of the saved ``config.json`` layout; bump on incompatible change."""
 
 
-class _StepsMarker:
-    """Annotation marker: this int field counts optimisation iterations."""
+class _Marker:
+    """An annotation marker (``Annotated[int, STEPS_MARKER]``): a fact about a field that code reads."""
+
+    def __init__(self, name: str, doc: str) -> None:
+        self.name, self.__doc__ = name, doc
 
     def __repr__(self) -> str:  # pragma: no cover - cosmetic
-        return "Steps"
+        return self.name
 
 
-STEPS_MARKER = _StepsMarker()
-
-
-class _RunOptionMarker:
-    """Annotation marker: this field says how a run is carried out, not what is trained.
-
-    Run options (output folder, device, progress bar, resume, ...) may differ
-    between a run and its ``--resume``; every other field is the experiment and
-    must not (see :func:`experiment_fields`)."""
-
-    def __repr__(self) -> str:  # pragma: no cover - cosmetic
-        return "RunOption"
-
-
-RUN_OPTION = _RunOptionMarker()
+STEPS_MARKER = _Marker("Steps", "This int field counts optimisation iterations (``--steps`` rescales it).")
+RUN_OPTION = _Marker(
+    "RunOption",
+    "This field says how a run is carried out, not what is trained: run options (output folder, "
+    "device, progress bar, resume, ...) may differ between a run and its ``--resume``; every other "
+    "field is the experiment and must not (see :func:`experiment_fields`).",
+)
 Steps = Annotated[int, STEPS_MARKER, Field(ge=0)]
 """An iteration count (>= 0) that ``--steps`` rescales with the schedule."""
 Period = Annotated[int, STEPS_MARKER, Field(ge=1)]
@@ -271,19 +266,21 @@ def save_config(config: TrainConfig, path: Path) -> None:
 MOVED_FIELDS = (("strategy", "never_prune_key"), ("strategy", "child_defaults"))
 
 
-def upgrade_saved_config(cfg: dict, config_cls: type[TrainConfig] | None = None) -> dict:
+def upgrade_saved_config(cfg: dict, defaults: TrainConfig | None = None) -> dict:
     """A copy of a saved config dict without the :data:`MOVED_FIELDS` (runs written before they moved).
 
-    With ``config_cls``, fields added since the file was written take their
-    defaults (as ``config.json`` would hold them now); a dict that does not
-    validate is returned as it is, for the caller to report."""
+    With ``defaults`` (the method's default config), fields added since the file
+    was written take the method's default value (as ``config.json`` would hold
+    them now); a dict that does not validate is returned as it is, for the
+    caller to report."""
     out = dict(cfg)
     for section, name in MOVED_FIELDS:
         if isinstance(out.get(section), dict) and name in out[section]:
             out[section] = {k: v for k, v in out[section].items() if k != name}
-    if config_cls is not None:
+    if defaults is not None:
+        filled = deep_merge(json.loads(defaults.model_dump_json()), out)
         try:
-            out = json.loads(config_cls.model_validate(out).model_dump_json())
+            out = json.loads(type(defaults).model_validate(filled).model_dump_json())
         except ValidationError:
             pass
     return out

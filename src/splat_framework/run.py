@@ -7,7 +7,7 @@ from pathlib import Path
 import torch
 
 from .checkpoint import check_structure, load_latest
-from .config import read_config_json
+from .config import read_config_json, upgrade_saved_config
 from .data.cache_dir import user_cache_dir
 from .devices import resolve_device
 from .errors import CheckpointError, DataError
@@ -31,7 +31,8 @@ def load_trained_model(run_dir: Path, device: str | None = None, scene_scale: fl
         spec = get_method(method)
     except KeyError as e:
         raise DataError(f"{cfg_path}: {e.args[0]}") from None
-    config = type(spec.default_config()).model_validate(raw)
+    defaults = spec.default_config()
+    config = type(defaults).model_validate(upgrade_saved_config(raw, defaults))
     if device is not None:
         config = config.model_copy(update={"device": device})
     resolve_device(config.device, "--device" if device is not None else str(cfg_path))

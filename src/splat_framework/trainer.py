@@ -174,7 +174,10 @@ class Trainer:
             data_path, format=self.config.format, views=self.config.views, downscale=self.config.downscale
         )
         budget = plan_memory(scene, self.config, image_memory_budget())
-        self.datamanager = DataManager(scene, device=self.device, seed=self.config.seed, memory_budget_bytes=budget)
+        self.datamanager = DataManager(
+            scene, device=self.device, seed=self.config.seed, memory_budget_bytes=budget,
+            backdrop=self.config.model.backdrop_weight > 0,
+        )
         self.timing["data_s"] = time.perf_counter() - t0
         bg = 1.0 if scene.white_background else 0.0
         self.background = torch.full((3,), bg, device=self.device)
@@ -225,7 +228,7 @@ class Trainer:
         except DataError as e:
             say(f"warning: {e}; it will be rewritten", "yellow")
             return
-        old = upgrade_saved_config(dict(saved.get("config", {})), type(self.config))
+        old = upgrade_saved_config(dict(saved.get("config", {})), get_method(self.config.method).default_config())
         new = self.config_payload()["config"]
         if old.get("method") not in (None, new["method"]):
             raise DataError(f"{path}: the run was trained with method {old['method']!r}, not {new['method']!r}")

@@ -25,9 +25,10 @@ from splat_framework.checkpoint import (
 from splat_framework.cli.common import run_cli
 from splat_framework.config import apply_overrides
 from splat_framework.errors import DataError
-from splat_framework.io import atomic_write_json, read_json
+from splat_framework.io import CHECKSUM_KEY, atomic_write_json, read_json
 from splat_framework.model.gaussians import GaussianModel
 from splat_framework.registry import get_method
+from splat_framework.run import load_trained_model
 from splat_framework.trainer import Trainer, TrainingDiverged, TrainingInterrupted
 
 PY = sys.executable
@@ -87,6 +88,19 @@ def interrupted_then_resumed(cfg_fn, out: Path, stop: int):
     return resumed, metrics
 
 
+
+def forget_fields(path, *dotted):
+    """Rewrite a run's config.json (with a fresh checksum) as if written before ``dotted`` fields existed."""
+    payload = read_json(path)
+    for name in dotted:
+        *parents, leaf = name.split(".")
+        section = payload["config"]
+        for p in parents:
+            section = section[p]
+        del section[leaf]
+    payload.pop(CHECKSUM_KEY, None)
+    atomic_write_json(path, payload)
+
 # ------------------------------------------------------------------ resume
 def test_resume_reproduces_uninterrupted_run_3dgs(tmp_path):
     cfg_fn = lambda out, **kw: fixed_config("3dgs", out, **kw)  # noqa: E731
@@ -102,12 +116,7 @@ def test_resume_reproduces_uninterrupted_run_3dgs(tmp_path):
     assert (tmp_path / "b" / "config.json").read_bytes() == saved
     Trainer(cfg_fn(tmp_path / "b", resume=True, progress=False, eval_every=7))
     # a run written before a field existed resumes: the field takes its default
-    from splat_framework.io import CHECKSUM_KEY, atomic_write_json, read_json
-
-    payload = read_json(tmp_path / "b" / "config.json")
-    payload.pop(CHECKSUM_KEY, None)
-    del payload["config"]["schedule_views"], payload["config"]["model"]["backdrop_weight"]
-    atomic_write_json(tmp_path / "b" / "config.json", payload)
+    forget_fields(tmp_path / "b" / "config.json", "schedule_views", "model.backdrop_weight")
     Trainer(cfg_fn(tmp_path / "b", resume=True))
     assert straight.model.num_gaussians != 300, "densification should have run"
     assert_same_params(straight.model, resumed.model)
@@ -127,6 +136,11 @@ def test_resume_reproduces_uninterrupted_run_scgaussian(tmp_path):
     resumed, _ = interrupted_then_resumed(cfg_fn, tmp_path / "b", stop=15)
     assert_same_params(straight.model, resumed.model)
     assert resumed.model.num_match_gaussians == straight.model.num_match_gaussians
+    # a run written before a field existed takes the method's default (scgaussian's
+    # schedule_views is 4, the base class's 0), not the class default, so it still resumes
+    forget_fields(tmp_path / "b" / "config.json", "schedule_views")
+    Trainer(cfg_fn(tmp_path / "b", resume=True))
+    assert load_trained_model(tmp_path / "b")[0].schedule_views == 4
     assert torch.equal(resumed.model.bundle.z.cpu(), straight.model.bundle.z.cpu())
 
 
@@ -157,7 +171,6 @@ def test_a_checkpoint_with_a_valid_checksum_but_wrong_contents_falls_back(tmp_pa
     """A checksum proves the bytes, not the layout: a newest checkpoint with a missing parameter, a wrong
     shape or dtype is reported in one line and the previous one is used, by --resume and by splat-eval,
     splat-render and splat-export (load_trained_model)."""
-    from splat_framework.run import load_trained_model
 
     out = tmp_path / "run"
     cfg_fn = lambda out, **kw: fixed_config("3dgs", out, checkpoint_every=5, **kw)  # noqa: E731

@@ -6,7 +6,8 @@ once, into float32 tensors on the device:
 - ``image`` [H, W, 3] in [0, 1] (RGBA composited per ``scene.white_background``),
 - ``mask`` [H, W, 1] in {0, 1} when the scene has masks,
 - ``depth`` [H, W, 1] camera z (0 = no surface) when the scene has depth maps,
-- ``backdrop`` [H, W, 1] in {0, 1} (1 = unlit backdrop) when ``scene.dark_backdrop``.
+- ``backdrop`` [H, W, 1] in {0, 1} (1 = unlit backdrop): training views of a
+  ``scene.dark_backdrop`` scene, when the DataManager is asked for it.
 
 Training order: shuffled epochs over the training views. The permutation of
 epoch ``e`` is drawn from a ``torch.Generator`` seeded from ``(seed, e)``
@@ -39,9 +40,11 @@ Batch = dict
 
 
 def view_bytes(scene: SceneData, i: int) -> int:
-    """Bytes of the decoded float32 tensors (image, mask, depth, backdrop) of camera ``i``."""
+    """Bytes of the decoded float32 tensors (image, mask, depth, backdrop) of camera ``i``
+    (an upper bound: the backdrop mask is counted for training views, whether or not it is asked for)."""
     cam = scene.cameras[i]
-    per_pixel = 3 + (scene.mask_paths is not None) + (scene.depth_paths is not None) + scene.dark_backdrop
+    backdrop = scene.dark_backdrop and i in scene.train_indices
+    per_pixel = 3 + (scene.mask_paths is not None) + (scene.depth_paths is not None) + backdrop
     return cam.width * cam.height * per_pixel * 4
 
 
@@ -61,6 +64,8 @@ class DataManager:
         seed: seed of the training-view order.
         memory_budget_bytes: optional cap on decoded tensor memory; above it
             images are decoded on demand instead of cached.
+        backdrop: give training batches the ``backdrop`` mask on scenes with a dark
+            backdrop (only a loss that uses it needs it: ``model.backdrop_weight > 0``).
     """
 
     def __init__(
@@ -69,8 +74,10 @@ class DataManager:
         device: str | torch.device = "cpu",
         seed: int = 0,
         memory_budget_bytes: int | None = None,
+        backdrop: bool = False,
     ):
         self.scene = scene
+        self.backdrop = bool(backdrop and scene.dark_backdrop)
         self.device = torch.device(device)
         self.seed = int(seed)
         n = len(scene.cameras)
@@ -138,7 +145,7 @@ class DataManager:
             batch["mask"] = self._tensor(load_mask(scene.mask_paths[i], size)[:, :, None])
         if scene.depth_paths is not None:
             batch["depth"] = self._tensor(load_depth(scene.depth_paths[i], size)[:, :, None])
-        if scene.dark_backdrop:
+        if self.backdrop and i in self.train_indices:
             batch["backdrop"] = self._tensor(dark_backdrop_mask(img)[:, :, None])
         return batch
 

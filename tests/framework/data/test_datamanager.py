@@ -114,7 +114,8 @@ def test_dark_backdrop_rule():
 
 
 def test_backdrop_only_on_scenes_that_declare_one(tmp_path):
-    """DTU batches carry the backdrop mask of their own image; LLFF batches do not."""
+    """DTU training batches carry the backdrop mask of their own image when asked; test views
+    and LLFF batches never do."""
     from splat_framework.data.images import dark_backdrop_mask
 
     root = make_dtu(tmp_path / "d", 49)
@@ -122,12 +123,14 @@ def test_backdrop_only_on_scenes_that_declare_one(tmp_path):
         img = cv2.imread(str(root / "images_4" / f"{i:06d}.png"))
         img[:5] = 0
         cv2.imwrite(str(root / "images_4" / f"{i:06d}.png"), img)
-    dm = DataManager(load_scene(root, views=3))
+    assert "backdrop" not in DataManager(load_scene(root, views=3)).next_train(0)[1]  # not asked for
+    dm = DataManager(load_scene(root, views=3), backdrop=True)
+    assert "backdrop" not in dm.batch(dm.test_indices[0])
     _, batch = dm.next_train(0)
     expect = dark_backdrop_mask(batch["image"].numpy())
     assert batch["backdrop"].shape == (12, 16, 1) and expect[:5].all()
     assert torch.equal(batch["backdrop"][..., 0].bool(), torch.from_numpy(expect))
-    llff = DataManager(load_scene(make_llff(tmp_path / "l", 10), views=3))
+    llff = DataManager(load_scene(make_llff(tmp_path / "l", 10), views=3), backdrop=True)
     assert "backdrop" not in llff.next_train(0)[1]
 
 
