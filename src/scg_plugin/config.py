@@ -6,7 +6,17 @@ from typing import Literal
 
 from pydantic import Field
 
-from splat_framework.config import GaussianModelConfig, LearningRate, Period, Steps, TrainConfig
+import tyro
+
+from splat_framework.config import (
+    DensifyConfig,
+    GaussianModelConfig,
+    LearningRate,
+    Period,
+    Steps,
+    TrainConfig,
+    strategy_field,
+)
 
 from .matching import MatchConfig
 
@@ -50,11 +60,30 @@ class SCGModelConfig(GaussianModelConfig):
     """Below this many verified matches the prior is too sparse to grow a model from: the run warns and adds max(init_num_points, 10000) random ordinary Gaussians alongside the ray-based ones (0 = never)."""
 
 
+class RayStrategyConfig(DensifyConfig):
+    """3DGS adaptive density control for the hybrid model: the Gaussians of matches are never
+    pruned, and clones / split children are ordinary Gaussians (``scg_plugin.strategy``)."""
+
+    kind: tyro.conf.Suppress[Literal["ray-gaussian"]] = "ray-gaussian"
+    """The strategy's tag."""
+
+    def setup(self):
+        from .strategy import RayGaussianStrategy
+
+        return RayGaussianStrategy(self)
+
+
+RayStrategies = strategy_field(RayStrategyConfig)
+"""SCGaussian's strategy kinds: only those that keep the Gaussians of matches and their flags."""
+
+
 class SCGTrainConfig(TrainConfig):
     """Training options of SCGaussian."""
 
     model: SCGModelConfig = Field(default_factory=SCGModelConfig)
     """Model options."""
+    strategy: RayStrategies = Field(default_factory=RayStrategyConfig)
+    """Densification options."""
 
 
 class TriangModelConfig(GaussianModelConfig):

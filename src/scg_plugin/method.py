@@ -6,8 +6,7 @@ TOML variants in ``scg_plugin/configs/`` (package data, see ``splat_framework.re
 
 from splat_framework.registry import MethodSpec
 
-from .config import SCGModelConfig, SCGTrainConfig, TriangTrainConfig
-from splat_framework.config import DensifyConfig
+from .config import RayStrategyConfig, SCGModelConfig, SCGTrainConfig, TriangTrainConfig
 
 
 def config_scgaussian() -> SCGTrainConfig:
@@ -31,7 +30,7 @@ def config_scgaussian() -> SCGTrainConfig:
         default_steps=1000,
         schedule_views=4,
         model=SCGModelConfig(sh_degree_interval=1000),
-        strategy=DensifyConfig(
+        strategy=RayStrategyConfig(
             grow_grad2d=0.0004,
             refine_start_iter=500,
             refine_stop_iter=1000,

@@ -22,7 +22,6 @@ from splat_framework.model.ops import remove
 from splat_framework.profiling import section
 
 from .losses import rendering_geometry_loss
-from .strategy import RayGaussianStrategy
 from .ray_gaussians import MatchCache, RayBundle, gaussian_position_loss, pixel_errors
 from . import startup
 from .startup import match_pairs, ordinary_points, ray_prior, warm_up_prior
@@ -128,9 +127,6 @@ class SCGaussianModel(GaussianModel):
             lr = cfg.z_lr * self.scene_scale * ratio
         for g in optimizers["z"].param_groups:
             g["lr"] = lr
-
-    def make_strategy(self) -> RayGaussianStrategy:
-        return RayGaussianStrategy(self.config.strategy)
 
     def prepare_for_strategy(self) -> None:
         p = self.params

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, Union
 
 import tyro
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -63,11 +63,42 @@ class SplatConfig(BaseModel):
     )
 
 
-class DensifyConfig(SplatConfig):
-    """Adaptive density control of 3DGS (clone, split, prune, opacity reset)."""
+class StrategyConfig(SplatConfig):
+    """Base of the densification strategies' configs: a discriminated union member.
 
+    Each subclass names its ``kind`` (a one-value Literal: the tag by which a saved
+    config, a TOML variant or a sweep picks it) and builds its strategy in
+    :meth:`setup`, importing torch only there. A method's config lists the kinds it
+    accepts with :func:`strategy_field`; its default instance decides which one a
+    run uses, and ``--strategy.*`` flags edit that one (a variant switches kind
+    with ``[overrides.strategy] kind = ...``)."""
+
+    kind: str
+    """The strategy's tag."""
     enabled: bool = True
     """Run densification at all (False keeps the initial Gaussians only)."""
+
+    def setup(self):
+        """The :class:`~splat_framework.model.strategy.Strategy` this config describes."""
+        raise NotImplementedError(f"{type(self).__name__}.setup()")
+
+
+def strategy_field(*configs: type[StrategyConfig]):
+    """The annotation of a ``strategy`` field accepting these :class:`StrategyConfig` kinds.
+
+    A plugin widens the union in its own :class:`TrainConfig` subclass, e.g.
+    ``strategy: strategy_field(MyStrategyConfig, DensifyConfig) = Field(default_factory=MyStrategyConfig)``.
+    The CLI shows the flags of the default's kind (no subcommand to type)."""
+    if len(configs) == 1:
+        return Annotated[configs[0], tyro.conf.AvoidSubcommands]
+    return Annotated[Union[configs], Field(discriminator="kind"), tyro.conf.AvoidSubcommands]
+
+
+class DensifyConfig(StrategyConfig):
+    """Adaptive density control of 3DGS (clone, split, prune, opacity reset)."""
+
+    kind: tyro.conf.Suppress[Literal["default"]] = "default"
+    """The strategy's tag."""
     prune_opa: Annotated[float, Field(ge=0, lt=1, allow_inf_nan=False)] = 0.005
     """Prune Gaussians whose opacity falls below this."""
     grow_grad2d: NonNegative = 0.0002
@@ -96,6 +127,15 @@ class DensifyConfig(SplatConfig):
     """Use the absolute-gradient criterion (AbsGS); raise grow_grad2d accordingly."""
     revised_opacity: bool = False
     """Use the revised opacity for cloned/split Gaussians (Rota Bulo et al. 2024)."""
+
+    def setup(self):
+        from .model.strategy import DefaultStrategy
+
+        return DefaultStrategy(self)
+
+
+DefaultStrategies = strategy_field(DensifyConfig)
+"""The strategy kinds every method accepts unless its config widens them."""
 
 
 class OptimConfig(SplatConfig):
@@ -181,8 +221,8 @@ class TrainConfig(SplatConfig):
     """Fuse the rasterizer's compositing kernels with torch.compile, for training and for rendering this run later (eager fallback on any failure; compiled kernels cached under $SPLAT_CACHE/inductor: about 40 s the first time on a 2-core CPU, seconds after; SPLAT_COMPILE=0/1 overrides). On real fern training steps on a 2-core CPU: 1.85-3.0x faster than eager (benchmarks/train_step.py)."""
     model: GaussianModelConfig = Field(default_factory=GaussianModelConfig)
     """Model options."""
-    strategy: DensifyConfig = Field(default_factory=DensifyConfig)
-    """Densification options."""
+    strategy: DefaultStrategies = Field(default_factory=DensifyConfig)
+    """Densification options (the strategy's kind is the method's or the variant's)."""
     optim: OptimConfig = Field(default_factory=OptimConfig)
     """Learning rates."""
 
@@ -240,12 +280,19 @@ def apply_overrides(config: SplatConfig, overrides: dict[str, Any]) -> SplatConf
 
 
 def deep_merge(a: dict, b: dict) -> dict:
-    """``b`` merged into a copy of ``a``: nested dicts are merged key by key, any other value of
-    ``b`` replaces ``a``'s. The one merge rule of configs, variants and sweeps."""
+    """``b`` merged into a copy of ``a``: nested dicts are merged key by key (unless ``b``'s names
+    another ``kind``, see :func:`_same_kind`), any other value of ``b`` replaces ``a``'s. The one
+    merge rule of configs, variants and sweeps."""
     out = {k: (deep_merge(v, {}) if isinstance(v, dict) else v) for k, v in a.items()}
     for k, v in b.items():
-        out[k] = deep_merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+        out[k] = deep_merge(out[k], v) if isinstance(v, dict) and _same_kind(out.get(k), v) else v
     return out
+
+
+def _same_kind(a, b: dict) -> bool:
+    """Whether dict ``b`` edits dict ``a``; a ``b`` that names another ``kind`` (a discriminated
+    union member, e.g. another strategy) replaces ``a`` instead, taking its own defaults."""
+    return isinstance(a, dict) and b.get("kind", a.get("kind")) == a.get("kind")
 
 
 def config_payload(config: TrainConfig) -> dict:

@@ -130,6 +130,20 @@ def test_bad_override_names_the_field():
         apply_overrides(TrainConfig(), {"model": {"sh_degree": 7}})
 
 
+def test_a_section_naming_another_kind_replaces_instead_of_merging():
+    """The one merge rule and discriminated unions: editing a strategy merges into it; naming another
+    kind starts from that kind's defaults (the old kind's fields would not validate)."""
+    from splat_framework.config import deep_merge
+
+    a = {"strategy": {"kind": "default", "reset_every": 5, "prune_opa": 0.1}, "seed": 1}
+    assert deep_merge(a, {"strategy": {"reset_every": 7}})["strategy"] == {"kind": "default", "reset_every": 7, "prune_opa": 0.1}
+    assert deep_merge(a, {"strategy": {"kind": "default", "reset_every": 7}})["strategy"]["prune_opa"] == 0.1
+    assert deep_merge(a, {"strategy": {"kind": "mine", "every": 3}}) == {"strategy": {"kind": "mine", "every": 3}, "seed": 1}
+    with pytest.raises(ValidationError, match="kind"):  # the framework's 3dgs lists only its own kind
+        apply_overrides(TrainConfig(), {"strategy": {"kind": "ray-gaussian"}})
+    assert type(apply_overrides(TrainConfig(), {"strategy": {"kind": "default"}}).strategy) is DensifyConfig
+
+
 def test_every_config_field_has_a_docstring():
     from scg_plugin.config import SCGTrainConfig, TriangTrainConfig
 

@@ -116,7 +116,7 @@ def test_resume_reproduces_uninterrupted_run_3dgs(tmp_path):
     assert (tmp_path / "b" / "config.json").read_bytes() == saved
     Trainer(cfg_fn(tmp_path / "b", resume=True, progress=False, eval_every=7))
     # a run written before a field existed resumes: the field takes its default
-    forget_fields(tmp_path / "b" / "config.json", "schedule_views", "model.backdrop_weight")
+    forget_fields(tmp_path / "b" / "config.json", "schedule_views", "model.backdrop_weight", "strategy.kind")
     Trainer(cfg_fn(tmp_path / "b", resume=True))
     assert straight.model.num_gaussians != 300, "densification should have run"
     assert_same_params(straight.model, resumed.model)
@@ -138,9 +138,10 @@ def test_resume_reproduces_uninterrupted_run_scgaussian(tmp_path):
     assert resumed.model.num_match_gaussians == straight.model.num_match_gaussians
     # a run written before a field existed takes the method's default (scgaussian's
     # schedule_views is 4, the base class's 0), not the class default, so it still resumes
-    forget_fields(tmp_path / "b" / "config.json", "schedule_views")
+    forget_fields(tmp_path / "b" / "config.json", "schedule_views", "strategy.kind")
     Trainer(cfg_fn(tmp_path / "b", resume=True))
-    assert load_trained_model(tmp_path / "b")[0].schedule_views == 4
+    config = load_trained_model(tmp_path / "b")[0]
+    assert config.schedule_views == 4 and config.strategy.kind == "ray-gaussian"
     assert torch.equal(resumed.model.bundle.z.cpu(), straight.model.bundle.z.cpu())
 
 

@@ -247,10 +247,10 @@ def test_trainer_checks_the_strategy_conventions(tmp_path, monkeypatch):
         Trainer(tiny_config(tmp_path / "run", steps=5, progress=False))
 
 
-def test_the_model_picks_the_strategy_and_the_trainer_runs_any_strategy(tmp_path, monkeypatch):
-    """The densification strategy is a seam: a model's ``make_strategy`` may return any Strategy
-    subclass (here one that counts its calls and never densifies), and the trainer runs it."""
-    from splat_framework.model.gaussians import GaussianModel
+def test_the_config_picks_the_strategy_and_the_trainer_runs_any_strategy(tmp_path, monkeypatch):
+    """The densification strategy is a seam: the config's strategy kind builds it (``setup``),
+    any Strategy subclass (here one that counts its calls and never densifies) runs."""
+    from splat_framework.config import DensifyConfig
     from splat_framework.model.strategy import DefaultStrategy, Strategy
 
     class Counting(Strategy):
@@ -272,15 +272,15 @@ def test_the_model_picks_the_strategy_and_the_trainer_runs_any_strategy(tmp_path
             return {}
 
     assert isinstance(Trainer(tiny_config(tmp_path / "default", steps=4, progress=False)).strategy, DefaultStrategy)
-    monkeypatch.setattr(GaussianModel, "make_strategy", lambda self: Counting())
+    monkeypatch.setattr(DensifyConfig, "setup", lambda self: Counting())
     trainer = Trainer(tiny_config(tmp_path / "run", steps=12, progress=False))
     n0 = trainer.model.num_gaussians
     trainer.train()
     s = trainer.strategy
     assert isinstance(s, Counting) and s.calls == {"sanity": 1, "pre": 12, "post": 12}
     assert trainer.strategy_state["seen"] == 12 and trainer.model.num_gaussians == n0  # never densified
-    monkeypatch.setattr(GaussianModel, "make_strategy", lambda self: object())
-    with pytest.raises(TypeError, match="not a Strategy"):
+    monkeypatch.setattr(DensifyConfig, "setup", lambda self: object())
+    with pytest.raises(TypeError, match=r"DensifyConfig.setup\(\) returned object, not a Strategy"):
         Trainer(tiny_config(tmp_path / "run2", steps=4, progress=False))
 
 

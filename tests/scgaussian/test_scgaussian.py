@@ -168,7 +168,7 @@ def test_ray_gaussians_move_only_along_their_rays(scene):
 
 
 def _refine_once(model, cfg, dm):
-    strategy = model.make_strategy()  # RayGaussianStrategy: keeps the Gaussians of matches
+    strategy = cfg.strategy.setup()  # RayGaussianStrategy: keeps the Gaussians of matches
     assert type(strategy).__name__ == "RayGaussianStrategy"
     opts = model.make_optimizers()
     state = strategy.initialize_state(1.0)

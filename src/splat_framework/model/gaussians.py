@@ -29,7 +29,6 @@ from ..data.scene import SceneData
 from ..losses import photometric_loss
 from ..profiling import section
 from ..render import RenderOutput, rasterize, rgb_to_sh
-from .strategy import DefaultStrategy, Strategy
 
 FALLBACK_POINTS = 10_000
 """Random ordinary Gaussians a model starts from when its prior (matches, triangulated points) is missing or sparse."""
@@ -194,12 +193,6 @@ class GaussianModel(nn.Module):
             for k, p in self.params.items()
             if p.requires_grad and k in lrs
         }
-
-    def make_strategy(self) -> Strategy:
-        """The densification strategy the trainer runs for this model (default: 3DGS adaptive
-        density control with ``config.strategy``). A plugin returns its own
-        :class:`~splat_framework.model.strategy.Strategy` subclass here."""
-        return DefaultStrategy(self.config.strategy)
 
     def update_learning_rates(self, optimizers: dict, step: int, total_steps: int) -> None:
         """Exponential decay of the position lr over the run (3DGS schedule)."""

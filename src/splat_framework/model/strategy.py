@@ -41,9 +41,12 @@ __all__ = ["DefaultStrategy", "DensifyConfig", "Strategy"]
 class Strategy:
     """What the trainer calls to grow and prune Gaussians: the seam a plugin overrides.
 
-    A model picks its strategy in ``GaussianModel.make_strategy`` (default:
-    :class:`DefaultStrategy`); a plugin returns its own subclass there (an
-    MCMC-style relocation, anchor growing, ...) without touching the trainer. A
+    The run's config chooses it: ``config.strategy`` is a member of a discriminated
+    union of :class:`~splat_framework.config.StrategyConfig` kinds whose
+    ``setup()`` builds the strategy (default: :class:`DefaultStrategy` from
+    :class:`DensifyConfig`). A plugin adds its own kind (an MCMC-style relocation,
+    anchor growing, ...) by widening the union in its config with
+    :func:`~splat_framework.config.strategy_field`, without touching the trainer. A
     strategy sees plain dicts only, never the model: ``params`` (name -> [N, ...]
     tensors, one row per Gaussian), ``optimizers`` (name -> optimizer of that one
     tensor), its own ``state`` (checkpointed by the trainer; tensors with one row

@@ -2,7 +2,7 @@
 
 The model is the framework's GaussianModel with one extra loss term; its
 strategy shows the densification seam: a ``Strategy`` subclass that sees only
-the parameter and optimizer dicts, returned by the model's ``make_strategy``.
+the parameter and optimizer dicts, built by its config kind (``PruneOnlyConfig``).
 """
 
 import torch
@@ -35,13 +35,10 @@ class PruneOnlyStrategy(Strategy):
 
 
 class FlatGaussianModel(GaussianModel):
-    """3DGS whose Gaussians are gently pushed towards isotropy (a toy regulariser), pruned but never grown."""
+    """3DGS whose Gaussians are gently pushed towards isotropy (a toy regulariser)."""
 
     def get_loss_dict(self, outputs, batch, camera, step):
         losses = super().get_loss_dict(outputs, batch, camera, step)
         s = self.params["scales"]
         losses["isotropy"] = 0.01 * (s - s.mean(dim=1, keepdim=True)).abs().mean()
         return losses
-
-    def make_strategy(self):
-        return PruneOnlyStrategy(self.config.strategy.prune_opa, self.config.strategy.refine_every)
