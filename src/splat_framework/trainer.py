@@ -415,6 +415,7 @@ class Trainer:
                 say(f"note: step {step}: {type(model).__name__}.after_optimizer_step changed the Gaussians "
                      f"({n_before} -> {model.num_gaussians}); densification skips such steps (counted in metrics.json)")
             self.densify_skipped += 1
+            self.strategy.rows_changed(model.params, self.optimizers, self.strategy_state, step)
         elif densify:
             with section("densification"):
                 with torch.no_grad():

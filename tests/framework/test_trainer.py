@@ -286,9 +286,11 @@ def test_the_config_picks_the_strategy_and_the_trainer_runs_any_strategy(tmp_pat
 
 def test_a_model_hook_that_resizes_the_model_is_said_and_counted(tmp_path, monkeypatch, capsys):
     """When after_optimizer_step adds or removes rows, that step's densification is skipped (its
-    screen-space statistics no longer line up): one note the first time, the count in metrics.json."""
+    screen-space statistics no longer line up): one note the first time, the count in metrics.json,
+    and the strategy's rows_changed hook instead."""
     from splat_framework.model import ops
     from splat_framework.model.gaussians import GaussianModel
+    from splat_framework.model.strategy import DefaultStrategy
 
     def drop_one_row(self, step, losses, optimizers, strategy_state):
         if step in (3, 6):
@@ -296,12 +298,18 @@ def test_a_model_hook_that_resizes_the_model_is_said_and_counted(tmp_path, monke
             mask[-1] = True
             ops.remove(self.params, optimizers, strategy_state, mask)
 
+    told = []
     monkeypatch.setattr(GaussianModel, "after_optimizer_step", drop_one_row)
+    monkeypatch.setattr(DefaultStrategy, "rows_changed", lambda self, params, opts, state, step: told.append(
+        (step, params["means"].shape[0])))
     capsys.readouterr()
-    metrics = Trainer(tiny_config(tmp_path / "run", steps=10, progress=False)).train()
+    trainer = Trainer(tiny_config(tmp_path / "run", steps=10, progress=False))
+    n0 = trainer.model.num_gaussians
+    metrics = trainer.train()
     notes = [ln for ln in capsys.readouterr().err.splitlines() if "densification skips" in ln]
     assert len(notes) == 1 and "step 3" in notes[0], notes
     assert metrics["densify_skipped_steps"] == 2
+    assert told == [(3, n0 - 1), (6, n0 - 2)]  # the strategy is told, after the rows changed
 
 
 def test_backdrop_loss_makes_the_backdrop_empty_and_black(tmp_path):

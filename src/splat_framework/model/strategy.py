@@ -84,6 +84,19 @@ class Strategy:
         and ``state`` with ``model.ops``); returns counts of what changed (for logs)."""
         return {}
 
+    def rows_changed(
+        self,
+        params: Mapping[str, Tensor],
+        optimizers: Mapping[str, torch.optim.Optimizer],
+        state: MutableMapping[str, Any],
+        step: int,
+    ) -> None:
+        """Called instead of :meth:`step_post_backward` at a step where something else (a model
+        hook, e.g. SCGaussian's match filter) added or removed rows, as gaussian-splatting-lightning's
+        ``after_density_changed``. The ``model.ops`` call that did it has already resized the
+        per-row tensors of ``state``; a strategy with other bookkeeping (row counts, index maps)
+        updates it here. Default: nothing."""
+
 
 class DefaultStrategy(Strategy):
     """3DGS adaptive density control with gsplat's interface.
