@@ -14,8 +14,10 @@ can rescale the whole schedule proportionally.
 from __future__ import annotations
 
 import json
+from contextlib import contextmanager
+from contextvars import ContextVar
 from pathlib import Path
-from typing import Annotated, Any, Literal, Union
+from typing import Annotated, Any, Iterator, Literal, Union
 
 import tyro
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -55,12 +57,46 @@ NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 """A finite number >= 0."""
 
 
+_CLI_PARSING: ContextVar[bool] = ContextVar("splat_cli_parsing", default=False)
+
+
+class InvalidArguments(Exception):
+    """A config built from command-line arguments failed validation (see :func:`cli_parsing`).
+
+    Deliberately not a ValueError: the argument parser (tyro) catches ValueErrors
+    raised while it builds nested configs and prints its own multi-line box; this
+    passes through to ``cli.common.run_cli``, which prints one line."""
+
+    def __init__(self, error: ValidationError, config_cls: type) -> None:
+        super().__init__(str(error))
+        self.error, self.config_cls = error, config_cls
+
+
+@contextmanager
+def cli_parsing() -> Iterator[None]:
+    """While active (around the argument parser only), a config constructed or validated with
+    invalid values raises :class:`InvalidArguments`."""
+    token = _CLI_PARSING.set(True)
+    try:
+        yield
+    finally:
+        _CLI_PARSING.reset(token)
+
+
 class SplatConfig(BaseModel):
     """Base for every config: strict (unknown fields are errors), documented fields."""
 
     model_config = ConfigDict(
         use_attribute_docstrings=True, extra="forbid", validate_assignment=True
     )
+
+    def __init__(self, /, **data: Any) -> None:
+        try:
+            super().__init__(**data)
+        except ValidationError as e:
+            if _CLI_PARSING.get():
+                raise InvalidArguments(e, type(self)) from None
+            raise
 
 
 class StrategyConfig(SplatConfig):

@@ -260,6 +260,34 @@ def test_out_of_range_numbers_and_devices_exit_2_naming_the_field(tmp_path, args
     assert not (tmp_path / "run").exists()  # rejected before anything is written
 
 
+def test_invalid_values_of_nested_configs_name_their_dotted_path(tmp_path):
+    """Without tyro's private hooks: a config built from arguments raises InvalidArguments (not a
+    ValueError, which tyro would box), and the CLI finds where that config class sits."""
+    from scg_plugin.config import RayStrategyConfig, SCGModelConfig
+    from scg_plugin.matching import MatchConfig
+    from splat_framework.cli.common import config_path
+    from splat_framework.config import GaussianModelConfig, InvalidArguments, OptimConfig, cli_parsing
+
+    assert config_path(TrainConfig) == "" and config_path(GaussianModelConfig) == "model"
+    assert config_path(SCGModelConfig) == "model" and config_path(MatchConfig) == "model.matching"
+    assert (config_path(DensifyConfig), config_path(RayStrategyConfig), config_path(OptimConfig)) == ("strategy",) * 2 + ("optim",)
+    with pytest.raises(ValidationError):
+        MatchConfig(max_matches=-3)  # outside a CLI: pydantic's own error
+    with cli_parsing(), pytest.raises(InvalidArguments) as e:
+        MatchConfig(max_matches=-3)
+    assert e.value.config_cls is MatchConfig and not isinstance(e.value, ValueError)
+    r = subprocess.run(
+        [sys.executable, "-m", "splat_framework.cli.train", "scgaussian", "--data", "synthetic/forward-tiny",
+         "--output", str(tmp_path / "run"), "--model.matching.max-matches", "-3"],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0, r.stderr
+    assert r.stderr.startswith("error: invalid config: model.matching.max_matches: "), r.stderr
+    assert not (tmp_path / "run").exists()
+    private = [p for p in (REPO / "src").rglob("*.py") if "tyro._" in p.read_text()]
+    assert not private, f"imports of tyro's private modules: {private}"
+
+
 def test_scgaussian_may_start_from_rays_only_and_ranges_hold_in_toml_overrides():
     from scg_plugin.method import config_scgaussian
 

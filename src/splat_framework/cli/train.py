@@ -25,6 +25,7 @@ def build_parser_type():
 def main(args: list[str] | None = None) -> dict:
     import tyro
 
+    from ..config import cli_parsing
     from ..errors import DataError
     from ..registry import invalid_variant
 
@@ -33,12 +34,13 @@ def main(args: list[str] | None = None) -> dict:
     asked = next((a for a in argv if not a.startswith("-")), None)
     if asked and invalid_variant(asked):  # one line naming the file, not tyro's "invalid choice"
         raise DataError(invalid_variant(asked))
-    config = tyro.cli(
-        parser_type,
-        args=args,
-        prog="splat-train",
-        description="Train a Gaussian-splatting method. Run 'splat-train METHOD --help' for its options.",
-    )
+    with cli_parsing():  # an invalid value: one line naming its field (cli.common.run_cli), not tyro's box
+        config = tyro.cli(
+            parser_type,
+            args=args,
+            prog="splat-train",
+            description="Train a Gaussian-splatting method. Run 'splat-train METHOD --help' for its options.",
+        )
     from ..trainer import train
 
     return train(config)
