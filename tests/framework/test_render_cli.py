@@ -43,6 +43,15 @@ def test_spiral_video(run_dir, tmp_path, monkeypatch):
         assert np.abs(a.astype(int) - b.astype(int)).mean() > 1.0  # the camera moves
     depth = read_video(tmp_path / "spiral_depth.mp4")
     assert len(depth) == 8 and depth[0].shape == (48, 64, 3)
+    from splat_framework.video import h264_available
+
+    if h264_available():  # browser-playable: H.264 in yuv420p
+        import av
+
+        for name in ("spiral.mp4", "spiral_depth.mp4"):
+            with av.open(str(tmp_path / name)) as c:
+                ctx = c.streams.video[0].codec_context
+                assert (ctx.name, ctx.format.name) == ("h264", "yuv420p")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["spiral.mp4", "spiral_depth.mp4"]  # no temp files
 
 

@@ -81,12 +81,11 @@ def write_video(model, cams, bg, out: Path, fps: int, depth: bool) -> Path:
     """
     import os
 
-    import cv2
-    import numpy as np
     import torch
     from rich.progress import track
 
     from ..evaluation import colorize_depth, expected_depth, model_depth_mode, to_uint8
+    from ..video import open_video
 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -98,24 +97,22 @@ def write_video(model, cams, bg, out: Path, fps: int, depth: bool) -> Path:
     writers = []
     try:
         for t in tmps:
-            writers.append(cv2.VideoWriter(str(t), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h)))
-            if not writers[-1].isOpened():
-                raise RuntimeError(f"{out}: OpenCV cannot open an mp4 writer")
+            writers.append(open_video(t, fps, w, h))
         with torch.no_grad():
             for cam in track(cams, description=f"rendering {out.name}"):
                 o = model.get_outputs(cam.to(bg.device), bg)
-                writers[0].write(np.ascontiguousarray(to_uint8(o.rgb)[..., ::-1]))
+                writers[0].write(to_uint8(o.rgb))
                 if depth:
                     d = expected_depth(o.depth, o.alpha, mode)
-                    writers[1].write(np.ascontiguousarray(colorize_depth(d, o.alpha, inv_range)[..., ::-1]))
+                    writers[1].write(colorize_depth(d, o.alpha, inv_range))
         for wr in writers:
-            wr.release()
+            wr.close()
         for tmp, target in zip(tmps, targets):
             os.replace(tmp, target)
             print(f"wrote {target}")
     finally:
         for wr in writers:
-            wr.release()
+            wr.close()
         for tmp in tmps:
             if tmp.exists():
                 tmp.unlink()
