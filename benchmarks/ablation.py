@@ -146,8 +146,8 @@ def ablation_markdown(
             "",
             f"{steps}; mean ± std over seeds {seeds}.",
             "",
-            "| Row | Config | PSNR ↑ | SSIM ↑ | LPIPS ↓ | AVG ↓ | Gaussians | Warm-up (s) | Train (s) | Total (s) | Peak mem (MB) |",
-            "|---|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|",
+            "| Row | Config | PSNR ↑ | SSIM ↑ | LPIPS ↓ | AVG ↓ | ST-LPIPS ↓ | Gaussians | Warm-up (s) | Train (s) | Total (s) | Peak mem (MB) |",
+            "|---|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|",
         ]
         for r in rs:
             def v(f, fmt):
@@ -155,9 +155,9 @@ def ablation_markdown(
 
             label = LABELS.get(r["method"], r["method"])
             if r["n_ok"] == 0:
-                cells = ["failed" if r["n_failed"] else "not run"] + ["n/a"] * 8
+                cells = ["failed" if r["n_failed"] else "not run"] + ["n/a"] * 9
             else:
-                cells = [v("psnr", ".2f"), v("ssim", ".3f"), v("lpips", ".3f"), v("avg", ".3f"),
+                cells = [v("psnr", ".2f"), v("ssim", ".3f"), v("lpips", ".3f"), v("avg", ".3f"), v("st_lpips", ".3f"),
                          v("num_gaussians", ",.0f"), v("warmup_s", ".1f"), v("train_s", ".1f"),
                          v("total_s", ".1f"), v("peak_rss_mb", ".0f")]
                 if r["n_failed"]:
@@ -170,7 +170,10 @@ def ablation_markdown(
         if errors:
             lines += ["Failed runs:", "", *errors, ""]
         if all(r["lpips_mean"] is None for r in rs):
-            lines += ["LPIPS and AVG are n/a: the `lpips` package or its weights were not available.", ""]
+            lines += ["LPIPS and AVG are n/a: the `lpips` package or its weights were not available."
+                      + (" ST-LPIPS (shift-tolerant LPIPS, AlexNet, weights of the `stlpips-pytorch` wheel) stands in;"
+                         " its values are not comparable with papers' LPIPS."
+                         if any(r["st_lpips_mean"] is not None for r in rs) else ""), ""]
         key = group_key(data, views)
         if figures and key in figures:
             link = Path(os.path.relpath(figures[key].resolve(), base.resolve())).as_posix()

@@ -66,13 +66,13 @@ def main() -> None:
     lines = [
         f"Scene `{args.data}`, {args.views} views; machine: {result['machine']}",
         "",
-        "| method | PSNR | SSIM | LPIPS | Gaussians | iters | matching s | warm-up s | training s | eval s | total s |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "| method | PSNR | SSIM | LPIPS | ST-LPIPS | Gaussians | iters | matching s | warm-up s | training s | eval s | total s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         t, mean = r["timing"], r["mean"]
         lines.append(
-            f"| {r['method']} | {fmt(mean['psnr'])} | {fmt(mean['ssim'], 3)} | {fmt(mean['lpips'], 3)} | {r['num_gaussians']} | {r['steps']} "
+            f"| {r['method']} | {fmt(mean['psnr'])} | {fmt(mean['ssim'], 3)} | {fmt(mean['lpips'], 3)} | {fmt(mean.get('st_lpips'), 3)} | {r['num_gaussians']} | {r['steps']} "
             f"| {fmt(t.get('matching_s'), 1)} | {fmt(t.get('warmup_s'), 1)} | {fmt(t.get('train_s'), 1)} | {fmt(t.get('eval_s'), 1)} | {fmt(t.get('total_s'), 1)} |"
         )
     (args.out / "full_run.md").write_text("\n".join(lines) + "\n")

@@ -9,7 +9,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .metrics import LPIPSMetric, evaluate_images
+from .metrics import IMAGE_METRICS, LPIPSMetric, STLPIPSMetric, evaluate_images
 
 
 def colorize_depth(
@@ -133,12 +133,17 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
     ``<view>_depth.png`` and a labelled ``<view>_grid.png`` (GT | render | depth | error).
 
     Returns:
-        {"mean": {psnr, ssim, lpips, avg, depth_abs_rel, depth_within_5pct,
+        {"mean": {psnr, ssim, lpips, avg, st_lpips, depth_abs_rel, depth_within_5pct,
         depth_coverage}, "per_view": [...], "fps": float, "lpips_note": str | None}.
-        A mean is None when a metric is unavailable (no LPIPS package, no GT depth).
+        A mean is None when a metric is unavailable (no LPIPS package, no GT depth;
+        ST-LPIPS is computed only when LPIPS is unavailable and its weights are installed).
     """
     lpips = LPIPSMetric(device=background.device)
     available, reason = lpips.available()
+    # ST-LPIPS stands in (under its own name) where LPIPS cannot be computed
+    st_lpips = STLPIPSMetric(device=background.device) if not available and STLPIPSMetric.available()[0] else None
+    if st_lpips is not None:
+        reason += "; ST-LPIPS reported instead (not comparable with papers' LPIPS)"
     mode = model_depth_mode(model)
     per_view = []
     render_time = 0.0
@@ -149,7 +154,7 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
         pred, gt = out.rgb.clamp(0, 1), batch["image"]
         depth = expected_depth(out.depth, out.alpha, mode)
         mask = batch.get("mask") if datamanager.scene.masked_metrics else None
-        m = evaluate_images(pred, gt, mask=mask, lpips=lpips if available else None)
+        m = evaluate_images(pred, gt, mask=mask, lpips=lpips if available else None, st_lpips=st_lpips)
         m.update(depth_metrics(depth, out.alpha, batch.get("depth")))
         name = camera.name or f"view{batch['index']:03d}"
         per_view.append({"view": name, "index": int(batch["index"]), **m})
@@ -167,7 +172,7 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
             ]
             write_png(render_dir / f"{name}_grid.png", np.concatenate(panels, axis=1))
     mean = {}
-    for key in ("psnr", "ssim", "lpips", "avg"):
+    for key in IMAGE_METRICS:
         vals = [v[key] for v in per_view if v.get(key) is not None]
         mean[key] = float(np.mean(vals)) if vals and len(vals) == len(per_view) else None
     for key in DEPTH_KEYS:

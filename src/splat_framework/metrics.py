@@ -1,4 +1,4 @@
-"""Evaluation metrics: PSNR, SSIM, LPIPS (VGG) and the RegNeRF AVG score.
+"""Evaluation metrics: PSNR, SSIM, LPIPS (VGG), ST-LPIPS (AlexNet) and the RegNeRF AVG score.
 
 Images are [H, W, 3] (or [B, H, W, 3]) in [0, 1]; masks [H, W] / [H, W, 1],
 bool or float in [0, 1] (DTU protocol: 1 = object, fractions on the object's edge).
@@ -18,6 +18,9 @@ LPIPS never downloads anything: ``LPIPSMetric.available()`` checks that the
 ``lpips`` and ``torchvision`` packages are importable and that both weight
 files (lpips' linear layers, shipped inside the package, and torchvision's
 VGG16 backbone in the torch hub cache) exist on disk before anything is built.
+Where it is unavailable, ST-LPIPS (``splat_framework.st_lpips``, weights from the
+``stlpips-pytorch`` wheel) is reported instead, always under its own name: its
+values are not comparable with LPIPS values in papers, and AVG stays LPIPS's.
 """
 
 from __future__ import annotations
@@ -33,6 +36,8 @@ from torch import Tensor
 from splat_framework.losses import mask_bhw1, ssim
 
 VGG16_FILE = "vgg16-397923af.pth"  # torchvision VGG16_Weights.IMAGENET1K_V1
+IMAGE_METRICS = ("psnr", "ssim", "lpips", "avg", "st_lpips")
+"""The image-quality keys of :func:`evaluate_images`, in table order."""
 
 
 def _composite_white(pred: Tensor, gt: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
@@ -109,12 +114,48 @@ class LPIPSMetric:
         Raises RuntimeError with the reason when LPIPS is unavailable.
         """
         net = self._build(pred.device if self.device is None else torch.device(self.device))
-        pred, gt = pred.to(next(net.parameters()).device), gt.to(next(net.parameters()).device)
-        if mask is not None:
-            pred, gt = _composite_white(pred, gt, mask)
-        x = pred.float().reshape(-1, *pred.shape[-3:]).permute(0, 3, 1, 2)
-        y = gt.float().reshape(-1, *gt.shape[-3:]).permute(0, 3, 1, 2)
-        return float(net(x, y, normalize=True).mean())
+        return float(net(*_network_inputs(pred, gt, mask, net), normalize=True).mean())
+
+
+def _network_inputs(pred: Tensor, gt: Tensor, mask: Tensor | None, net: torch.nn.Module) -> tuple[Tensor, Tensor]:
+    """[B, 3, H, W] float pair on ``net``'s device; with ``mask``, on white as for SSIM."""
+    dev = next(net.parameters()).device
+    pred, gt = pred.to(dev), gt.to(dev)
+    if mask is not None:
+        pred, gt = _composite_white(pred, gt, mask.to(dev))
+    x = pred.float().reshape(-1, *pred.shape[-3:]).permute(0, 3, 1, 2)
+    y = gt.float().reshape(-1, *gt.shape[-3:]).permute(0, 3, 1, 2)
+    return x, y
+
+
+class STLPIPSMetric:
+    """ST-LPIPS with the AlexNet trunk (the ST-LPIPS default; VGG costs 3.6x more on a CPU), from
+    the ``stlpips-pytorch`` wheel's weights, never downloaded."""
+
+    net_name = "alex"
+
+    def __init__(self, device: torch.device | str | None = None) -> None:
+        self.device = device
+        self._net: Any = None
+
+    @classmethod
+    def available(cls) -> tuple[bool, str]:
+        """(True, "") when the weight file is installed, else (False, reason)."""
+        from .st_lpips import PACKAGE, weights_path
+
+        if weights_path(cls.net_name) is None:
+            return False, f"package {PACKAGE!r} is not installed"
+        return True, ""
+
+    @torch.no_grad()
+    def compute(self, pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> float:
+        """ST-LPIPS distance (lower is better); with ``mask``, white background as for SSIM."""
+        if self._net is None:
+            from .st_lpips import STLPIPS
+
+            self._net = STLPIPS(self.net_name)
+        net = self._net.to(pred.device if self.device is None else torch.device(self.device))
+        return float(net(*_network_inputs(pred, gt, mask, net)).mean())
 
 
 def avg_metric(psnr: float, ssim: float, lpips: float | None) -> float | None:
@@ -130,12 +171,18 @@ def avg_metric(psnr: float, ssim: float, lpips: float | None) -> float | None:
 
 
 def evaluate_images(
-    pred: Tensor, gt: Tensor, mask: Tensor | None = None, lpips: LPIPSMetric | None = None
+    pred: Tensor,
+    gt: Tensor,
+    mask: Tensor | None = None,
+    lpips: LPIPSMetric | None = None,
+    st_lpips: STLPIPSMetric | None = None,
 ) -> dict[str, float | None]:
-    """{"psnr", "ssim", "lpips", "avg"}; lpips and avg are None when LPIPS is not given or unavailable."""
+    """{"psnr", "ssim", "lpips", "avg", "st_lpips"}; lpips and avg are None when LPIPS is not given
+    or unavailable, st_lpips when ST-LPIPS is not given."""
     p = psnr(pred, gt, mask)
     s = ssim_metric(pred, gt, mask)
     lp = None
     if lpips is not None and lpips.available(lpips.net_name)[0]:
         lp = lpips.compute(pred, gt, mask)
-    return {"psnr": p, "ssim": s, "lpips": lp, "avg": avg_metric(p, s, lp)}
+    st = st_lpips.compute(pred, gt, mask) if st_lpips is not None else None
+    return {"psnr": p, "ssim": s, "lpips": lp, "avg": avg_metric(p, s, lp), "st_lpips": st}

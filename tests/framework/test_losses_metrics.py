@@ -208,6 +208,6 @@ def test_lpips_unavailable_without_backbone(monkeypatch, tmp_path):
 def test_evaluate_images_keys():
     a, b = images()
     out = evaluate_images(a, b)
-    assert set(out) == {"psnr", "ssim", "lpips", "avg"}
-    assert out["lpips"] is None and out["avg"] is None
+    assert set(out) == {"psnr", "ssim", "lpips", "avg", "st_lpips"}
+    assert out["lpips"] is None and out["avg"] is None and out["st_lpips"] is None
     assert out["psnr"] == pytest.approx(psnr(a, b)) and out["ssim"] == pytest.approx(ssim_metric(a, b))

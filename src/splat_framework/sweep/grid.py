@@ -10,7 +10,7 @@ from typing import Any, Iterable
 
 from ..errors import DataError
 
-METRICS = ("psnr", "ssim", "lpips", "avg")
+METRICS = ("psnr", "ssim", "lpips", "avg", "st_lpips")
 """Test metrics reported per run (``metrics.json`` ``mean``)."""
 PHASES = ("matching_s", "warmup_s", "train_s", "eval_s", "total_s")
 """Wall-time phases reported per run (``metrics.json`` ``timing``)."""

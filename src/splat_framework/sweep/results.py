@@ -148,6 +148,7 @@ COLUMNS: list[tuple[str, str | None, str]] = [
     ("SSIM ↑", "ssim", ".3f"),
     ("LPIPS ↓", "lpips", ".3f"),
     ("AVG ↓", "avg", ".3f"),
+    ("ST-LPIPS ↓", "st_lpips", ".3f"),
     ("Matching (s)", "matching_s", ".1f"),
     ("Warm-up (s)", "warmup_s", ".1f"),
     ("Training (s)", "train_s", ".1f"),
