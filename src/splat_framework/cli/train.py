@@ -43,7 +43,21 @@ def main(args: list[str] | None = None) -> dict:
         )
     from ..trainer import train
 
-    return train(config)
+    if not config.viewer:
+        return train(config)
+    from ..viewer import ViewerCallback
+
+    live = ViewerCallback(port=config.viewer_port, every=config.viewer_every)
+    metrics = train(config, callbacks=[live])
+    if live.viewer is not None:
+        print(f"training done; the viewer stays at {live.viewer.url} (Ctrl-C to stop)", flush=True)
+        try:
+            live.viewer.server.sleep_forever()
+        except KeyboardInterrupt:
+            pass
+        finally:
+            live.viewer.close()
+    return metrics
 
 
 def entrypoint() -> None:

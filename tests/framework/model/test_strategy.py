@@ -368,7 +368,8 @@ def test_full_sequence_grows_then_prunes():
 
 def test_configs_saved_before_the_ray_rule_moved_still_load():
     """config.json of older runs holds strategy.never_prune_key / child_defaults (now SCGaussian's
-    RayGaussianStrategy): they are dropped on reading, and SCGaussian models use that strategy."""
+    RayGaussianStrategy) or steps_per_view (now schedule_views): they are dropped on reading, and
+    SCGaussian models use that strategy."""
     from scg_plugin.method import config_scgaussian
     from scg_plugin.strategy import RayGaussianStrategy
 
@@ -377,6 +378,7 @@ def test_configs_saved_before_the_ray_rule_moved_still_load():
     for config in (TrainConfig(method="3dgs"), config_scgaussian()):
         raw = config.model_dump(mode="json")
         raw["strategy"] |= {"never_prune_key": "is_match", "child_defaults": {"is_ray": 0.0}}
+        raw["steps_per_view"] = 250  # became schedule_views (same iteration counts)
         with pytest.raises(ValidationError):
             type(config).model_validate(raw)
         assert type(config).model_validate(upgrade_saved_config(raw)) == config

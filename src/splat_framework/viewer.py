@@ -1,0 +1,232 @@
+"""A local web viewer of a trained (or training) model, on viser.
+
+The browser draws the Gaussians itself (viser's WebGL splat renderer, through
+``add_gaussian_splats``), so looking around is interactive even though this
+project's CPU rasterizer is slow. Beside it:
+
+- the training cameras as frusta with their photos, the test cameras as frusta;
+- "Go to camera": moves every connected browser to a dataset camera;
+- "Render with splat": this project's rasterizer renders the chosen camera
+  (RGB | depth | |error| against its photo) into the side panel, so the
+  browser's splats and the real renderer can be compared at the same pose;
+- "Colour by type" (models with ray-based Gaussians, SCGaussian): ray-based
+  Gaussians orange, ordinary ones blue: the picture of the paper's claim.
+
+Cameras are OpenCV-convention in both this project and viser (x right, y down,
+z forward), so poses pass through unchanged.
+"""
+
+from __future__ import annotations
+
+import copy
+import threading
+from pathlib import Path
+
+import numpy as np
+import torch
+
+__all__ = ["Viewer", "splat_arrays"]
+
+RAY_RGB = (1.0, 0.55, 0.1)
+ORDINARY_RGB = (0.2, 0.45, 1.0)
+THUMBNAIL_PX = 160
+"""Longest side of the photos drawn in the camera frusta."""
+
+
+@torch.no_grad()
+def splat_arrays(model, by_type: bool = False) -> dict[str, np.ndarray]:
+    """What viser's splat renderer takes, from a model's parameters.
+
+    Returns float32 arrays: centers [N, 3], covariances [N, 3, 3] (R S^2 R^T),
+    rgbs [N, 3] (degree-0 colour, or the type colours with ``by_type``), opacities [N, 1].
+    """
+    from .render import quat_to_rotmat, sh_to_rgb
+
+    p = model.params
+    R = quat_to_rotmat(p["quats"].float())
+    s = torch.exp(p["scales"].float())
+    cov = R @ torch.diag_embed(s * s) @ R.transpose(-1, -2)
+    rgb = sh_to_rgb(p["sh0"].float().reshape(-1, 3)).clamp(0, 1)
+    if by_type and "is_ray" in p:
+        ray = p["is_ray"].reshape(-1, 1) > 0.5
+        rgb = torch.where(ray, rgb.new_tensor(RAY_RGB), rgb.new_tensor(ORDINARY_RGB))
+    return {
+        "centers": model.positions().float().cpu().numpy(),
+        "covariances": cov.cpu().numpy(),
+        "rgbs": rgb.cpu().numpy(),
+        "opacities": torch.sigmoid(p["opacities"].float()).reshape(-1, 1).cpu().numpy(),
+    }
+
+
+def _pose(camera) -> tuple[np.ndarray, np.ndarray]:
+    """(wxyz [4], position [3]) of a camera's camera-to-world transform."""
+    import viser.transforms as vtf
+
+    c2w = camera.cam_to_world.double().cpu().numpy()
+    return vtf.SO3.from_matrix(c2w[:3, :3]).wxyz, c2w[:3, 3]
+
+
+def _fov_y(camera) -> float:
+    return float(2 * np.arctan2(camera.height / 2, float(camera.K[1, 1])))
+
+
+def _thumbnail(image: torch.Tensor) -> np.ndarray:
+    import cv2
+
+    from .evaluation import to_uint8
+
+    img = to_uint8(image)
+    f = THUMBNAIL_PX / max(img.shape[:2])
+    return cv2.resize(img, (max(1, round(img.shape[1] * f)), max(1, round(img.shape[0] * f))), interpolation=cv2.INTER_AREA)
+
+
+class Viewer:
+    """A viser server showing one model and a dataset's cameras.
+
+    Args:
+        port: TCP port (0 = any free one); the URL is :attr:`url`.
+        host: interface to listen on ("0.0.0.0": reachable from other machines).
+    """
+
+    def __init__(self, port: int = 8080, host: str = "0.0.0.0") -> None:
+        import viser
+
+        if port == 0:
+            import socket
+
+            with socket.socket() as s:
+                s.bind(("127.0.0.1", 0))
+                port = s.getsockname()[1]
+        self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        self.port = self.server.get_port()
+        self._lock = threading.Lock()  # the model is read by viser's GUI thread and written by training
+        self._model = None
+        self._background = None
+        self._cameras: dict[str, tuple] = {}  # label -> (camera, photo [H, W, 3] or None)
+        self.num_splats = 0
+        gui = self.server.gui
+        self._by_type = gui.add_checkbox("Colour by type", initial_value=False, hint="ray-based orange, ordinary blue")
+        self._by_type.on_update(lambda _: self._draw_splats())
+        self._status = gui.add_markdown("")
+        self._chosen = gui.add_dropdown("Camera", ["(none)"])
+        goto = gui.add_button("Go to camera")
+        goto.on_click(lambda _: self.go_to(self._chosen.value))
+        render = gui.add_button("Render with splat")
+        render.on_click(lambda _: self.render_panel(self._chosen.value))
+        self._image = gui.add_image(np.zeros((8, 24, 3), np.uint8), label="splat render: RGB | depth | |error|")
+
+    @property
+    def url(self) -> str:
+        return f"http://localhost:{self.port}"
+
+    # ----------------------------------------------------------------- scene
+    def set_model(self, model, background: torch.Tensor, note: str = "", snapshot: bool = False) -> None:
+        """Show ``model`` (replacing the previous one); ``note`` goes in the panel (e.g. the step).
+
+        ``snapshot``: keep a copy of its parameters (a model that goes on training), so that
+        renders asked for from the browser never see it half-way through a step."""
+        if snapshot:
+            with torch.no_grad():
+                model = copy.deepcopy(model)
+        with self._lock:
+            self._model, self._background = model, background
+        has_types = "is_ray" in model.params
+        self._by_type.visible = has_types
+        self._draw_splats()
+        self._status.content = f"**{self.num_splats:,} Gaussians** {note}".strip()
+
+    def _draw_splats(self) -> None:
+        with self._lock:
+            if self._model is None:
+                return
+            arrays = splat_arrays(self._model, by_type=bool(self._by_type.value))
+        self.server.scene.add_gaussian_splats("/gaussians", **arrays)
+        self.num_splats = int(arrays["centers"].shape[0])
+
+    def set_cameras(self, views, kind: str, color: tuple[int, int, int]) -> None:
+        """Frusta for ``views`` (a list of (camera, batch) pairs), named ``kind``/``view``; training
+        frusta carry their photo."""
+        for camera, batch in views:
+            label = f"{kind}/{camera.name or batch['index']}"
+            photo = batch.get("image")
+            wxyz, position = _pose(camera)
+            self.server.scene.add_camera_frustum(
+                f"/cameras/{label}", fov=_fov_y(camera), aspect=camera.width / camera.height, scale=0.1,
+                color=color, wxyz=wxyz, position=position,
+                image=_thumbnail(photo) if kind == "train" and photo is not None else None,
+            )
+            self._cameras[label] = (camera, photo)
+        self._chosen.options = tuple(self._cameras)
+        self._chosen.value = next(iter(self._cameras))
+
+    def set_dataset(self, datamanager) -> None:
+        """The training cameras (orange, with their photos) and the test cameras (blue)."""
+        self.set_cameras(datamanager.train_views(), "train", (230, 120, 20))
+        self.set_cameras(datamanager.eval_views(), "test", (40, 90, 230))
+
+    # ------------------------------------------------------------- controls
+    def go_to(self, label: str) -> None:
+        """Move every connected browser's view to dataset camera ``label``."""
+        if label not in self._cameras:
+            return
+        camera, _ = self._cameras[label]
+        wxyz, position = _pose(camera)
+        for client in self.server.get_clients().values():
+            with client.atomic():
+                client.camera.fov = _fov_y(camera)
+                client.camera.wxyz = wxyz
+                client.camera.position = position
+
+    @torch.no_grad()
+    def render_panel(self, label: str) -> np.ndarray | None:
+        """Render dataset camera ``label`` with this project's rasterizer into the side panel:
+        [H, W*3, 3] uint8 (RGB | depth | |error| against the photo, or the RGB again without one)."""
+        from .evaluation import colorize_depth, error_map, expected_depth, model_depth_mode, to_uint8
+
+        if label not in self._cameras:
+            return None
+        camera, photo = self._cameras[label]
+        with self._lock:
+            model, bg = self._model, self._background
+            if model is None:
+                return None
+            out = model.get_outputs(camera.to(bg.device), bg)
+        rgb = out.rgb.clamp(0, 1)
+        depth = colorize_depth(expected_depth(out.depth, out.alpha, model_depth_mode(model)), out.alpha)
+        err = error_map(rgb, photo.to(rgb.device)) if photo is not None else to_uint8(rgb)
+        panel = np.concatenate([to_uint8(rgb), depth, err], axis=1)
+        self._image.image = panel
+        return panel
+
+    def close(self) -> None:
+        self.server.stop()
+
+
+def view_run(run_dir: Path, port: int = 8080, host: str = "0.0.0.0", device: str | None = None,
+             trust_edits: bool = False) -> Viewer:
+    """A :class:`Viewer` of a trained run: its newest checkpoint, training and test cameras."""
+    from .run import background_for, load_run
+
+    config, dm, model = load_run(run_dir, device, trust_edits)
+    viewer = Viewer(port=port, host=host)
+    viewer.set_model(model, background_for(dm.scene, config.device), note=f"({config.method}, {Path(run_dir).name})")
+    viewer.set_dataset(dm)
+    return viewer
+
+
+class ViewerCallback:
+    """A training callback (``trainer.train(config, callbacks)``) that opens a :class:`Viewer` at the
+    first step and shows the model every ``every`` steps (a copy of its parameters: sending ~30k
+    Gaussians costs milliseconds, about nothing against a training step)."""
+
+    def __init__(self, port: int = 8080, every: int = 100, host: str = "0.0.0.0") -> None:
+        self.port, self.every, self.host = port, max(int(every), 1), host
+        self.viewer: Viewer | None = None
+
+    def __call__(self, trainer, step: int) -> None:
+        if self.viewer is None:
+            self.viewer = Viewer(port=self.port, host=self.host)
+            self.viewer.set_dataset(trainer.datamanager)
+            print(f"viewer at {self.viewer.url}", flush=True)
+        if step % self.every == 0 or step == trainer.config.total_steps or self.viewer.num_splats == 0:
+            self.viewer.set_model(trainer.model, trainer.background, note=f"(step {step})", snapshot=True)
