@@ -228,3 +228,91 @@ def make_colmap(
             plines.append(f"{k + 1} {p[0]} {p[1]} {p[2]} 10 20 30 0.5 {track}")
         (sparse / "points3D.txt").write_text("\n".join(plines) + "\n")
     return root
+
+
+# ------------------------------------------------------------ a real browser
+def chromium_binary() -> str | None:
+    """Path of a Chromium / Chrome executable, or None."""
+    import shutil
+
+    return next((shutil.which(n) for n in ("chromium", "chromium-browser", "google-chrome") if shutil.which(n)), None)
+
+
+class HeadlessPage:
+    """A page of headless Chromium driven through the Chrome DevTools protocol (software WebGL).
+
+    ``with HeadlessPage(url) as page: page.wait_for_text("...", 60); png = page.screenshot()``
+    """
+
+    def __init__(self, url: str, size: tuple[int, int] = (1000, 700)) -> None:
+        self.url, self.size = url, size
+
+    def __enter__(self) -> "HeadlessPage":
+        import socket
+        import subprocess
+        import tempfile
+        import time
+        import urllib.request
+
+        from websockets.sync.client import connect
+
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        self._profile = tempfile.TemporaryDirectory()
+        self._proc = subprocess.Popen(
+            [chromium_binary(), "--headless=new", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+             f"--window-size={self.size[0]},{self.size[1]}", f"--remote-debugging-port={port}",
+             f"--user-data-dir={self._profile.name}", self.url],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )
+        deadline = time.time() + 60
+        while True:
+            try:
+                tabs = json.loads(urllib.request.urlopen(f"http://127.0.0.1:{port}/json", timeout=5).read())
+                page = next(t for t in tabs if t["type"] == "page")
+                break
+            except Exception:
+                if time.time() > deadline:
+                    self.__exit__()
+                    raise RuntimeError("Chromium's DevTools endpoint did not come up")
+                time.sleep(0.5)
+        self._ws = connect(page["webSocketDebuggerUrl"], max_size=100_000_000)
+        self._id = 0
+        return self
+
+    def call(self, method: str, **params) -> dict:
+        self._id += 1
+        self._ws.send(json.dumps({"id": self._id, "method": method, "params": params}))
+        while True:
+            msg = json.loads(self._ws.recv(timeout=60))
+            if msg.get("id") == self._id:
+                return msg.get("result", {})
+
+    def text(self) -> str:
+        res = self.call("Runtime.evaluate", expression="document.body ? document.body.innerText : ''", returnByValue=True)
+        return res.get("result", {}).get("value", "")
+
+    def wait_for_text(self, needle: str, timeout: float) -> str:
+        import time
+
+        deadline = time.time() + timeout
+        while True:
+            text = self.text()
+            if needle in text or time.time() > deadline:
+                return text
+            time.sleep(0.5)
+
+    def screenshot(self) -> np.ndarray:
+        """[H, W, 3] uint8 BGR."""
+        import base64
+
+        png = base64.b64decode(self.call("Page.captureScreenshot", format="png")["data"])
+        return cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+
+    def __exit__(self, *exc) -> None:
+        if getattr(self, "_ws", None) is not None:
+            self._ws.close()
+        self._proc.terminate()
+        self._proc.wait(timeout=30)
+        self._profile.cleanup()

@@ -103,6 +103,7 @@ class Viewer:
         self._model = None
         self._background = None
         self._cameras: dict[str, tuple] = {}  # label -> (camera, photo [H, W, 3] or None)
+        self._frusta: dict[str, object] = {}  # label -> viser frustum handle
         self.num_splats = 0
         gui = self.server.gui
         self._by_type = gui.add_checkbox("Colour by type", initial_value=False, hint="ray-based orange, ordinary blue")
@@ -150,7 +151,7 @@ class Viewer:
             label = f"{kind}/{camera.name or batch['index']}"
             photo = batch.get("image")
             wxyz, position = _pose(camera)
-            self.server.scene.add_camera_frustum(
+            self._frusta[label] = self.server.scene.add_camera_frustum(
                 f"/cameras/{label}", fov=_fov_y(camera), aspect=camera.width / camera.height, scale=0.1,
                 color=color, wxyz=wxyz, position=position,
                 image=_thumbnail(photo) if kind == "train" and photo is not None else None,
@@ -166,9 +167,12 @@ class Viewer:
 
     # ------------------------------------------------------------- controls
     def go_to(self, label: str) -> None:
-        """Move every connected browser's view to dataset camera ``label``."""
+        """Move every connected browser's view to dataset camera ``label`` (whose own frustum, which
+        would cover the view with its photo, is hidden until another camera is chosen)."""
         if label not in self._cameras:
             return
+        for other, frustum in self._frusta.items():
+            frustum.visible = other != label
         camera, _ = self._cameras[label]
         wxyz, position = _pose(camera)
         for client in self.server.get_clients().values():
