@@ -205,6 +205,15 @@ class Viewer:
     def close(self) -> None:
         self.server.stop()
 
+    def serve_until_interrupted(self) -> None:
+        """Keep serving until Ctrl-C, then stop the server."""
+        try:
+            self.server.sleep_forever()
+        except KeyboardInterrupt:
+            pass
+        finally:
+            self.close()
+
 
 def view_run(run_dir: Path, port: int = 8080, host: str = "0.0.0.0", device: str | None = None,
              trust_edits: bool = False) -> Viewer:

@@ -51,12 +51,7 @@ def main(args: list[str] | None = None) -> dict:
     metrics = train(config, callbacks=[live])
     if live.viewer is not None:
         print(f"training done; the viewer stays at {live.viewer.url} (Ctrl-C to stop)", flush=True)
-        try:
-            live.viewer.server.sleep_forever()
-        except KeyboardInterrupt:
-            pass
-        finally:
-            live.viewer.close()
+        live.viewer.serve_until_interrupted()
     return metrics
 
 

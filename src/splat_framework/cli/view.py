@@ -31,12 +31,7 @@ def main(args: ViewArgs, serve: bool = True):
     print(f"viewer of {args.run_dir} ({viewer.num_splats:,} Gaussians) at {viewer.url}  (Ctrl-C to stop)", flush=True)
     if not serve:
         return viewer
-    try:
-        viewer.server.sleep_forever()
-    except KeyboardInterrupt:
-        pass
-    finally:
-        viewer.close()
+    viewer.serve_until_interrupted()
     return None
 
 
