@@ -10,6 +10,7 @@ import torch
 from torch import Tensor
 
 from .metrics import IMAGE_METRICS, LPIPSMetric, STLPIPSMetric, evaluate_images
+from .profiling import synchronize
 
 
 def colorize_depth(
@@ -135,6 +136,8 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
     Returns:
         {"mean": {psnr, ssim, lpips, avg, st_lpips, depth_abs_rel, depth_within_5pct,
         depth_coverage}, "per_view": [...], "fps": float, "lpips_note": str | None}.
+        ``fps`` is rendering alone (no metrics, no file writing), after one untimed
+        warm-up render of the first view.
         A mean is None when a metric is unavailable (no LPIPS package, no GT depth;
         ST-LPIPS is computed only when LPIPS is unavailable and its weights are installed).
     """
@@ -147,9 +150,12 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
     mode = model_depth_mode(model)
     per_view = []
     render_time = 0.0
-    for camera, batch in datamanager.eval_views():
+    for i, (camera, batch) in enumerate(datamanager.eval_views()):
+        if i == 0:  # untimed: the first render of a process pays torch.compile and allocator warm-up
+            model.get_outputs(camera, background)
         t0 = time.perf_counter()
         out = model.get_outputs(camera, background)
+        synchronize(background.device)
         render_time += time.perf_counter() - t0
         pred, gt = out.rgb.clamp(0, 1), batch["image"]
         depth = expected_depth(out.depth, out.alpha, mode)

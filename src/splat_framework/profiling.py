@@ -26,15 +26,19 @@ from typing import Iterator
 
 import torch
 
-__all__ = ["exclusive", "profiling", "section"]
+__all__ = ["exclusive", "profiling", "section", "synchronize"]
 
 _state: dict = {"on": False, "stack": [], "totals": None, "counts": None, "device": None}
 
 
+def synchronize(device: torch.device | None) -> None:
+    """Wait for the device's queued kernels, so that a wall-clock time covers the work (no-op on CPU)."""
+    if device is not None and device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
 def _sync() -> None:
-    dev = _state["device"]
-    if dev is not None and dev.type == "cuda":
-        torch.cuda.synchronize(dev)
+    synchronize(_state["device"])
 
 
 @contextmanager

@@ -265,22 +265,17 @@ class _Composite(torch.autograd.Function):
         ar = torch.arange(block, device=device)
         rounds = []
         for gid_sorted, tile_count, tile_offset in _iter_chunks(fp, grid, chunk_pairs, tile_done):
-            pc = gid_sorted.numel()
             gid_pad = torch.cat([gid_sorted, gid_sorted.new_full((1,), n)])
             active = torch.nonzero(tile_count > 0).squeeze(1)
             start = tile_offset.index_select(0, active)  # next pair of each active tile's list
             end = start + tile_count.index_select(0, active)
             while active.numel() > 0:
-                idx = start[:, None] + ar
-                gid = gid_pad[torch.where(idx < end[:, None], idx, pc)]  # [nA, B], padded with the dummy
-                contrib, t_new, t_carry = fwd_round(table, gid, tile_centers, active, basis, t_state)
-                out.index_add_(0, active, contrib)
-                t_state.index_copy_(0, active, t_new)
+                gid, t_carry, more = fwd_round(table, gid_pad, start, end, ar, tile_centers, active, basis,
+                                               t_state, out)
                 if keep_rounds:
                     rounds.append((active, gid, t_carry))
-                start = start + block
-                more = torch.nonzero((start < end) & (t_new > 0).any(1)).squeeze(1)
-                active, start, end = active[more], start[more], end[more]
+                more = torch.nonzero(more).squeeze(1)
+                active, start, end = active[more], start[more] + block, end[more]
             tile_done |= ~(t_state > 0).any(1)  # read by _iter_chunks before the next chunk
         ctx.rounds = rounds
         img = tiles_to_image(out, grid)  # [H, W, 5]
@@ -317,10 +312,10 @@ class _Composite(torch.autograd.Function):
         grads = torch.zeros(n + 1, 6 + f, device=table.device, dtype=table.dtype)
         _, bwd_round = get_kernels()
         for active, gid, t_carry in ctx.rounds:
-            na, b = gid.shape
             g_rows, new_prefix = bwd_round(table, gid, tile_centers, active, basis, t_carry, g_out, total, prefix)
             prefix.index_copy_(0, active, new_prefix)
-            grads.index_add_(0, gid.reshape(-1), g_rows.reshape(na * b, 6 + f))
+            # eager: a Gaussian's pairs in several tiles add up (compiled, that needs atomics)
+            grads.index_add_(0, gid.reshape(-1), g_rows.reshape(-1, 6 + f))
         grads = grads[:n]
         d_opac = torch.where(opac > 0, grads[:, 5] / opac.clamp_min(1e-30), 0.0)
         return (

@@ -225,20 +225,32 @@ def bwd_round_fused(
 
 
 def gathering_fwd(round_fn):
-    """(table [N+1, 6+F], gid [nA, B], tile_centers [T, 2], active [nA], basis, t_state [T, npx])
-    -> (contribution [nA, F, npx], transmittance leaving [nA, npx], transmittance entering [nA, npx])."""
+    """One forward round with its bookkeeping, state updated in place.
 
-    def run(table: Tensor, gid: Tensor, tile_centers: Tensor, active: Tensor, basis: Tensor, t_state: Tensor):
+    (table [N+1, 6+F], gid_pad [Pc+1] the chunk's Gaussian ids in (tile, depth) order then the
+    dummy row's id, start/end [nA] each active tile's next and end position in gid_pad,
+    ar [B] = arange(B), tile_centers [T, 2], active [nA], basis, t_state [T, npx], out [T, F, npx])
+    -> (gid [nA, B] padded with the dummy, transmittance entering [nA, npx],
+    more [nA] bool: the tile has pairs left and unterminated pixels).
+    ``out`` gains the round's contribution and ``t_state`` the transmittance leaving it."""
+
+    def run(table: Tensor, gid_pad: Tensor, start: Tensor, end: Tensor, ar: Tensor, tile_centers: Tensor,
+            active: Tensor, basis: Tensor, t_state: Tensor, out: Tensor):
+        idx = start[:, None] + ar
+        gid = gid_pad[torch.where(idx < end[:, None], idx, gid_pad.shape[0] - 1)]
         t_carry = t_state[active]
         contrib, t_new = round_fn(table[gid], tile_centers[active], basis, t_carry)
-        return contrib, t_new, t_carry
+        out[active] = out[active] + contrib  # active tiles are distinct: a plain store, no atomics
+        t_state[active] = t_new
+        more = (start + ar.shape[0] < end) & (t_new > 0).any(1)
+        return gid, t_carry, more
 
     return run
 
 
 def gathering_bwd(round_fn):
-    """(table, gid, tile_centers, active, basis, t_carry [nA, npx], g_out [T, F, npx], total [T, npx],
-    prefix [T, npx]) -> (grads [nA, B, 6+F] of the gathered rows, new prefix [nA, npx])."""
+    """(table, gid [nA, B], tile_centers, active [nA], basis, t_carry [nA, npx], g_out [T, F, npx],
+    total [T, npx], prefix [T, npx]) -> (grads [nA, B, 6+F] of the gathered rows, new prefix [nA, npx])."""
 
     def run(table: Tensor, gid: Tensor, tile_centers: Tensor, active: Tensor, basis: Tensor, t_carry: Tensor,
             g_out: Tensor, total: Tensor, prefix: Tensor):
@@ -277,8 +289,8 @@ def get_kernels():
     if "compiled" not in _KERNELS:
         try:
             _KERNELS["compiled"] = (
-                _with_fallback(torch.compile(gathering_fwd(fwd_round_fused), dynamic=True), eager[0]),
-                _with_fallback(torch.compile(gathering_bwd(bwd_round_fused), dynamic=True), eager[1]),
+                _with_fallback(torch.compile(gathering_fwd(fwd_round_fused), dynamic=True), eager[0], 6),
+                _with_fallback(torch.compile(gathering_bwd(bwd_round_fused), dynamic=True), eager[1], 3),
             )
         except Exception as exc:  # pragma: no cover - depends on the toolchain
             warnings.warn(f"SPLAT_COMPILE: torch.compile unavailable ({exc}); using eager")
@@ -286,13 +298,14 @@ def get_kernels():
     return _KERNELS["compiled"]
 
 
-def _with_fallback(compiled, eager):
+def _with_fallback(compiled, eager, active_arg: int):
     """``compiled``, or ``eager`` after any failure and for single-tile rounds (a
-    size-1 dimension would make torch.compile specialise and compile again)."""
+    size-1 dimension would make torch.compile specialise and compile again);
+    ``args[active_arg]`` is the round's [nA] active tiles."""
     state = {"ok": True}
 
     def run(*args):
-        if state["ok"] and args[1].shape[0] > 1:  # args[1]: the round's [nA, B] pair ids
+        if state["ok"] and args[active_arg].shape[0] > 1:
             try:
                 return compiled(*args)
             except Exception as exc:  # pragma: no cover - depends on the toolchain
