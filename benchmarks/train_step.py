@@ -74,6 +74,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
     p.add_argument("--json", type=Path, default=Path("benchmarks/results/train_step.json"))
     p.add_argument("--readme", type=Path, default=None)
+    p.add_argument("--compare", nargs="+", type=Path, default=None, metavar="BEFORE_JSON",
+                   help="no measuring: JSON files of a baseline's passes, compared with --to "
+                        "(writes --json and the README block bench:train_step_speedup)")
+    p.add_argument("--to", nargs="+", type=Path, default=None, metavar="AFTER_JSON",
+                   help="JSON files of this code's passes, taken alternately with --compare's")
+    p.add_argument("--label", default="baseline", help="the baseline's name in the comparison (e.g. its commit)")
     return p.parse_args(argv)
 
 
@@ -230,6 +236,46 @@ def markdown(records: list[dict], info: dict, command: str) -> str:
     return "\n".join(lines + footer(command, info["torch_threads"]))
 
 
+def step_times(passes: list[dict]) -> dict[tuple[str, int], dict]:
+    """{(method, snapshot): {"num_gaussians", "step_ms": [one per pass]}} of train_step JSON payloads."""
+    out: dict[tuple[str, int], dict] = {}
+    for payload in passes:
+        for r in payload["records"]:
+            row = out.setdefault((r["method"], r["at"]), {"num_gaussians": r["num_gaussians"], "step_ms": []})
+            row["step_ms"].append(r["step_s"] * 1e3)
+    return out
+
+
+def comparison(before: list[dict], after: list[dict], label: str) -> dict:
+    """Per snapshot: mean step time of each side over its passes and the speed-up (before / after)."""
+    b, a = step_times(before), step_times(after)
+    rows = []
+    for key in b.keys() & a.keys():
+        mb, ma = sum(b[key]["step_ms"]) / len(b[key]["step_ms"]), sum(a[key]["step_ms"]) / len(a[key]["step_ms"])
+        rows.append({"method": key[0], "at": key[1], "num_gaussians": a[key]["num_gaussians"],
+                     "before_ms": b[key]["step_ms"], "after_ms": a[key]["step_ms"], "speedup": mb / ma})
+    rows.sort(key=lambda r: (r["method"], r["at"]))
+    loads = [p["machine"].get("loadavg_at_start", [None])[0] for p in before + after]
+    return {"baseline": label, "rows": rows, "loads": [x for x in loads if x is not None]}
+
+
+def comparison_markdown(result: dict, command: str, threads: int | None) -> str:
+    from ablation import footer
+
+    lines = [f"| snapshot | Gaussians | {result['baseline']} (ms per step) | this code (ms per step) | speed-up | "
+             "this code (it/s) |", "|---|--:|--:|--:|--:|--:|"]
+    for r in result["rows"]:
+        after = sum(r["after_ms"]) / len(r["after_ms"])
+        lines.append(f"| `{r['method']}` @ {r['at']} | {r['num_gaussians']:,} | "
+                     f"{' / '.join(f'{v:.0f}' for v in r['before_ms'])} | "
+                     f"{' / '.join(f'{v:.0f}' for v in r['after_ms'])} | **{r['speedup']:.2f}x** | "
+                     f"{1e3 / after:.2f} |")
+    loads = ", ".join(f"{x:.2f}" for x in result.get("loads", []))
+    note = ["", "Passes alternated baseline / this code in one session; load average at the start of each pass: "
+            f"{loads}."] if loads else []
+    return "\n".join(lines + note + footer(command, threads))
+
+
 def main(argv: list[str] | None = None) -> Path:
     import torch
 
@@ -238,12 +284,21 @@ def main(argv: list[str] | None = None) -> Path:
     from rasterizer import machine_info
 
     args = parse_args(argv)
+    command = "python benchmarks/train_step.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    if args.compare:
+        if not args.to:
+            raise SystemExit("--compare needs --to: the JSON files of this code's passes")
+        passes = [[json.loads(f.read_text()) for f in files] for files in (args.compare, args.to)]
+        result = comparison(*passes, args.label)
+        threads = passes[1][0]["machine"].get("torch_threads")
+        publish(args.json, result, comparison_markdown(result, command, threads), args.readme,
+                "train_step_speedup", prefix="bench")
+        return args.json
     if args.threads:
         torch.set_num_threads(args.threads)
     info = machine_info("cpu", args.threads) | {"data": args.data, "views": args.views, "steps": args.steps,
                                                  "python_platform": platform.platform()}
     records = [r for m in args.methods for r in measure(m, args)]
-    command = "python benchmarks/train_step.py " + " ".join(sys.argv[1:] if argv is None else argv)
     publish(args.json, {"machine": info, "records": records}, markdown(records, info, command), args.readme,
             "train_step", prefix="bench")
     return args.json

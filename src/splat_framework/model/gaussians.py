@@ -34,18 +34,23 @@ FALLBACK_POINTS = 10_000
 """Random ordinary Gaussians a model starts from when its prior (matches, triangulated points) is missing or sparse."""
 
 
-def knn_scale(points: Tensor, k: int = 3, chunk: int = 4096) -> Tensor:
-    """[N] root-mean-square distance of each point to its ``k`` nearest neighbours (3DGS init scale)."""
+def knn_scale(points: Tensor, k: int = 3) -> Tensor:
+    """[N] root-mean-square distance of each point to its ``k`` nearest neighbours (3DGS init scale).
+
+    An exact k-d tree search (OpenCV's FLANN, single tree, unlimited checks): O(N log N),
+    where all pairwise distances would be O(N^2) (about 10 s at 50k points on 2 cores)."""
+    import cv2
+    import numpy as np
+
     n = points.shape[0]
     if n <= 1:
         return torch.full((n,), 0.01, device=points.device, dtype=points.dtype)
     k = min(k, n - 1)
-    out = torch.empty(n, device=points.device, dtype=points.dtype)
-    for s in range(0, n, chunk):
-        d2 = torch.cdist(points[s : s + chunk], points).square()
-        vals = d2.topk(k + 1, dim=1, largest=False).values[:, 1:]
-        out[s : s + chunk] = vals.mean(dim=1).sqrt()
-    return out.clamp_min(1e-7)
+    data = np.ascontiguousarray(points.detach().cpu().numpy(), dtype=np.float32)
+    index = cv2.flann_Index(data, {"algorithm": 4})  # FLANN_INDEX_KDTREE_SINGLE
+    _, d2 = index.knnSearch(data, k + 1, params={"checks": -1})  # squared distances, self first
+    rms = np.sqrt(np.sort(d2, axis=1)[:, 1:].mean(axis=1, dtype=np.float64))
+    return torch.from_numpy(rms).to(device=points.device, dtype=points.dtype).clamp_min(1e-7)
 
 
 def sample_frustum_points(

@@ -36,6 +36,23 @@ from ._threads import thread_policy
 _DUMMY_LOGIT = -1.0e4  # exp() == 0 in float32 and float64
 
 
+def _at(x: Tensor, i: Tensor) -> Tensor:
+    """``x[i]`` for a 1-D index ``i`` along dim 0, through ``index_select``: on CPU
+    several times faster than advanced indexing (10x for a 1-D int64 gather of
+    400k entries, 4.5x for [N, 6] rows; torch 2.13, one thread)."""
+    return x.index_select(0, i)
+
+
+def _sort_key(tile_id: Tensor, n_tiles: int) -> Tensor:
+    """Tile ids in the narrowest integer type that holds them: a stable sort of
+    int16 keys is ~2.7x faster than of int64 ones on CPU (400k keys)."""
+    if n_tiles <= torch.iinfo(torch.int16).max:
+        return tile_id.to(torch.int16)
+    if n_tiles <= torch.iinfo(torch.int32).max:
+        return tile_id.to(torch.int32)
+    return tile_id
+
+
 def pixel_basis(tile: int, device: torch.device, dtype: torch.dtype) -> Tensor:
     """[6, tile*tile] quadratic basis (1, lx, ly, lx^2, ly^2, lx*ly) of the pixel
     centres relative to the tile centre (row-major pixels within the tile)."""
@@ -101,12 +118,12 @@ def tile_footprints(
         & (py0 <= py1)
     )
     ids = torch.nonzero(hit).squeeze(1)
-    ids = ids[torch.argsort(depths.detach()[ids], stable=True)]  # front to back
-    tx0 = px0[ids].clamp(0, width - 1).long() // tile
-    tx1 = px1[ids].clamp(0, width - 1).long() // tile
-    ty0 = py0[ids].clamp(0, height - 1).long() // tile
-    ty1 = py1[ids].clamp(0, height - 1).long() // tile
-    ell = torch.cat([means2d.detach()[ids], cov2d.detach()[ids], qmax[ids, None]], dim=1)
+    ids = _at(ids, torch.argsort(_at(depths.detach(), ids), stable=True))  # front to back
+    tx0 = _at(px0, ids).clamp(0, width - 1).long() // tile
+    tx1 = _at(px1, ids).clamp(0, width - 1).long() // tile
+    ty0 = _at(py0, ids).clamp(0, height - 1).long() // tile
+    ty1 = _at(py1, ids).clamp(0, height - 1).long() // tile
+    ell = _at(torch.cat([means2d.detach(), cov2d.detach(), qmax[:, None]], dim=1), ids)
     return Footprints(ids, tx0, tx1, ty0, ty1, ell, hit)
 
 
@@ -118,7 +135,7 @@ def _alive_counts(tile_done: Tensor, fp: Footprints, pos: int, grid: TileGrid) -
     sat[1:, 1:] = alive.cumsum(0).cumsum(1)
     flat = sat.reshape(-1)
     tx0, tx1, ty0, ty1 = fp.tx0[pos:], fp.tx1[pos:] + 1, fp.ty0[pos:], fp.ty1[pos:] + 1
-    return flat[ty1 * w1 + tx1] - flat[ty0 * w1 + tx1] - flat[ty1 * w1 + tx0] + flat[ty0 * w1 + tx0]
+    return _at(flat, ty1 * w1 + tx1) - _at(flat, ty0 * w1 + tx1) - _at(flat, ty1 * w1 + tx0) + _at(flat, ty0 * w1 + tx0)
 
 
 def _iter_chunks(fp: Footprints, grid: TileGrid, chunk_pairs: int, tile_done: Tensor):
@@ -200,29 +217,29 @@ def _chunk_pairs(fp: Footprints, sel: Tensor, grid: TileGrid, tile_done: Tensor)
     pre[:, 1:] = alive.cumsum(1)
     row_off = torch.cumsum(pre[:, -1], 0) - pre[:, -1]
     alive_ids = torch.nonzero(alive.reshape(-1)).squeeze(1)
-    ids = fp.ids[sel]
-    tx0, tx1, ty0, ty1 = fp.tx0[sel], fp.tx1[sel], fp.ty0[sel], fp.ty1[sel]
+    ids = _at(fp.ids, sel)
+    tx0, tx1, ty0, ty1 = _at(fp.tx0, sel), _at(fp.tx1, sel), _at(fp.ty0, sel), _at(fp.ty1, sel)
     # (Gaussian, tile row) segments
     nrows = ty1 - ty0 + 1
     n_seg = int(nrows.sum())
     gr = torch.repeat_interleave(torch.arange(ids.numel(), device=device), nrows, output_size=n_seg)
-    row = ty0[gr] + torch.arange(n_seg, device=device) - (torch.cumsum(nrows, 0) - nrows)[gr]
+    row = _at(ty0 - (torch.cumsum(nrows, 0) - nrows), gr) + torch.arange(n_seg, device=device)
     flat_pre = pre.reshape(-1)
     # tighten each row's column range to the ellipse's x extent within the row
-    c0, c1 = _row_columns(fp.ell[sel][gr], row, grid)
-    c0 = torch.maximum(c0, tx0[gr])
-    c1 = torch.maximum(torch.minimum(c1, tx1[gr]), c0 - 1)
-    a = flat_pre[row * (ntx + 1) + c0]
-    cnt = flat_pre[row * (ntx + 1) + c1 + 1] - a
-    start = row_off[row] + a
+    c0, c1 = _row_columns(_at(fp.ell, _at(sel, gr)), row, grid)
+    c0 = torch.maximum(c0, _at(tx0, gr))
+    c1 = torch.maximum(torch.minimum(c1, _at(tx1, gr)), c0 - 1)
+    a = _at(flat_pre, row * (ntx + 1) + c0)
+    cnt = _at(flat_pre, row * (ntx + 1) + c1 + 1) - a
+    start = _at(row_off, row) + a
     total = int(cnt.sum())
     seg = torch.repeat_interleave(torch.arange(n_seg, device=device), cnt, output_size=total)
-    local = torch.arange(total, device=device) - (torch.cumsum(cnt, 0) - cnt)[seg]
-    tile_id = alive_ids[start[seg] + local]
+    # pair k of segment s lies in the s-th row's alive tile number start[s] + k
+    tile_id = _at(alive_ids, _at(start - (torch.cumsum(cnt, 0) - cnt), seg) + torch.arange(total, device=device))
     # pairs are generated in depth order; a stable sort by tile keeps that order per tile
-    tile_sorted, perm = torch.sort(tile_id, stable=True)
-    gid_sorted = ids[gr[seg[perm]]]
-    tile_count = torch.bincount(tile_sorted, minlength=grid.n_tiles)
+    perm = torch.sort(_sort_key(tile_id, grid.n_tiles), stable=True).indices
+    gid_sorted = _at(ids, _at(gr, _at(seg, perm)))
+    tile_count = torch.bincount(tile_id, minlength=grid.n_tiles)
     tile_offset = torch.cumsum(tile_count, 0) - tile_count
     return gid_sorted, tile_count, tile_offset
 
@@ -275,7 +292,7 @@ class _Composite(torch.autograd.Function):
                 if keep_rounds:
                     rounds.append((active, gid, t_carry))
                 more = torch.nonzero(more).squeeze(1)
-                active, start, end = active[more], start[more] + block, end[more]
+                active, start, end = _at(active, more), _at(start, more) + block, _at(end, more)
             tile_done |= ~(t_state > 0).any(1)  # read by _iter_chunks before the next chunk
         ctx.rounds = rounds
         img = tiles_to_image(out, grid)  # [H, W, 5]

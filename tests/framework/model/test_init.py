@@ -12,6 +12,7 @@ from splat_framework.data.synthetic import generate_scene
 from splat_framework.model.gaussians import (
     GaussianModel,
     frustum_box,
+    knn_scale,
     random_init,
     sample_box_points,
     sample_frustum_points,
@@ -82,3 +83,21 @@ def test_3dgs_starts_from_the_reference_random_init_and_frustum_is_a_variant(for
     expected, _ = sample_frustum_points(list(cams), list(imgs), frustum.model.init_num_points, torch.Generator().manual_seed(0))
     assert torch.allclose(model.params["means"].detach(), expected)
     assert model.params["sh0"].detach().std(0).max() > 0.1  # pixel colours, not one grey
+
+
+def test_knn_scale_matches_brute_force_with_duplicates_and_tiny_sets():
+    """The k-d tree search gives every point's RMS distance to its 3 nearest others, exactly
+    as all pairwise distances do (anisotropic cloud, duplicated points at distance 0)."""
+    g = torch.Generator().manual_seed(0)
+    pts = torch.rand(700, 3, generator=g) * torch.tensor([1.0, 3.0, 0.05])
+    pts = torch.cat([pts, pts[:30]])
+    brute = torch.cdist(pts.double(), pts.double()).square().topk(4, dim=1, largest=False).values[:, 1:]
+    expected = brute.mean(1).sqrt().clamp_min(1e-7).float()
+    got = knn_scale(pts)
+    assert got.shape == (730,) and got.dtype == torch.float32
+    assert torch.allclose(got, expected, rtol=1e-4, atol=1e-6)
+    assert got[:30].eq(got[700:]).all() and got[:30].gt(0).all()  # a duplicate is not "itself"
+    two = torch.tensor([[0.0, 0.0, 0.0], [3.0, 4.0, 0.0]])
+    assert torch.allclose(knn_scale(two), torch.tensor([5.0, 5.0]))  # k shrinks to the one other point
+    assert knn_scale(two[:1]).tolist() == pytest.approx([0.01])
+    assert knn_scale(pts.double()).dtype == torch.float64

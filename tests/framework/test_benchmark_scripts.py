@@ -1,0 +1,42 @@
+"""The benchmark scripts' bookkeeping (the measuring itself is not a test: benchmarks are scripts)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def load_script(name: str):
+    spec = importlib.util.spec_from_file_location(name, REPO / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _pass(tmp_path: Path, name: str, step_ms: dict, load: float) -> Path:
+    records = [{"method": m, "at": at, "num_gaussians": 1000 + at, "step_s": ms / 1e3}
+               for (m, at), ms in step_ms.items()]
+    path = tmp_path / f"{name}.json"
+    path.write_text(json.dumps({"machine": {"torch_threads": 2, "loadavg_at_start": [load, 0, 0]},
+                                "records": records}))
+    return path
+
+
+def test_train_step_compare_reports_mean_speedup_per_snapshot_and_fills_the_readme(tmp_path):
+    train_step = load_script("train_step")
+    before = [_pass(tmp_path, "b1", {("3dgs", 0): 600, ("3dgs", 500): 300}, 1.1),
+              _pass(tmp_path, "b2", {("3dgs", 0): 400, ("3dgs", 500): 300}, 1.2)]
+    after = [_pass(tmp_path, "a1", {("3dgs", 0): 250, ("3dgs", 500): 100, ("other", 0): 5}, 1.3)]
+    readme = tmp_path / "README.md"
+    readme.write_text("# R\n<!-- bench:train_step_speedup -->\nold\n<!-- /bench:train_step_speedup -->\nend\n")
+    out = train_step.main(["--compare", *map(str, before), "--to", *map(str, after), "--label", "v0",
+                           "--json", str(tmp_path / "cmp.json"), "--readme", str(readme)])
+    rows = json.loads(out.read_text())["rows"]
+    assert [(r["method"], r["at"]) for r in rows] == [("3dgs", 0), ("3dgs", 500)]  # only snapshots on both sides
+    assert rows[0]["speedup"] == 2.0 and rows[1]["speedup"] == 3.0  # mean(600, 400) / 250, 300 / 100
+    text = readme.read_text()
+    assert "| `3dgs` @ 0 | 1,000 | 600 / 400 | 250 | **2.00x** | 4.00 |" in text
+    assert "old" not in text and text.endswith("end\n") and "1.10, 1.20, 1.30" in text
