@@ -511,3 +511,18 @@ def test_property_garbage_colmap_binary(data, name):
             load_scene(root)
         except DataError as e:
             assert "\n" not in str(e)
+
+
+def test_splat_process_without_pycolmap_names_the_extra(monkeypatch, tmp_path):
+    import sys
+
+    from splat_framework.sfm import estimate_scene
+
+    monkeypatch.setitem(sys.modules, "pycolmap", None)  # import pycolmap -> ImportError
+    photos = []
+    for k in range(2):
+        photos.append(tmp_path / f"p{k}.png")
+        photos[-1].write_bytes(b"")
+    with pytest.raises(DataError, match=r'pip install "splat\[process\]"'):
+        estimate_scene(photos, tmp_path / "out")
+    assert not (tmp_path / "out").exists()

@@ -1,0 +1,75 @@
+"""``splat-process images DIR --out SCENE`` / ``splat-process video FILE --out SCENE``: your own photos
+(or a video) as a posed COLMAP scene that ``splat-train METHOD --data SCENE`` reads."""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Literal, Union
+
+import tyro
+from tyro.conf import Positional, arg, subcommand
+
+
+@dataclass
+class ImagesArgs:
+    folder: Annotated[Positional[Path], arg(metavar="DIR")]
+    """Folder of photos of one scene (jpg, png, ...), all of one size."""
+    out: Path
+    """Scene folder to write (COLMAP layout: images/, sparse/0/)."""
+    mapper: Literal["incremental", "global"] = "incremental"
+    """COLMAP's incremental mapper, or the global one (GLOMAP)."""
+    overwrite: bool = False
+    """Replace --out when it exists."""
+
+
+@dataclass
+class VideoArgs:
+    video: Annotated[Positional[Path], arg(metavar="FILE")]
+    """Video of one scene (any format OpenCV decodes)."""
+    out: Path
+    """Scene folder to write (COLMAP layout: images/, sparse/0/)."""
+    frames: int = 10
+    """Frames to use: the sharpest of each of this many equal spans of the video."""
+    mapper: Literal["incremental", "global"] = "incremental"
+    """COLMAP's incremental mapper, or the global one (GLOMAP)."""
+    overwrite: bool = False
+    """Replace --out when it exists."""
+
+
+Args = Union[
+    Annotated[ImagesArgs, subcommand("images", description="a folder of photos")],
+    Annotated[VideoArgs, subcommand("video", description="a video: frames picked for sharpness and spread")],
+]
+
+
+def main(args: ImagesArgs | VideoArgs):
+    from ..sfm import estimate_scene, list_images, pick_video_frames
+
+    if isinstance(args, VideoArgs):
+        with tempfile.TemporaryDirectory(prefix="splat-frames-") as tmp:
+            frames = pick_video_frames(args.video, args.frames, Path(tmp) / "frames")
+            summary = estimate_scene(frames, args.out, mapper=args.mapper, overwrite=args.overwrite)
+    else:
+        summary = estimate_scene(list_images(args.folder), args.out, mapper=args.mapper, overwrite=args.overwrite)
+    print(f"{args.out}: {len(summary.registered)} of {summary.images} images registered, {summary.points:,} points, "
+          f"mean reprojection error {summary.reprojection_px:.2f} px, {summary.seconds:.1f} s ({summary.mapper} mapper)")
+    if summary.unregistered:
+        print(f"not registered (left out of the scene): {summary.unregistered} image(s)")
+    print(f"next: splat-train scgaussian --data {args.out}")
+    return summary
+
+
+def entrypoint() -> None:
+    from .common import run_cli
+
+    args = tyro.cli(Args, args=sys.argv[1:], prog="splat-process",
+                    description="Estimate camera poses of your own photos or video (pycolmap) and write a scene "
+                                "folder that splat-train reads.")
+    run_cli(lambda: main(args))
+
+
+if __name__ == "__main__":
+    entrypoint()

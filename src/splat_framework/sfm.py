@@ -1,0 +1,211 @@
+"""Posed scenes from a user's own photos: structure from motion with pycolmap.
+
+``estimate_scene(images, out)`` reads the photos (EXIF rotation applied by
+OpenCV), checks that they are readable and of one size, extracts and matches
+SIFT features, maps them with COLMAP's incremental mapper (or the global one,
+GLOMAP, with ``mapper="global"``), undistorts to a pinhole camera and writes a
+COLMAP folder (``images/``, ``sparse/0/``) that :func:`load_colmap` reads. The
+folder is built beside ``out`` and renamed into place at the end, so a failure
+leaves nothing half-written.
+
+pycolmap (PyPI; it ships COLMAP, runs on the CPU, downloads nothing) is an
+optional dependency: ``pip install "splat[process]"``.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import DataError
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
+MAPPERS = ("incremental", "global")
+
+
+@dataclass
+class SfmSummary:
+    images: int  # photos given
+    registered: list[str]  # names of the photos with a pose
+    points: int  # 3D points of the model
+    reprojection_px: float  # mean reprojection error
+    seconds: float
+    mapper: str
+
+    @property
+    def unregistered(self) -> int:
+        return self.images - len(self.registered)
+
+
+def _pycolmap(quiet: bool = True):
+    try:
+        import pycolmap
+    except ImportError:
+        raise DataError('splat-process needs pycolmap: pip install "splat[process]"') from None
+    if quiet:  # COLMAP's own per-step log lines; our summary says what happened
+        pycolmap.logging.minloglevel = int(pycolmap.logging.Level.FATAL.value)
+    return pycolmap
+
+
+def list_images(folder: Path) -> list[Path]:
+    """The image files directly inside ``folder``, sorted by name."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DataError(f"{folder}: not a folder of images")
+    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    if len(files) < 2:
+        raise DataError(f"{folder}: {len(files)} image(s) found ({', '.join(IMAGE_SUFFIXES)}); at least 2 are needed")
+    return files
+
+
+def _stage_images(images: list[Path], dest: Path) -> tuple[int, int]:
+    """Decode every image (EXIF orientation applied), check one common size, write them as PNG
+    into ``dest`` under their own stem. Returns (width, height)."""
+    import cv2
+
+    dest.mkdir(parents=True)
+    sizes: dict[tuple[int, int], list[str]] = {}
+    unreadable = []
+    for path in images:
+        img = cv2.imread(str(path), cv2.IMREAD_COLOR)  # applies the EXIF orientation
+        if img is None:
+            unreadable.append(path.name)
+            continue
+        sizes.setdefault((img.shape[1], img.shape[0]), []).append(path.name)
+        cv2.imwrite(str(dest / f"{path.stem}.png"), img)
+    if unreadable:
+        raise DataError(f"{images[0].parent}: unreadable image(s): {', '.join(unreadable)}")
+    if len(sizes) > 1:
+        parts = "; ".join(f"{w}x{h}: {', '.join(names[:3])}{' ...' if len(names) > 3 else ''}"
+                          for (w, h), names in sizes.items())
+        raise DataError(f"{images[0].parent}: images of different sizes or orientations ({parts}); "
+                        "resize them to one size")
+    if len({p.stem for p in images}) != len(images):
+        raise DataError(f"{images[0].parent}: two images share a name stem; rename them")
+    return next(iter(sizes))
+
+
+def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental", overwrite: bool = False) -> SfmSummary:
+    """Estimate intrinsics and poses of ``images`` and write the COLMAP scene folder ``out``.
+
+    Raises DataError (one line) when an image is unreadable, sizes differ, fewer than 2
+    images register, or ``out`` exists (without ``overwrite``)."""
+    if mapper not in MAPPERS:
+        raise DataError(f"--mapper must be one of {', '.join(MAPPERS)}, got {mapper!r}")
+    out = Path(out)
+    if out.exists() and not overwrite and any(out.iterdir() if out.is_dir() else [out]):
+        raise DataError(f"{out}: exists and is not empty; pass --overwrite or another --out")
+    pycolmap = _pycolmap()
+    t0 = time.perf_counter()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    work = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        _stage_images(images, work / "input")
+        db = work / "database.db"
+        cpu = pycolmap.Device.cpu
+        pycolmap.extract_features(db, work / "input", camera_mode=pycolmap.CameraMode.SINGLE, device=cpu)
+        pycolmap.match_exhaustive(db, device=cpu)
+        (work / "sparse").mkdir()
+        if mapper == "global":
+            models = pycolmap.global_mapping(db, work / "input", work / "sparse")
+        else:
+            models = pycolmap.incremental_mapping(db, work / "input", work / "sparse")
+        best = max(models.values(), key=lambda r: r.num_reg_images(), default=None)
+        registered = sorted(best.images[i].name for i in best.reg_image_ids()) if best is not None else []
+        if len(registered) < 2:
+            raise DataError(
+                f"{images[0].parent}: {len(registered)} of {len(images)} images registered "
+                f"({mapper} mapper); try photos with more overlap, more photos, or --mapper "
+                f"{'incremental' if mapper == 'global' else 'global'}")
+        model_dir = work / "model"
+        model_dir.mkdir()
+        best.write(model_dir)
+        scene = work / "scene"
+        pycolmap.undistort_images(scene, model_dir, work / "input")  # pinhole: images/, sparse/
+        sparse0 = scene / "sparse" / "0"
+        sparse0.mkdir()
+        for f in list((scene / "sparse").iterdir()):
+            if f.is_file():
+                f.rename(sparse0 / f.name)
+        for extra in ("stereo", "run-colmap-geometric.sh", "run-colmap-photometric.sh"):
+            p = scene / extra
+            shutil.rmtree(p) if p.is_dir() else p.unlink(missing_ok=True)
+        summary = SfmSummary(
+            images=len(images), registered=[Path(n).stem for n in registered], points=best.num_points3D(),
+            reprojection_px=float(best.compute_mean_reprojection_error()),
+            seconds=time.perf_counter() - t0, mapper=mapper,
+        )
+        if out.exists():
+            shutil.rmtree(out) if out.is_dir() else out.unlink()
+        scene.rename(out)
+        return summary
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def pick_video_frames(video: Path, n: int, dest: Path) -> list[Path]:
+    """Write ``n`` frames of ``video`` spread along it into ``dest`` (created) as PNG: the video is
+    cut into ``n`` equal spans and the sharpest frame of each (largest variance of the Laplacian
+    of its grey image) is kept. Raises DataError when the video cannot be read or has fewer than
+    ``n`` frames."""
+    import cv2
+
+    if n < 2:
+        raise DataError(f"--frames must be >= 2, got {n}")
+    cap = cv2.VideoCapture(str(video))
+    if not cap.isOpened():
+        raise DataError(f"{video}: not a video OpenCV can read")
+    best: dict[int, tuple[float, np.ndarray]] = {}
+    frames = []
+    try:
+        while True:
+            ok, frame = cap.read()
+            if not ok:
+                break
+            frames.append(frame)
+    finally:
+        cap.release()
+    total = len(frames)
+    if total < n:
+        raise DataError(f"{video}: {total} frame(s) decoded, fewer than --frames {n}; ask for fewer frames")
+    for i, frame in enumerate(frames):
+        span = i * n // total
+        sharp = float(cv2.Laplacian(cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY), cv2.CV_64F).var())
+        if span not in best or sharp > best[span][0]:
+            best[span] = (sharp, i)
+    dest.mkdir(parents=True)
+    paths = []
+    for span in range(n):
+        i = best[span][1]
+        paths.append(dest / f"frame{i:06d}.png")
+        cv2.imwrite(str(paths[-1]), frames[i])
+    return paths
+
+
+def sim3_errors(est_centers: np.ndarray, est_rotations: np.ndarray, true_centers: np.ndarray,
+                true_rotations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pose errors after aligning the estimated cameras to the true ones by the similarity
+    that best maps the estimated camera centres onto the true ones (pycolmap.estimate_sim3d).
+
+    Args: centres [M, 3] and world-to-camera rotations [M, 3, 3] of both.
+    Returns: (rotation errors in degrees [M], camera-centre errors [M] in the true frame's units)."""
+    pycolmap = _pycolmap(quiet=False)
+    sim = pycolmap.estimate_sim3d(est_centers.astype(np.float64), true_centers.astype(np.float64))
+    if sim is None:
+        raise DataError("the estimated camera centres are degenerate; no similarity aligns them")
+    m = np.asarray(sim.matrix())  # [3, 4] = [s R | t]
+    scale = float(sim.scale)
+    r_align = m[:, :3] / scale
+    centers = est_centers @ m[:, :3].T + m[:, 3]
+    # a world-to-camera rotation R_est in the estimate's frame is R_est @ R_align^T in the true frame
+    rel = true_rotations @ np.transpose(est_rotations @ r_align.T, (0, 2, 1))
+    cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    return np.degrees(np.arccos(cos)), np.linalg.norm(centers - true_centers, axis=1)
+
+
+__all__ = ["MAPPERS", "SfmSummary", "estimate_scene", "list_images", "pick_video_frames", "sim3_errors"]

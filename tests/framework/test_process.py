@@ -1,0 +1,135 @@
+"""splat-process: poses of a user's own photos (pycolmap), checked on the synthetic scene whose poses are exact."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+pytest.importorskip("pycolmap", reason='splat-process needs pycolmap (pip install "splat[process]")')
+
+from splat_framework.data.parsers.colmap import load_colmap  # noqa: E402
+from splat_framework.data.parsers.llff import load_llff  # noqa: E402
+from splat_framework.data.synthetic import ensure_scene  # noqa: E402
+from splat_framework.sfm import estimate_scene, sim3_errors  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def forward():
+    """The built-in forward-facing scene: 20 views at 504x378 with exact poses."""
+    return load_llff(ensure_scene("forward"))
+
+
+def centers_and_rotations(cameras):
+    w2c = np.stack([c.world_to_cam.double().numpy() for c in cameras])
+    rot = w2c[:, :3, :3]
+    return -np.einsum("nji,nj->ni", rot, w2c[:, :3, 3]), rot
+
+
+@pytest.mark.parametrize("n", [3, 5, 10])
+def test_poses_from_few_views_match_the_truth_after_sim3(forward, tmp_path, n):
+    idx = np.linspace(0, len(forward.image_paths) - 1, n).round().astype(int)
+    photos = [Path(forward.image_paths[i]) for i in idx]
+    summary = estimate_scene(photos, tmp_path / "scene")
+    assert summary.registered == [p.stem for p in photos] and summary.points > 100
+    assert summary.reprojection_px < 1.0
+    est = load_colmap(tmp_path / "scene")  # the written folder round-trips through the COLMAP parser
+    assert [Path(p).stem for p in est.image_paths] == [p.stem for p in photos]
+    assert all(Path(p).is_file() for p in est.image_paths)
+    size = {(c.width, c.height) for c in est.cameras}  # undistortion to a pinhole crops a few pixels
+    assert len(size) == 1 and all(0 <= a - b <= 8 for a, b in zip((504, 378), next(iter(size))))
+    assert cv2.imread(str(est.image_paths[0])).shape[1::-1] == next(iter(size))
+    K = est.cameras[0].K
+    assert abs(float(K[0, 0]) / float(forward.cameras[0].K[0, 0]) - 1) < 0.02  # focal within 2 %
+    true_c, true_r = centers_and_rotations([forward.cameras[i] for i in idx])
+    est_c, est_r = centers_and_rotations(est.cameras)
+    rot_deg, center_err = sim3_errors(est_c, est_r, true_c, true_r)
+    extent = np.linalg.norm(true_c.max(0) - true_c.min(0))  # the spread of the cameras: stricter than the scene's
+    assert rot_deg.max() < 1.0, rot_deg
+    assert center_err.max() < 0.01 * extent, center_err / extent
+
+
+def test_a_video_along_a_camera_path_gives_the_requested_distinct_frames(forward, tmp_path):
+    from splat_framework.sfm import pick_video_frames
+
+    video = tmp_path / "path.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10, (504, 378))
+    for p in forward.image_paths:  # each view twice: a sharp frame, then a blurred one
+        img = cv2.imread(str(p))
+        writer.write(img)
+        writer.write(cv2.GaussianBlur(img, (9, 9), 3))
+    writer.release()
+    frames = pick_video_frames(video, 6, tmp_path / "frames")
+    assert len(frames) == 6 and all(f.is_file() for f in frames)
+    picked = [int(f.stem.removeprefix("frame")) for f in frames]
+    assert picked == sorted(picked) and len(set(picked)) == 6
+    assert all(i % 2 == 0 for i in picked)  # the sharp frame of its pair, never the blurred one
+    spans = [i * 6 // 40 for i in picked]
+    assert spans == list(range(6))  # one per sixth of the video
+
+
+def run_process(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "splat_framework.cli.process", *args],
+                          capture_output=True, text=True, timeout=300)
+
+
+def assert_one_line_exit_2(res: subprocess.CompletedProcess, *words: str) -> None:
+    assert res.returncode == 2, res.stderr
+    err = res.stderr.strip()
+    assert err.startswith("error:") and "\n" not in err, err
+    for w in words:
+        assert w in err, err
+
+
+def test_failures_exit_2_with_one_line_and_write_nothing(forward, tmp_path):
+    out = tmp_path / "out"
+    # an unreadable image, named
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    for p in forward.image_paths[:2]:
+        (bad / Path(p).name).write_bytes(Path(p).read_bytes())
+    (bad / "broken.jpg").write_bytes(b"not a jpeg")
+    assert_one_line_exit_2(run_process("images", str(bad), "--out", str(out)), "broken.jpg", "unreadable")
+    # images of different sizes
+    sizes = tmp_path / "sizes"
+    sizes.mkdir()
+    img = cv2.imread(str(forward.image_paths[0]))
+    cv2.imwrite(str(sizes / "a.png"), img)
+    cv2.imwrite(str(sizes / "b.png"), cv2.rotate(img, cv2.ROTATE_90_CLOCKWISE))
+    assert_one_line_exit_2(run_process("images", str(sizes), "--out", str(out)), "different sizes", "378x504")
+    # photos with nothing in common: fewer than 2 register
+    noise = tmp_path / "noise"
+    noise.mkdir()
+    rng = np.random.default_rng(0)
+    for k in range(3):
+        cv2.imwrite(str(noise / f"n{k}.png"), rng.integers(0, 256, (200, 240, 3), dtype=np.uint8))
+    assert_one_line_exit_2(run_process("images", str(noise), "--out", str(out)), "registered", "overlap")
+    # a video with too few frames
+    video = tmp_path / "short.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
+    for _ in range(3):
+        writer.write(np.zeros((48, 64, 3), np.uint8))
+    writer.release()
+    assert_one_line_exit_2(run_process("video", str(video), "--out", str(out), "--frames", "5"), "3 frame(s)")
+    assert not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad", "noise", "short.avi", "sizes"]  # no leftovers
+
+
+def test_an_existing_out_is_kept_unless_overwrite(forward, tmp_path):
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for p in [forward.image_paths[i] for i in (0, 10, 19)]:
+        (photos / Path(p).name).write_bytes(Path(p).read_bytes())
+    out = tmp_path / "scene"
+    out.mkdir()
+    (out / "keep.txt").write_text("mine")
+    assert_one_line_exit_2(run_process("images", str(photos), "--out", str(out)), "--overwrite")
+    assert (out / "keep.txt").read_text() == "mine"
+    res = run_process("images", str(photos), "--out", str(out), "--overwrite")
+    assert res.returncode == 0, res.stderr
+    assert "3 of 3 images registered" in res.stdout and f"splat-train scgaussian --data {out}" in res.stdout
+    assert not (out / "keep.txt").exists() and (out / "sparse" / "0" / "cameras.bin").is_file()
