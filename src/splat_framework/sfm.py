@@ -90,8 +90,13 @@ def _stage_images(images: list[Path], dest: Path) -> tuple[int, int]:
     return next(iter(sizes))
 
 
-def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental", overwrite: bool = False) -> SfmSummary:
+def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental", overwrite: bool = False,
+                   camera_model: str = "SIMPLE_RADIAL") -> SfmSummary:
     """Estimate intrinsics and poses of ``images`` and write the COLMAP scene folder ``out``.
+
+    ``camera_model``: COLMAP's model shared by all photos (SIMPLE_RADIAL: one focal length,
+    centred principal point, one radial distortion term, undistorted away when writing;
+    SIMPLE_PINHOLE keeps the photos as they are).
 
     Raises DataError (one line) when an image is unreadable, sizes differ, fewer than 2
     images register, or ``out`` exists (without ``overwrite``)."""
@@ -108,7 +113,10 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
         _stage_images(images, work / "input")
         db = work / "database.db"
         cpu = pycolmap.Device.cpu
-        pycolmap.extract_features(db, work / "input", camera_mode=pycolmap.CameraMode.SINGLE, device=cpu)
+        reader = pycolmap.ImageReaderOptions()
+        reader.camera_model = camera_model
+        pycolmap.extract_features(db, work / "input", camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
+                                  device=cpu)
         pycolmap.match_exhaustive(db, device=cpu)
         (work / "sparse").mkdir()
         if mapper == "global":
