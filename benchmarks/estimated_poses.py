@@ -34,19 +34,19 @@ import numpy as np
 
 def pose_errors(est_w2c: np.ndarray, true_w2c: np.ndarray) -> dict:
     """Rotation errors after Sim(3) alignment and relative translation-direction errors (degrees)."""
-    from splat_framework.sfm import sim3_errors
+    from splat_framework.sfm import camera_centers, sim3_errors
 
-    def centers(w2c):
-        return -np.einsum("nji,nj->ni", w2c[:, :3, :3], w2c[:, :3, 3])
+    rot, center = sim3_errors(est_w2c, true_w2c)
 
-    rot, center = sim3_errors(centers(est_w2c), est_w2c[:, :3, :3], centers(true_w2c), true_w2c[:, :3, :3])
-    dirs = []
-    for i, j in itertools.permutations(range(len(est_w2c)), 2):
-        def rel(w2c):
-            t = w2c[i, :3, :3] @ (centers(w2c)[j] - centers(w2c)[i])
-            return t / np.linalg.norm(t)
-        dirs.append(np.degrees(np.arccos(np.clip(rel(est_w2c) @ rel(true_w2c), -1, 1))))
-    spread = np.linalg.norm(centers(true_w2c).max(0) - centers(true_w2c).min(0))
+    def direction(w2c, i, j):  # where camera j lies, seen from camera i
+        c = camera_centers(w2c)
+        t = w2c[i, :3, :3] @ (c[j] - c[i])
+        return t / np.linalg.norm(t)
+
+    dirs = [float(np.degrees(np.arccos(np.clip(direction(est_w2c, i, j) @ direction(true_w2c, i, j), -1, 1))))
+            for i, j in itertools.permutations(range(len(est_w2c)), 2)]
+    true_c = camera_centers(true_w2c)
+    spread = np.linalg.norm(true_c.max(0) - true_c.min(0))
     return {"rotation_deg": rot.tolist(), "translation_direction_deg": dirs,
             "center_error_rel_spread": (center / spread).tolist()}
 
@@ -54,12 +54,10 @@ def pose_errors(est_w2c: np.ndarray, true_w2c: np.ndarray) -> dict:
 def estimated_scene(data: str, views: int, out: Path, sfm_downscale: float | None) -> tuple[Path, dict]:
     """Write the LLFF scene with the training views' poses estimated from those views alone
     (photos at ``sfm_downscale``, None: the training resolution)."""
-    import pycolmap
-
     from splat_framework.data import load_scene
     from splat_framework.data.parsers.colmap import load_colmap
     from splat_framework.data.resolve import resolve_data_path
-    from splat_framework.sfm import estimate_scene
+    from splat_framework.sfm import align_sim3, camera_centers, estimate_scene
 
     root = resolve_data_path(data)
     scene = load_scene(root, views=views)
@@ -78,11 +76,7 @@ def estimated_scene(data: str, views: int, out: Path, sfm_downscale: float | Non
     true_w2c = np.stack([scene.cameras[i].world_to_cam.double().numpy() for i in train])
     errors = pose_errors(est_w2c, true_w2c)
 
-    est_c = -np.einsum("nji,nj->ni", est_w2c[:, :3, :3], est_w2c[:, :3, 3])
-    true_c = -np.einsum("nji,nj->ni", true_w2c[:, :3, :3], true_w2c[:, :3, 3])
-    sim = pycolmap.estimate_sim3d(est_c, true_c)  # dataset frame from estimated frame
-    m = np.asarray(sim.matrix())
-    r_align = m[:, :3] / float(sim.scale)
+    aligned = align_sim3(est_w2c, true_w2c)  # the estimated cameras in the dataset's frame
     dst = out / "scene"
     dst.mkdir(parents=True, exist_ok=True)
     for entry in root.iterdir():  # image folders linked, poses rewritten
@@ -91,8 +85,8 @@ def estimated_scene(data: str, views: int, out: Path, sfm_downscale: float | Non
             os.symlink(entry.resolve(), link)
     pb = np.load(root / "poses_bounds.npy")
     for k, i in enumerate(train):
-        c2w_cv = r_align @ est_w2c[k, :3, :3].T  # camera-to-world rotation in the dataset frame
-        center = m[:, :3] @ est_c[k] + m[:, 3]
+        c2w_cv = aligned[k, :3, :3].T  # camera-to-world rotation, OpenCV axes
+        center = camera_centers(aligned[k : k + 1])[0]
         pose = pb[i, :15].reshape(3, 5).copy()
         w_full = pose[1, 4]  # LLFF hwf: height, width, focal at full resolution
         llff_rot = np.stack([c2w_cv[:, 1], c2w_cv[:, 0], -c2w_cv[:, 2]], axis=1)  # inverse of the parser's mapping

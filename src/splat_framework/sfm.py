@@ -42,13 +42,13 @@ class SfmSummary:
         return self.images - len(self.registered)
 
 
-def _pycolmap(quiet: bool = True):
+def _pycolmap():
     try:
         import pycolmap
     except ImportError:
         raise DataError('splat-process needs pycolmap: pip install "splat[process]"') from None
-    if quiet:  # COLMAP's own per-step log lines; our summary says what happened
-        pycolmap.logging.minloglevel = int(pycolmap.logging.Level.FATAL.value)
+    # COLMAP's own per-step log lines; our summary and one-line errors say what happened
+    pycolmap.logging.minloglevel = int(pycolmap.logging.Level.FATAL.value)
     return pycolmap
 
 
@@ -63,11 +63,13 @@ def list_images(folder: Path) -> list[Path]:
     return files
 
 
-def _stage_images(images: list[Path], dest: Path) -> tuple[int, int]:
+def _stage_images(images: list[Path], dest: Path) -> None:
     """Decode every image (EXIF orientation applied), check one common size, write them as PNG
-    into ``dest`` under their own stem. Returns (width, height)."""
+    into ``dest`` under their own stem."""
     import cv2
 
+    if len({p.stem for p in images}) != len(images):
+        raise DataError(f"{images[0].parent}: two images share a name stem; rename them")
     dest.mkdir(parents=True)
     sizes: dict[tuple[int, int], list[str]] = {}
     unreadable = []
@@ -85,9 +87,6 @@ def _stage_images(images: list[Path], dest: Path) -> tuple[int, int]:
                           for (w, h), names in sizes.items())
         raise DataError(f"{images[0].parent}: images of different sizes or orientations ({parts}); "
                         "resize them to one size")
-    if len({p.stem for p in images}) != len(images):
-        raise DataError(f"{images[0].parent}: two images share a name stem; rename them")
-    return next(iter(sizes))
 
 
 def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental", overwrite: bool = False,
@@ -165,55 +164,64 @@ def pick_video_frames(video: Path, n: int, dest: Path) -> list[Path]:
 
     if n < 2:
         raise DataError(f"--frames must be >= 2, got {n}")
-    cap = cv2.VideoCapture(str(video))
-    if not cap.isOpened():
-        raise DataError(f"{video}: not a video OpenCV can read")
-    best: dict[int, tuple[float, np.ndarray]] = {}
-    frames = []
-    try:
-        while True:
-            ok, frame = cap.read()
-            if not ok:
-                break
-            frames.append(frame)
-    finally:
-        cap.release()
-    total = len(frames)
+    def frames():
+        cap = cv2.VideoCapture(str(video))
+        if not cap.isOpened():
+            raise DataError(f"{video}: not a video OpenCV can read")
+        try:
+            while True:
+                ok, frame = cap.read()
+                if not ok:
+                    return
+                yield frame
+        finally:
+            cap.release()
+
+    # two decoding passes, so that only one frame is in memory at a time (the frame count
+    # a container declares is not reliable enough to cut the spans by)
+    sharpness = [float(cv2.Laplacian(cv2.cvtColor(f, cv2.COLOR_BGR2GRAY), cv2.CV_64F).var()) for f in frames()]
+    total = len(sharpness)
     if total < n:
         raise DataError(f"{video}: {total} frame(s) decoded, fewer than --frames {n}; ask for fewer frames")
-    for i, frame in enumerate(frames):
-        span = i * n // total
-        sharp = float(cv2.Laplacian(cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY), cv2.CV_64F).var())
-        if span not in best or sharp > best[span][0]:
-            best[span] = (sharp, i)
+    spans = np.arange(total) * n // total
+    keep = {int(np.flatnonzero(spans == k)[np.argmax(np.asarray(sharpness)[spans == k])]) for k in range(n)}
     dest.mkdir(parents=True)
     paths = []
-    for span in range(n):
-        i = best[span][1]
-        paths.append(dest / f"frame{i:06d}.png")
-        cv2.imwrite(str(paths[-1]), frames[i])
+    for i, frame in enumerate(frames()):
+        if i in keep:
+            paths.append(dest / f"frame{i:06d}.png")
+            cv2.imwrite(str(paths[-1]), frame)
     return paths
 
 
-def sim3_errors(est_centers: np.ndarray, est_rotations: np.ndarray, true_centers: np.ndarray,
-                true_rotations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pose errors after aligning the estimated cameras to the true ones by the similarity
-    that best maps the estimated camera centres onto the true ones (pycolmap.estimate_sim3d).
+def camera_centers(w2c: np.ndarray) -> np.ndarray:
+    """[M, 3] camera centres -R^T t of world-to-camera matrices [M, 3 or 4, 4]."""
+    return -np.einsum("nji,nj->ni", w2c[:, :3, :3], w2c[:, :3, 3])
 
-    Args: centres [M, 3] and world-to-camera rotations [M, 3, 3] of both.
-    Returns: (rotation errors in degrees [M], camera-centre errors [M] in the true frame's units)."""
-    pycolmap = _pycolmap(quiet=False)
-    sim = pycolmap.estimate_sim3d(est_centers.astype(np.float64), true_centers.astype(np.float64))
+
+def align_sim3(est_w2c: np.ndarray, true_w2c: np.ndarray) -> np.ndarray:
+    """World-to-camera matrices [M, 4, 4] of the estimated cameras moved into the true cameras'
+    frame by the similarity that best maps their centres onto the true ones (Umeyama,
+    ``pycolmap.estimate_sim3d``); the true frame's units."""
+    pycolmap = _pycolmap()
+    sim = pycolmap.estimate_sim3d(camera_centers(est_w2c), camera_centers(true_w2c))
     if sim is None:
         raise DataError("the estimated camera centres are degenerate; no similarity aligns them")
-    m = np.asarray(sim.matrix())  # [3, 4] = [s R | t]
-    scale = float(sim.scale)
-    r_align = m[:, :3] / scale
-    centers = est_centers @ m[:, :3].T + m[:, 3]
-    # a world-to-camera rotation R_est in the estimate's frame is R_est @ R_align^T in the true frame
-    rel = true_rotations @ np.transpose(est_rotations @ r_align.T, (0, 2, 1))
+    m = np.asarray(sim.matrix())  # [3, 4] = [s R | t]: x_true = s R x_est + t
+    out = np.tile(np.eye(4), (len(est_w2c), 1, 1))
+    out[:, :3, :3] = est_w2c[:, :3, :3] @ (m[:, :3] / float(sim.scale)).T
+    out[:, :3, 3] = -np.einsum("nij,nj->ni", out[:, :3, :3], camera_centers(est_w2c) @ m[:, :3].T + m[:, 3])
+    return out
+
+
+def sim3_errors(est_w2c: np.ndarray, true_w2c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pose errors after :func:`align_sim3`: (rotation errors in degrees [M], camera-centre
+    errors [M] in the true frame's units) of world-to-camera matrices [M, 3 or 4, 4]."""
+    aligned = align_sim3(est_w2c, true_w2c)
+    rel = true_w2c[:, :3, :3] @ np.transpose(aligned[:, :3, :3], (0, 2, 1))
     cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
-    return np.degrees(np.arccos(cos)), np.linalg.norm(centers - true_centers, axis=1)
+    return np.degrees(np.arccos(cos)), np.linalg.norm(camera_centers(aligned) - camera_centers(true_w2c), axis=1)
 
 
-__all__ = ["MAPPERS", "SfmSummary", "estimate_scene", "list_images", "pick_video_frames", "sim3_errors"]
+__all__ = ["MAPPERS", "SfmSummary", "align_sim3", "camera_centers", "estimate_scene", "list_images",
+           "pick_video_frames", "sim3_errors"]

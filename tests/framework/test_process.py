@@ -15,7 +15,7 @@ pytest.importorskip("pycolmap", reason='splat-process needs pycolmap (pip instal
 from splat_framework.data.parsers.colmap import load_colmap  # noqa: E402
 from splat_framework.data.parsers.llff import load_llff  # noqa: E402
 from splat_framework.data.synthetic import ensure_scene  # noqa: E402
-from splat_framework.sfm import estimate_scene, sim3_errors  # noqa: E402
+from splat_framework.sfm import camera_centers, estimate_scene, sim3_errors  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -24,10 +24,8 @@ def forward():
     return load_llff(ensure_scene("forward"))
 
 
-def centers_and_rotations(cameras):
-    w2c = np.stack([c.world_to_cam.double().numpy() for c in cameras])
-    rot = w2c[:, :3, :3]
-    return -np.einsum("nji,nj->ni", rot, w2c[:, :3, 3]), rot
+def world_to_cam(cameras) -> np.ndarray:
+    return np.stack([c.world_to_cam.double().numpy() for c in cameras])
 
 
 @pytest.mark.parametrize("n", [3, 5, 10])
@@ -45,9 +43,9 @@ def test_poses_from_few_views_match_the_truth_after_sim3(forward, tmp_path, n):
     assert cv2.imread(str(est.image_paths[0])).shape[1::-1] == next(iter(size))
     K = est.cameras[0].K
     assert abs(float(K[0, 0]) / float(forward.cameras[0].K[0, 0]) - 1) < 0.02  # focal within 2 %
-    true_c, true_r = centers_and_rotations([forward.cameras[i] for i in idx])
-    est_c, est_r = centers_and_rotations(est.cameras)
-    rot_deg, center_err = sim3_errors(est_c, est_r, true_c, true_r)
+    true_w2c = world_to_cam([forward.cameras[i] for i in idx])
+    rot_deg, center_err = sim3_errors(world_to_cam(est.cameras), true_w2c)
+    true_c = camera_centers(true_w2c)
     extent = np.linalg.norm(true_c.max(0) - true_c.min(0))  # the spread of the cameras: stricter than the scene's
     assert rot_deg.max() < 1.0, rot_deg
     assert center_err.max() < 0.01 * extent, center_err / extent
