@@ -67,5 +67,8 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
         table.add_row(k, f"{v:.1f}")
     table.add_row("run folder", str(run_dir))
     Console().print(table)
-    if metrics.get("lpips_note"):
+    if not metrics.get("per_view"):
+        say("No test metrics: the scene has no held-out test view (every photo is a training view); "
+            "splat-render RUN --path auto renders a video of novel views", "yellow")
+    elif metrics.get("lpips_note"):
         say(f"LPIPS not computed: {metrics['lpips_note']}", "yellow")

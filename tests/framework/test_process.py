@@ -131,3 +131,20 @@ def test_an_existing_out_is_kept_unless_overwrite(forward, tmp_path):
     assert res.returncode == 0, res.stderr
     assert "3 of 3 images registered" in res.stdout and f"splat-train scgaussian --data {out}" in res.stdout
     assert not (out / "keep.txt").exists() and (out / "sparse" / "0" / "cameras.bin").is_file()
+
+
+def test_three_photos_train_on_all_three_with_no_test_view(forward, tmp_path):
+    """`splat-train METHOD --data SCENE` with its default 3 views on a 3-photo scene: no hold-out, no test score."""
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for p in [forward.image_paths[i] for i in (0, 10, 19)]:
+        (photos / Path(p).name).write_bytes(Path(p).read_bytes())
+    out = tmp_path / "scene"
+    assert run_process("images", str(photos), "--out", str(out)).returncode == 0
+    scene = load_colmap(out, views=3)
+    assert scene.train_indices == [0, 1, 2] and scene.test_indices == []
+    res = subprocess.run([sys.executable, "-m", "splat_framework.cli.train", "3dgs", "--data", str(out),
+                          "--steps", "5", "--output", str(tmp_path / "run"), "--no-progress"],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert "no held-out test view" in " ".join(res.stderr.split()), res.stderr

@@ -13,6 +13,11 @@ sorted-as-specified lists of indices into the parser's camera list.
   (then the remaining non-test views in order); test = the fixed 25-view list.
 
 ``views="all"`` trains on every non-test image (the dense setting).
+
+A user's own scene (COLMAP, e.g. from ``splat-process``) of only a few photos
+is trained on all of them when holding out every 8th would leave fewer than
+``views`` (:func:`own_scene_split`): three photos and ``--views 3`` train on the
+three, and there is no test view to score.
 """
 
 from __future__ import annotations
@@ -74,6 +79,16 @@ def llff_split(n_images: int, views: Views = "all", holdout: int = LLFF_HOLDOUT)
     if views > len(rest):
         raise _too_many(views, len(rest), f"{n_images} images minus {len(test)} held-out test views")
     return linspace_pick(rest, views), test
+
+
+def own_scene_split(n_images: int, views: Views = "all") -> tuple[list[int], list[int]]:
+    """:func:`llff_split`, except that a scene with at least ``views`` but too few images to also
+    hold out test views is trained on ``views`` of them spread by the linspace rule, with no
+    test view (a user's 3 photos and ``--views 3``). Benchmark scenes always have enough images."""
+    views = check_views(views)
+    if views != "all" and n_images >= views and n_images - len(range(0, n_images, LLFF_HOLDOUT)) < views:
+        return linspace_pick(list(range(n_images)), views), []
+    return llff_split(n_images, views)
 
 
 def blender_split(

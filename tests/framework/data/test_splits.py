@@ -14,6 +14,7 @@ from splat_framework.data.splits import (
     dtu_split,
     linspace_pick,
     llff_split,
+    own_scene_split,
 )
 from support import DATA
 
@@ -23,6 +24,16 @@ def test_llff_fern_protocol_numbers():
     train, test = llff_split(20, 3)
     assert train == [1, 10, 19]
     assert test == [0, 8, 16]
+
+
+def test_own_scene_with_too_few_photos_trains_on_all_of_them():
+    assert own_scene_split(3, 3) == ([0, 1, 2], [])  # holding out photo 0 would leave 2 < 3
+    assert own_scene_split(2, 2) == ([0, 1], [])
+    assert own_scene_split(3, 2) == llff_split(3, 2) == ([1, 2], [0])  # enough: the usual hold-out
+    assert own_scene_split(20, 3) == llff_split(20, 3)
+    assert own_scene_split(3, "all") == llff_split(3, "all")
+    with pytest.raises(DataError, match="views=4"):
+        own_scene_split(3, 4)
 
 
 def test_llff_rules():

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..scene import DataError, SceneData
-from ..splits import Views, llff_split
+from ..splits import Views, own_scene_split
 from .common import (
     check_finite,
     check_same_size,
@@ -383,7 +383,7 @@ def load_colmap(root: Path, *, views: Views = "all", downscale: float | None = N
             )
         )
 
-    train, test = llff_split(len(cameras), views)
+    train, test = own_scene_split(len(cameras), views)
     return build_scene(
         root,
         "colmap",
