@@ -117,11 +117,17 @@ def test_failures_exit_2_with_one_line_and_write_nothing(forward, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad", "noise", "short.avi", "sizes"]  # no leftovers
 
 
-def test_an_existing_out_is_kept_unless_overwrite(forward, tmp_path):
+def three_photos(forward, tmp_path) -> Path:
+    """A folder holding copies of three of the forward scene's photos (views 0, 10, 19)."""
     photos = tmp_path / "photos"
     photos.mkdir()
     for p in [forward.image_paths[i] for i in (0, 10, 19)]:
         (photos / Path(p).name).write_bytes(Path(p).read_bytes())
+    return photos
+
+
+def test_an_existing_out_is_kept_unless_overwrite(forward, tmp_path):
+    photos = three_photos(forward, tmp_path)
     out = tmp_path / "scene"
     out.mkdir()
     (out / "keep.txt").write_text("mine")
@@ -135,10 +141,7 @@ def test_an_existing_out_is_kept_unless_overwrite(forward, tmp_path):
 
 def test_three_photos_train_on_all_three_with_no_test_view(forward, tmp_path):
     """`splat-train METHOD --data SCENE` with its default 3 views on a 3-photo scene: no hold-out, no test score."""
-    photos = tmp_path / "photos"
-    photos.mkdir()
-    for p in [forward.image_paths[i] for i in (0, 10, 19)]:
-        (photos / Path(p).name).write_bytes(Path(p).read_bytes())
+    photos = three_photos(forward, tmp_path)
     out = tmp_path / "scene"
     assert run_process("images", str(photos), "--out", str(out)).returncode == 0
     scene = load_colmap(out, views=3)
