@@ -10,6 +10,7 @@ import torch
 from torch import Tensor
 
 from .metrics import IMAGE_METRICS, LPIPSMetric, STLPIPSMetric, evaluate_images
+from .pose_refine import pose_change, refine_pose
 from .profiling import synchronize
 
 
@@ -126,9 +127,14 @@ def error_map(pred: Tensor, gt: Tensor) -> np.ndarray:
 
 
 @torch.no_grad()
-def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = None) -> dict:
+def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = None, pose_steps: int = 0) -> dict:
     """Render every test view and compute PSNR, SSIM, LPIPS (when available) and AVG,
     plus the depth error when the dataset has ground-truth depth (see :func:`depth_metrics`).
+
+    With ``pose_steps`` > 0, each test camera's pose is first fitted to its photo by that many
+    steps of :func:`splat_framework.pose_refine.refine_pose` (the protocol of pose-free methods;
+    for poses estimated from the training photos alone); per view, ``pose_refined_deg`` and
+    ``pose_refined_shift`` record how far it moved.
 
     With ``render_dir``, writes per view ``<view>_render.png``, ``<view>_gt.png``,
     ``<view>_depth.png`` and a labelled ``<view>_grid.png`` (GT | render | depth | error).
@@ -151,6 +157,11 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
     per_view = []
     render_time = 0.0
     for i, (camera, batch) in enumerate(datamanager.eval_views()):
+        moved = {}
+        if pose_steps > 0:
+            refined = refine_pose(model, camera, batch["image"], background, pose_steps)
+            deg, shift = pose_change(camera.world_to_cam, refined.world_to_cam)
+            camera, moved = refined, {"pose_refined_deg": deg, "pose_refined_shift": shift}
         if i == 0:  # untimed: the first render of a process pays torch.compile and allocator warm-up
             model.get_outputs(camera, background)
         t0 = time.perf_counter()
@@ -163,7 +174,7 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
         m = evaluate_images(pred, gt, mask=mask, lpips=lpips if available else None, st_lpips=st_lpips)
         m.update(depth_metrics(depth, out.alpha, batch.get("depth")))
         name = camera.name or f"view{batch['index']:03d}"
-        per_view.append({"view": name, "index": int(batch["index"]), **m})
+        per_view.append({"view": name, "index": int(batch["index"]), **m, **moved})
         if render_dir is not None:
             gt8, pred8, depth8 = to_uint8(gt), to_uint8(pred), colorize_depth(depth, out.alpha)
             write_png(render_dir / f"{name}_render.png", pred8)

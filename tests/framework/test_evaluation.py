@@ -259,3 +259,21 @@ def test_render_fps_leaves_out_the_first_renders_warm_up():
     assert SlowFirst.calls == 4  # one untimed warm-up, then one render per view
     assert res["fps"] > 3 / 0.4  # the warm-up counted would give < 7.5 FPS
     assert res["mean"]["psnr"] is not None
+
+
+def test_splat_eval_fits_the_test_poses_when_asked(run_dir, tmp_path):
+    """--test-pose-steps N: each test camera is fitted to its photo first; how far it moved is recorded."""
+    import shutil
+
+    from splat_framework.cli.eval import EvalArgs, main
+
+    run = tmp_path / "run"
+    shutil.copytree(run_dir, run, ignore=shutil.ignore_patterns("renders"))
+    metrics = main(EvalArgs(run_dir=run, renders=False, test_pose_steps=10))
+    assert metrics["test_pose_steps"] == 10
+    assert json.loads((run / "metrics.json").read_text())["test_pose_steps"] == 10
+    for v in metrics["per_view"]:
+        assert 0 <= v["pose_refined_deg"] < 5 and 0 <= v["pose_refined_shift"] < 1
+    r = subprocess.run([sys.executable, "-m", "splat_framework.cli.eval", str(run), "--test-pose-steps", "-1"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0 and "--test-pose-steps" in r.stderr, r.stderr

@@ -1,0 +1,61 @@
+"""Test-time pose refinement (splat_framework.pose_refine): a perturbed test camera is fitted back to its photo."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import torch
+from torch import nn
+
+from splat_framework.cameras import Camera, intrinsics, look_at
+from splat_framework.metrics import psnr
+from splat_framework.pose_refine import _correction, pose_change, refine_pose
+from splat_framework.render import rasterize
+
+
+class CloudModel(nn.Module):
+    """A fixed cloud of small coloured Gaussians with the model interface refine_pose uses."""
+
+    def __init__(self, n: int = 3000, seed: int = 0) -> None:
+        super().__init__()
+        g = torch.Generator().manual_seed(seed)
+        xy = torch.rand(n, 2, generator=g) * 4 - 2
+        z = 4 + 0.5 * torch.sin(3 * xy[:, :1]) + torch.rand(n, 1, generator=g)
+        self.means = nn.Parameter(torch.cat([xy, z], 1))
+        self.colors = nn.Parameter(torch.rand(n, 1, 3, generator=g))
+        self.quats = torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1)
+        self.scales = torch.full((n, 3), 0.06)
+        self.opacities = torch.full((n,), 0.9)
+
+    def positions(self):
+        return self.means
+
+    def get_outputs(self, camera: Camera, background=None):
+        return rasterize(self.means, self.quats, self.scales, self.opacities, self.colors,
+                         camera.world_to_cam.float(), camera.K.float(), camera.width, camera.height,
+                         sh_degree=0, background=background)
+
+
+def test_a_perturbed_test_camera_is_fitted_back_to_its_photo():
+    model = CloudModel()
+    w2c = look_at(torch.tensor([0.0, 0.0, 0.0]), torch.tensor([0.0, 0.0, 4.5]), torch.tensor([0.0, -1.0, 0.0])).float()
+    true = Camera(K=intrinsics(60.0, 60.0, 40.0, 30.0), world_to_cam=w2c, width=80, height=60, near=1.0, far=10.0)
+    bg = torch.zeros(3)
+    with torch.no_grad():
+        photo = model.get_outputs(true, bg).rgb
+    off = _correction(torch.tensor([0.012, -0.018, 0.008]), torch.tensor([0.05, -0.03, 0.04])) @ w2c  # 1.3 degrees
+    start = dataclasses.replace(true, world_to_cam=off)
+    deg0, shift0 = pose_change(w2c, off)
+    assert 1.0 < deg0 < 1.6
+    grads_before = [p.grad for p in model.parameters()]
+    with torch.no_grad():  # as evaluate() calls it
+        fitted = refine_pose(model, start, photo, bg, steps=150)
+        before, after = psnr(model.get_outputs(start, bg).rgb, photo), psnr(model.get_outputs(fitted, bg).rgb, photo)
+    deg, shift = pose_change(w2c, fitted.world_to_cam)
+    assert deg < 0.2 * deg0 and shift < 0.2 * shift0, (deg, shift, deg0, shift0)
+    assert after > before + 8, (before, after)
+    assert all(p.requires_grad for p in model.parameters())  # the model is left as it was
+    assert [p.grad for p in model.parameters()] == grads_before
+    assert refine_pose(model, start, photo, bg, steps=0) is start
+    assert math.isclose(pose_change(w2c, w2c)[0], 0.0, abs_tol=1e-3)
