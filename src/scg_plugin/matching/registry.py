@@ -27,6 +27,8 @@ MATCHERS: dict[str, type] = {
 AUTO = "auto"
 AUTO_DENSE = "dense"
 AUTO_LEARNED = "aliked-lightglue"
+#: What ``auto`` reports for a wide pair matched with ``AUTO_LEARNED`` plus the dense flow it guides.
+AUTO_GUIDED = "aliked-lightglue+guided-flow"
 
 
 def learned_available(config: MatchConfig) -> bool:
