@@ -57,6 +57,7 @@ from .metrics import psnr
 from .model.strategy import Strategy
 from .profiling import section
 from .render import set_compile
+from .render._threads import apply_process_threads
 from .registry import get_method
 from .rng import restore_rng_state, rng_state, seed_everything
 from .run_folder import prepare_run_dir
@@ -173,6 +174,7 @@ class Trainer:
         scene = load_scene(
             data_path, format=self.config.format, views=self.config.views, downscale=self.config.downscale
         )
+        apply_process_threads()
         budget = plan_memory(scene, self.config, image_memory_budget())
         self.datamanager = DataManager(
             scene, device=self.device, seed=self.config.seed, memory_budget_bytes=budget,

@@ -508,6 +508,19 @@ def test_thread_policy(monkeypatch):
     assert _threads.choose_threads(torch.device("cuda")) is None
 
 
+def test_an_integer_splat_threads_sets_the_whole_process(monkeypatch):
+    from splat_framework.render import _threads
+
+    before = torch.get_num_threads()
+    try:
+        for value, expected in (("auto", None), ("off", None), ("0", None), ("1", 1)):
+            monkeypatch.setenv("SPLAT_THREADS", value)
+            assert _threads.apply_process_threads() == expected
+        assert torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_compiled_kernels_match_eager_in_a_training_step(monkeypatch, tmp_path):
     """torch.compile'd compositing (what compile="auto" turns on for long CPU runs) gives the eager
     forward and gradients; any compile failure falls back to eager, so this also runs without a compiler."""
