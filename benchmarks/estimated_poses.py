@@ -55,7 +55,8 @@ def pose_errors(est_w2c: np.ndarray, true_w2c: np.ndarray) -> dict:
             "center_error_rel_spread": (center / spread).tolist()}
 
 
-def estimated_scene(data: str, views: int, out: Path, sfm_downscale: float | None) -> tuple[Path, dict]:
+def estimated_scene(data: str, views: int, out: Path, sfm_downscale: float | None,
+                    matcher: str = "sift") -> tuple[Path, dict]:
     """Write the LLFF scene with the training views' poses estimated from those views alone
     (photos at ``sfm_downscale``, None: the training resolution)."""
     from splat_framework.data import load_scene
@@ -70,7 +71,7 @@ def estimated_scene(data: str, views: int, out: Path, sfm_downscale: float | Non
     train = list(scene.train_indices)
     photos_of = load_scene(root, views=views, downscale=sfm_downscale) if sfm_downscale else scene
     photos = [Path(photos_of.image_paths[i]) for i in train]
-    summary = estimate_scene(photos, out / "sfm", overwrite=True, camera_model="SIMPLE_PINHOLE")
+    summary = estimate_scene(photos, out / "sfm", overwrite=True, camera_model="SIMPLE_PINHOLE", matcher=matcher)
     if len(summary.registered) < len(photos):
         raise SystemExit(f"{data}: {len(summary.registered)} of {len(photos)} training views registered")
     est = load_colmap(out / "sfm")
@@ -145,10 +146,12 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--test-pose-steps", type=int, default=200,
                     help="also score every run with each test camera's pose fitted to its photo by this many "
                          "steps, the model frozen (splat-eval --test-pose-steps; 0 = off)")
+    ap.add_argument("--matcher", default="sift",
+                    help="correspondences of the SfM (splat-process --matcher; the recorded results used sift)")
     ap.add_argument("--out", type=Path, default=Path("outputs/estimated-poses"))
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
-    scene, info = estimated_scene(args.data, args.views, args.out, args.sfm_downscale or None)
+    scene, info = estimated_scene(args.data, args.views, args.out, args.sfm_downscale or None, args.matcher)
     print(json.dumps({k: v for k, v in info.items()}, indent=1))
     results = []
     for method, poses, seed in itertools.product(args.methods, args.poses, args.seeds):

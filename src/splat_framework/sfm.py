@@ -10,6 +10,16 @@ leaves nothing half-written.
 
 pycolmap (PyPI; it ships COLMAP, runs on the CPU, downloads nothing) is an
 optional dependency: ``pip install "splat[process]"``.
+
+``matcher``: COLMAP's own SIFT ("sift"), or a photo matcher that a plugin
+registers under the ``splat_framework.photo_matchers`` entry point group (SCGaussian
+registers its learned ``aliked-lightglue`` and ``disk-lightglue``): a function
+``match(images: list[[H, W, 3] uint8 RGB]) -> {(i, j): (pts_i [M, 2], pts_j [M, 2])}``
+in continuous pixel coordinates (pixel centres at +0.5, COLMAP's convention). Its
+matches become COLMAP's keypoints and raw matches; COLMAP verifies them
+(geometric_verification) and maps from them. Few wide-baseline photos are where
+this matters: DTU scan37's 3 training views register 0 of 3 from SIFT, 3 of 3
+from ALIKED + LightGlue.
 """
 
 from __future__ import annotations
@@ -26,6 +36,38 @@ from .errors import DataError
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
 MAPPERS = ("incremental", "global")
+PHOTO_MATCHER_GROUP = "splat_framework.photo_matchers"
+
+
+def photo_matchers() -> dict[str, object]:
+    """Entry points of the photo matchers that installed plugins register, by name (not loaded)."""
+    from importlib.metadata import entry_points
+
+    return {ep.name: ep for ep in entry_points(group=PHOTO_MATCHER_GROUP)}
+
+
+def _write_matches(pycolmap, db_path: Path, names: list[str], matches: dict) -> None:
+    """Replace the database's keypoints and matches with ``matches`` ({(i, j): (pts_i, pts_j)} over
+    ``names``): each image's keypoints are the distinct points of its matches."""
+    keypoints: list[dict[tuple[float, float], int]] = [{} for _ in names]
+
+    def index(k: int, pts: np.ndarray) -> np.ndarray:
+        table = keypoints[k]
+        return np.array([table.setdefault((float(x), float(y)), len(table)) for x, y in pts], np.uint32)
+
+    pairs = {(i, j): np.stack([index(i, pa), index(j, pb)], axis=1) for (i, j), (pa, pb) in matches.items() if len(pa)}
+    db = pycolmap.Database.open(db_path)
+    try:
+        ids = {im.name: im.image_id for im in db.read_all_images()}
+        for table in (db.clear_keypoints, db.clear_descriptors, db.clear_matches, db.clear_two_view_geometries):
+            table()
+        for k, name in enumerate(names):
+            db.write_keypoints(ids[name], np.array(list(keypoints[k]), np.float32).reshape(-1, 2))
+        for (i, j), m in pairs.items():
+            db.write_matches(ids[names[i]], ids[names[j]], m)
+    finally:
+        db.close()
+    pycolmap.geometric_verification(db_path, pairing_options=pycolmap.ExistingMatchedPairingOptions())
 
 
 @dataclass
@@ -36,6 +78,7 @@ class SfmSummary:
     reprojection_px: float  # mean reprojection error
     seconds: float
     mapper: str
+    matcher: str = "sift"
 
     @property
     def unregistered(self) -> int:
@@ -90,7 +133,7 @@ def _stage_images(images: list[Path], dest: Path) -> None:
 
 
 def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental", overwrite: bool = False,
-                   camera_model: str = "SIMPLE_RADIAL") -> SfmSummary:
+                   camera_model: str = "SIMPLE_RADIAL", matcher: str = "sift") -> SfmSummary:
     """Estimate intrinsics and poses of ``images`` and write the COLMAP scene folder ``out``.
 
     ``camera_model``: COLMAP's model shared by all photos (SIMPLE_RADIAL: one focal length,
@@ -101,6 +144,9 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
     images register, or ``out`` exists (without ``overwrite``)."""
     if mapper not in MAPPERS:
         raise DataError(f"--mapper must be one of {', '.join(MAPPERS)}, got {mapper!r}")
+    plugins = photo_matchers()
+    if matcher != "sift" and matcher not in plugins:
+        raise DataError(f"--matcher must be one of {', '.join(['sift', *sorted(plugins)])}, got {matcher!r}")
     out = Path(out)
     if out.exists() and not overwrite and any(out.iterdir() if out.is_dir() else [out]):
         raise DataError(f"{out}: exists and is not empty; pass --overwrite or another --out")
@@ -116,7 +162,14 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
         reader.camera_model = camera_model
         pycolmap.extract_features(db, work / "input", camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
                                   device=cpu)
-        pycolmap.match_exhaustive(db, device=cpu)
+        if matcher == "sift":
+            pycolmap.match_exhaustive(db, device=cpu)
+        else:
+            import cv2
+
+            staged = sorted((work / "input").iterdir())
+            rgb = [cv2.imread(str(f), cv2.IMREAD_COLOR)[..., ::-1].copy() for f in staged]
+            _write_matches(pycolmap, db, [f.name for f in staged], plugins[matcher].load()(rgb))
         (work / "sparse").mkdir()
         if mapper == "global":
             models = pycolmap.global_mapping(db, work / "input", work / "sparse")
@@ -127,8 +180,9 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
         if len(registered) < 2:
             raise DataError(
                 f"{images[0].parent}: {len(registered)} of {len(images)} images registered "
-                f"({mapper} mapper); try photos with more overlap, more photos, or --mapper "
-                f"{'incremental' if mapper == 'global' else 'global'}")
+                f"({mapper} mapper, {matcher} matches); try photos with more overlap, more photos, "
+                f"{'--matcher aliked-lightglue, ' if matcher == 'sift' and 'aliked-lightglue' in plugins else ''}"
+                f"or --mapper {'incremental' if mapper == 'global' else 'global'}")
         model_dir = work / "model"
         model_dir.mkdir()
         best.write(model_dir)
@@ -145,7 +199,7 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
         summary = SfmSummary(
             images=len(images), registered=[Path(n).stem for n in registered], points=best.num_points3D(),
             reprojection_px=float(best.compute_mean_reprojection_error()),
-            seconds=time.perf_counter() - t0, mapper=mapper,
+            seconds=time.perf_counter() - t0, mapper=mapper, matcher=matcher,
         )
         if out.exists():
             shutil.rmtree(out) if out.is_dir() else out.unlink()

