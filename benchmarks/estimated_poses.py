@@ -57,17 +57,17 @@ def pose_errors(est_w2c: np.ndarray, true_w2c: np.ndarray) -> dict:
 
 def estimated_scene(data: str, views: int, out: Path, sfm_downscale: float | None,
                     matcher: str = "sift") -> tuple[Path, dict]:
-    """Write the LLFF scene with the training views' poses estimated from those views alone
+    """Write the LLFF or DTU scene with the training views' poses estimated from those views alone
     (photos at ``sfm_downscale``, None: the training resolution)."""
     from splat_framework.data import load_scene
     from splat_framework.data.parsers.colmap import load_colmap
     from splat_framework.data.resolve import resolve_data_path
-    from splat_framework.sfm import align_sim3, camera_centers, estimate_scene
+    from splat_framework.sfm import align_sim3, estimate_scene
 
     root = resolve_data_path(data)
     scene = load_scene(root, views=views)
-    if scene.format != "llff":
-        raise SystemExit(f"{data}: only LLFF scenes are supported (poses_bounds.npy is rewritten)")
+    if scene.format not in ("llff", "dtu"):
+        raise SystemExit(f"{data}: only LLFF and DTU scenes are supported (their camera files are rewritten)")
     train = list(scene.train_indices)
     photos_of = load_scene(root, views=views, downscale=sfm_downscale) if sfm_downscale else scene
     photos = [Path(photos_of.image_paths[i]) for i in train]
@@ -84,11 +84,45 @@ def estimated_scene(data: str, views: int, out: Path, sfm_downscale: float | Non
     aligned = align_sim3(est_w2c, true_w2c)  # the estimated cameras in the dataset's frame
     dst = out / "scene"
     dst.mkdir(parents=True, exist_ok=True)
+    camera_file = "poses_bounds.npy" if scene.format == "llff" else "cameras_sphere.npz"
     for entry in root.iterdir():  # image folders linked, poses rewritten
         link = dst / entry.name
-        if entry.name != "poses_bounds.npy" and not link.exists():
+        if entry.name != camera_file and not link.exists():
             os.symlink(entry.resolve(), link)
-    pb = np.load(root / "poses_bounds.npy")
+    if scene.format == "dtu":
+        write_dtu_cameras(root / camera_file, dst / camera_file, train, aligned, est_cams)
+    else:
+        write_llff_poses(root / camera_file, dst / camera_file, train, aligned, est_cams)
+    focal_true = float(scene.cameras[train[0]].K[0, 0])
+    info = {"registered": len(summary.registered), "views": len(photos), "points": summary.points,
+            "reprojection_px": summary.reprojection_px, "sfm_seconds": summary.seconds, "matcher": matcher,
+            "focal_estimated": [float(c.K[0, 0]) * scene.cameras[i].width / c.width for c, i in zip(est_cams, train)],
+            "focal_dataset": focal_true, **errors}  # focal lengths in pixels of the training resolution
+    return dst, info
+
+
+def write_dtu_cameras(src: Path, dst: Path, train: list[int], aligned: np.ndarray, est_cams) -> None:
+    """A copy of DTU's cameras_sphere.npz whose training views' world_mat is the aligned estimate
+    (intrinsics at the original 1600x1200, as the file stores them; the parser's inverse)."""
+    from splat_framework.data.parsers.dtu import FULL_H, FULL_W
+
+    cams = dict(np.load(src))
+    for k, i in enumerate(train):
+        c = est_cams[k]
+        sx, sy = c.width / FULL_W, c.height / FULL_H
+        fx, fy, cx, cy = (float(c.K[0, 0]), float(c.K[1, 1]), float(c.K[0, 2]), float(c.K[1, 2]))
+        K_full = np.array([[fx / sx, 0, cx / sx - 0.5], [0, fy / sy, cy / sy - 0.5], [0, 0, 1]])
+        P = np.eye(4)
+        P[:3, :4] = K_full @ aligned[k, :3, :4]  # the normalised frame (after scale_mat)
+        cams[f"world_mat_{i}"] = P @ np.linalg.inv(cams.get(f"scale_mat_{i}", np.eye(4)))
+    np.savez(dst, **cams)
+
+
+def write_llff_poses(src: Path, dst: Path, train: list[int], aligned: np.ndarray, est_cams) -> None:
+    """A copy of LLFF's poses_bounds.npy whose training views carry the aligned estimated poses and focal."""
+    from splat_framework.sfm import camera_centers
+
+    pb = np.load(src)
     for k, i in enumerate(train):
         c2w_cv = aligned[k, :3, :3].T  # camera-to-world rotation, OpenCV axes
         center = camera_centers(aligned[k : k + 1])[0]
@@ -99,13 +133,7 @@ def estimated_scene(data: str, views: int, out: Path, sfm_downscale: float | Non
         pose[:, 3] = center
         pose[2, 4] = float(est_cams[k].K[0, 0]) * w_full / est_cams[k].width
         pb[i, :15] = pose.reshape(-1)
-    np.save(dst / "poses_bounds.npy", pb)
-    focal_true = float(scene.cameras[train[0]].K[0, 0])
-    info = {"registered": len(summary.registered), "views": len(photos), "points": summary.points,
-            "reprojection_px": summary.reprojection_px, "sfm_seconds": summary.seconds,
-            "focal_estimated": [float(c.K[0, 0]) * scene.cameras[i].width / c.width for c, i in zip(est_cams, train)],
-            "focal_dataset": focal_true, **errors}  # focal lengths in pixels of the training resolution
-    return dst, info
+    np.save(dst, pb)
 
 
 def train(method: str, data: Path | str, views: int, seed: int, steps: int | None, out: Path,
