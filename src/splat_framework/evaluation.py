@@ -158,8 +158,9 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
     render_time = 0.0
     for i, (camera, batch) in enumerate(datamanager.eval_views()):
         moved = {}
-        if pose_steps > 0:
-            refined = refine_pose(model, camera, batch["image"], background, pose_steps)
+        mask = batch.get("mask") if datamanager.scene.masked_metrics else None
+        if pose_steps > 0:  # fitted where the metric looks
+            refined = refine_pose(model, camera, batch["image"], background, pose_steps, mask=mask)
             deg, shift = pose_change(camera.world_to_cam, refined.world_to_cam)
             camera, moved = refined, {"pose_refined_deg": deg, "pose_refined_shift": shift}
         if i == 0:  # untimed: the first render of a process pays torch.compile and allocator warm-up
@@ -170,7 +171,6 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
         render_time += time.perf_counter() - t0
         pred, gt = out.rgb.clamp(0, 1), batch["image"]
         depth = expected_depth(out.depth, out.alpha, mode)
-        mask = batch.get("mask") if datamanager.scene.masked_metrics else None
         m = evaluate_images(pred, gt, mask=mask, lpips=lpips if available else None, st_lpips=st_lpips)
         m.update(depth_metrics(depth, out.alpha, batch.get("depth")))
         name = camera.name or f"view{batch['index']:03d}"

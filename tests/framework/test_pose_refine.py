@@ -58,4 +58,13 @@ def test_a_perturbed_test_camera_is_fitted_back_to_its_photo():
     assert all(p.requires_grad for p in model.parameters())  # the model is left as it was
     assert [p.grad for p in model.parameters()] == grads_before
     assert refine_pose(model, start, photo, bg, steps=0) is start
+    half = torch.zeros(60, 80)
+    half[:, :40] = 1.0  # a masked metric's pixels: the fit looks only there
+    with torch.no_grad():
+        fitted = refine_pose(model, start, photo, bg, mask=half)  # 200 steps
+        wrong = photo.clone()
+        wrong[:, 40:] = 1.0  # what lies outside the mask does not matter
+        assert torch.equal(refine_pose(model, start, wrong, bg, steps=20, mask=half).world_to_cam,
+                           refine_pose(model, start, photo, bg, steps=20, mask=half).world_to_cam)
+    assert pose_change(w2c, fitted.world_to_cam)[0] < 0.2 * deg0
     assert math.isclose(pose_change(w2c, w2c)[0], 0.0, abs_tol=1e-3)
