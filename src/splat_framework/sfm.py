@@ -11,7 +11,8 @@ leaves nothing half-written.
 pycolmap (PyPI; it ships COLMAP, runs on the CPU, downloads nothing) is an
 optional dependency: ``pip install "splat[process]"``.
 
-``matcher``: COLMAP's own SIFT ("sift"), or a photo matcher that a plugin
+``matcher``: "auto" (aliked-lightglue where a plugin registers it and its weights
+are installed, else SIFT), COLMAP's own SIFT ("sift"), or a photo matcher that a plugin
 registers under the ``splat_framework.photo_matchers`` entry point group (SCGaussian
 registers its learned ``aliked-lightglue`` and ``disk-lightglue``): a function
 ``match(images: list[[H, W, 3] uint8 RGB]) -> {(i, j): (pts_i [M, 2], pts_j [M, 2])}``
@@ -27,6 +28,7 @@ from __future__ import annotations
 import shutil
 import tempfile
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,6 +39,8 @@ from .errors import DataError
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
 MAPPERS = ("incremental", "global")
 PHOTO_MATCHER_GROUP = "splat_framework.photo_matchers"
+AUTO_MATCHER = "auto"  # AUTO_PREFERRED where a plugin registers it and its weights are installed, else sift
+AUTO_PREFERRED = "aliked-lightglue"
 
 
 def photo_matchers() -> dict[str, object]:
@@ -145,8 +149,11 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
     if mapper not in MAPPERS:
         raise DataError(f"--mapper must be one of {', '.join(MAPPERS)}, got {mapper!r}")
     plugins = photo_matchers()
+    auto = matcher == AUTO_MATCHER
+    if auto:
+        matcher = AUTO_PREFERRED if AUTO_PREFERRED in plugins else "sift"
     if matcher != "sift" and matcher not in plugins:
-        raise DataError(f"--matcher must be one of {', '.join(['sift', *sorted(plugins)])}, got {matcher!r}")
+        raise DataError(f"--matcher must be one of {', '.join(['auto', 'sift', *sorted(plugins)])}, got {matcher!r}")
     out = Path(out)
     if out.exists() and not overwrite and any(out.iterdir() if out.is_dir() else [out]):
         raise DataError(f"{out}: exists and is not empty; pass --overwrite or another --out")
@@ -169,7 +176,17 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
 
             staged = sorted((work / "input").iterdir())
             rgb = [cv2.imread(str(f), cv2.IMREAD_COLOR)[..., ::-1].copy() for f in staged]
-            _write_matches(pycolmap, db, [f.name for f in staged], plugins[matcher].load()(rgb))
+            try:
+                found = plugins[matcher].load()(rgb)
+            except FileNotFoundError as e:  # the matcher's weights are not installed
+                if not auto:
+                    raise
+                warnings.warn(f"matcher auto: {e}; using SIFT", stacklevel=2)
+                matcher, found = "sift", None
+            if found is None:
+                pycolmap.match_exhaustive(db, device=cpu)
+            else:
+                _write_matches(pycolmap, db, [f.name for f in staged], found)
         (work / "sparse").mkdir()
         if mapper == "global":
             models = pycolmap.global_mapping(db, work / "input", work / "sparse")

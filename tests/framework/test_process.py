@@ -172,3 +172,19 @@ def test_the_default_matcher_is_the_learned_prior_and_its_poses_match_the_truth(
     assert rot_deg.max() < 1.0, rot_deg
     assert_one_line_exit_2(run_process("images", str(photos), "--out", str(tmp_path / "x"), matcher="nope"),
                            "--matcher", "sift", "aliked-lightglue")
+
+
+def test_auto_falls_back_to_sift_when_the_learned_weights_are_missing(forward, tmp_path, monkeypatch):
+    """--matcher auto on a machine without the learned matcher's weights: SIFT and a one-line notice;
+    naming the learned matcher explicitly is the weights' one-line error."""
+    from scg_plugin.matching import learned
+
+    monkeypatch.setattr(learned, "hub_checkpoint_dir", lambda: tmp_path / "hub")
+    monkeypatch.setattr(learned, "packaged_weights_dir", lambda: None)
+    photos = sorted(three_photos(forward, tmp_path).iterdir())
+    with pytest.warns(UserWarning, match="matcher auto: .*using SIFT"):
+        summary = estimate_scene(photos, tmp_path / "scene", matcher="auto")
+    assert summary.matcher == "sift" and len(summary.registered) == 3
+    with pytest.raises(learned.MissingWeightsError):
+        estimate_scene(photos, tmp_path / "scene2", matcher="aliked-lightglue")
+    assert not (tmp_path / "scene2").exists()

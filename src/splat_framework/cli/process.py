@@ -22,7 +22,7 @@ class ImagesArgs:
     mapper: Literal["incremental", "global"] = "incremental"
     """COLMAP's incremental mapper, or the global one (GLOMAP)."""
     matcher: str = "auto"
-    """Correspondences COLMAP maps from: "sift" (COLMAP's own), a learned matcher that a plugin registers (aliked-lightglue, disk-lightglue from SCGaussian), or "auto": aliked-lightglue where registered, else sift. From 3 photos the learned matches register more and better: DTU scan37's 3 views 0 of 3 with SIFT, 3 of 3 with aliked-lightglue; fern's 3 views rotations 1.9 -> 0.9 degrees off, focal 9.2 -> 1.5 %."""
+    """Correspondences COLMAP maps from: "sift" (COLMAP's own), a learned matcher that a plugin registers (aliked-lightglue, disk-lightglue from SCGaussian), or "auto": aliked-lightglue where registered and its weights are installed, else sift (one-line notice). From 3 photos the learned matches register more and better: DTU scan37's 3 views 0 of 3 with SIFT, 3 of 3 with aliked-lightglue; fern's 3 views rotations 1.9 -> 0.9 degrees off, focal 9.2 -> 1.5 %."""
     overwrite: bool = False
     """Replace --out when it exists."""
 
@@ -38,7 +38,7 @@ class VideoArgs:
     mapper: Literal["incremental", "global"] = "incremental"
     """COLMAP's incremental mapper, or the global one (GLOMAP)."""
     matcher: str = "auto"
-    """Correspondences COLMAP maps from: "sift" (COLMAP's own), a learned matcher that a plugin registers (aliked-lightglue, disk-lightglue from SCGaussian), or "auto": aliked-lightglue where registered, else sift. From 3 photos the learned matches register more and better: DTU scan37's 3 views 0 of 3 with SIFT, 3 of 3 with aliked-lightglue; fern's 3 views rotations 1.9 -> 0.9 degrees off, focal 9.2 -> 1.5 %."""
+    """Correspondences COLMAP maps from: "sift" (COLMAP's own), a learned matcher that a plugin registers (aliked-lightglue, disk-lightglue from SCGaussian), or "auto": aliked-lightglue where registered and its weights are installed, else sift (one-line notice). From 3 photos the learned matches register more and better: DTU scan37's 3 views 0 of 3 with SIFT, 3 of 3 with aliked-lightglue; fern's 3 views rotations 1.9 -> 0.9 degrees off, focal 9.2 -> 1.5 %."""
     overwrite: bool = False
     """Replace --out when it exists."""
 
@@ -50,10 +50,7 @@ Args = Union[
 
 
 def main(args: ImagesArgs | VideoArgs):
-    from ..sfm import estimate_scene, list_images, photo_matchers, pick_video_frames
-
-    if args.matcher == "auto":
-        args.matcher = "aliked-lightglue" if "aliked-lightglue" in photo_matchers() else "sift"
+    from ..sfm import estimate_scene, list_images, pick_video_frames
 
     if isinstance(args, VideoArgs):
         with tempfile.TemporaryDirectory(prefix="splat-frames-") as tmp:
