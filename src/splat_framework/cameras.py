@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -157,3 +158,16 @@ def look_at(eye: Tensor, target: Tensor, up: Tensor) -> Tensor:
 def intrinsics(fx: float, fy: float, cx: float, cy: float) -> Tensor:
     """[3, 3] float32 intrinsics matrix."""
     return torch.tensor([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=torch.float32)
+
+
+def camera_centers(w2c: np.ndarray) -> np.ndarray:
+    """[M, 3] camera centres -R^T t of world-to-camera matrices [M, 3 or 4, 4]."""
+    return -np.einsum("nji,nj->ni", w2c[:, :3, :3], w2c[:, :3, 3])
+
+
+def pose_differences(a_w2c: np.ndarray, b_w2c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rotation angles in degrees [M], camera-centre distances [M]) between two sets of
+    world-to-camera matrices [M, 3 or 4, 4]."""
+    rel = b_w2c[:, :3, :3] @ np.transpose(a_w2c[:, :3, :3], (0, 2, 1))
+    cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    return np.degrees(np.arccos(cos)), np.linalg.norm(camera_centers(a_w2c) - camera_centers(b_w2c), axis=1)

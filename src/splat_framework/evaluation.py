@@ -10,7 +10,8 @@ import torch
 from torch import Tensor
 
 from .metrics import IMAGE_METRICS, LPIPSMetric, STLPIPSMetric, evaluate_images
-from .pose_refine import pose_change, refine_pose
+from .cameras import pose_differences
+from .pose_refine import refine_pose
 from .profiling import synchronize
 
 
@@ -161,8 +162,8 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
         mask = batch.get("mask") if datamanager.scene.masked_metrics else None
         if pose_steps > 0:  # fitted where the metric looks
             refined = refine_pose(model, camera, batch["image"], background, pose_steps, mask=mask)
-            deg, shift = pose_change(camera.world_to_cam, refined.world_to_cam)
-            camera, moved = refined, {"pose_refined_deg": deg, "pose_refined_shift": shift}
+            deg, shift = pose_differences(*(c.world_to_cam.detach().double().cpu().numpy()[None] for c in (camera, refined)))
+            camera, moved = refined, {"pose_refined_deg": float(deg[0]), "pose_refined_shift": float(shift[0])}
         if i == 0:  # untimed: the first render of a process pays torch.compile and allocator warm-up
             model.get_outputs(camera, background)
         t0 = time.perf_counter()

@@ -15,7 +15,6 @@ learning rate decaying exponentially to 1 % over the steps. Intrinsics stay fixe
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import torch
 from torch import Tensor
@@ -29,14 +28,6 @@ def _correction(w: Tensor, v: Tensor) -> Tensor:
 
     top = torch.cat([axis_angle_to_rotation_matrix(w[None])[0], v[:, None]], dim=1)
     return torch.cat([top, top.new_tensor([[0.0, 0.0, 0.0, 1.0]])], dim=0)
-
-
-def pose_change(before: Tensor, after: Tensor) -> tuple[float, float]:
-    """(rotation angle in degrees, camera-centre distance) between two [4, 4] world-to-camera transforms."""
-    R = after[:3, :3].double() @ before[:3, :3].double().T
-    cos = ((torch.trace(R) - 1.0) / 2.0).clamp(-1.0, 1.0)
-    center = lambda T: -T[:3, :3].double().T @ T[:3, 3].double()  # noqa: E731
-    return math.degrees(float(torch.arccos(cos))), float(torch.linalg.norm(center(after) - center(before)))
 
 
 def refine_pose(model, camera: Camera, image: Tensor, background: Tensor, steps: int = 200,

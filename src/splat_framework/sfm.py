@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .cameras import camera_centers, pose_differences
 from .errors import DataError
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
@@ -169,24 +170,20 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
         reader.camera_model = camera_model
         pycolmap.extract_features(db, work / "input", camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
                                   device=cpu)
-        if matcher == "sift":
-            pycolmap.match_exhaustive(db, device=cpu)
-        else:
+        if matcher != "sift":
             import cv2
 
             staged = sorted((work / "input").iterdir())
             rgb = [cv2.imread(str(f), cv2.IMREAD_COLOR)[..., ::-1].copy() for f in staged]
             try:
-                found = plugins[matcher].load()(rgb)
+                _write_matches(pycolmap, db, [f.name for f in staged], plugins[matcher].load()(rgb))
             except FileNotFoundError as e:  # the matcher's weights are not installed
                 if not auto:
                     raise
                 warnings.warn(f"matcher auto: {e}; using SIFT", stacklevel=2)
-                matcher, found = "sift", None
-            if found is None:
-                pycolmap.match_exhaustive(db, device=cpu)
-            else:
-                _write_matches(pycolmap, db, [f.name for f in staged], found)
+                matcher = "sift"
+        if matcher == "sift":
+            pycolmap.match_exhaustive(db, device=cpu)
         (work / "sparse").mkdir()
         if mapper == "global":
             models = pycolmap.global_mapping(db, work / "input", work / "sparse")
@@ -265,11 +262,6 @@ def pick_video_frames(video: Path, n: int, dest: Path) -> list[Path]:
     return paths
 
 
-def camera_centers(w2c: np.ndarray) -> np.ndarray:
-    """[M, 3] camera centres -R^T t of world-to-camera matrices [M, 3 or 4, 4]."""
-    return -np.einsum("nji,nj->ni", w2c[:, :3, :3], w2c[:, :3, 3])
-
-
 def align_sim3(est_w2c: np.ndarray, true_w2c: np.ndarray) -> np.ndarray:
     """World-to-camera matrices [M, 4, 4] of the estimated cameras moved into the true cameras'
     frame by the similarity that best maps their centres onto the true ones (Umeyama,
@@ -288,10 +280,7 @@ def align_sim3(est_w2c: np.ndarray, true_w2c: np.ndarray) -> np.ndarray:
 def sim3_errors(est_w2c: np.ndarray, true_w2c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Pose errors after :func:`align_sim3`: (rotation errors in degrees [M], camera-centre
     errors [M] in the true frame's units) of world-to-camera matrices [M, 3 or 4, 4]."""
-    aligned = align_sim3(est_w2c, true_w2c)
-    rel = true_w2c[:, :3, :3] @ np.transpose(aligned[:, :3, :3], (0, 2, 1))
-    cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
-    return np.degrees(np.arccos(cos)), np.linalg.norm(camera_centers(aligned) - camera_centers(true_w2c), axis=1)
+    return pose_differences(align_sim3(est_w2c, true_w2c), true_w2c)
 
 
 __all__ = ["MAPPERS", "SfmSummary", "align_sim3", "camera_centers", "estimate_scene", "list_images",

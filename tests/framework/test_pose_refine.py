@@ -10,8 +10,15 @@ from torch import nn
 
 from splat_framework.cameras import Camera, intrinsics, look_at
 from splat_framework.metrics import psnr
-from splat_framework.pose_refine import _correction, pose_change, refine_pose
+from splat_framework.cameras import pose_differences
+from splat_framework.pose_refine import _correction, refine_pose
 from splat_framework.render import rasterize
+
+
+def pose_change(a, b) -> tuple[float, float]:
+    """(degrees, centre distance) between two [4, 4] world-to-camera tensors."""
+    deg, dist = pose_differences(a.double().numpy()[None], b.double().numpy()[None])
+    return float(deg[0]), float(dist[0])
 
 
 class CloudModel(nn.Module):

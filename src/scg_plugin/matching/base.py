@@ -57,3 +57,12 @@ def texture(gray_u8: np.ndarray) -> np.ndarray:
 
 def no_matches() -> tuple[Pts, Pts]:
     return np.zeros((0, 2), np.float32), np.zeros((0, 2), np.float32)
+
+
+def inside_mask(pts: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """[M] bool: the pixel holding each continuous point [M, 2] is inside ``mask`` [H, W] and nonzero there."""
+    h, w = mask.shape
+    x, y = np.floor(pts[:, 0]).astype(np.int64), np.floor(pts[:, 1]).astype(np.int64)
+    ok = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+    ok[ok] = mask[y[ok], x[ok]] > 0
+    return ok

@@ -16,17 +16,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from .base import Matcher, Pts, to_hwc
+from .base import Matcher, Pts, inside_mask, to_hwc
 from .classical import DenseFlowMatcher
-
-
-def _inside(pts: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """[M] bool: the pixel of each continuous point [M, 2] is inside the image and nonzero in ``mask`` [H, W]."""
-    h, w = mask.shape
-    x, y = np.floor(pts[:, 0]).astype(np.int64), np.floor(pts[:, 1]).astype(np.int64)
-    ok = (x >= 0) & (x < w) & (y >= 0) & (y < h)
-    ok[ok] = mask[y[ok], x[ok]] > 0
-    return ok
 
 
 class GuidedFlowMatcher:
@@ -66,11 +57,11 @@ class GuidedFlowMatcher:
         warped = cv2.warpPerspective(b, H_pix, size, flags=cv2.INTER_LINEAR)
         covered = cv2.warpPerspective(np.ones(b.shape[:2], np.uint8), H_pix, size, flags=cv2.INTER_NEAREST)
         fa, fw = self.dense.match(a, warped)
-        keep = _inside(fa, covered) & _inside(fw, covered)
+        keep = inside_mask(fa, covered) & inside_mask(fw, covered)
         fa, fw = fa[keep], fw[keep]
         if len(fa) == 0:  # cv2.perspectiveTransform returns None for no points
             return pa, pb
         fb = cv2.perspectiveTransform(fw.reshape(-1, 1, 2).astype(np.float64), np.linalg.inv(H)).reshape(-1, 2)
-        ok = _inside(fb, np.ones(b.shape[:2], np.uint8))
+        ok = inside_mask(fb, np.ones(b.shape[:2], np.uint8))
         return (np.concatenate([pa, fa[ok]]).astype(np.float32),
                 np.concatenate([pb, fb[ok].astype(np.float32)]).astype(np.float32))

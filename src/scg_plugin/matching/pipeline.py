@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from . import registry
-from .base import Matcher, Pts, to_hwc
+from .base import Matcher, Pts, inside_mask, to_hwc
 from .config import MatchConfig
 from .guided import GuidedFlowMatcher
 from .geometry import as_numpy, fundamental_from_cameras, verify_pair, view_angle
@@ -58,12 +58,7 @@ def cache_key(
 def on_foreground(pts: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
     """[M] bool: ``mask`` [H, W] (alpha, 0 = background) is > 0 at the pixel holding each continuous point [M, 2]
     (all True without a mask)."""
-    if mask is None:
-        return np.ones(len(pts), bool)
-    h, w = mask.shape
-    x = np.clip(np.floor(pts[:, 0]).astype(np.int64), 0, w - 1)
-    y = np.clip(np.floor(pts[:, 1]).astype(np.int64), 0, h - 1)
-    return mask[y, x] > 0
+    return np.ones(len(pts), bool) if mask is None else inside_mask(pts, mask)
 
 
 def _verified(matcher: Matcher, img_a: np.ndarray, img_b: np.ndarray, F_known: np.ndarray | None,

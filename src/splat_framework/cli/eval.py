@@ -31,10 +31,10 @@ def main(args: EvalArgs) -> dict:
     from ..run import background_for, load_run
     from ..console import print_summary
 
-    config, dm, model = load_run(args.run_dir, args.device, args.trust_edited_config)
     if args.test_pose_steps < 0:
         print(f"error: --test-pose-steps must be >= 0, got {args.test_pose_steps}", file=sys.stderr)
         sys.exit(2)
+    config, dm, model = load_run(args.run_dir, args.device, args.trust_edited_config)
     results = evaluate(model, dm, background_for(dm.scene, config.device), args.run_dir / "renders" if args.renders else None,
                        pose_steps=args.test_pose_steps)
     path = args.run_dir / "metrics.json"

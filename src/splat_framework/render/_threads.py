@@ -37,30 +37,34 @@ def apply_process_threads() -> int | None:
     Measured: two fern trainings sharing 2 cores with ``SPLAT_THREADS=1`` limiting only the
     rasterizer took 1043 s each (z warm-up 69 s); with one thread everywhere, 336 s (warm-up 4.8 s).
     """
-    try:
-        n = int(os.environ.get("SPLAT_THREADS", "auto").strip())
-    except ValueError:
-        return None
-    if n < 1:
+    n = _mode()
+    if not isinstance(n, int) or n < 1:
         return None
     torch.set_num_threads(n)
     return n
+
+
+def _mode() -> int | str:
+    """``SPLAT_THREADS``: an int, or the lower-cased word ("auto" when unset)."""
+    mode = os.environ.get("SPLAT_THREADS", "auto").strip().lower()
+    try:
+        return int(mode)
+    except ValueError:
+        return mode
 
 
 def choose_threads(device: torch.device) -> int | None:
     """Thread count to use inside the rasterizer, or None to leave torch's."""
     if device.type != "cpu":
         return None
-    mode = os.environ.get("SPLAT_THREADS", "auto").strip().lower()
+    mode = _mode()
     if mode in ("off", "none", ""):
         return None
     cur = torch.get_num_threads()
+    if isinstance(mode, int):
+        return mode if mode > 0 and mode != cur else None
     if mode != "auto":
-        try:
-            n = int(mode)
-        except ValueError:
-            return None
-        return n if n > 0 and n != cur else None
+        return None
     if cur <= 1:
         return None
     others = others_running()
