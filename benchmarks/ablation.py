@@ -76,6 +76,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--md", type=Path, default=None, help="where to write the table (default <out>/ablation.md)")
     p.add_argument("--readme", type=Path, default=None, help="splice each scene's table into this file's ablation markers")
     p.add_argument("--no-live", action="store_true", help="plain progress lines instead of the live table")
+    p.add_argument("--poses", choices=["dataset", "estimated"], default="dataset",
+                   help="estimated: also train every row on the training views' poses estimated from those photos "
+                        "alone (splat_framework.sfm.estimate_training_poses, Sim(3)-aligned to the dataset), "
+                        "next to the dataset's poses, both scored after a test-time pose fit; one comparison table")
+    p.add_argument("--test-pose-steps", type=int, default=200,
+                   help="with --poses estimated: test-pose fitting steps of every run (TrainConfig.test_pose_steps)")
+    p.add_argument("--sfm-matcher", default="auto", help="with --poses estimated: correspondences of the SfM "
+                   "(splat-process --matcher: auto, sift, aliked-lightglue, disk-lightglue)")
     p.add_argument("--no-train", action="store_true",
                    help="train nothing: tables from the runs already finished (rows say how many seeds they hold)")
     return p.parse_args(argv)
@@ -185,7 +193,7 @@ def ablation_markdown(
 def main(argv: list[str] | None = None) -> Path:
     from splat_framework.io import atomic_write_text
     from splat_framework.config import deep_merge
-    from splat_framework.sweep import Grid, parse_override, parse_views, run_sweep, scene_slug
+    from splat_framework.sweep import Grid, parse_override, parse_views, scene_slug
 
     args = parse_args(argv)
     out = args.out or Path("benchmarks/results") / f"ablation-{scene_slug(args.data[0])}"
@@ -196,11 +204,10 @@ def main(argv: list[str] | None = None) -> Path:
         methods=list(args.methods), data=list(args.data), views=[parse_views(v) for v in args.views],
         seeds=list(args.seeds), steps=args.steps, overrides=overrides,
     )
-    result = run_sweep(
-        grid, out, backend=args.backend, workers=args.workers, threads=args.threads, address=args.address,
-        live=False if args.no_live else None, dry_run=args.no_train,
-    )
     command = "python benchmarks/ablation.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    if args.poses == "estimated":
+        return estimated_poses_tables(args, grid, out, command)
+    result = sweep(args, grid, out)
     md_path = args.md or out / "ablation.md"
     figures = publish_figures(out, md_path, [(r["data"], r["views"]) for r in result.rows])
     sections = ablation_markdown(result.rows, args, command, figures, md_path.parent)
@@ -208,12 +215,112 @@ def main(argv: list[str] | None = None) -> Path:
     print(f"ablation table: {md_path}")
     if args.readme is not None:
         sections = ablation_markdown(result.rows, args, command, figures, args.readme.parent)
-        text = args.readme.read_text(encoding="utf-8")
-        for key, block in sections.items():
-            text = splice_block(text, key, block, str(args.readme))
-        atomic_write_text(args.readme, text)
-        print(f"README tables updated: {args.readme} ({', '.join(sections)})")
+        splice_sections(args.readme, sections)
     return md_path
+
+
+def sweep(args: argparse.Namespace, grid, out: Path):
+    """Train the missing runs of ``grid`` into ``out`` with the options' backend (nothing with --no-train)."""
+    from splat_framework.sweep import run_sweep
+
+    return run_sweep(grid, out, backend=args.backend, workers=args.workers, threads=args.threads,
+                     address=args.address, live=False if args.no_live else None, dry_run=args.no_train)
+
+
+def splice_sections(readme: Path, sections: dict[str, str]) -> None:
+    """Replace each ``{key: table}`` between its ablation markers in ``readme``."""
+    from splat_framework.io import atomic_write_text
+
+    text = readme.read_text(encoding="utf-8")
+    for key, block in sections.items():
+        text = splice_block(text, key, block, str(readme))
+    atomic_write_text(readme, text)
+    print(f"README tables updated: {readme} ({', '.join(sections)})")
+
+
+def estimated_poses_tables(args: argparse.Namespace, grid, out: Path, command: str) -> Path:
+    """``--poses estimated``: per (scene, views), the training views' pose file from their photos
+    alone (``<out>/poses/<key>.json``, made once), every row trained on the dataset's poses
+    (``<out>/dataset-poses``) and on the estimated ones (``<out>/estimated-poses``), both with
+    ``test_pose_steps``; one table per group, keyed ``<key>-estimated-poses`` in the README."""
+    import dataclasses
+    import json
+
+    from splat_framework.io import atomic_write_json, atomic_write_text
+    from splat_framework.sfm import estimate_training_poses
+    from splat_framework.sweep import group_key
+
+    sections: dict[str, str] = {}
+    for data in grid.data:
+        for views in grid.views:
+            key = group_key(data, views)
+            pose_file = (out / "poses" / f"{key}.json").resolve()
+            if not pose_file.is_file():
+                print(f"{key}: posing the training views from their photos ({args.sfm_matcher} matches) ...", flush=True)
+                atomic_write_json(pose_file, estimate_training_poses(data, views=views, matcher=args.sfm_matcher))
+            info = json.loads(pose_file.read_text())["info"]
+            rows = {}
+            for poses, extra in (("dataset", {}), ("estimated", {"train_poses": str(pose_file)})):
+                g = dataclasses.replace(grid, data=[data], views=[views],
+                                        overrides={**grid.overrides, **extra, "test_pose_steps": args.test_pose_steps})
+                rows[poses] = sweep(args, g, out / f"{poses}-poses").rows
+            sections[f"{key}-estimated-poses"] = estimated_poses_markdown(data, views, rows, info, args, command)
+    md_path = args.md or out / "estimated-poses.md"
+    atomic_write_text(md_path, "\n".join(sections.values()))
+    print(f"estimated-poses table: {md_path}")
+    if args.readme is not None:
+        splice_sections(args.readme, sections)
+    return md_path
+
+
+def estimated_poses_markdown(data: str, views, rows: dict[str, list[dict]], info: dict,
+                             args: argparse.Namespace, command: str) -> str:
+    """The dataset-vs-estimated-poses table of one (scene, views) group, with the pose errors."""
+    import statistics
+
+    from splat_framework.sweep import fmt_value
+
+    def spread(xs: list[float]) -> str:
+        return f"{statistics.fmean(xs):.2f} (max {max(xs):.2f})"
+
+    steps = f"{args.steps} iterations" if args.steps else "each method's default iterations"
+    focal = [e / d - 1 for e, d in zip(info["focal_estimated"], info["focal_dataset"])]
+    lines = [
+        f"### Dataset poses vs poses from the {views} training photos: `{data}`",
+        "",
+        f"{info['registered']} of {info['views']} training views registered from their photos alone "
+        f"({info['matcher']} matches at {info['sfm_size'][0]}x{info['sfm_size'][1]}, {info['points']:,} points, "
+        f"reprojection error {info['reprojection_px']:.2f} px). Errors after Sim(3) alignment to the dataset's "
+        f"training cameras: rotation {spread(info['rotation_deg'])} deg, camera centre "
+        f"{spread([100 * c for c in info['center_error_rel_spread']])} % of their spread, translation direction "
+        f"{spread(info['translation_direction_deg'])} deg, focal length {100 * statistics.fmean(focal):+.1f} %.",
+        "",
+        f"{steps}; mean ± std over seeds {', '.join(str(s) for s in args.seeds)}; every test camera's pose fitted to "
+        f"its photo by {args.test_pose_steps} steps with the model frozen before scoring (BARF / CF-3DGS protocol); "
+        "\"as given\": the dataset's test pose, unfitted.",
+        "",
+        "| Method | Training poses | PSNR ↑ | PSNR, test pose as given ↑ | SSIM ↑ | ST-LPIPS ↓ | Gaussians |",
+        "|---|---|--:|--:|--:|--:|--:|",
+    ]
+    for method in grid_methods(rows):
+        for poses, rs in rows.items():
+            for r in rs:
+                if r["method"] != method:
+                    continue
+                if r["n_ok"] == 0:
+                    cells = ["failed" if r["n_failed"] else "not run"] + ["n/a"] * 4
+                else:
+                    cells = [fmt_value(r[f"{f}_mean"], r[f"{f}_std"], fmt) for f, fmt in (
+                        ("psnr", ".2f"), ("psnr_before_pose_fit", ".2f"), ("ssim", ".3f"), ("st_lpips", ".3f"),
+                        ("num_gaussians", ",.0f"))]
+                label = "dataset (COLMAP, all views)" if poses == "dataset" else f"from the {views} training photos"
+                lines.append(f"| `{method}` | {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines + footer(command)[1:])
+
+
+def grid_methods(rows: dict[str, list[dict]]) -> list[str]:
+    """The methods of the tables' rows, in order of first appearance."""
+    return list(dict.fromkeys(r["method"] for rs in rows.values() for r in rs))
 
 
 def publish_figures(out: Path, md_path: Path, groups: list[tuple], max_width: int = 1200) -> dict[str, Path]:

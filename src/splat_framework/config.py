@@ -229,6 +229,10 @@ class TrainConfig(SplatConfig):
     """Number of training views (few-shot split rules of the dataset), or all."""
     downscale: Positive | None = None
     """Image downscale factor (default: the dataset's protocol, e.g. 8 for LLFF, 2 for Blender)."""
+    train_poses: Path | None = None
+    """Pose file (JSON) whose cameras replace the training views' poses and intrinsics; test views keep the dataset's (the benchmarks' --poses estimated protocol: poses from SfM on the training photos alone, aligned to the dataset's frame; see splat_framework.data.pose_file)."""
+    test_pose_steps: int = Field(0, ge=0)
+    """Fit each test camera's pose to its photo by this many Adam steps, the model frozen, before the final scores (pose-free methods' protocol, as splat-eval --test-pose-steps); 0 = score the test poses as given."""
     steps: Annotated[int, Field(ge=1)] | None = None
     """Total optimisation iterations; rescales the method's whole schedule proportionally (default: the method's)."""
     default_steps: tyro.conf.Suppress[int] = 3000

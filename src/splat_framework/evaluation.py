@@ -9,7 +9,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .metrics import IMAGE_METRICS, LPIPSMetric, STLPIPSMetric, evaluate_images
+from .metrics import IMAGE_METRICS, LPIPSMetric, STLPIPSMetric, evaluate_images, psnr
 from .cameras import pose_differences
 from .pose_refine import refine_pose
 from .profiling import synchronize
@@ -135,7 +135,8 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
     With ``pose_steps`` > 0, each test camera's pose is first fitted to its photo by that many
     steps of :func:`splat_framework.pose_refine.refine_pose` (the protocol of pose-free methods;
     for poses estimated from the training photos alone); per view, ``pose_refined_deg`` and
-    ``pose_refined_shift`` record how far it moved.
+    ``pose_refined_shift`` record how far it moved and ``psnr_before_pose_fit`` the PSNR at the
+    pose as given (also averaged in ``mean``).
 
     With ``render_dir``, writes per view ``<view>_render.png``, ``<view>_gt.png``,
     ``<view>_depth.png`` and a labelled ``<view>_grid.png`` (GT | render | depth | error).
@@ -161,9 +162,11 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
         moved = {}
         mask = batch.get("mask") if datamanager.scene.masked_metrics else None
         if pose_steps > 0:  # fitted where the metric looks
+            given = model.get_outputs(camera, background).rgb.clamp(0, 1)
             refined = refine_pose(model, camera, batch["image"], background, pose_steps, mask=mask)
             deg, shift = pose_differences(*(c.world_to_cam.detach().double().cpu().numpy()[None] for c in (camera, refined)))
-            camera, moved = refined, {"pose_refined_deg": float(deg[0]), "pose_refined_shift": float(shift[0])}
+            camera, moved = refined, {"pose_refined_deg": float(deg[0]), "pose_refined_shift": float(shift[0]),
+                                      "psnr_before_pose_fit": psnr(given, batch["image"], mask=mask)}
         if i == 0:  # untimed: the first render of a process pays torch.compile and allocator warm-up
             model.get_outputs(camera, background)
         t0 = time.perf_counter()
@@ -193,6 +196,8 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
     for key in IMAGE_METRICS:
         vals = [v[key] for v in per_view if v.get(key) is not None]
         mean[key] = float(np.mean(vals)) if vals and len(vals) == len(per_view) else None
+    if pose_steps > 0 and per_view:
+        mean["psnr_before_pose_fit"] = float(np.mean([v["psnr_before_pose_fit"] for v in per_view]))
     for key in DEPTH_KEYS:
         # views where nothing qualified (no pixel with alpha > 0.5) lower depth_coverage instead
         vals = [v[key] for v in per_view if v.get(key) is not None]

@@ -66,10 +66,10 @@ def _renders(model) -> None:
 
 def load_run(run_dir: Path, device: str | None = None, trust_edits: bool = False):
     """(config, datamanager, model) of ``run_dir``, the model holding the newest good checkpoint."""
-    from .data import DataManager, load_scene, resolve_data_path
+    from .data import DataManager, load_config_scene
 
     config, model = load_trained_model(run_dir, device, trust_edits=trust_edits)
-    scene = load_scene(resolve_data_path(config.data), format=config.format, views=config.views, downscale=config.downscale)
+    scene = load_config_scene(config)
     model.scene_scale = float(scene.scene_radius)
     return config, DataManager(scene, device=config.device, seed=config.seed), model
 

@@ -25,14 +25,16 @@ from ALIKED + LightGlue.
 
 from __future__ import annotations
 
+import itertools
 import shutil
 import tempfile
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from .cameras import camera_centers, pose_differences
 from .errors import DataError
@@ -283,5 +285,80 @@ def sim3_errors(est_w2c: np.ndarray, true_w2c: np.ndarray) -> tuple[np.ndarray, 
     return pose_differences(align_sim3(est_w2c, true_w2c), true_w2c)
 
 
-__all__ = ["MAPPERS", "SfmSummary", "align_sim3", "camera_centers", "estimate_scene", "list_images",
-           "pick_video_frames", "sim3_errors"]
+def pose_errors(est_w2c: np.ndarray, true_w2c: np.ndarray) -> dict:
+    """Errors of estimated world-to-camera matrices [M, 4, 4] against the true ones (lists of
+    floats): ``rotation_deg`` and ``center_error_rel_spread`` (centre error over the extent of
+    the true centres) after :func:`align_sim3`, and ``translation_direction_deg``, the angle
+    between estimated and true direction from camera i to camera j, seen from camera i, over
+    every ordered pair (scale- and frame-free)."""
+    rot, center = sim3_errors(est_w2c, true_w2c)
+
+    def directions(w2c: np.ndarray) -> list[np.ndarray]:
+        c = camera_centers(w2c)
+        t = [w2c[i, :3, :3] @ (c[j] - c[i]) for i, j in itertools.permutations(range(len(w2c)), 2)]
+        return [v / np.linalg.norm(v) for v in t]
+
+    dirs = [float(np.degrees(np.arccos(np.clip(a @ b, -1, 1)))) for a, b in zip(directions(est_w2c), directions(true_w2c))]
+    true_c = camera_centers(true_w2c)
+    spread = np.linalg.norm(true_c.max(0) - true_c.min(0))
+    return {"rotation_deg": rot.tolist(), "translation_direction_deg": dirs,
+            "center_error_rel_spread": (center / spread).tolist()}
+
+
+def estimate_training_poses(data: str | Path, *, views: int | str, format: str = "auto", downscale: float | None = None,
+                            matcher: str = AUTO_MATCHER) -> dict:
+    """The pose file (:mod:`splat_framework.data.pose_file`) of a dataset's training views posed
+    from their own photos alone: the honest few-shot setting, where the dataset's poses (COLMAP
+    on all of LLFF's 20 or DTU's 49 photos) are not available.
+
+    Protocol (that of pose-free methods, e.g. BARF, Lin et al. ICCV 2021, sec. 4, and CF-3DGS,
+    Fu et al. CVPR 2024): :func:`estimate_scene` poses the training photos (SIMPLE_PINHOLE, so
+    that they need no undistortion) at the training resolution or at a quarter of the full
+    resolution, whichever is larger (LLFF trains at 1/8 and ships 1/4: more pixels, more
+    matches); :func:`align_sim3` moves the estimate into the dataset's frame by the similarity
+    that best maps the estimated camera centres onto the dataset's training centres; the test
+    views keep the dataset's poses and are scored after a test-time pose fit
+    (``test_pose_steps``). ``info`` holds the SfM summary, the focal lengths (pixels at the
+    training resolution) and :func:`pose_errors`.
+
+    Raises DataError when not every training view registers."""
+    from .data import load_scene, resolve_data_path
+    from .data.parsers.colmap import load_colmap
+    from .data.pose_file import pose_file_payload
+
+    root = resolve_data_path(data)
+    scene = load_scene(root, format=format, views=views, downscale=downscale)
+    train = list(scene.train_indices)
+    quarter = load_scene(root, format=format, views=views, downscale=4.0)
+    photos_of = quarter if quarter.cameras[train[0]].width > scene.cameras[train[0]].width else scene
+    photos = [Path(photos_of.image_paths[i]) for i in train]
+    with tempfile.TemporaryDirectory(prefix="splat-poses-") as tmp:
+        summary = estimate_scene(photos, Path(tmp) / "sfm", camera_model="SIMPLE_PINHOLE", matcher=matcher)
+        if len(summary.registered) < len(photos):
+            missing = sorted({p.stem for p in photos} - set(summary.registered))
+            raise DataError(f"{root}: {len(summary.registered)} of {len(photos)} training views registered "
+                            f"(not: {', '.join(missing)}; {summary.matcher} matches)")
+        est = load_colmap(Path(tmp) / "sfm")
+    by_name = {Path(p).stem: c for p, c in zip(est.image_paths, est.cameras)}
+    est_cams = [by_name[p.stem] for p in photos]
+    est_w2c = np.stack([c.world_to_cam.double().numpy() for c in est_cams])
+    true_w2c = np.stack([scene.cameras[i].world_to_cam.double().numpy() for i in train])
+    aligned = align_sim3(est_w2c, true_w2c)
+    cameras = {}
+    for k, i in enumerate(train):
+        c = est_cams[k]
+        cameras[i] = replace(c, world_to_cam=torch.as_tensor(aligned[k], dtype=c.world_to_cam.dtype),
+                             name=scene.cameras[i].name)
+    info = {
+        "data": str(data), "views": len(train), "registered": len(summary.registered), "points": summary.points,
+        "reprojection_px": summary.reprojection_px, "sfm_seconds": summary.seconds, "matcher": summary.matcher,
+        "sfm_size": [est_cams[0].width, est_cams[0].height],
+        "focal_estimated": [float(c.K[0, 0]) * scene.cameras[i].width / c.width for c, i in zip(est_cams, train)],
+        "focal_dataset": [float(scene.cameras[i].K[0, 0]) for i in train],
+        **pose_errors(est_w2c, true_w2c),
+    }
+    return pose_file_payload(cameras, info)
+
+
+__all__ = ["MAPPERS", "SfmSummary", "align_sim3", "camera_centers", "estimate_scene", "estimate_training_poses",
+           "list_images", "pick_video_frames", "pose_errors", "sim3_errors"]

@@ -47,7 +47,7 @@ from torch import Tensor
 from .checkpoint import CheckpointError, check_structure, list_checkpoints, load_checkpoint, load_latest, save_checkpoint
 from .config import TrainConfig, config_payload, experiment_fields, resolve_steps, save_config, upgrade_saved_config
 from .console import console, print_summary, say, training_progress
-from .data import DataError, DataManager, load_scene, resolve_data_path
+from .data import DataError, DataManager, load_config_scene
 from .data.cache_dir import user_cache_dir
 from .devices import resolve_device
 from .evaluation import evaluate
@@ -170,10 +170,7 @@ class Trainer:
         self.timing: dict[str, float] = {}
         self.generator = seed_everything(self.config.seed)
         t0 = time.perf_counter()
-        data_path = resolve_data_path(self.config.data)
-        scene = load_scene(
-            data_path, format=self.config.format, views=self.config.views, downscale=self.config.downscale
-        )
+        scene = load_config_scene(self.config)
         apply_process_threads()
         budget = plan_memory(scene, self.config, image_memory_budget())
         self.datamanager = DataManager(
@@ -507,7 +504,8 @@ class Trainer:
             self.save(step)  # == total, unless resumed past a shortened --steps
         t0 = time.perf_counter()
         results = evaluate(
-            self.model, self.datamanager, self.background, self.run_dir / "renders" if cfg.save_renders else None
+            self.model, self.datamanager, self.background, self.run_dir / "renders" if cfg.save_renders else None,
+            pose_steps=cfg.test_pose_steps,
         )
         self.timing["eval_s"] = time.perf_counter() - t0
         self.timing["total_s"] = sum(v for k, v in self.timing.items() if k != "total_s")
@@ -525,6 +523,7 @@ class Trainer:
             "densify_skipped_steps": self.densify_skipped,
             "restores": self.restores,
             "lpips_note": results["lpips_note"],
+            "test_pose_steps": cfg.test_pose_steps,
         }
         metrics["init_stats"] = dict(self.model.init_stats)
         report = self.model.report(self.datamanager)

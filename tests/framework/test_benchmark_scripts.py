@@ -40,18 +40,3 @@ def test_train_step_compare_reports_mean_speedup_per_snapshot_and_fills_the_read
     text = readme.read_text()
     assert "| `3dgs` @ 0 | 1,000 | 600 / 400 | 250 | **2.00x** | 4.00 |" in text
     assert "old" not in text and text.endswith("end\n") and "1.10, 1.20, 1.30" in text
-
-
-def test_estimated_poses_scores_a_run_with_and_without_refined_test_poses(run_dir, tmp_path):
-    """A finished run is not retrained; its unrefined metrics are kept beside, the refined ones recorded once."""
-    import shutil
-
-    estimated_poses = load_script("estimated_poses")
-    shutil.copytree(run_dir, tmp_path / "3dgs-s0", ignore=shutil.ignore_patterns("renders"))
-    before = json.loads((tmp_path / "3dgs-s0" / "metrics.json").read_text())
-    r = estimated_poses.train("3dgs", "unused", 3, 0, None, tmp_path, pose_steps=3)
-    assert r["psnr"] == before["mean"]["psnr"] and r["ssim"] == before["mean"]["ssim"]
-    assert r["psnr_refined"] is not None and len(r["test_pose_moved_deg"]) == len(before["per_view"])
-    assert json.loads((tmp_path / "3dgs-s0" / "metrics-unrefined.json").read_text()) == before
-    again = estimated_poses.train("3dgs", "unused", 3, 0, None, tmp_path, pose_steps=3)  # nothing rerun
-    assert again == r

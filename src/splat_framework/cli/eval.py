@@ -20,8 +20,8 @@ class EvalArgs:
     """Use the run's config.json even when its checksum is missing or does not match (edited by hand)."""
     renders: bool = True
     """Rewrite the test-view pictures into RUN_DIR/renders."""
-    test_pose_steps: int = 0
-    """Fit each test camera's pose to its photo by this many Adam steps before scoring it, the model frozen (the protocol of pose-free methods: BARF, CF-3DGS); for runs on poses estimated from the training photos alone (splat-process), whose test cameras inherit the estimate's error. 0 = score the dataset's test poses as they are."""
+    test_pose_steps: int | None = None
+    """Fit each test camera's pose to its photo by this many Adam steps before scoring it, the model frozen (the protocol of pose-free methods: BARF, CF-3DGS); for runs on poses estimated from the training photos alone (splat-process), whose test cameras inherit the estimate's error. 0 = score the dataset's test poses as they are; default: the run's own --test-pose-steps."""
 
 
 def main(args: EvalArgs) -> dict:
@@ -31,17 +31,18 @@ def main(args: EvalArgs) -> dict:
     from ..run import background_for, load_run
     from ..console import print_summary
 
-    if args.test_pose_steps < 0:
+    if args.test_pose_steps is not None and args.test_pose_steps < 0:
         print(f"error: --test-pose-steps must be >= 0, got {args.test_pose_steps}", file=sys.stderr)
         sys.exit(2)
     config, dm, model = load_run(args.run_dir, args.device, args.trust_edited_config)
+    pose_steps = config.test_pose_steps if args.test_pose_steps is None else args.test_pose_steps
     results = evaluate(model, dm, background_for(dm.scene, config.device), args.run_dir / "renders" if args.renders else None,
-                       pose_steps=args.test_pose_steps)
+                       pose_steps=pose_steps)
     path = args.run_dir / "metrics.json"
     metrics = read_json(path) if path.is_file() else {"method": config.method, "data": config.data, "timing": {}}
     metrics.update(
         mean=results["mean"], per_view=results["per_view"], render_fps=results["fps"],
-        num_gaussians=model.num_gaussians, lpips_note=results["lpips_note"], test_pose_steps=args.test_pose_steps,
+        num_gaussians=model.num_gaussians, lpips_note=results["lpips_note"], test_pose_steps=pose_steps,
     )
     metrics.setdefault("steps", config.total_steps)
     atomic_write_json(path, metrics)

@@ -272,6 +272,35 @@ def test_ablation_script_two_methods_writes_table_figure_and_readme(tmp_path):
     assert not (out / "runs/synthetic-forward-tiny/3dgs/v3-s1/config.json").exists()
 
 
+@pytest.mark.skipif(importlib.util.find_spec("pycolmap") is None, reason="--poses estimated needs pycolmap")
+def test_ablation_poses_estimated_trains_on_both_poses_and_writes_one_table(tmp_path):
+    """--poses estimated: the training views posed from their photos once, every row trained on the dataset's
+    and on the estimated poses with the test-pose fit, one table with the pose errors; a second call retrains nothing."""
+    ablation = load_ablation_script()
+    out = tmp_path / "abl"
+    key = "synthetic-forward-v3-estimated-poses"
+    readme = tmp_path / "README.md"
+    readme.write_text(f"<!-- ablation:{key} -->\nold\n<!-- /ablation:{key} -->\n")
+    args = ["--data", "synthetic/forward", "--views", "3", "--steps", "5", "--seeds", "0", "--methods", "3dgs",
+            "--poses", "estimated", "--test-pose-steps", "2", "--sfm-matcher", "sift", "--out", str(out),
+            "--backend", "serial", "--md", str(tmp_path / "est.md"), "--override", "model.init_num_points=300",
+            "--override", "compile=false", "--no-live"]
+    text = ablation.main(args + ["--readme", str(readme)]).read_text()
+    assert "3 of 3 training views registered from their photos alone (sift matches" in text
+    rows = [[c.strip() for c in ln.split("|")[1:-1]] for ln in text.splitlines() if ln.startswith("| `3dgs`")]
+    assert [r[1] for r in rows] == ["dataset (COLMAP, all views)", "from the 3 training photos"]
+    assert all(float(r[2]) > 0 and float(r[3]) > 0 for r in rows), rows  # PSNR after and before the pose fit
+    pose_file = out / "poses" / "synthetic-forward-v3.json"
+    runs = {p: json.loads((out / f"{p}-poses/runs/synthetic-forward/3dgs/v3-s0/config.json").read_text())["config"]
+            for p in ("dataset", "estimated")}
+    assert runs["estimated"]["train_poses"] == str(pose_file.resolve()) and runs["dataset"]["train_poses"] is None
+    assert runs["estimated"]["test_pose_steps"] == runs["dataset"]["test_pose_steps"] == 2
+    assert "old" not in readme.read_text() and "| `3dgs` | from the 3 training photos |" in readme.read_text()
+    stamp = pose_file.stat().st_mtime_ns
+    assert ablation.main(args + ["--no-train"]).read_text().splitlines()[2] == text.splitlines()[2]
+    assert pose_file.stat().st_mtime_ns == stamp
+
+
 def test_ablation_readme_without_markers_is_a_clear_error():
     from splat_framework.errors import DataError
 
