@@ -61,7 +61,7 @@ def training_views(data: str, views: int):
 
 def match_config(spec: str):
     """``NAME[:key=value,...]`` -> MatchConfig, e.g. ``aliked-lightglue:learned_resize=0,max_keypoints=4096``."""
-    from scg_plugin.matching import MatchConfig
+    from splat_framework.matching import MatchConfig
 
     name, _, rest = spec.partition(":")
     fields = dict(kv.split("=", 1) for kv in rest.split(",") if kv)
@@ -69,7 +69,7 @@ def match_config(spec: str):
 
 
 def measure(data: str, views: int, matcher: str) -> dict:
-    from scg_plugin.matching import compute_matches
+    from splat_framework.matching import compute_matches
 
     imgs, cams, ids, masks = training_views(data, views)
     config = match_config(matcher)

@@ -18,7 +18,7 @@ from splat_framework.config import (
     strategy_field,
 )
 
-from .matching import MatchConfig
+from splat_framework.matching import MatchConfig
 
 
 class SCGModelConfig(GaussianModelConfig):
@@ -84,21 +84,3 @@ class SCGTrainConfig(TrainConfig):
     """Model options."""
     strategy: RayStrategies = Field(default_factory=RayStrategyConfig)
     """Densification options."""
-
-
-class TriangModelConfig(GaussianModelConfig):
-    """3DGS initialised from matches triangulated with the known poses."""
-
-    init: Literal["random", "frustum"] = "random"
-    """Placement of the random Gaussians used only when too few matches triangulate (normally the model starts from the triangulated points)."""
-    matching: MatchConfig = Field(default_factory=MatchConfig)
-    """Matching prior used for triangulation."""
-    max_reprojection_px: float = Field(2.0, gt=0)
-    """Drop triangulated points whose reprojection error exceeds this (pixels)."""
-
-
-class TriangTrainConfig(TrainConfig):
-    """Training options of the triangulation-initialised 3DGS baseline."""
-
-    model: TriangModelConfig = Field(default_factory=TriangModelConfig)
-    """Model options."""

@@ -6,7 +6,7 @@ TOML variants in ``scg_plugin/configs/`` (package data, see ``splat_framework.re
 
 from splat_framework.registry import MethodSpec
 
-from .config import RayStrategyConfig, SCGModelConfig, SCGTrainConfig, TriangTrainConfig
+from .config import RayStrategyConfig, SCGModelConfig, SCGTrainConfig
 
 
 def config_scgaussian() -> SCGTrainConfig:
@@ -39,21 +39,9 @@ def config_scgaussian() -> SCGTrainConfig:
     )
 
 
-def config_3dgs_triang() -> TriangTrainConfig:
-    """3DGS initialised from the matching prior triangulated with the known poses."""
-    return TriangTrainConfig(method="3dgs-triang")
-
-
 spec_scgaussian = MethodSpec(
     name="scgaussian",
     description="SCGaussian: hybrid ray-based Gaussians from a matching prior (NeurIPS 2024)",
     config_factory=config_scgaussian,
     model="scg_plugin.model:SCGaussianModel",
-)
-
-spec_3dgs_triang = MethodSpec(
-    name="3dgs-triang",
-    description="3DGS initialised from matches triangulated with the known poses",
-    config_factory=config_3dgs_triang,
-    model="scg_plugin.model:TriangulatedGaussianModel",
 )

@@ -10,21 +10,17 @@ rows are ordinary Gaussians (the strategy's ``child_values``).
 
 from __future__ import annotations
 
-import time
-import warnings
-
 import torch
 from torch import Tensor, nn
 
 from splat_framework.cameras import Camera
-from splat_framework.model.gaussians import FALLBACK_POINTS, GaussianModel, random_init
+from splat_framework.model.gaussians import GaussianModel
 from splat_framework.model.ops import remove
 from splat_framework.profiling import section
 
 from .losses import rendering_geometry_loss
 from .ray_gaussians import MatchCache, RayBundle, gaussian_position_loss, pixel_errors
-from . import startup
-from .startup import match_pairs, ordinary_points, ray_prior, warm_up_prior
+from .startup import ordinary_points, ray_prior, warm_up_prior
 
 RAY_KEYS = ("z", "ray_o", "ray_d", "is_ray", "is_match")
 
@@ -271,44 +267,3 @@ class SCGaussianModel(GaussianModel):
             out["ray_depth_within_1pct"] = float((rel < 0.01).double().mean())
             out["ray_depth_within_5pct"] = float((rel < 0.05).double().mean())
         return out
-
-
-class TriangulatedGaussianModel(GaussianModel):
-    """3DGS initialised from matches triangulated with the known poses (the paper's 3DGS-triang baseline)."""
-
-    @classmethod
-    def from_data(cls, config, datamanager, generator):
-        from .ray_gaussians import triangulate
-
-        views = datamanager.train_views()
-        cameras = [c.to("cpu") for c, _ in views]
-        images = [b["image"] for _, b in views]
-        ids = [int(b["index"]) for _, b in views]
-        t0 = time.perf_counter()
-        match_set = startup.compute_match_set(config, datamanager)
-        timing = {"matching_s": time.perf_counter() - t0}
-        pts, cols = [], []
-        for i, j, uv_i, uv_j in match_pairs(match_set, ids):
-            uv_i = torch.as_tensor(uv_i, dtype=torch.float32)
-            uv_j = torch.as_tensor(uv_j, dtype=torch.float32)
-            if uv_i.shape[0] == 0:
-                continue
-            p, err = triangulate(cameras[i], cameras[j], uv_i, uv_j)
-            ok = err <= config.model.max_reprojection_px
-            img = images[i].cpu()
-            x = uv_i[ok, 0].long().clamp(0, img.shape[1] - 1)
-            y = uv_i[ok, 1].long().clamp(0, img.shape[0] - 1)
-            pts.append(p[ok])
-            cols.append(img[y, x])
-        dev = images[0].device
-        if not pts or sum(len(p) for p in pts) < 50:
-            warnings.warn("too few triangulated matches: falling back to random initialisation", stacklevel=2)
-            n_rand = max(config.model.init_num_points, FALLBACK_POINTS)
-            device_cams = [c for c, _ in views]
-            points, colors = random_init(config.model.init, datamanager.scene, device_cams, images, n_rand, generator)
-        else:
-            points, colors = torch.cat(pts).to(dev), torch.cat(cols).to(dev)
-        model = cls(config, datamanager.scene.scene_radius, points, colors)
-        model.init_timing = timing
-        model.init_stats = {"num_points": int(points.shape[0])}
-        return model

@@ -220,29 +220,3 @@ def warm_up(
         if cache is not None:
             cache.update(z, bundle, cameras, proj)
     return z.detach()
-
-
-def triangulate(cam_a: Camera, cam_b: Camera, uv_a: Tensor, uv_b: Tensor) -> tuple[Tensor, Tensor]:
-    """Midpoint triangulation of matched pixels with known poses.
-
-    Returns:
-        points [M, 3] and the worse-of-both reprojection error [M] in pixels.
-    """
-    oa, da = cam_a.pixel_rays(uv_a.double())
-    ob, db = cam_b.pixel_rays(uv_b.double())
-    w0 = oa - ob
-    a = (da * da).sum(-1)
-    b = (da * db).sum(-1)
-    c = (db * db).sum(-1)
-    d = (da * w0).sum(-1)
-    e = (db * w0).sum(-1)
-    den = (a * c - b * b).clamp_min(1e-12)
-    s = (b * e - c * d) / den
-    t = (a * e - b * d) / den
-    pts = 0.5 * ((oa + s[:, None] * da) + (ob + t[:, None] * db))
-    err = torch.zeros(pts.shape[0], dtype=pts.dtype)
-    for cam, uv in ((cam_a, uv_a), (cam_b, uv_b)):
-        p, z = cam.project(pts)
-        e_ = (p - uv.double()).norm(dim=-1)
-        err = torch.maximum(err, torch.where(z > 0, e_, torch.full_like(e_, float("inf"))))
-    return pts.float(), err.float()

@@ -1,7 +1,7 @@
 """SCGaussian's start-up, one named step each, in the order :meth:`SCGaussianModel.from_data` runs them.
 
-1. :func:`ray_prior`: match every pair of training views (:func:`compute_match_set`,
-   cached on disk) and bind two ray-based Gaussians to each verified match
+1. :func:`ray_prior`: match every pair of training views
+   (:func:`splat_framework.matching.prior.compute_match_set`, cached on disk) and bind two ray-based Gaussians to each verified match
    (:class:`~scg_plugin.ray_gaussians.RayBundle`); None when fewer than
    ``min_matches`` were found (one warning).
 2. :func:`warm_up_prior`: the first stage of the two-stage schedule: optimise the
@@ -23,31 +23,10 @@ import torch
 from torch import Tensor
 
 from splat_framework.cameras import Camera
-from splat_framework.data.cache_dir import user_cache_dir
+from splat_framework.matching.prior import compute_match_set, match_pairs
 from splat_framework.model.gaussians import FALLBACK_POINTS, random_init
 
 from .ray_gaussians import MatchCache, RayBundle, build_ray_bundle, warm_up
-
-
-def compute_match_set(config, datamanager):
-    """Matches between all pairs of training views (cached on disk)."""
-    from .matching import compute_matches
-
-    views = datamanager.train_views()
-    images = [b["image"].cpu().numpy() for _, b in views]
-    cameras = [c.to("cpu") for c, _ in views]
-    ids = [int(b["index"]) for _, b in views]
-    cache_dir = user_cache_dir() / "matches" if config.model.matching.cache else None
-    masks = [datamanager.alpha(i) for i in ids] if config.model.matching.alpha_mask else None
-    return compute_matches(images, cameras, ids, config.model.matching, cache_dir, masks)
-
-
-def match_pairs(match_set, view_ids: list[int]):
-    """(i, j, uv_i, uv_j) with i, j positions in the training-view list."""
-    pos = {v: k for k, v in enumerate(view_ids)}
-    for i, j in match_set.pairs():
-        uv_i, uv_j = match_set.get(i, j)
-        yield pos[i], pos[j], uv_i, uv_j
 
 
 def ray_prior(config, datamanager, generator: torch.Generator, timing: dict) -> tuple[RayBundle | None, int]:
@@ -58,7 +37,7 @@ def ray_prior(config, datamanager, generator: torch.Generator, timing: dict) -> 
     views = datamanager.train_views()
     ids = [int(b["index"]) for _, b in views]
     t0 = time.perf_counter()
-    match_set = compute_match_set(config, datamanager)
+    match_set = compute_match_set(cfg.matching, datamanager)
     timing["matching_s"] = time.perf_counter() - t0
     bundle = build_ray_bundle(match_pairs(match_set, ids), [c.to("cpu") for c, _ in views], generator)
     n_matches = len(bundle) // 2

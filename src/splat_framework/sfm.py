@@ -11,10 +11,11 @@ leaves nothing half-written.
 pycolmap (PyPI; it ships COLMAP, runs on the CPU, downloads nothing) is an
 optional dependency: ``pip install "splat[process]"``.
 
-``matcher``: "auto" (aliked-lightglue where a plugin registers it and its weights
-are installed, else SIFT), COLMAP's own SIFT ("sift"), or a photo matcher that a plugin
-registers under the ``splat_framework.photo_matchers`` entry point group (SCGaussian
-registers its learned ``aliked-lightglue`` and ``disk-lightglue``): a function
+``matcher``: "auto" (aliked-lightglue where it is registered and its weights
+are installed, else SIFT), COLMAP's own SIFT ("sift"), or a photo matcher registered
+under the ``splat_framework.photo_matchers`` entry point group (the framework's
+matching prior registers its learned ``aliked-lightglue`` and ``disk-lightglue``;
+plugins may add more): a function
 ``match(images: list[[H, W, 3] uint8 RGB]) -> {(i, j): (pts_i [M, 2], pts_j [M, 2])}``
 in continuous pixel coordinates (pixel centres at +0.5, COLMAP's convention). Its
 matches become COLMAP's keypoints and raw matches; COLMAP verifies them
@@ -42,12 +43,12 @@ from .errors import DataError
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
 MAPPERS = ("incremental", "global")
 PHOTO_MATCHER_GROUP = "splat_framework.photo_matchers"
-AUTO_MATCHER = "auto"  # AUTO_PREFERRED where a plugin registers it and its weights are installed, else sift
+AUTO_MATCHER = "auto"  # AUTO_PREFERRED where registered and its weights are installed, else sift
 AUTO_PREFERRED = "aliked-lightglue"
 
 
 def photo_matchers() -> dict[str, object]:
-    """Entry points of the photo matchers that installed plugins register, by name (not loaded)."""
+    """Entry points of the registered photo matchers (the framework's and installed plugins'), by name (not loaded)."""
     from importlib.metadata import entry_points
 
     return {ep.name: ep for ep in entry_points(group=PHOTO_MATCHER_GROUP)}

@@ -177,7 +177,7 @@ def test_the_default_matcher_is_the_learned_prior_and_its_poses_match_the_truth(
 def test_auto_falls_back_to_sift_when_the_learned_weights_are_missing(forward, tmp_path, monkeypatch):
     """--matcher auto on a machine without the learned matcher's weights: SIFT and a one-line notice;
     naming the learned matcher explicitly is the weights' one-line error."""
-    from scg_plugin.matching import learned
+    from splat_framework.matching import learned
 
     monkeypatch.setattr(learned, "hub_checkpoint_dir", lambda: tmp_path / "hub")
     monkeypatch.setattr(learned, "packaged_weights_dir", lambda: None)

@@ -145,7 +145,8 @@ def test_a_section_naming_another_kind_replaces_instead_of_merging():
 
 
 def test_every_config_field_has_a_docstring():
-    from scg_plugin.config import SCGTrainConfig, TriangTrainConfig
+    from scg_plugin.config import SCGTrainConfig
+    from splat_framework.methods.triangulated import TriangTrainConfig
 
     def check(cls):
         for name, f in cls.model_fields.items():
@@ -264,7 +265,7 @@ def test_invalid_values_of_nested_configs_name_their_dotted_path(tmp_path):
     """Without tyro's private hooks: a config built from arguments raises InvalidArguments (not a
     ValueError, which tyro would box), and the CLI finds where that config class sits."""
     from scg_plugin.config import RayStrategyConfig, SCGModelConfig
-    from scg_plugin.matching import MatchConfig
+    from splat_framework.matching import MatchConfig
     from splat_framework.cli.common import config_path
     from splat_framework.config import GaussianModelConfig, InvalidArguments, OptimConfig, cli_parsing
 

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from scg_plugin.matching import MatchConfig, compute_matches
+from splat_framework.matching import MatchConfig, compute_matches
+from splat_framework.matching.prior import triangulate
 from scg_plugin.method import config_scgaussian
 from scg_plugin.model import SCGaussianModel
 from scg_plugin.ray_gaussians import (
@@ -14,7 +15,6 @@ from scg_plugin.ray_gaussians import (
     build_ray_bundle,
     gaussian_position_loss,
     pixel_errors,
-    triangulate,
     warm_up,
 )
 from splat_framework.config import apply_overrides
@@ -207,7 +207,7 @@ def test_ray_gaussians_survive_pruning(scene):
 def test_too_few_matches_warn_and_fall_back_to_ordinary_gaussians(scene, monkeypatch, tmp_path):
     """Texture-less views (simulated: the matcher finds nothing) must not crash or train nothing."""
     import scg_plugin.startup as startup
-    from scg_plugin.matching import MatchSet
+    from splat_framework.matching import MatchSet
     from splat_framework.trainer import Trainer
 
     sc, _, _ = scene
@@ -226,7 +226,7 @@ def test_too_few_matches_warn_and_fall_back_to_ordinary_gaussians(scene, monkeyp
 def test_sparse_prior_warns_and_adds_random_ordinary_gaussians(scene, monkeypatch):
     """A prior of a few hundred matches (wide baselines, DTU) keeps its ray Gaussians and gets a random start too."""
     import scg_plugin.startup as startup
-    from scg_plugin.matching import MatchSet
+    from splat_framework.matching import MatchSet
 
     sc, dm, depths = scene
     uv_a, uv_b, _ = true_correspondences(dm, depths, 0, 1, n=100)
@@ -253,19 +253,19 @@ def test_sparse_prior_warns_and_adds_random_ordinary_gaussians(scene, monkeypatc
 
 
 def test_triangulation_without_matches_falls_back_to_the_reference_random_init(scene, monkeypatch):
-    import scg_plugin.model as scg_model
-    import scg_plugin.startup as startup
-    from scg_plugin.matching import MatchSet
-    from scg_plugin.method import config_3dgs_triang
+    import splat_framework.matching.prior as prior
+    from splat_framework.matching import MatchSet
+    from splat_framework.methods.triangulated import config_3dgs_triang
     from splat_framework.model.gaussians import FALLBACK_POINTS, frustum_box
+    from splat_framework.model.triangulated import TriangulatedGaussianModel
 
     sc, dm, _ = scene
     monkeypatch.setattr(
-        startup, "compute_match_set",
-        lambda config, dm: MatchSet(view_ids=[int(i) for i in sc.train_indices], matches={}),
+        prior, "compute_match_set",
+        lambda matching, dm: MatchSet(view_ids=[int(i) for i in sc.train_indices], matches={}),
     )
     with pytest.warns(UserWarning, match="too few triangulated matches"):
-        model = scg_model.TriangulatedGaussianModel.from_data(config_3dgs_triang(), dm, torch.Generator().manual_seed(0))
+        model = TriangulatedGaussianModel.from_data(config_3dgs_triang(), dm, torch.Generator().manual_seed(0))
     assert model.num_gaussians == FALLBACK_POINTS
     box = frustum_box(dm.train_cameras)
     means = model.params["means"].detach()

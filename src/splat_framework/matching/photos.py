@@ -1,5 +1,6 @@
-"""SCGaussian's learned matchers as photo matchers for ``splat-process --matcher NAME``
-(entry point group ``splat_framework.photo_matchers``; see ``splat_framework.sfm``).
+"""The learned matchers of the matching prior as photo matchers for ``splat-process --matcher NAME``
+(registered by this package under the entry point group ``splat_framework.photo_matchers``,
+where plugins add their own; see ``splat_framework.sfm``).
 
 No camera poses exist yet when photos are being posed, so the matches are verified by
 MAGSAC alone (no epipolar check against known poses) and kept uncapped; COLMAP verifies

@@ -1,4 +1,4 @@
-"""Tests of the SCGaussian matching prior (src/scg_plugin/matching/, cli_match.py)."""
+"""Tests of the matching prior (src/splat_framework/matching/, cli/match.py)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import torch
 
-from scg_plugin import matching as M
-from scg_plugin.matching import (
+from splat_framework import matching as M
+from splat_framework.matching import (
     MATCHERS,
     MatchConfig,
     MatchSet,
@@ -549,7 +549,7 @@ def test_disk_lightglue_plumbing_random_weights(tmp_path):
 
 # ------------------------------------------------------------ CLI logic
 def test_cli_run_matching(tmp_path, plane_scene):
-    from scg_plugin.cli_match import run_matching
+    from splat_framework.cli.match import run_matching
 
     img_a, img_b, cam_a, cam_b, _ = plane_scene
     ms = run_matching([img_a, img_b, img_a], [cam_a, cam_b, cam_a], [3, 7, 9],
@@ -601,7 +601,7 @@ def test_cli_help_is_fast_and_flat():
     import sys
 
     t0 = time.perf_counter()
-    out = subprocess.run([sys.executable, "-m", "scg_plugin.cli_match", "--help"], capture_output=True, text=True, timeout=60)
+    out = subprocess.run([sys.executable, "-m", "splat_framework.cli.match", "--help"], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     for flag in ("--data", "--views", "--matcher", "--out", "--weights", "--no-epipolar-check"):
         assert flag in out.stdout

@@ -1,4 +1,9 @@
-"""Matching prior of SCGaussian: verified pixel correspondences between training views.
+"""The matching prior: verified pixel correspondences between training views.
+
+SCGaussian's prior, kept in the framework so that every method can start from it
+(``3dgs-triang`` and plugins' ``-triang`` variants through
+``splat_framework.matching.prior.triangulated_points``; a module of its own because it
+imports torch, which this package's top level does not).
 
 For every pair of training views (i, j), i < j, a matcher proposes pixel pairs,
 which are then geometrically verified (fundamental matrix with MAGSAC, and an
@@ -42,7 +47,8 @@ baselines, guided by sparse matches), ``learned`` (LoFTR, DISK /
 ALIKED + LightGlue, weight lookup), ``registry`` (matchers by name, ``auto``),
 ``geometry`` (F from poses, epipolar check, MAGSAC, pair verification),
 ``sampling`` (balanced thinning), ``matchset`` (MatchSet and its file),
-``pipeline`` (compute_matches and its cache), ``drawing``.
+``pipeline`` (compute_matches and its cache), ``prior`` (a scene's match set,
+triangulated points), ``drawing``.
 """
 
 from .base import Matcher, Pts, no_matches, texture, to_gray_u8, to_hwc, to_uint8_rgb

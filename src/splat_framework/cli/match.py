@@ -4,7 +4,7 @@ Example::
 
     splat-match --data llff/fern --views 3 --matcher dense --out runs/fern_matches
 
-writes ``matches.npz`` (a :class:`scg_plugin.matching.MatchSet`) and one picture
+writes ``matches.npz`` (a :class:`splat_framework.matching.MatchSet`) and one picture
 ``matches_i_j.png`` per pair into ``--out``, and prints the counts per pair.
 Heavy imports (torch, cv2, kornia, the data loaders) happen inside functions so
 ``--help`` is fast.
@@ -20,12 +20,12 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import tyro
 
-from .matching import MatchConfig
+from ..matching import MatchConfig
 
 if TYPE_CHECKING:  # pragma: no cover
     from splat_framework.cameras import Camera
 
-    from .matching import MatchSet
+    from ..matching import MatchSet
 
 
 @dataclass
@@ -76,7 +76,7 @@ def run_matching(
     from rich.console import Console
     from rich.table import Table
 
-    from .matching import compute_matches, draw_matches
+    from ..matching import compute_matches, draw_matches
 
     console = console or Console()
     out_dir = Path(out_dir)
@@ -115,7 +115,7 @@ def main(args: MatchArgs) -> int:
     from splat_framework.data.resolve import resolve_data_path
     from splat_framework.data.scene import DataError
 
-    from .matching import MissingWeightsError
+    from ..matching import MissingWeightsError
 
     console = Console()
     try:

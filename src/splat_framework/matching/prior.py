@@ -1,0 +1,99 @@
+"""The matching prior of a scene's training views, and points triangulated from it.
+
+Every method can start from it: SCGaussian binds Gaussians to the matched rays,
+``3dgs-triang`` (and any plugin's ``-triang`` variant) starts ordinary Gaussians at
+the matches triangulated with the known poses (:func:`triangulated_points`).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Iterator
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..cameras import Camera
+from ..data.cache_dir import user_cache_dir
+from .config import MatchConfig
+from .matchset import MatchSet
+
+
+def compute_match_set(matching: MatchConfig, datamanager) -> MatchSet:
+    """Matches between all pairs of training views (cached on disk unless ``matching.cache`` is off)."""
+    from .pipeline import compute_matches
+
+    views = datamanager.train_views()
+    images = [b["image"].cpu().numpy() for _, b in views]
+    cameras = [c.to("cpu") for c, _ in views]
+    ids = [int(b["index"]) for _, b in views]
+    cache_dir = user_cache_dir() / "matches" if matching.cache else None
+    masks = [datamanager.alpha(i) for i in ids] if matching.alpha_mask else None
+    return compute_matches(images, cameras, ids, matching, cache_dir, masks)
+
+
+def match_pairs(match_set: MatchSet, view_ids: list[int]) -> Iterator[tuple[int, int, np.ndarray, np.ndarray]]:
+    """(i, j, uv_i [M, 2], uv_j [M, 2]) per pair, with i, j positions in ``view_ids``."""
+    pos = {v: k for k, v in enumerate(view_ids)}
+    for i, j in match_set.pairs():
+        uv_i, uv_j = match_set.get(i, j)
+        yield pos[i], pos[j], uv_i, uv_j
+
+
+def triangulate(cam_a: Camera, cam_b: Camera, uv_a: Tensor, uv_b: Tensor) -> tuple[Tensor, Tensor]:
+    """Midpoint triangulation of matched pixels [M, 2] with known poses.
+
+    Returns:
+        points [M, 3] and the worse-of-both reprojection error [M] in pixels
+        (inf where a point lies behind either camera).
+    """
+    oa, da = cam_a.pixel_rays(uv_a.double())
+    ob, db = cam_b.pixel_rays(uv_b.double())
+    w0 = oa - ob
+    a = (da * da).sum(-1)
+    b = (da * db).sum(-1)
+    c = (db * db).sum(-1)
+    d = (da * w0).sum(-1)
+    e = (db * w0).sum(-1)
+    den = (a * c - b * b).clamp_min(1e-12)
+    s = (b * e - c * d) / den
+    t = (a * e - b * d) / den
+    pts = 0.5 * ((oa + s[:, None] * da) + (ob + t[:, None] * db))
+    err = torch.zeros(pts.shape[0], dtype=pts.dtype)
+    for cam, uv in ((cam_a, uv_a), (cam_b, uv_b)):
+        p, z = cam.project(pts)
+        e_ = (p - uv.double()).norm(dim=-1)
+        err = torch.maximum(err, torch.where(z > 0, e_, torch.full_like(e_, float("inf"))))
+    return pts.float(), err.float()
+
+
+def triangulated_points(matching: MatchConfig, max_reprojection_px: float, datamanager) -> tuple[Tensor, Tensor, dict]:
+    """The training views' matches triangulated with their poses: (points [N, 3], colours [N, 3] of
+    the first view's pixel, on the images' device; ``{"matching_s": seconds}``). Points whose
+    reprojection error exceeds ``max_reprojection_px`` in either view are dropped; N may be 0."""
+    views = datamanager.train_views()
+    cameras = [c.to("cpu") for c, _ in views]
+    images = [b["image"] for _, b in views]
+    ids = [int(b["index"]) for _, b in views]
+    t0 = time.perf_counter()
+    match_set = compute_match_set(matching, datamanager)
+    timing = {"matching_s": time.perf_counter() - t0}
+    pts, cols = [torch.zeros(0, 3)], [torch.zeros(0, 3)]
+    for i, j, uv_i, uv_j in match_pairs(match_set, ids):
+        uv_i = torch.as_tensor(uv_i, dtype=torch.float32)
+        uv_j = torch.as_tensor(uv_j, dtype=torch.float32)
+        if uv_i.shape[0] == 0:
+            continue
+        p, err = triangulate(cameras[i], cameras[j], uv_i, uv_j)
+        ok = err <= max_reprojection_px
+        img = images[i].cpu()
+        x = uv_i[ok, 0].long().clamp(0, img.shape[1] - 1)
+        y = uv_i[ok, 1].long().clamp(0, img.shape[0] - 1)
+        pts.append(p[ok])
+        cols.append(img[y, x])
+    dev = images[0].device
+    return torch.cat(pts).to(dev), torch.cat(cols).to(dev), timing
+
+
+__all__ = ["compute_match_set", "match_pairs", "triangulate", "triangulated_points"]
