@@ -52,7 +52,7 @@ class CheckpointWriteError(CheckpointError):
 
 
 def _check_finite(step: int, payload: dict) -> None:
-    for name, t in payload.get("params", {}).items():
+    for name, t in [*payload.get("params", {}).items(), *payload.get("networks", {}).items()]:
         if torch.is_tensor(t) and t.is_floating_point() and not torch.isfinite(t).all():
             raise CheckpointError(f"refusing to save step {step}: parameter '{name}' has non-finite values")
 
@@ -138,8 +138,9 @@ def _warn(message: str) -> None:
 def check_structure(path: Path, ck: dict, like: Mapping[str, Tensor] | None = None) -> None:
     """Raise CheckpointError (one line naming ``path``) unless the payload has the layout
     training and rendering rely on: ``params`` a non-empty dict of float32 tensors with one
-    common row count (one row per Gaussian), each optimizer's moments shaped like its
-    parameter, and, given ``like`` (a model's parameters), the same names and per-row shapes.
+    common row count (one row per Gaussian), ``networks`` (model-wide modules' weights) a
+    dict of tensors, each optimizer named after a parameter or a network, a parameter's
+    optimizer's moments shaped like it, and, given ``like`` (a model's parameters), the same names and per-row shapes.
     A checksum proves the bytes are what was written, not that the writer was this code."""
     params = ck.get("params")
     if not isinstance(params, dict) or not params or not all(torch.is_tensor(v) for v in params.values()):
@@ -158,13 +159,19 @@ def check_structure(path: Path, ck: dict, like: Mapping[str, Tensor] | None = No
                 raise CheckpointError(
                     f"{path}: params[{k!r}] rows are {tuple(v.shape[1:])}, the model's {tuple(like[k].shape[1:])}"
                 )
+    networks = ck.get("networks") or {}
+    if not isinstance(networks, dict) or not all(isinstance(k, str) and torch.is_tensor(v) for k, v in networks.items()):
+        raise CheckpointError(f"{path}: 'networks' is not a dict of tensors")
+    modules = {k.split(".")[0] for k in networks}
     optimizers = ck.get("optimizers", {})
     if not isinstance(optimizers, dict):
         raise CheckpointError(f"{path}: 'optimizers' is not a dict")
     for k, o in optimizers.items():
         states = o.get("state", {}) if isinstance(o, dict) else None
-        if k not in params or not isinstance(states, dict):
+        if not isinstance(states, dict) or (k not in params and k not in modules):
             raise CheckpointError(f"{path}: optimizer {k!r} has no parameter or no state")
+        if k not in params:  # a network's optimizer: its moments are checked by load_state_dict
+            continue
         for st in states.values():
             for name, t in (st.items() if isinstance(st, dict) else ()):
                 if torch.is_tensor(t) and t.dim() > 0 and t.shape != params[k].shape:

@@ -55,18 +55,9 @@ def ply_property_names(num_rest_coeffs: int) -> list[str]:
 
 @torch.no_grad()
 def gaussians_for_export(model) -> dict[str, Tensor]:
-    """The standard Gaussian attributes of ``model`` (CPU float32, parameter conventions).
-
-    Returns:
-        means [N, 3] (``model.positions()``: true positions of ray-based Gaussians),
-        quats [N, 4] wxyz, scales [N, 3] log, opacities [N] logit,
-        sh0 [N, 1, 3], shN [N, K-1, 3].
-    """
-    p = model.params
-    out = {"means": model.positions()}
-    for k in ("quats", "scales", "opacities", "sh0", "shN"):
-        out[k] = p[k]
-    return {k: v.detach().float().cpu().contiguous() for k, v in out.items()}
+    """``model.export_gaussians()`` on the CPU in float32 (see
+    :meth:`splat_framework.model.gaussians.GaussianModel.export_gaussians`)."""
+    return {k: v.detach().float().cpu().contiguous() for k, v in model.export_gaussians().items()}
 
 
 def write_ply(path: Path, gaussians: dict[str, Tensor]) -> Path:

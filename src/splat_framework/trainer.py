@@ -139,6 +139,20 @@ def _first_nonfinite(tensors: dict[str, Tensor | None]) -> str | None:
     return next((k for k, good in zip(names, ok) if not good), None)
 
 
+def trainable_tensors(model) -> list[tuple[str, Tensor]]:
+    """(name, tensor) of every per-row parameter and every network weight of ``model``."""
+    return list(model.params.items()) + [(f"networks.{k}", p) for k, p in model.networks.named_parameters()]
+
+
+def optimized_tensors(optimizers: dict) -> list[tuple[str, Tensor]]:
+    """(optimizer name[.index], tensor) of every tensor an optimizer updates."""
+    out = []
+    for name, opt in optimizers.items():
+        ps = [p for g in opt.param_groups for p in g["params"]]
+        out += [(name if len(ps) == 1 else f"{name}.{i}", p) for i, p in enumerate(ps)]
+    return out
+
+
 # ---------------------------------------------------------------- trainer
 class Trainer:
     """Owns the data, the model, its optimizers and the densification strategy.
@@ -261,6 +275,7 @@ class Trainer:
             "method": self.config.method,
             "total_steps": self.config.total_steps,
             "params": {k: v.detach().cpu() for k, v in self.model.params.items()},
+            "networks": {k: v.detach().cpu() for k, v in self.model.networks.state_dict().items()},
             "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()},
             "strategy_state": {
                 k: (v.detach().cpu() if torch.is_tensor(v) else v) for k, v in self.strategy_state.items()
@@ -290,6 +305,8 @@ class Trainer:
         self.model.params = torch.nn.ParameterDict(
             {k: torch.nn.Parameter(v.to(dev), requires_grad=old[k].requires_grad) for k, v in ck["params"].items()}
         )
+        if ck.get("networks"):
+            self.model.networks.load_state_dict(ck["networks"])
         if ck.get("model_state"):
             self.model.load_extra_state(ck["model_state"])
         self.optimizers = self.model.make_optimizers()
@@ -390,7 +407,7 @@ class Trainer:
         with section("backward"):
             loss.backward()
         with section("finiteness checks"):
-            bad = _first_nonfinite({k: p.grad for k, p in model.params.items()})
+            bad = _first_nonfinite({k: p.grad for k, p in trainable_tensors(model)})
         if bad is not None:
             return self._fault(step, f"gradient of {bad}")
         with section("optimizer"):
@@ -400,7 +417,7 @@ class Trainer:
                     opt.step()
                 opt.zero_grad(set_to_none=True)
         with section("finiteness checks"):
-            bad = _first_nonfinite({k: model.params[k].detach() for k in self.optimizers})
+            bad = _first_nonfinite({k: p.detach() for k, p in optimized_tensors(self.optimizers)})
         if bad is not None:
             return self._fault(step, f"parameter {bad}", corrupted=True)
         self.nonfinite_streak = 0
@@ -428,7 +445,7 @@ class Trainer:
         """Count a skipped step; restore the last checkpoint (halved lr) when faults persist."""
         for opt in self.optimizers.values():
             opt.zero_grad(set_to_none=True)
-        for p in self.model.params.values():
+        for _, p in trainable_tensors(self.model):
             p.grad = None
         self.skipped_steps += 1
         self.nonfinite_streak += 1

@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 import torch
 
+from splat_framework.model.gaussians import GaussianModel
+
 from splat_framework.errors import DataError
 from splat_framework.export import export_ply, gaussians_for_export, load_ply, ply_property_names, write_ply
 from splat_framework.render import rasterize
@@ -93,6 +95,8 @@ class _RayModel:
 
     def positions(self):
         return self.params["ray_o"] + self.params["z"][:, None] * self.params["ray_d"]
+
+    export_gaussians = GaussianModel.export_gaussians  # the base's: positions() and the standard keys
 
 
 def test_ray_models_export_true_positions_and_no_extra_keys(tmp_path):

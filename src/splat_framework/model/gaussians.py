@@ -9,7 +9,11 @@ Parameters live in one ``nn.ParameterDict`` with N rows each:
 - ``sh0`` [N, 1, 3] and ``shN`` [N, K-1, 3] spherical-harmonics coefficients.
 
 Subclasses may add keys (one leading dimension N); the densification strategy
-handles them generically. Methods customise training through the hooks
+handles them generically. Parameters that are not per row (the MLPs of an
+anchor-based method, an appearance embedding) live in ``networks`` (an
+``nn.ModuleDict`` built by :meth:`GaussianModel.build_networks`), may have their own
+optimizers under their own names in :meth:`make_optimizers`, and are checkpointed
+with the rows. Methods customise training through the hooks
 ``positions``, ``get_loss_dict``, ``trainable_keys``, ``densify_now`` and
 ``after_optimizer_step`` instead of forking the trainer.
 """
@@ -143,6 +147,7 @@ class GaussianModel(nn.Module):
         self.scene_scale = float(scene_scale)
         self.active_sh_degree = 0
         self.params = nn.ParameterDict(self.init_params(points, colors))
+        self.networks = self.build_networks()
 
     # ------------------------------------------------------------------ build
     @classmethod
@@ -153,6 +158,11 @@ class GaussianModel(nn.Module):
             config.model.init, datamanager.scene, list(cams), list(imgs), config.model.init_num_points, generator
         )
         return cls(config, datamanager.scene.scene_radius, points, colors)
+
+    def build_networks(self) -> nn.ModuleDict:
+        """The model-wide (not per-row) modules, freshly initialised (3DGS: none). Called when the
+        model is built and when it is rebuilt from a checkpoint (whose weights are then loaded)."""
+        return nn.ModuleDict()
 
     def init_params(self, points: Tensor, colors: Tensor) -> dict[str, nn.Parameter]:
         cfg = self.config.model
@@ -242,6 +252,14 @@ class GaussianModel(nn.Module):
         return None
 
     # ---------------------------------------------------------------- render
+    def export_gaussians(self) -> dict[str, Tensor]:
+        """The model as standard 3DGS Gaussians (PLY export): means [N, 3] (:meth:`positions`,
+        e.g. the true positions of ray-based Gaussians), quats [N, 4] wxyz, scales [N, 3] log,
+        opacities [N] logit, sh0 [N, 1, 3], shN [N, K-1, 3]. A model whose Gaussians are
+        decoded per view (anchor-based methods) returns those of a reference view."""
+        p = self.params
+        return {"means": self.positions(), **{k: p[k] for k in ("quats", "scales", "opacities", "sh0", "shN")}}
+
     def positions(self) -> Tensor:
         """[N, 3] world positions of all Gaussians."""
         return self.params["means"]
@@ -295,6 +313,9 @@ class GaussianModel(nn.Module):
         model.params = nn.ParameterDict(
             {k: nn.Parameter(v, requires_grad=v.is_floating_point()) for k, v in checkpoint["params"].items()}
         )
+        model.networks = model.build_networks()
+        if checkpoint.get("networks"):
+            model.networks.load_state_dict(checkpoint["networks"])
         if checkpoint.get("model_state"):
             model.load_extra_state(checkpoint["model_state"])
         return model

@@ -8,6 +8,8 @@ per-row operations are:
 - ``split``: the masked row stays in place and becomes the first child (new
   sampled mean, scales / 1.6); the second child is appended.
 - ``remove``: drop the masked rows.
+- ``append``: add new rows with given values (a strategy that grows something other
+  than copies of existing rows, e.g. Scaffold-GS's anchors on a voxel grid).
 - ``reset_opa``: clamp opacities to at most ``value`` and zero their moments.
 
 Conventions:
@@ -169,6 +171,29 @@ def split(
 
     _update_param_with_optimizer(param_fn, optimizer_fn, params, optimizers)
     _resize_state(state, n, lambda v: torch.cat([v, v[sel]]))
+
+
+@torch.no_grad()
+def append(params: Params, optimizers: Optimizers, state: MutableMapping, rows: Mapping[str, Tensor]) -> None:
+    """Append new rows: ``rows[key]`` [M, ...] for every key of ``params`` (new moments zero,
+    per-row state tensors padded with zeros)."""
+    missing = set(params) - set(rows)
+    if missing:
+        raise ValueError(f"append: no new rows for {sorted(missing)}")
+    n = _num_rows(params)
+    m = {v.shape[0] for v in rows.values()}
+    if len(m) != 1:
+        raise ValueError(f"append: new rows of different counts {sorted(m)}")
+    m = m.pop()
+
+    def param_fn(name: str, p: Tensor) -> Tensor:
+        return torch.cat([p, rows[name].to(p.device, p.dtype)])
+
+    def optimizer_fn(key: str, v: Tensor) -> Tensor:
+        return torch.cat([v, v.new_zeros((m, *v.shape[1:]))])
+
+    _update_param_with_optimizer(param_fn, optimizer_fn, params, optimizers)
+    _resize_state(state, n, lambda v: torch.cat([v, v.new_zeros((m, *v.shape[1:]))]))
 
 
 @torch.no_grad()

@@ -35,7 +35,23 @@ from torch import Tensor
 from splat_framework.config import DensifyConfig
 from splat_framework.model.ops import duplicate, remove, reset_opa, split
 
-__all__ = ["DefaultStrategy", "DensifyConfig", "Strategy"]
+__all__ = ["DefaultStrategy", "DensifyConfig", "Strategy", "check_rows"]
+
+
+def check_rows(params: Mapping[str, Tensor], optimizers: Mapping[str, torch.optim.Optimizer],
+               required: tuple[str, ...]) -> None:
+    """Raise ValueError unless ``params`` holds the ``required`` keys, every entry has the same
+    leading dimension (one row per Gaussian, anchor, ...) and every entry that requires grad
+    has an optimizer (the conventions of ``model.ops``)."""
+    for key in required:
+        if key not in params:
+            raise ValueError(f"params is missing {key!r}")
+    n = params[required[0]].shape[0]
+    for key, p in params.items():
+        if p.dim() == 0 or p.shape[0] != n:
+            raise ValueError(f"params[{key!r}] has shape {tuple(p.shape)}, expected leading dim {n}")
+        if p.requires_grad and key not in optimizers:
+            raise ValueError(f"params[{key!r}] requires grad but has no optimizer")
 
 
 class Strategy:
@@ -120,15 +136,7 @@ class DefaultStrategy(Strategy):
 
     def check_sanity(self, params: Mapping[str, Tensor], optimizers: Mapping[str, torch.optim.Optimizer]) -> None:
         """Raise ValueError if params/optimizers do not follow the conventions of ``ops``."""
-        for key in self.REQUIRED_KEYS:
-            if key not in params:
-                raise ValueError(f"params is missing {key!r}")
-        n = params["means"].shape[0]
-        for key, p in params.items():
-            if p.dim() == 0 or p.shape[0] != n:
-                raise ValueError(f"params[{key!r}] has shape {tuple(p.shape)}, expected leading dim {n}")
-            if p.requires_grad and key not in optimizers:
-                raise ValueError(f"params[{key!r}] requires grad but has no optimizer")
+        check_rows(params, optimizers, self.REQUIRED_KEYS)
         for key, opt in optimizers.items():
             if key not in params:
                 raise ValueError(f"optimizer {key!r} has no matching params entry")

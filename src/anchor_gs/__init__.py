@@ -1,0 +1,7 @@
+"""Anchor-based Gaussians as a plugin: Scaffold-GS (Lu et al., CVPR 2024).
+
+Registered through ``splat_framework.methods`` entry points exactly as a third-party
+package would be, importing only ``splat_framework``'s public API: anchors with a
+feature, a scaling and k learnable offsets, decoded per view into neural Gaussians by
+small MLPs (``networks``), grown on a voxel grid and pruned by an anchor strategy.
+"""
