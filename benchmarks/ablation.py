@@ -315,7 +315,7 @@ def estimated_poses_markdown(data: str, views, rows: dict[str, list[dict]], info
                         ("num_gaussians", ",.0f"))]
                 label = "dataset (COLMAP, all views)" if poses == "dataset" else f"from the {views} training photos"
                 lines.append(f"| `{method}` | {label} | " + " | ".join(cells) + " |")
-    return "\n".join(lines + footer(command)[1:])
+    return "\n".join(lines + footer(command))
 
 
 def grid_methods(rows: dict[str, list[dict]]) -> list[str]:
