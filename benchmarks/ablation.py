@@ -289,7 +289,8 @@ def estimated_poses_markdown(data: str, views, rows: dict[str, list[dict]], info
         f"### Dataset poses vs poses from the {views} training photos: `{data}`",
         "",
         f"{info['registered']} of {info['views']} training views registered from their photos alone "
-        f"({info['matcher']} matches at {info['sfm_size'][0]}x{info['sfm_size'][1]}, {info['points']:,} points, "
+        f"({info['matcher']} matches at {info['sfm_size'][0]}x{info['sfm_size'][1]}, "
+        f"{info.get('mapper', 'incremental')} mapper, {info['points']:,} points, "
         f"reprojection error {info['reprojection_px']:.2f} px). Errors after Sim(3) alignment to the dataset's "
         f"training cameras: rotation {spread(info['rotation_deg'])} deg, camera centre "
         f"{spread([100 * c for c in info['center_error_rel_spread']])} % of their spread, translation direction "
