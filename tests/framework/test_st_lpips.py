@@ -66,5 +66,6 @@ def test_sweep_tables_carry_every_image_metric():
     from splat_framework.sweep.grid import METRICS
     from splat_framework.sweep.results import COLUMNS
 
-    assert METRICS == IMAGE_METRICS
+    assert METRICS[: len(IMAGE_METRICS)] == IMAGE_METRICS  # then the score before a test-pose fit, when one ran
+    assert METRICS[len(IMAGE_METRICS):] == ("psnr_before_pose_fit",)
     assert ("ST-LPIPS ↓", "st_lpips", ".3f") in COLUMNS
