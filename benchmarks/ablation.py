@@ -19,7 +19,8 @@ Usage:
 
 ``--md PATH`` also copies each scene's comparison figure next to PATH and embeds
 it; ``--readme README.md`` replaces the block between the markers
-``<!-- ablation:SCENE-vVIEWS -->`` and ``<!-- /ablation:SCENE-vVIEWS -->`` with the
+``<!-- ablation:SCENE-vVIEWS -->`` and ``<!-- /ablation:SCENE-vVIEWS -->`` (``-NAME`` appended
+for ``--table NAME``, a named table such as ``comp-tria``) with the
 table of that scene (so the README's Results section is generated, not typed).
 
 A killed run of this script, started again with the same options, trains only
@@ -57,7 +58,22 @@ MATCHER_ROWS: dict[str, str] = {
 }
 """The paper's robustness-to-matching-models rows (``--methods scgaussian-dense ...``); not run by default."""
 
-LABELS = {**ROWS, **MATCHER_ROWS}
+ANCHOR_ROWS: dict[str, str] = {
+    "scaffold-gs": "Scaffold-GS (random init)",
+    "scaffold-gs-triang": "Triang. init + Scaffold-GS",
+    "octree-gs": "Octree-GS (random init)",
+    "octree-gs-triang": "Triang. init + Octree-GS",
+}
+"""The anchor-based plugin's rows (``anchor_gs``); not run by default."""
+
+LABELS = {**ROWS, **MATCHER_ROWS, **ANCHOR_ROWS}
+
+TABLES: dict[str, tuple[str, list[str]]] = {
+    "comp-tria": ("Triangulated initialisation across representations (the paper's Tab. comp_tria)",
+                  ["3dgs", "3dgs-triang", "scaffold-gs-triang", "octree-gs-triang", "scgaussian"]),
+}
+"""Named tables (``--table NAME``): title and rows (the default ``--methods``, in table order); the README
+markers are ``<!-- ablation:SCENE-vVIEWS-NAME -->``."""
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -69,7 +85,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--out", type=Path, default=None, help="sweep folder (default benchmarks/results/ablation-<scene>)")
     p.add_argument("--workers", type=int, default=None, help="parallel runs (default: by cores and memory)")
     p.add_argument("--threads", type=int, default=None, help="torch threads per run (default cores // workers)")
-    p.add_argument("--methods", nargs="+", default=list(ROWS), metavar="METHOD", help="rows to run (default: all)")
+    p.add_argument("--methods", nargs="+", default=None, metavar="METHOD",
+                   help="rows to run (default: the --table's rows, else every ablation row)")
+    p.add_argument("--table", choices=sorted(TABLES), default=None,
+                   help="a named table: its title, rows and README markers ablation:SCENE-vVIEWS-NAME")
     p.add_argument("--backend", choices=["local", "ray", "serial"], default="local")
     p.add_argument("--address", default=None, help="Ray address (auto, ray://HOST:10001); default a local instance")
     p.add_argument("--override", action="append", default=[], metavar="KEY=VALUE", help="config override for every run")
@@ -86,7 +105,17 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    "(splat-process --matcher: auto, sift, aliked-lightglue, disk-lightglue)")
     p.add_argument("--no-train", action="store_true",
                    help="train nothing: tables from the runs already finished (rows say how many seeds they hold)")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    if args.methods is None:
+        args.methods = list(TABLES[args.table][1]) if args.table else list(ROWS)
+    return args
+
+
+def table_key(args: argparse.Namespace, data: str, views) -> str:
+    """The README marker key of a (scene, views) table: ``sweep.group_key``, plus ``-NAME`` for ``--table NAME``."""
+    from splat_framework.sweep import group_key
+
+    return group_key(data, views) + (f"-{args.table}" if args.table else "")
 
 
 def splice_block(text: str, key: str, block: str, source: str = "README", prefix: str = "ablation") -> str:
@@ -139,7 +168,8 @@ def ablation_markdown(
     the folder ``base`` of the Markdown file)."""
     from splat_framework.sweep import fmt_value, group_key
 
-    order = {m: i for i, m in enumerate(LABELS)}
+    title, table_rows = TABLES[args.table] if args.table else ("Ablation", [])
+    order = {m: i for i, m in enumerate(dict.fromkeys([*table_rows, *LABELS]))}
     sections: dict[tuple, list[dict]] = {}
     for r in rows:
         sections.setdefault((r["data"], r["views"]), []).append(r)
@@ -150,7 +180,7 @@ def ablation_markdown(
     for (data, views), rs in sections.items():
         rs = sorted(rs, key=lambda r: order.get(r["method"], len(order)))
         lines = [
-            f"### Ablation on `{data}`, {views} training views",
+            f"### {title} on `{data}`, {views} training views",
             "",
             f"{steps}; mean ± std over seeds {seeds}.",
             "",
@@ -186,7 +216,7 @@ def ablation_markdown(
         if figures and key in figures:
             link = Path(os.path.relpath(figures[key].resolve(), base.resolve())).as_posix()
             lines += [f"![Test views of `{data}`: ground truth, then one row per config]({link})", ""]
-        out[key] = "\n".join(lines + tail)
+        out[table_key(args, data, views)] = "\n".join(lines + tail)
     return out
 
 

@@ -1,4 +1,5 @@
-"""Anchor-based Gaussians as a plugin: Scaffold-GS (Lu et al., CVPR 2024).
+"""Anchor-based Gaussians as a plugin: Scaffold-GS (Lu et al., CVPR 2024) and Octree-GS
+(Ren et al., TPAMI 2025) built on its decoder.
 
 Registered through ``splat_framework.methods`` entry points exactly as a third-party
 package would be, importing only ``splat_framework``'s public API: anchors with a

@@ -1,12 +1,14 @@
-"""Scaffold-GS configuration (torch-free: read when building ``--help``).
+"""Scaffold-GS and Octree-GS configuration (torch-free: read when building ``--help``).
 
-Defaults are the public code's (city-super/Scaffold-GS, ``arguments/__init__.py``),
-its 30,000-iteration schedule compressed to this project's budget by one rule, the
-rule ``scgaussian`` follows: 1000 iterations for up to 4 training views, growing in
-proportion beyond (``schedule_views``), and every iteration count of the schedule
-(statistics start, anchor-growing window, learning-rate decays over the whole run)
-scaled by the same factor 1000 / 30000, except the growing interval (100, like
-3DGS's refine_every), whose length the success criteria count visits in.
+Defaults are the public code's (city-super/Scaffold-GS and city-super/Octree-GS,
+``arguments/__init__.py``; Octree-GS's level options as its ``single_train.sh``),
+their 30,000- and 40,000-iteration schedules compressed to this project's budget by
+one rule, the rule ``scgaussian`` follows: 1000 iterations for up to 4 training views,
+growing in proportion beyond (``schedule_views``), and every iteration count of the
+schedule (statistics start, anchor-growing window, progressive levels, learning-rate
+decays over the whole run) scaled by the same factor 1000 / 30000 (Scaffold-GS) or
+1000 / 40000 (Octree-GS), except the growing interval (100, like 3DGS's
+refine_every), whose length the success criteria count visits in.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from splat_framework.config import (
     GaussianModelConfig,
     LearningRate,
     NonNegative,
+    Positive,
     Steps,
     StrategyConfig,
     TrainConfig,
@@ -59,11 +62,9 @@ class ScaffoldModelConfig(GaussianModelConfig, TriangInitConfig):
     """Colour MLP learning rate (decays to 0.625 % over the run)."""
 
 
-class AnchorStrategyConfig(StrategyConfig):
-    """Scaffold-GS anchor growing and pruning (``anchor_gs.strategy.AnchorStrategy``)."""
+class AnchorUpdateConfig(StrategyConfig):
+    """What Scaffold-GS's and Octree-GS's anchor updates share: statistics, schedule, pruning."""
 
-    kind: tyro.conf.Suppress[Literal["anchor"]] = "anchor"
-    """The strategy's tag."""
     start_stat: Steps = 17
     """Accumulate neural-Gaussian gradients and opacities from this iteration (public code: 500 of 30,000)."""
     update_from: Steps = 50
@@ -73,11 +74,18 @@ class AnchorStrategyConfig(StrategyConfig):
     update_interval: int = Field(100, ge=1)
     """Iterations between anchor updates (not rescaled: the success criteria count visits within it)."""
     grad_threshold: NonNegative = 0.0002
-    """Grow where a neural Gaussian's mean screen-space gradient (NDC units) exceeds this (x 2^i at level i)."""
+    """Grow where a neural Gaussian's mean screen-space gradient (NDC units) exceeds this (scaled per level)."""
     success_threshold: Fraction = 0.8
     """Fraction of an interval an anchor must have been seen in before it may be pruned (half of it for growing)."""
     min_opacity: NonNegative = 0.005
     """Prune anchors whose mean summed neural opacity falls below this."""
+
+
+class AnchorStrategyConfig(AnchorUpdateConfig):
+    """Scaffold-GS anchor growing and pruning (``anchor_gs.strategy.AnchorStrategy``)."""
+
+    kind: tyro.conf.Suppress[Literal["anchor"]] = "anchor"
+    """The strategy's tag."""
     update_depth: int = Field(3, ge=1)
     """Growing levels: voxel size init_factor / hierarchy_factor^i times the base size."""
     init_factor: int = Field(16, ge=1)
@@ -98,3 +106,60 @@ class ScaffoldTrainConfig(TrainConfig):
     """Model options."""
     strategy: strategy_field(AnchorStrategyConfig) = Field(default_factory=AnchorStrategyConfig)
     """Anchor growing and pruning."""
+
+
+class OctreeModelConfig(ScaffoldModelConfig):
+    """Scaffold-GS anchors on the levels of an octree, drawn per view by camera distance."""
+
+    voxel_size: NonNegative = 0.0
+    """Anchor grid size at the initial level (init_level) in world units; 0 = the median distance of the initial points to their 3 nearest neighbours (Scaffold-GS's rule). Level l has voxel_size * fork^(init_level - l)."""
+    fork: int = Field(2, ge=2)
+    """Voxel size ratio between consecutive levels."""
+    levels: int = Field(0, ge=0)
+    """Levels of detail; 0 = round(log_fork(d_max / d_min)) + 1 from the training cameras' distances to the initial points (quantiles dist_ratio and 1 - dist_ratio)."""
+    init_level: int = Field(-1, ge=-1)
+    """Level at which progressive training starts; -1 = levels // 2."""
+    dist_ratio: Fraction = 0.999
+    """Quantile of the camera-point distances taken as d_max (and 1 - it as d_min)."""
+    visible_threshold: Fraction = 0.0
+    """Drop anchors (initial and grown) selected by no more than this fraction of the training cameras."""
+    progressive: bool = True
+    """Train coarse to fine: levels above init_level open one by one over the first coarse_iter iterations."""
+    coarse_iter: Steps = 250
+    """Iterations of progressive training (public code: 10,000 of 40,000)."""
+    coarse_factor: Positive = 1.5
+    """Each level's opening interval is this much shorter than the previous one (a geometric series)."""
+
+
+class OctreeStrategyConfig(AnchorUpdateConfig):
+    """Octree-GS anchor growing (per level, and one level finer for strong gradients) and pruning
+    (``anchor_gs.strategy.OctreeStrategy``). Schedule: the public code's 40,000 iterations x 1000 / 40,000."""
+
+    kind: tyro.conf.Suppress[Literal["octree"]] = "octree"
+    """The strategy's tag."""
+    start_stat: Steps = 12
+    """Accumulate neural-Gaussian gradients and opacities from this iteration (public code: 500 of 40,000)."""
+    update_from: Steps = 38
+    """First iteration at which anchors grow and are pruned (public code: 1500 of 40,000)."""
+    update_until: Steps = 625
+    """Last iteration of the anchor updates (public code: 25,000 of 40,000)."""
+    update_ratio: NonNegative = 0.2
+    """Level l grows where the gradient is in [t fork^(u l), t fork^(u (l+1))) (u: this, t: grad_threshold); above it, one level finer."""
+    extra_ratio: NonNegative = 0.25
+    """An anchor whose mean gradient exceeds the level's threshold x this is drawn at a finer level from then on ..."""
+    extra_up: NonNegative = 0.01
+    """... by this much per level per update (its extra_level)."""
+
+    def setup(self):
+        from .strategy import OctreeStrategy
+
+        return OctreeStrategy(self)
+
+
+class OctreeTrainConfig(TrainConfig):
+    """Training options of Octree-GS."""
+
+    model: OctreeModelConfig = Field(default_factory=OctreeModelConfig)
+    """Model options."""
+    strategy: strategy_field(OctreeStrategyConfig) = Field(default_factory=OctreeStrategyConfig)
+    """Octree anchor growing and pruning."""

@@ -52,7 +52,11 @@ def _mlp(width: int, out: int, last: nn.Module | None) -> nn.Sequential:
 class ScaffoldModel(GaussianModel):
     """Scaffold-GS (see the module docstring)."""
 
-    def __init__(self, config, scene_scale: float, points: Tensor, colors: Tensor):
+    FIXED = ("anchors",)
+    """Per-row tensors that are not optimised (kept so when rebuilt from a checkpoint)."""
+
+    def __init__(self, config, scene_scale: float, points: Tensor, colors: Tensor,
+                 camera_centers: Tensor | None = None):
         cfg = config.model
         self.voxel_size = float(cfg.voxel_size) or float(knn_scale(points).median())
         super().__init__(config, scene_scale, points, colors)
@@ -67,16 +71,21 @@ class ScaffoldModel(GaussianModel):
             points, colors = random_init(cfg.init, datamanager.scene, [c for c, _ in views],
                                          [b["image"] for _, b in views], cfg.init_num_points, generator)
             timing = {}
-        model = cls(config, datamanager.scene.scene_radius, points, colors)
-        model.reference_center = datamanager.train_cameras[0].center.detach().float().cpu()
+        centers = torch.stack([c.center.detach().float() for c in datamanager.train_cameras]).to(points.device)
+        model = cls(config, datamanager.scene.scene_radius, points, colors, centers)
+        model.reference_center = centers[0].cpu()
         model.init_timing = timing
         model.init_stats = {"num_points": int(points.shape[0]), "num_anchors": model.num_anchors,
                             "voxel_size": model.voxel_size}
         return model
 
     def init_params(self, points: Tensor, colors: Tensor) -> dict[str, nn.Parameter]:
+        return self.anchor_params(voxelize(points.float(), self.voxel_size))
+
+    def anchor_params(self, anchors: Tensor) -> dict[str, nn.Parameter]:
+        """Fresh per-row parameters of anchors at ``anchors`` [A, 3]: zero offsets and features, scaling
+        the mean distance to the 3 nearest anchors."""
         cfg = self.config.model
-        anchors = voxelize(points.float(), self.voxel_size)
         a, dev = anchors.shape[0], anchors.device
         scaling = torch.log(knn_scale(anchors))[:, None].repeat(1, 6)
         return {
@@ -171,15 +180,22 @@ class ScaffoldModel(GaussianModel):
             "kept": kept,
         }
 
+    def lod_mask(self, center: Tensor) -> Tensor:
+        """[A] bool: the anchors whose level of detail is drawn from ``center`` [3] (Scaffold-GS: all)."""
+        return torch.ones(self.num_anchors, dtype=torch.bool, device=self.params["anchors"].device)
+
+    def render_meta(self) -> dict:
+        """What the anchor strategy needs from the model beside the decoded Gaussians (``meta``)."""
+        return {"voxel_size": self.voxel_size}
+
     def get_outputs(self, camera: Camera, background: Tensor | None = None) -> RenderOutput:
-        visible = self.visible_anchors(camera)
+        visible = self.visible_anchors(camera) & self.lod_mask(camera.center)
         g = self.decode(camera.center, visible)
         out = rasterize(g["means"], g["quats"], g["scales"], g["opacities"], g["colors"],
                         camera.world_to_cam.float(), camera.K.float(), camera.width, camera.height,
                         background=background, near_plane=0.01, depth_mode=self.config.model.depth_mode)
         out.meta.update(anchor_visible=visible, neural_opacity=g["neural_opacity"].detach(), neural_kept=g["kept"],
-                        voxel_size=self.voxel_size,
-                        neural_scales=g["scales"])
+                        neural_scales=g["scales"], **self.render_meta())
         return out
 
     def get_loss_dict(self, outputs: RenderOutput, batch: dict, camera: Camera, step: int) -> dict[str, Tensor]:
@@ -196,10 +212,10 @@ class ScaffoldModel(GaussianModel):
 
     @torch.no_grad()
     def export_gaussians(self) -> dict[str, Tensor]:
-        """Every anchor's neural Gaussians decoded for the first training camera's centre (the
-        reference view), colours as SH degree 0."""
-        g = self.decode(self.reference_center, torch.ones(self.num_anchors, dtype=torch.bool,
-                                                            device=self.params["anchors"].device))
+        """The neural Gaussians of every anchor drawn from the first training camera's centre (the
+        reference view; all levels of detail it selects), colours as SH degree 0."""
+        center = self.reference_center.to(self.params["anchors"].device)
+        g = self.decode(center, self.lod_mask(center))
         m = g["means"].shape[0]
         return {"means": g["means"], "quats": g["quats"], "scales": torch.log(g["scales"]),
                 "opacities": torch.logit(g["opacities"].clamp(1e-6, 1 - 1e-6)),
@@ -215,5 +231,6 @@ class ScaffoldModel(GaussianModel):
     @classmethod
     def from_checkpoint(cls, config, scene_scale: float, checkpoint: dict) -> "ScaffoldModel":
         model = super().from_checkpoint(config, scene_scale, checkpoint)
-        model.params["anchors"].requires_grad_(False)
+        for key in cls.FIXED:
+            model.params[key].requires_grad_(False)
         return model

@@ -1,13 +1,15 @@
-"""Scaffold-GS as a plugin: decoding, the opacity filter, anchor growing / pruning with aligned
-Adam state, networks in checkpoints, registry entries, and a tiny training run."""
+"""Scaffold-GS and Octree-GS as a plugin: decoding, the opacity filter, anchor growing / pruning
+with aligned Adam state, networks in checkpoints, registry entries, and tiny training runs
+(the octree's own geometry is tested in test_octree.py)."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
-from anchor_gs.method import config_scaffold_gs, config_scaffold_gs_triang
+from anchor_gs.method import config_octree_gs, config_octree_gs_triang, config_scaffold_gs, config_scaffold_gs_triang
 from anchor_gs.model import ScaffoldModel, voxelize
+from anchor_gs.octree import OctreeModel
 from splat_framework.config import apply_overrides
 from splat_framework.data import DataManager, load_scene
 from splat_framework.data.synthetic import ensure_scene
@@ -18,11 +20,16 @@ def dm():
     return DataManager(load_scene(ensure_scene("forward-tiny"), views=3), device="cpu", seed=0)
 
 
-def build(dm, overrides: dict | None = None, triang: bool = False) -> tuple:
-    base = config_scaffold_gs_triang() if triang else config_scaffold_gs()
+METHODS = {"scaffold-gs": (config_scaffold_gs, config_scaffold_gs_triang, ScaffoldModel),
+           "octree-gs": (config_octree_gs, config_octree_gs_triang, OctreeModel)}
+
+
+def build(dm, overrides: dict | None = None, triang: bool = False, method: str = "scaffold-gs") -> tuple:
+    random, triangulated, model_class = METHODS[method]
+    base = triangulated() if triang else random()
     cfg = apply_overrides(base, {"data": "synthetic/forward-tiny", "model": {"init_num_points": 500}} | (overrides or {}))
     torch.manual_seed(0)
-    return cfg, ScaffoldModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
+    return cfg, model_class.from_data(cfg, dm, torch.Generator().manual_seed(0))
 
 
 def test_voxelize_keeps_one_centre_per_occupied_cell():
@@ -53,9 +60,11 @@ def test_decoding_shapes_and_the_opacity_filter(dm):
     assert out.rgb.shape == (camera.height, camera.width, 3) and out.meta["means2d"].shape[0] == m
 
 
-def test_anchor_growing_and_pruning_keep_every_parameter_and_its_adam_state_aligned(dm):
+@pytest.mark.parametrize("method", sorted(METHODS))
+def test_anchor_growing_and_pruning_keep_every_parameter_and_its_adam_state_aligned(dm, method):
     cfg, model = build(dm, {"strategy": {"start_stat": 0, "update_from": 0, "update_interval": 2,
-                                         "success_threshold": 0.5, "grad_threshold": 0.0, "min_opacity": 0.9}})
+                                         "success_threshold": 0.5, "grad_threshold": 0.0, "min_opacity": 0.9}},
+                       method=method)
     with torch.no_grad():  # offsets away from their anchors, as after some training: new cells to grow into
         model.params["offsets"].normal_(0.0, 3.0)
     strategy = cfg.strategy.setup()
@@ -85,7 +94,8 @@ def test_anchor_growing_and_pruning_keep_every_parameter_and_its_adam_state_alig
             assert st["exp_avg"].shape == p.shape and st["exp_avg_sq"].shape == p.shape, key
     for key in ("opacity_accum", "anchor_denom", "offset_grad", "offset_denom"):
         assert state[key].shape[0] == a, key
-    assert not model.params["anchors"].requires_grad  # anchors stay where they were put, as in the public code
+    for key in model.FIXED:  # anchors stay where they were put, as in the public code
+        assert not model.params[key].requires_grad, key
     model.get_outputs(dm.train_cameras[0], torch.zeros(3))  # still renders
 
 
@@ -93,29 +103,31 @@ def test_registry_lists_the_plugin_methods_from_its_entry_points():
     from splat_framework.registry import discover_methods
 
     methods = discover_methods()
-    for name in ("scaffold-gs", "scaffold-gs-triang"):
+    for name in ("scaffold-gs", "scaffold-gs-triang", "octree-gs", "octree-gs-triang"):
         assert methods[name].model.startswith("anchor_gs.")
 
 
-def test_triangulated_anchors_start_from_the_matching_prior(dm):
-    _, model = build(dm, triang=True)
+@pytest.mark.parametrize("method", sorted(METHODS))
+def test_triangulated_anchors_start_from_the_matching_prior(dm, method):
+    _, model = build(dm, triang=True, method=method)
     assert model.init_stats["num_points"] >= 50 and model.num_anchors > 0
     assert "matching_s" in model.init_timing
 
 
-def test_a_tiny_run_improves_and_resumes_with_its_networks(tmp_path):
+@pytest.mark.parametrize("method", sorted(METHODS))
+def test_a_tiny_run_improves_and_resumes_with_its_networks(tmp_path, method):
     from splat_framework.run import load_trained_model
     from splat_framework.trainer import Trainer
 
     from splat_framework.evaluation import evaluate
 
-    cfg = apply_overrides(config_scaffold_gs(), {
+    cfg = apply_overrides(METHODS[method][0](), {
         "data": "synthetic/forward-tiny", "steps": 60, "output": str(tmp_path / "run"), "progress": False,
         "save_renders": False, "compile": False, "checkpoint_every": 30, "model": {"init_num_points": 1000}})
     trainer = Trainer(cfg)
     before = evaluate(trainer.model, trainer.datamanager, trainer.background)["mean"]["psnr"]
     metrics = trainer.train()
-    assert metrics["strategy"] == "anchor_gs.strategy.AnchorStrategy"
+    assert metrics["strategy"] == "anchor_gs.strategy." + ("OctreeStrategy" if method == "octree-gs" else "AnchorStrategy")
     assert metrics["mean"]["psnr"] > before + 1.0, (before, metrics["mean"]["psnr"])
     _, model = load_trained_model(tmp_path / "run")
     from splat_framework.export import export_ply, load_ply
@@ -124,6 +136,9 @@ def test_a_tiny_run_improves_and_resumes_with_its_networks(tmp_path):
     assert 0 < ply["means"].shape[0] <= model.num_gaussians and ply["sh0"].shape[1:] == (1, 3)
     for k, v in trainer.model.networks.state_dict().items():
         assert torch.equal(model.networks.state_dict()[k].cpu(), v.cpu()), k
+    camera = trainer.datamanager.train_cameras[0]  # the rebuilt model draws what the trained one does
+    with torch.no_grad():
+        assert torch.allclose(model.get_outputs(camera).rgb, trainer.model.get_outputs(camera).rgb, atol=1e-6)
     resumed = Trainer(cfg.model_copy(update={"resume": True}))
     assert resumed.restore() and resumed.start_step == 60
     assert torch.equal(resumed.model.networks["mlp_color"][0].weight, trainer.model.networks["mlp_color"][0].weight)
