@@ -211,11 +211,15 @@ class ScaffoldModel(GaussianModel):
         """No spherical harmonics: colours come from the colour MLP."""
 
     @torch.no_grad()
-    def export_gaussians(self) -> dict[str, Tensor]:
-        """The neural Gaussians of every anchor drawn from the first training camera's centre (the
-        reference view; all levels of detail it selects), colours as SH degree 0."""
-        center = self.reference_center.to(self.params["anchors"].device)
-        g = self.decode(center, self.lod_mask(center))
+    def export_gaussians(self, camera: Camera | None = None) -> dict[str, Tensor]:
+        """The neural Gaussians drawn for ``camera`` (its visible anchors and level of detail); without
+        one, those of every anchor drawn from the first training camera's centre (the reference view:
+        all levels of detail it selects). Colours as SH degree 0."""
+        if camera is None:
+            center = self.reference_center.to(self.params["anchors"].device)
+            g = self.decode(center, self.lod_mask(center))
+        else:
+            g = self.decode(camera.center, self.visible_anchors(camera) & self.lod_mask(camera.center))
         m = g["means"].shape[0]
         return {"means": g["means"], "quats": g["quats"], "scales": torch.log(g["scales"]),
                 "opacities": torch.logit(g["opacities"].clamp(1e-6, 1 - 1e-6)),
