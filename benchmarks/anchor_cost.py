@@ -17,6 +17,7 @@ machine, or read only the ratios: the load average is printed under the table.
 Usage:
     SPLAT_DATA=../shared/data python benchmarks/anchor_cost.py RUN [RUN ...] [--steps 10] [--warmup 3]
         [--rounds 2] [--threads 2] [--json benchmarks/results/anchor_cost.json] [--readme README.md]
+        [--no-measure]   # the table again from --json
 
 ``--readme`` replaces the block between ``<!-- bench:anchor_cost -->`` and ``<!-- /bench:anchor_cost -->``.
 """
@@ -24,6 +25,7 @@ Usage:
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import sys
 import time
@@ -41,6 +43,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--threads", type=int, default=None, help="torch threads (default: all cores)")
     p.add_argument("--json", type=Path, default=Path("benchmarks/results/anchor_cost.json"))
     p.add_argument("--readme", type=Path, default=None)
+    p.add_argument("--no-measure", action="store_true", help="rewrite the table from --json of an earlier run")
     return p.parse_args(argv)
 
 
@@ -114,7 +117,7 @@ def markdown(results: list[dict], command: str, threads: int | None) -> str:
                 continue
             r = rs[0]
             cells = [
-                Path(run).name,
+                f"{Path(run).parent.name}/{Path(run).name}",
                 f"`{r['method']}`" if m == "anchor" else "`3dgs` on its Gaussians",
                 f"{r['anchors']:,}" if r["anchors"] else "n/a",
                 f"{r['drawn']:,}",
@@ -137,9 +140,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
     from ablation import publish
 
     args = parse_args(argv)
-    results = []
+    results = json.loads(args.json.read_text()) if args.no_measure else []
     ctx = get_context("spawn")
-    for _ in range(args.rounds):
+    for _ in range(0 if args.no_measure else args.rounds):
         for run in args.runs:
             for as_3dgs in (False, True):
                 with ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
