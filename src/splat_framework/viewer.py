@@ -35,27 +35,35 @@ THUMBNAIL_PX = 160
 
 @torch.no_grad()
 def splat_arrays(model, by_type: bool = False) -> dict[str, np.ndarray]:
-    """What viser's splat renderer takes, from a model's parameters.
+    """What viser's splat renderer takes, from the model's standard Gaussians
+    (:meth:`~splat_framework.model.gaussians.GaussianModel.export_gaussians`: the
+    PLY exporter's; for a model that decodes its Gaussians per view, such as the
+    anchor methods, those of its reference view).
 
     Returns float32 arrays: centers [N, 3], covariances [N, 3, 3] (R S^2 R^T),
     rgbs [N, 3] (degree-0 colour, or the type colours with ``by_type``), opacities [N, 1].
     """
     from .render import quat_to_rotmat, sh_to_rgb
 
-    p = model.params
-    R = quat_to_rotmat(p["quats"].float())
-    s = torch.exp(p["scales"].float())
+    g = model.export_gaussians()
+    R = quat_to_rotmat(g["quats"].float())
+    s = torch.exp(g["scales"].float())
     cov = R @ torch.diag_embed(s * s) @ R.transpose(-1, -2)
-    rgb = sh_to_rgb(p["sh0"].float().reshape(-1, 3)).clamp(0, 1)
-    if by_type and "is_ray" in p:
-        ray = p["is_ray"].reshape(-1, 1) > 0.5
+    rgb = sh_to_rgb(g["sh0"].float().reshape(-1, 3)).clamp(0, 1)
+    if by_type and _has_types(model):
+        ray = model.params["is_ray"].reshape(-1, 1) > 0.5
         rgb = torch.where(ray, rgb.new_tensor(RAY_RGB), rgb.new_tensor(ORDINARY_RGB))
     return {
-        "centers": model.positions().float().cpu().numpy(),
+        "centers": g["means"].float().cpu().numpy(),
         "covariances": cov.cpu().numpy(),
         "rgbs": rgb.cpu().numpy(),
-        "opacities": torch.sigmoid(p["opacities"].float()).reshape(-1, 1).cpu().numpy(),
+        "opacities": torch.sigmoid(g["opacities"].float()).reshape(-1, 1).cpu().numpy(),
     }
+
+
+def _has_types(model) -> bool:
+    """Whether the model flags its rows as ray-based or ordinary (SCGaussian's ``is_ray``)."""
+    return "is_ray" in model.params
 
 
 def _pose(camera) -> tuple[np.ndarray, np.ndarray]:
@@ -131,7 +139,7 @@ class Viewer:
                 model = copy.deepcopy(model)
         with self._lock:
             self._model, self._background = model, background
-        has_types = "is_ray" in model.params
+        has_types = _has_types(model)
         self._by_type.visible = has_types
         self._draw_splats()
         self._status.content = f"**{self.num_splats:,} Gaussians** {note}".strip()

@@ -134,6 +134,12 @@ def test_a_tiny_run_improves_and_resumes_with_its_networks(tmp_path, method):
 
     ply = load_ply(export_ply(model, tmp_path / "scaffold.ply"))  # the decoded Gaussians of the reference view
     assert 0 < ply["means"].shape[0] <= model.num_gaussians and ply["sh0"].shape[1:] == (1, 3)
+    pytest.importorskip("viser")
+    from splat_framework.viewer import splat_arrays
+
+    splats = splat_arrays(model, by_type=True)  # the viewer draws the same decoded Gaussians
+    assert torch.allclose(torch.from_numpy(splats["centers"]), ply["means"], atol=1e-5)
+    assert splats["covariances"].shape == (ply["means"].shape[0], 3, 3)
     for k, v in trainer.model.networks.state_dict().items():
         assert torch.equal(model.networks.state_dict()[k].cpu(), v.cpu()), k
     camera = trainer.datamanager.train_cameras[0]  # the rebuilt model draws what the trained one does
