@@ -20,7 +20,7 @@ from splat_framework.profiling import section
 
 from .losses import rendering_geometry_loss
 from .ray_gaussians import MatchCache, RayBundle, gaussian_position_loss, pixel_errors
-from .startup import ordinary_points, ray_prior, warm_up_prior
+from .startup import baseline_schedule, ordinary_points, ray_prior, thin_prior, warm_up_prior
 
 RAY_KEYS = ("z", "ray_o", "ray_d", "is_ray", "is_match")
 
@@ -43,7 +43,8 @@ class SCGaussianModel(GaussianModel):
     # ------------------------------------------------------------------ build
     @classmethod
     def from_data(cls, config, datamanager, generator):
-        """The three start-up steps of :mod:`scg_plugin.startup` (prior, warm-up, ordinary Gaussians), then the model."""
+        """The start-up steps of :mod:`scg_plugin.startup` (prior, warm-up, ordinary Gaussians, the
+        baseline's schedule for a thin prior), then the model (whose ``config`` is the revised one)."""
         views = datamanager.train_views()
         cameras = [c for c, _ in views]
         images = [b["image"] for _, b in views]
@@ -51,9 +52,13 @@ class SCGaussianModel(GaussianModel):
         bundle, n_matches = ray_prior(config, datamanager, generator, timing)
         bundle = warm_up_prior(bundle, [c.to("cpu") for c in cameras], config.model, timing, stats)
         pts, cols = ordinary_points(config.model, datamanager, bundle, n_matches, generator)
+        baseline = config.model.thin_prior_baseline and thin_prior(config.model, bundle, n_matches)
+        if baseline:
+            config = baseline_schedule(config)
         model = cls(config, datamanager.scene.scene_radius, pts, cols, bundle, cameras, images)
         model.init_timing = timing
-        model.init_stats = stats | {"num_matches": len(bundle) // 2 if bundle is not None else 0}
+        model.init_stats = stats | {"num_matches": len(bundle) // 2 if bundle is not None else 0,
+                                    "baseline_schedule": baseline}
         return model
 
     def init_params(self, points: Tensor, colors: Tensor) -> dict[str, nn.Parameter]:

@@ -10,6 +10,8 @@
 3. :func:`ordinary_points`: the ordinary (free) Gaussians to start with:
    ``init_num_points`` random ones, or at least ``FALLBACK_POINTS`` when the
    prior is missing or sparse (one warning).
+4. :func:`baseline_schedule`: with a missing or sparse prior, the run trains with
+   the 3dgs baseline's densification and SH schedules (``thin_prior_baseline``).
 
 Each step returns what the next needs and records its own wall time.
 """
@@ -72,6 +74,26 @@ def warm_up_prior(bundle: RayBundle | None, cameras: list[Camera], cfg, timing: 
     return bundle
 
 
+def thin_prior(cfg, bundle: RayBundle | None, n_matches: int) -> bool:
+    """Whether the prior is missing (None: fewer than ``min_matches``) or sparse (fewer than ``sparse_matches``)."""
+    return bundle is None or n_matches < cfg.sparse_matches
+
+
+def baseline_schedule(config):
+    """Step 4: ``config`` with the densification and SH schedules that the ``3dgs`` baseline
+    would use at the same total iterations (its own thresholds and iterations, rescaled as
+    ``--steps`` does), the strategy kind (SCGaussian's, which keeps the ray-based Gaussians)
+    and every other field unchanged."""
+    from splat_framework.config import resolve_steps
+    from splat_framework.methods.gaussian_splatting import config_3dgs
+
+    base = resolve_steps(config_3dgs().model_copy(update={"steps": config.total_steps}))
+    strategy = type(config.strategy).model_validate(
+        config.strategy.model_dump() | base.strategy.model_dump(exclude={"kind", "enabled"}))
+    model = config.model.model_copy(update={"sh_degree_interval": base.model.sh_degree_interval})
+    return config.model_copy(update={"strategy": strategy, "model": model})
+
+
 def ordinary_points(
     cfg, datamanager, bundle: RayBundle | None, n_matches: int, generator: torch.Generator
 ) -> tuple[Tensor, Tensor]:
@@ -84,7 +106,7 @@ def ordinary_points(
     cameras = [c for c, _ in views]
     images = [b["image"] for _, b in views]
     n_fill = max(cfg.init_num_points, FALLBACK_POINTS)
-    sparse = bundle is not None and n_matches < cfg.sparse_matches
+    sparse = bundle is not None and thin_prior(cfg, bundle, n_matches)
     if sparse:
         warnings.warn(
             f"only {n_matches} verified matches between the {len(views)} training views "

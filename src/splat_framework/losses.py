@@ -103,3 +103,32 @@ def photometric_loss(pred: Tensor, gt: Tensor, lambda_dssim: float = 0.2, mask: 
         smap = ssim_map(pred, gt) * m
         s = smap.sum() / (m.sum() * pred.shape[-1]).clamp_min(1e-8)
     return (1.0 - lambda_dssim) * l1 + lambda_dssim * (1.0 - s)
+
+
+def depth_smoothness(depth: Tensor, image: Tensor, alpha: Tensor, gamma: float = 10.0, min_alpha: float = 0.5) -> Tensor:
+    """Edge-aware smoothness of a rendered depth map (Monodepth's disparity smoothness, on depth).
+
+    Mean over neighbouring pixel pairs (rows and columns) of ``|depth_a - depth_b| / mean depth
+    * exp(-gamma * mean_c |image_a - image_b|)``: a colour edge of the photo lets the depth jump;
+    the mean depth (detached) makes the term independent of the scene's scale. Only pairs whose
+    rendered ``alpha`` both exceed ``min_alpha`` count (empty space has no depth).
+
+    Args:
+        depth: [H, W, 1] rendered (expected) depth.
+        image: [H, W, 3] the photo, in [0, 1].
+        alpha: [H, W, 1] rendered opacity.
+    Returns:
+        A scalar; 0 (with a graph) when no pair is covered.
+    """
+    cover = (alpha[..., 0] > min_alpha).to(depth.dtype)
+    n = cover.sum()
+    d = depth[..., 0] / ((depth[..., 0] * cover).sum() / n.clamp_min(1.0)).detach().clamp_min(1e-6)
+    total, count = depth.sum() * 0.0, depth.new_zeros(())
+    for dim in (0, 1):
+        if d.shape[dim] < 2:
+            continue
+        m = cover.narrow(dim, 0, d.shape[dim] - 1) * cover.narrow(dim, 1, d.shape[dim] - 1)
+        edge = torch.exp(-gamma * torch.diff(image, dim=dim).abs().mean(-1))
+        total = total + (torch.diff(d, dim=dim).abs() * edge * m).sum()
+        count = count + m.sum()
+    return total / count.clamp_min(1.0)

@@ -200,10 +200,11 @@ class Trainer:
         self.timing.update(self.model.init_timing)
         self.timing["init_s"] = time.perf_counter() - t0 - sum(self.model.init_timing.values())
         self.optimizers = self.model.make_optimizers()
-        self.strategy = self.config.strategy.setup()
+        strategy_config = self.model.strategy_config()
+        self.strategy = strategy_config.setup()
         if not isinstance(self.strategy, Strategy):
             raise TypeError(
-                f"{type(self.config.strategy).__name__}.setup() returned {type(self.strategy).__name__}, not a Strategy"
+                f"{type(strategy_config).__name__}.setup() returned {type(self.strategy).__name__}, not a Strategy"
             )
         self.strategy.check_sanity(self.model.params, self.optimizers)  # a model breaking the ops conventions fails here
         self.strategy_state = self.strategy.initialize_state(scene_scale=self.model.scene_scale)

@@ -211,3 +211,50 @@ def test_evaluate_images_keys():
     assert set(out) == {"psnr", "ssim", "lpips", "avg", "st_lpips"}
     assert out["lpips"] is None and out["avg"] is None and out["st_lpips"] is None
     assert out["psnr"] == pytest.approx(psnr(a, b)) and out["ssim"] == pytest.approx(ssim_metric(a, b))
+
+
+def test_depth_smoothness_known_values_and_edges():
+    """A constant depth costs 0; a one-pixel step in depth costs |step| / mean depth per crossing
+    pair, divided by the covered pairs; a colour edge at the same place discounts it by
+    exp(-gamma * colour step); uncovered pixels (alpha <= 0.5) take no part."""
+    from splat_framework.losses import depth_smoothness
+
+    h, w = 4, 5
+    alpha = torch.ones(h, w, 1)
+    image = torch.full((h, w, 3), 0.5)
+    flat = torch.full((h, w, 1), 2.0)
+    assert float(depth_smoothness(flat, image, alpha)) == 0.0
+    step = flat.clone()
+    step[:, 3:] = 3.0  # one vertical edge: h crossing pairs along the rows
+    mean = float(step.mean())
+    pairs = h * (w - 1) + (h - 1) * w
+    expected = h * 1.0 / mean / pairs
+    assert float(depth_smoothness(step, image, alpha, gamma=10.0)) == pytest.approx(expected, rel=1e-6)
+    edged = image.clone()
+    edged[:, 3:] = 0.9  # the photo has an edge where the depth jumps
+    assert float(depth_smoothness(step, edged, alpha, gamma=10.0)) == pytest.approx(expected * math.exp(-4.0), rel=1e-5)
+    # scale invariance: the same scene twice as far costs the same
+    assert float(depth_smoothness(3.0 * step, image, alpha)) == pytest.approx(expected, rel=1e-6)
+    # the step lies in empty space: no covered pair crosses it
+    hollow = alpha.clone()
+    hollow[:, 3] = 0.0
+    assert float(depth_smoothness(step, image, hollow)) == 0.0
+    assert float(depth_smoothness(step, image, torch.zeros(h, w, 1))) == 0.0
+
+
+def test_depth_smoothness_gradient_flattens_depth():
+    """Descending its gradient flattens the depth (Adam, 50 steps: less than half the starting
+    value). No finite-difference check: the mean depth it divides by is detached on purpose."""
+    from splat_framework.losses import depth_smoothness
+
+    g = torch.Generator().manual_seed(0)
+    depth = (1.0 + torch.rand(6, 7, 1, generator=g, dtype=torch.float64)).requires_grad_(True)
+    image = torch.rand(6, 7, 3, generator=g, dtype=torch.float64)
+    alpha = torch.ones(6, 7, 1, dtype=torch.float64)
+    first = float(depth_smoothness(depth, image, alpha))
+    opt = torch.optim.Adam([depth], lr=0.05)
+    for _ in range(50):
+        opt.zero_grad()
+        depth_smoothness(depth, image, alpha).backward()
+        opt.step()
+    assert float(depth_smoothness(depth, image, alpha).detach()) < 0.5 * first

@@ -185,6 +185,8 @@ def test_more_views_than_the_schedule_is_written_for_scale_it():
         assert resolve_steps(same) == same and same.total_steps == 1000
     eight = resolve_steps(base.model_copy(update={"views": 8}))
     assert eight.total_steps == 2000 and eight.strategy.refine_stop_iter == 2000
+    assert eight.strategy.reset_every == 400 and eight.model.warmup_steps == 4000
+    assert eight.strategy.refine_start_iter == 500  # a start (StartSteps) does not grow with the run
     assert eight == resolve_steps(base.model_copy(update={"views": 8, "steps": 2000}))
     assert resolve_steps(eight) == eight  # a resumed run resolves to the same schedule
     assert resolve_steps(base.model_copy(update={"views": 6})).total_steps == 1500
@@ -193,6 +195,18 @@ def test_more_views_than_the_schedule_is_written_for_scale_it():
     short = base.model_copy(update={"views": 8, "default_steps": 40})  # a test's short schedule stays short
     assert resolve_steps(short).total_steps == 80
     assert resolve_steps(TrainConfig(views=40)).total_steps == 3000  # 3dgs: no rule
+
+
+def test_start_steps_shrink_with_a_shorter_run_and_stay_with_a_longer_one():
+    """scale_schedule: a StartSteps field (densification's first iteration) follows a compressed
+    schedule but keeps its value in a stretched one; plain Steps fields follow both."""
+    from splat_framework.config import scale_schedule
+
+    base = TrainConfig()  # 3dgs: refine_start_iter 500, refine_stop_iter 2500
+    short, long = scale_schedule(base, 0.5), scale_schedule(base, 3.0)
+    assert (short.strategy.refine_start_iter, short.strategy.refine_stop_iter) == (250, 1250)
+    assert (long.strategy.refine_start_iter, long.strategy.refine_stop_iter) == (500, 7500)
+    assert resolve_steps(base.model_copy(update={"steps": 6000})).strategy.refine_start_iter == 500
 
 
 def test_config_json_roundtrip_with_schema_version(tmp_path):

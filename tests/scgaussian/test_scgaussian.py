@@ -219,8 +219,27 @@ def test_too_few_matches_warn_and_fall_back_to_ordinary_gaussians(scene, monkeyp
     with pytest.warns(UserWarning, match="only 0 verified matches"):
         tr = Trainer(cfg)
     assert tr.model.num_match_gaussians == 0 and tr.model.num_gaussians >= 10000
+    # with no prior it trains as the 3dgs baseline would at the same 10 iterations
+    assert_baseline_schedule(tr)
     metrics = tr.train()
     assert metrics["init_stats"]["num_matches"] == 0 and metrics["mean"]["psnr"] > 5
+    assert metrics["init_stats"]["baseline_schedule"] is True
+
+
+def assert_baseline_schedule(trainer):
+    """The trainer's strategy and the model's SH schedule are 3dgs's at the run's budget, the
+    strategy still SCGaussian's kind (ray-based Gaussians kept)."""
+    from scg_plugin.config import RayStrategyConfig
+    from splat_framework.config import resolve_steps
+    from splat_framework.methods.gaussian_splatting import config_3dgs
+
+    base = resolve_steps(config_3dgs().model_copy(update={"steps": trainer.config.total_steps}))
+    used = trainer.model.strategy_config()
+    assert isinstance(used, RayStrategyConfig)
+    assert trainer.strategy.config == used
+    assert used.model_dump(exclude={"kind"}) == base.strategy.model_dump(exclude={"kind"})
+    assert trainer.model.config.model.sh_degree_interval == base.model.sh_degree_interval
+    assert trainer.config.strategy != used  # the run's own config (config.json, --resume) is unchanged
 
 
 def test_sparse_prior_warns_and_adds_random_ordinary_gaussians(scene, monkeypatch):
@@ -240,12 +259,19 @@ def test_sparse_prior_warns_and_adds_random_ordinary_gaussians(scene, monkeypatc
         model = SCGaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
     assert model.num_match_gaussians == 200 - model.init_stats.get("filtered_matches", 0) * 2
     assert model.num_gaussians == model.num_match_gaussians + 10000
+    assert model.init_stats["baseline_schedule"] is True
+    assert model.strategy_config().grow_grad2d == 0.0002 != cfg.strategy.grow_grad2d  # 3dgs's threshold
+    no_baseline = apply_overrides(cfg, {"model": {"thin_prior_baseline": False}})
+    with pytest.warns(UserWarning, match="only 100 verified matches"):
+        model = SCGaussianModel.from_data(no_baseline, dm, torch.Generator().manual_seed(0))
+    assert model.strategy_config() == no_baseline.strategy and not model.init_stats["baseline_schedule"]
     # without the warning, the default still starts with init_num_points (10,000) random ordinary Gaussians
     cfg = apply_overrides(cfg, {"model": {"sparse_matches": 0}})
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         model = SCGaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
     assert model.num_gaussians == model.num_match_gaussians + 10000
+    assert model.strategy_config() == cfg.strategy and not model.init_stats["baseline_schedule"]
     # sparse_matches = 0 and init_num_points = 0: ray-based Gaussians only (the only-ray variant)
     cfg = apply_overrides(cfg, {"model": {"sparse_matches": 0, "init_num_points": 0}})
     model = SCGaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))

@@ -30,7 +30,7 @@ from torch import Tensor, nn
 from ..cameras import Camera
 from ..config import TrainConfig
 from ..data.scene import SceneData
-from ..losses import photometric_loss
+from ..losses import depth_smoothness, photometric_loss
 from ..profiling import section
 from ..render import RenderOutput, rasterize, rgb_to_sh
 
@@ -223,6 +223,12 @@ class GaussianModel(nn.Module):
         """Parameter keys to update at ``step`` (None = all)."""
         return None
 
+    def strategy_config(self):
+        """The densification this model trains with (a ``StrategyConfig``): the run's
+        ``config.strategy``, or another a model chose in ``from_data`` after seeing its data
+        (SCGaussian with a thin prior trains as its 3DGS baseline)."""
+        return self.config.strategy
+
     def densify_now(self, step: int) -> bool:
         """Whether the densification strategy runs at ``step``."""
         return self.config.strategy.enabled
@@ -290,7 +296,8 @@ class GaussianModel(nn.Module):
         """Loss terms; the trainer minimises their sum.
 
         ``photometric`` always; ``backdrop`` (mean alpha [H, W, 1] over the batch's
-        ``backdrop`` mask, whose target colour becomes black) on scenes with one.
+        ``backdrop`` mask, whose target colour becomes black) on scenes with one;
+        ``depth_smooth`` (losses.depth_smoothness of the rendered depth) when its weight is > 0.
         """
         cfg = self.config.model
         gt = batch["image"]
@@ -299,6 +306,10 @@ class GaussianModel(nn.Module):
         if backdrop is not None and cfg.backdrop_weight > 0:
             gt = gt * (1.0 - backdrop)
             losses["backdrop"] = cfg.backdrop_weight * (outputs.alpha * backdrop).sum() / backdrop.sum().clamp_min(1.0)
+        if cfg.depth_smoothness > 0:
+            depth = outputs.depth if cfg.depth_mode == "expected" else outputs.depth / outputs.alpha.clamp_min(1e-6)
+            losses["depth_smooth"] = cfg.depth_smoothness * depth_smoothness(
+                depth, batch["image"], outputs.alpha, gamma=cfg.depth_smoothness_gamma)
         with section("photometric"):
             return {"photometric": photometric_loss(outputs.rgb, gt, lambda_dssim=cfg.lambda_dssim)} | losses
 
