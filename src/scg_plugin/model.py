@@ -14,6 +14,7 @@ import torch
 from torch import Tensor, nn
 
 from splat_framework.cameras import Camera
+from splat_framework.evaluation import expected_depth
 from splat_framework.model.gaussians import GaussianModel
 from splat_framework.model.ops import remove
 from splat_framework.profiling import section
@@ -164,9 +165,7 @@ class SCGaussianModel(GaussianModel):
         total, count = outputs.depth.sum() * 0.0, 0
         if view is None:
             return total
-        depth = outputs.depth
-        if self.config.model.depth_mode != "expected":
-            depth = depth / outputs.alpha.clamp_min(1e-6)
+        depth = expected_depth(outputs.depth, outputs.alpha, self.config.model.depth_mode)
         sel_view = b.view == view
         for partner in torch.unique(b.partner_view[sel_view]).tolist():
             sel = sel_view & (b.partner_view == partner)

@@ -30,6 +30,7 @@ from torch import Tensor, nn
 from ..cameras import Camera
 from ..config import TrainConfig
 from ..data.scene import SceneData
+from ..evaluation import expected_depth
 from ..losses import depth_smoothness, photometric_loss
 from ..profiling import section
 from ..render import RenderOutput, rasterize, rgb_to_sh
@@ -231,7 +232,7 @@ class GaussianModel(nn.Module):
 
     def densify_now(self, step: int) -> bool:
         """Whether the densification strategy runs at ``step``."""
-        return self.config.strategy.enabled
+        return self.strategy_config().enabled
 
     def on_step_start(self, step: int) -> None:
         interval = max(self.config.model.sh_degree_interval, 1)
@@ -307,7 +308,7 @@ class GaussianModel(nn.Module):
             gt = gt * (1.0 - backdrop)
             losses["backdrop"] = cfg.backdrop_weight * (outputs.alpha * backdrop).sum() / backdrop.sum().clamp_min(1.0)
         if cfg.depth_smoothness > 0:
-            depth = outputs.depth if cfg.depth_mode == "expected" else outputs.depth / outputs.alpha.clamp_min(1e-6)
+            depth = expected_depth(outputs.depth, outputs.alpha, cfg.depth_mode)
             losses["depth_smooth"] = cfg.depth_smoothness * depth_smoothness(
                 depth, batch["image"], outputs.alpha, gamma=cfg.depth_smoothness_gamma)
         with section("photometric"):
