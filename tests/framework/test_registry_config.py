@@ -187,6 +187,7 @@ def test_more_views_than_the_schedule_is_written_for_scale_it():
     assert eight.total_steps == 2000 and eight.strategy.refine_stop_iter == 2000
     assert eight.strategy.reset_every == 400 and eight.model.warmup_steps == 4000
     assert eight.strategy.refine_start_iter == 500  # a start (StartSteps) does not grow with the run
+    assert eight.model.sh_degree_interval == 1000  # nor the SH degree's period (RampPeriod): degree 1 from 1000
     assert eight == resolve_steps(base.model_copy(update={"views": 8, "steps": 2000}))
     assert resolve_steps(eight) == eight  # a resumed run resolves to the same schedule
     assert resolve_steps(base.model_copy(update={"views": 6})).total_steps == 1500
@@ -198,14 +199,16 @@ def test_more_views_than_the_schedule_is_written_for_scale_it():
 
 
 def test_start_steps_shrink_with_a_shorter_run_and_stay_with_a_longer_one():
-    """scale_schedule: a StartSteps field (densification's first iteration) follows a compressed
-    schedule but keeps its value in a stretched one; plain Steps fields follow both."""
+    """scale_schedule: a StartSteps field (densification's first iteration) or a RampPeriod (the SH
+    degree's) follows a compressed schedule but keeps its value in a stretched one; plain Steps fields
+    follow both."""
     from splat_framework.config import scale_schedule
 
     base = TrainConfig()  # 3dgs: refine_start_iter 500, refine_stop_iter 2500
     short, long = scale_schedule(base, 0.5), scale_schedule(base, 3.0)
     assert (short.strategy.refine_start_iter, short.strategy.refine_stop_iter) == (250, 1250)
     assert (long.strategy.refine_start_iter, long.strategy.refine_stop_iter) == (500, 7500)
+    assert (short.model.sh_degree_interval, long.model.sh_degree_interval) == (250, 500)  # RampPeriod
     assert resolve_steps(base.model_copy(update={"steps": 6000})).strategy.refine_start_iter == 500
 
 
