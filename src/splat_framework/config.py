@@ -43,19 +43,19 @@ RUN_OPTION = _Marker(
     "device, progress bar, resume, ...) may differ between a run and its ``--resume``; every other "
     "field is the experiment and must not (see :func:`experiment_fields`).",
 )
-START_MARKER = _Marker(
-    "StartSteps",
-    "This Steps field is when something starts after a warm-up (or a period after which something "
-    "steps up): a shorter run shortens it in proportion, a longer one keeps it (see :func:`scale_schedule`).",
+SHORTEN_ONLY = _Marker(
+    "ShortenOnly",
+    "This Steps field (a start after a warm-up, a period after which something steps up) follows a "
+    "shorter run in proportion and keeps its value in a longer one (see :func:`scale_schedule`).",
 )
 Steps = Annotated[int, STEPS_MARKER, Field(ge=0)]
 """An iteration count (>= 0) that ``--steps`` rescales with the schedule."""
-StartSteps = Annotated[int, STEPS_MARKER, START_MARKER, Field(ge=0)]
+StartSteps = Annotated[int, STEPS_MARKER, SHORTEN_ONLY, Field(ge=0)]
 """The iteration at which something starts once a warm-up is done (>= 0): a schedule compressed
 to fewer iterations compresses it, a longer one keeps it (the warm-up does not need to grow)."""
 Period = Annotated[int, STEPS_MARKER, Field(ge=1)]
 """An interval in iterations (>= 1: it divides the step number) that ``--steps`` rescales."""
-RampPeriod = Annotated[int, STEPS_MARKER, START_MARKER, Field(ge=1)]
+RampPeriod = Annotated[int, STEPS_MARKER, SHORTEN_ONLY, Field(ge=1)]
 """An interval (>= 1) after which something steps up once more (the SH degree): as a start, a
 compressed schedule compresses it and a longer one keeps it."""
 LearningRate = Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)]
@@ -320,7 +320,7 @@ def scale_schedule(config: SplatConfig, factor: float) -> SplatConfig:
         if isinstance(value, SplatConfig):
             updates[name] = scale_schedule(value, factor)
         elif _has_marker(info, STEPS_MARKER) and isinstance(value, int) and value > 0:
-            f = min(factor, 1.0) if _has_marker(info, START_MARKER) else factor
+            f = min(factor, 1.0) if _has_marker(info, SHORTEN_ONLY) else factor
             updates[name] = max(1, int(round(value * f)))
     return config.model_copy(update=updates)
 
