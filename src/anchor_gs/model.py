@@ -191,7 +191,7 @@ class ScaffoldModel(GaussianModel):
     def get_outputs(self, camera: Camera, background: Tensor | None = None) -> RenderOutput:
         visible = self.visible_anchors(camera) & self.lod_mask(camera.center)
         g = self.decode(camera.center, visible)
-        out = rasterize(g["means"], g["quats"], g["scales"], g["opacities"], g["colors"],
+        out = rasterize(g["means"], g["quats"], g["scales"], self.drop_opacities(g["opacities"]), g["colors"],
                         camera.world_to_cam.float(), camera.K.float(), camera.width, camera.height,
                         background=background, near_plane=0.01, depth_mode=self.config.model.depth_mode)
         out.meta.update(anchor_visible=visible, neural_opacity=g["neural_opacity"].detach(), neural_kept=g["kept"],

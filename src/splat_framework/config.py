@@ -229,6 +229,8 @@ class GaussianModelConfig(SplatConfig):
     """Edge sensitivity of depth_smoothness: a neighbour pair's weight is exp(-gamma * mean |colour difference|), colours in [0, 1]."""
     depth_mode: Literal["accumulated", "expected"] = "expected"
     """Depth reported in outputs and renders."""
+    drop_rate: Annotated[float, Field(ge=0, lt=1, allow_inf_nan=False)] = 0.0
+    """DropGaussian (Park et al., CVPR 2025): each training step renders with every Gaussian dropped with this probability times the fraction of the run done (a ramp from 0), the kept ones' opacity divided by (1 - probability); evaluation renders all Gaussians; 0 = off."""
 
 
 class TrainConfig(SplatConfig):

@@ -395,7 +395,7 @@ class Trainer:
         model.on_step_start(step)
         self._set_learning_rates(step)
         camera, batch = self.datamanager.next_train(step)
-        with section("forward"):
+        with section("forward"), model.training_render(step):
             outputs = model.get_outputs(camera, self.background)
         with section("loss"):
             losses = model.get_loss_dict(outputs, batch, camera, step)

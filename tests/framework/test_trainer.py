@@ -334,3 +334,28 @@ def test_backdrop_loss_makes_the_backdrop_empty_and_black(tmp_path):
     assert type(off)().backdrop_weight == 0.0  # the default
     model.config = model.config.model_copy(update={"model": off})
     assert set(model.get_loss_dict(out, batch | {"backdrop": back}, cam, 0)) == {"photometric"}
+
+
+def test_the_training_step_renders_with_drop_gaussian_and_evaluation_without(tmp_path, monkeypatch):
+    """``model.drop_rate``: the trainer's step renders inside ``training_render`` (some Gaussians
+    dropped, the same ones when the run is repeated); a render after the step draws all of them."""
+    drawn = []
+
+    def run(name):
+        trainer = Trainer(tiny_config(tmp_path / name, steps=4, progress=False, model={"init_num_points": 500, "drop_rate": 0.9}))
+        model = trainer.model
+        render = model.get_outputs
+
+        def spy(camera, background=None):
+            ones = torch.ones(model.num_gaussians)
+            drawn.append(model.drop_opacities(ones))
+            return render(camera, background)
+
+        monkeypatch.setattr(model, "get_outputs", spy)
+        assert trainer.train_step(3) is not None
+        model.get_outputs(trainer.datamanager.next_train(0)[0])
+        return drawn[-2:]
+
+    step, after = run("a")
+    assert (step == 0).float().mean() == pytest.approx(0.9 * 3 / 4, abs=0.1) and torch.all(after == 1)
+    assert torch.equal(step, run("b")[0])

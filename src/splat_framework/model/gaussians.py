@@ -21,6 +21,7 @@ with the rows. Methods customise training through the hooks
 from __future__ import annotations
 
 import math
+from contextlib import contextmanager
 from types import MappingProxyType
 from typing import Any, Mapping
 
@@ -141,6 +142,8 @@ class GaussianModel(nn.Module):
     metrics.json's timing; a subclass sets its own dict on the instance."""
     init_stats: Mapping[str, Any] = MappingProxyType({})
     """Numbers about the initialisation (e.g. match counts), written to metrics.json."""
+    _train_step: int | None = None
+    """The training step whose render is being drawn (set by :meth:`training_render`), else None."""
 
     def __init__(self, config: TrainConfig, scene_scale: float, points: Tensor, colors: Tensor):
         super().__init__()
@@ -238,6 +241,30 @@ class GaussianModel(nn.Module):
         interval = max(self.config.model.sh_degree_interval, 1)
         self.active_sh_degree = min(step // interval, self.config.model.sh_degree)
 
+    @contextmanager
+    def training_render(self, step: int):
+        """Renders inside the block are step ``step``'s training render (DropGaussian applies to them)."""
+        self._train_step = step
+        try:
+            yield
+        finally:
+            self._train_step = None
+
+    def drop_opacities(self, opacities: Tensor) -> Tensor:
+        """[N] activated opacities as a training render draws them (DropGaussian, ``model.drop_rate``):
+        each row zeroed with probability p = drop_rate * (fraction of the run done), the others
+        divided by (1 - p); the draw is a pure function of (seed, step), so a resumed run repeats it.
+        Outside :meth:`training_render`, or with p = 0, ``opacities`` unchanged."""
+        step = self._train_step
+        if step is None:
+            return opacities
+        rate = self.config.model.drop_rate * min(max(step, 0) / max(self.config.total_steps, 1), 1.0)
+        if rate <= 0:
+            return opacities
+        g = torch.Generator(device="cpu").manual_seed(self.config.seed * 1_000_003 + step)
+        keep = torch.rand(opacities.shape[0], generator=g) >= rate
+        return opacities * (keep.to(opacities) / (1.0 - rate))
+
     def prepare_for_strategy(self) -> None:
         """Make ``params['means']`` hold every row's true position (subclasses with
         other parameterisations override this)."""
@@ -279,7 +306,7 @@ class GaussianModel(nn.Module):
             self.positions(),
             p["quats"],
             torch.exp(p["scales"]),
-            torch.sigmoid(p["opacities"]),
+            self.drop_opacities(torch.sigmoid(p["opacities"])),
             coeffs,
             camera.world_to_cam.float(),
             camera.K.float(),

@@ -1,0 +1,80 @@
+"""DropGaussian: training renders drop random Gaussians (opacity compensated), evaluation renders all."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from splat_framework.config import apply_overrides
+from splat_framework.data import DataManager, load_scene
+from splat_framework.data.synthetic import generate_scene
+from splat_framework.model.gaussians import GaussianModel
+from splat_framework.registry import get_method
+
+
+@pytest.fixture(scope="module")
+def dm(tmp_path_factory):
+    root = generate_scene("forward", tmp_path_factory.mktemp("drop") / "scene", width=48, height=36, n_views=4, seed=2)
+    return DataManager(load_scene(root, views=3), device="cpu", seed=0)
+
+
+def _config(method: str, rate: float, seed: int = 0):
+    return apply_overrides(get_method(method).default_config(),
+                           {"steps": 100, "seed": seed, "model": {"drop_rate": rate, "init_num_points": 2000}})
+
+
+def _model(dm, rate: float, seed: int = 0) -> GaussianModel:
+    return GaussianModel.from_data(_config("3dgs", rate, seed), dm, torch.Generator().manual_seed(0))
+
+
+def test_drop_rate_ramps_with_the_run_and_is_a_function_of_seed_and_step(dm):
+    model = _model(dm, 0.4)
+    ones = torch.ones(model.num_gaussians)
+
+    def kept(m, step):
+        with m.training_render(step):
+            return m.drop_opacities(ones)
+
+    assert torch.equal(model.drop_opacities(ones), ones)  # not in a training render
+    assert torch.equal(kept(model, 0), ones)  # the ramp starts at 0
+    keep = kept(model, 50)
+    rate = 0.4 * 50 / 100
+    assert keep.unique().tolist() == [0.0, pytest.approx(1 / (1 - rate))]
+    assert (keep == 0).float().mean().item() == pytest.approx(rate, abs=0.03)
+    assert torch.equal(keep, kept(model, 50))  # same seed and step: same draw
+    assert not torch.equal(keep, kept(model, 51))
+    assert not torch.equal(keep, kept(_model(dm, 0.4, seed=1), 50))
+    # past the run's end the rate stays at its maximum
+    assert (kept(model, 500) == 0).float().mean().item() == pytest.approx(0.4, abs=0.03)
+    with pytest.raises(RuntimeError), model.training_render(7):
+        raise RuntimeError("a failed render")
+    assert torch.equal(model.drop_opacities(ones), ones)  # the block always ends
+
+
+def test_dropped_gaussians_get_no_gradient_and_evaluation_renders_all(dm):
+    cam, _ = next(iter(dm.train_views()))
+    model, plain = _model(dm, 0.5), _model(dm, 0.0)
+    with model.training_render(80):
+        keep = model.drop_opacities(torch.ones(model.num_gaussians))
+        out = model.get_outputs(cam)
+    out.rgb.sum().backward()
+    grad = model.params["opacities"].grad
+    assert torch.all(grad[keep == 0] == 0)
+    assert grad[keep > 0].abs().sum() > 0
+    with plain.training_render(80):  # rate 0: a training render is the full model
+        assert not torch.allclose(out.rgb, plain.get_outputs(cam).rgb)
+    with torch.no_grad():
+        assert torch.equal(model.get_outputs(cam).rgb, plain.get_outputs(cam).rgb)
+
+
+def test_anchor_models_drop_their_decoded_gaussians(dm):
+    from anchor_gs.model import ScaffoldModel
+
+    model = ScaffoldModel.from_data(_config("scaffold-gs", 0.6), dm, torch.Generator().manual_seed(0))
+    cam, _ = next(iter(dm.train_views()))
+    with torch.no_grad():
+        full = model.get_outputs(cam)
+        with model.training_render(100):
+            dropped = model.get_outputs(cam)
+        assert not torch.allclose(full.rgb, dropped.rgb)
+        assert torch.equal(full.rgb, model.get_outputs(cam).rgb)
