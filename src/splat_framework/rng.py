@@ -17,6 +17,14 @@ def seed_everything(seed: int) -> torch.Generator:
     return torch.Generator().manual_seed(seed)
 
 
+def keyed_generator(seed: int, *key: int) -> torch.Generator:
+    """A CPU torch.Generator that is a pure function of (seed, key...) (NumPy's SeedSequence mixes
+    them, so distinct keys never collide): draws that must repeat exactly in a resumed run, such as
+    an epoch's view order or a step's dropped Gaussians, take one of these instead of run state."""
+    state = np.random.SeedSequence([seed % 2**64, *(int(k) for k in key)]).generate_state(1, dtype=np.uint64)[0]
+    return torch.Generator().manual_seed(int(state) % 2**63)
+
+
 def rng_state(generator: torch.Generator, device: torch.device) -> dict:
     """Every random state a run draws from, as checkpoint entries (tensors and plain values only)."""
     return {

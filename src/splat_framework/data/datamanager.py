@@ -33,6 +33,7 @@ import torch
 from torch import Tensor
 
 from ..cameras import Camera
+from ..rng import keyed_generator
 from .images import dark_backdrop_mask, load_alpha, load_depth, load_image, load_mask, read_image_size, scaled_size
 from .scene import DataError, SceneData
 
@@ -171,8 +172,7 @@ class DataManager:
     # ------------------------------------------------------------ training
     def epoch_permutation(self, epoch: int) -> list[int]:
         """Order of the training views (positions into ``train_indices``) in ``epoch``."""
-        state = np.random.SeedSequence([self.seed % 2**64, int(epoch)]).generate_state(1, dtype=np.uint64)[0]
-        g = torch.Generator().manual_seed(int(state) % 2**63)
+        g = keyed_generator(self.seed, epoch)
         return torch.randperm(len(self.train_indices), generator=g).tolist()
 
     def next_train(self, step: int) -> tuple[Camera, Batch]:

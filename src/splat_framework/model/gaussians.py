@@ -35,6 +35,7 @@ from ..evaluation import expected_depth
 from ..losses import depth_smoothness, photometric_loss
 from ..profiling import section
 from ..render import RenderOutput, rasterize, rgb_to_sh
+from ..rng import keyed_generator
 
 FALLBACK_POINTS = 10_000
 """Random ordinary Gaussians a model starts from when its prior (matches, triangulated points) is missing or sparse."""
@@ -258,11 +259,10 @@ class GaussianModel(nn.Module):
         step = self._train_step
         if step is None:
             return opacities
-        rate = self.config.model.drop_rate * min(max(step, 0) / max(self.config.total_steps, 1), 1.0)
+        rate = self.config.model.drop_rate * min(step / max(self.config.total_steps, 1), 1.0)
         if rate <= 0:
             return opacities
-        g = torch.Generator(device="cpu").manual_seed(self.config.seed * 1_000_003 + step)
-        keep = torch.rand(opacities.shape[0], generator=g) >= rate
+        keep = torch.rand(opacities.shape[0], generator=keyed_generator(self.config.seed, step)) >= rate
         return opacities * (keep.to(opacities) / (1.0 - rate))
 
     def prepare_for_strategy(self) -> None:
