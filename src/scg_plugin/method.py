@@ -42,9 +42,10 @@ def config_scgaussian() -> SCGTrainConfig:
     Gaussians, so those behind them get gradients and no single layer explains a view
     alone. Seed 0 / 1 against the defaults without it: DTU scan37 15.94 / 15.92 -> 16.08 /
     15.99, fern 20.80 / 20.88 -> 20.89 / 20.90, lego (8 views, seed 0) 23.73 -> 23.94;
-    0.1 gave DTU 15.99, 0.5 DTU 15.98 and fern 20.77. Seeds 0-2 (README): DTU 15.95 ± 0.04
-    -> 16.05 ± 0.05, fern 20.83 ± 0.04 -> 20.89 ± 0.01, lego 23.65 ± 0.08 -> 23.82 ± 0.11,
-    but ST-LPIPS worse on all three (DTU 0.111 -> 0.117, fern 0.226 -> 0.249, lego 0.095 -> 0.103).
+    0.1 gave DTU 15.99, 0.5 DTU 15.98 and fern 20.77 (these probes drew with an earlier
+    seed x K + step mix). Seeds 0-2 (README): DTU 15.95 ± 0.04 -> 16.00 ± 0.04, fern 20.83 ±
+    0.04 -> 20.90 ± 0.02, lego 23.65 ± 0.08 -> 23.76 ± 0.15, but ST-LPIPS worse on all three
+    (DTU 0.111 -> 0.118, fern 0.226 -> 0.252, lego 0.095 -> 0.103).
     """
     return SCGTrainConfig(
         method="scgaussian",
