@@ -73,6 +73,13 @@ class Camera:
             height=int(round(self.height * factor)),
         )
 
+    def shifted_sideways(self, shift: float) -> "Camera":
+        """The camera moved by ``shift`` (world units) along its own x axis (image right): a stereo
+        partner, in which a point at camera depth z appears ``K[0, 0] * shift / z`` pixels further left."""
+        w2c = self.world_to_cam.clone()
+        w2c[0, 3] -= shift
+        return replace(self, world_to_cam=w2c)
+
     # ------------------------------------------------------------- geometry
     def world_to_camera_points(self, points: Tensor) -> Tensor:
         """[..., 3] world points -> [..., 3] camera-space points."""

@@ -55,6 +55,8 @@ StartSteps = Annotated[int, STEPS_MARKER, SHORTEN_ONLY, Field(ge=0)]
 to fewer iterations compresses it, a longer one keeps it (the warm-up does not need to grow)."""
 Period = Annotated[int, STEPS_MARKER, Field(ge=1)]
 """An interval in iterations (>= 1: it divides the step number) that ``--steps`` rescales."""
+OptionalPeriod = Annotated[Annotated[int, Field(ge=1)] | None, STEPS_MARKER]
+"""A :data:`Period`, or None for never."""
 RampPeriod = Annotated[int, STEPS_MARKER, SHORTEN_ONLY, Field(ge=1)]
 """An interval (>= 1) after which something steps up once more (the SH degree): as a start, a
 compressed schedule compresses it and a longer one keeps it."""
@@ -164,8 +166,10 @@ class DensifyConfig(StrategyConfig):
     """First iteration at which densification runs (a longer schedule keeps it: see StartSteps)."""
     refine_stop_iter: Steps = 2500
     """Last iteration at which densification runs."""
-    reset_every: Period = 3000
-    """Reset opacities to 2*prune_opa every this many iterations."""
+    reset_every: OptionalPeriod = 3000
+    """Reset opacities to 2*prune_opa every this many iterations (None: never; the 3D-size pruning, which starts after the first reset, then never runs either)."""
+    opacity_decay: Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)] = 1.0
+    """Multiply every opacity by this after each step from refine_start_iter on (Binocular3DGS, Han et al. NeurIPS 2024: 0.995, with no reset), so only Gaussians the views keep asking for stay opaque (1 = off)."""
     refine_every: int = Field(100, ge=1)
     """Densify every this many iterations (not rescaled by --steps, so short runs do not densify more often)."""
     pause_refine_after_reset: Steps = 0
@@ -229,6 +233,12 @@ class GaussianModelConfig(SplatConfig):
     """Edge sensitivity of depth_smoothness: a neighbour pair's weight is exp(-gamma * mean |colour difference|), colours in [0, 1]."""
     depth_mode: Literal["accumulated", "expected"] = "expected"
     """Depth reported in outputs and renders."""
+    stereo_weight: NonNegative = 0.0
+    """Weight of the binocular consistency (Binocular3DGS, Han et al. NeurIPS 2024; losses.stereo_consistency): the training view is rendered again from a camera shifted sideways, and that render, warped back with the disparity of the view's rendered depth, must match the photo (L1 over covered pixels); one more render per step while it is on; 0 = off (scgaussian with weight 1 on DTU scan37, 3 views, seed 0: 16.19 -> 16.03 masked PSNR, so not on by default)."""
+    stereo_disparity: Positive = 0.05
+    """Largest disparity of the stereo partner at the view's mean rendered depth, as a fraction of the image width (the shift is drawn uniformly up to it, either side), a rule in pixels so that it holds at any scene scale."""
+    stereo_start: Fraction = 2 / 3
+    """Fraction of the run after which the binocular consistency applies (Binocular3DGS: 20000 of 30000 iterations), once the depth is worth warping with."""
     drop_rate: Annotated[float, Field(ge=0, lt=1, allow_inf_nan=False)] = 0.0
     """DropGaussian (Park et al., CVPR 2025): each training step renders with every Gaussian dropped with this probability times the fraction of the run done (a ramp from 0), the kept ones' opacity divided by (1 - probability); evaluation renders all Gaussians; 0 = off."""
 

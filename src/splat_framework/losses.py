@@ -132,3 +132,35 @@ def depth_smoothness(depth: Tensor, image: Tensor, alpha: Tensor, gamma: float =
         total = total + (torch.diff(d, dim=dim).abs() * edge * m).sum()
         count = count + m.sum()
     return total / count.clamp_min(1.0)
+
+
+def stereo_consistency(shifted_rgb: Tensor, depth: Tensor, alpha: Tensor, image: Tensor, disparity_scale: Tensor,
+                       min_alpha: float = 0.5) -> Tensor:
+    """Binocular consistency (Han et al., "Binocular-Guided 3D Gaussian Splatting", NeurIPS 2024):
+    the render of a camera shifted sideways, warped back to the view with the disparity of the
+    view's rendered depth, must match the photo.
+
+    A pixel at column u (centres at +0.5) and depth z is seen at ``u - disparity_scale / z`` in the
+    shifted render (``disparity_scale`` = focal length x shift, see :meth:`Camera.shifted_sideways`);
+    the mean absolute colour difference over pixels whose ``alpha`` exceeds ``min_alpha`` and whose
+    partner lies inside the shifted image. Gradients reach both the shifted render and the depth.
+
+    Args:
+        shifted_rgb: [H, W, 3] render of the shifted camera.
+        depth: [H, W, 1] the view's rendered (expected) depth.
+        alpha: [H, W, 1] the view's rendered opacity.
+        image: [H, W, 3] the view's photo.
+        disparity_scale: scalar tensor, focal length (pixels) x shift (world units).
+    Returns:
+        A scalar; 0 (with a graph) when no pixel is valid.
+    """
+    h, w = depth.shape[:2]
+    u = torch.arange(w, device=depth.device, dtype=depth.dtype) + 0.5
+    v = torch.arange(h, device=depth.device, dtype=depth.dtype) + 0.5
+    u_src = u[None, :] - disparity_scale / depth[..., 0].clamp_min(1e-6)  # [H, W]
+    grid = torch.stack([2.0 * u_src / w - 1.0, (2.0 * v / h - 1.0)[:, None].expand(h, w)], dim=-1)
+    warped = F.grid_sample(_to_bchw(shifted_rgb), grid[None], mode="bilinear", padding_mode="border",
+                           align_corners=False)[0].permute(1, 2, 0)
+    valid = ((alpha[..., 0] > min_alpha) & (u_src >= 0.5) & (u_src <= w - 0.5)).to(depth.dtype)
+    err = (warped - image).abs().mean(-1)
+    return (err * valid).sum() / valid.sum().clamp_min(1.0)

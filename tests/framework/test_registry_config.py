@@ -164,10 +164,13 @@ def test_steps_rescale_the_whole_schedule():
 
     c = resolve_steps(config_scgaussian().model_copy(update={"steps": 300}))
     assert c.total_steps == 300
-    # scgaussian's own schedule is 1000 iterations: 500..1000 densification, reset every 200,
+    # scgaussian's own schedule is 1000 iterations: 500..1000 densification, no opacity reset,
     # 2000 warm-up iterations, SH degree raised every 1000, checkpoint every 1000.
     assert c.strategy.refine_start_iter == 150 and c.strategy.refine_stop_iter == 300
-    assert c.strategy.reset_every == 60 and c.strategy.refine_every == 100  # refine_every is not rescaled
+    assert c.strategy.reset_every is None and c.strategy.refine_every == 100  # refine_every is not rescaled
+    with_reset = resolve_steps(config_scgaussian().model_copy(
+        update={"steps": 300, "strategy": config_scgaussian().strategy.model_copy(update={"reset_every": 200})}))
+    assert with_reset.strategy.reset_every == 60  # an optional period rescales like any other
     assert c.model.warmup_steps == 600 and c.model.sh_degree_interval == 300
     assert c.checkpoint_every == 300
     same = resolve_steps(TrainConfig())
@@ -185,7 +188,7 @@ def test_more_views_than_the_schedule_is_written_for_scale_it():
         assert resolve_steps(same) == same and same.total_steps == 1000
     eight = resolve_steps(base.model_copy(update={"views": 8}))
     assert eight.total_steps == 2000 and eight.strategy.refine_stop_iter == 2000
-    assert eight.strategy.reset_every == 400 and eight.model.warmup_steps == 4000
+    assert eight.strategy.reset_every is None and eight.model.warmup_steps == 4000
     assert eight.strategy.refine_start_iter == 500  # a start (StartSteps) does not grow with the run
     assert eight.model.sh_degree_interval == 1000  # nor the SH degree's period (RampPeriod): degree 1 from 1000
     assert eight == resolve_steps(base.model_copy(update={"views": 8, "steps": 2000}))

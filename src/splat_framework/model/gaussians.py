@@ -32,7 +32,7 @@ from ..cameras import Camera
 from ..config import TrainConfig
 from ..data.scene import SceneData
 from ..evaluation import expected_depth
-from ..losses import depth_smoothness, photometric_loss
+from ..losses import depth_smoothness, photometric_loss, stereo_consistency
 from ..profiling import section
 from ..render import RenderOutput, rasterize, rgb_to_sh
 from ..rng import keyed_generator
@@ -338,8 +338,27 @@ class GaussianModel(nn.Module):
             depth = expected_depth(outputs.depth, outputs.alpha, cfg.depth_mode)
             losses["depth_smooth"] = cfg.depth_smoothness * depth_smoothness(
                 depth, batch["image"], outputs.alpha, gamma=cfg.depth_smoothness_gamma)
+        if cfg.stereo_weight > 0 and step >= cfg.stereo_start * self.config.total_steps:
+            with section("stereo"):
+                losses["stereo"] = cfg.stereo_weight * self._stereo_loss(outputs, batch["image"], camera, step)
         with section("photometric"):
             return {"photometric": photometric_loss(outputs.rgb, gt, lambda_dssim=cfg.lambda_dssim)} | losses
+
+    def _stereo_loss(self, outputs: RenderOutput, image: Tensor, camera: Camera, step: int) -> Tensor:
+        """losses.stereo_consistency against a partner shifted by a keyed draw of (seed, step), up to
+        ``stereo_disparity`` x width pixels of disparity at the view's mean covered depth."""
+        cfg = self.config.model
+        depth = expected_depth(outputs.depth, outputs.alpha, cfg.depth_mode)
+        cover = outputs.alpha[..., 0] > 0.5
+        if not bool(cover.any()):
+            return depth.sum() * 0.0
+        mean_z = float(depth.detach()[..., 0][cover].mean())
+        fx = float(camera.K[0, 0])
+        draw = float(torch.rand((), generator=keyed_generator(self.config.seed, step, 1))) * 2.0 - 1.0
+        shift = draw * cfg.stereo_disparity * camera.width * mean_z / fx
+        with self.training_render(step):
+            shifted = self.get_outputs(camera.shifted_sideways(shift), outputs.meta.get("background"))
+        return stereo_consistency(shifted.rgb, depth, outputs.alpha, image, depth.new_tensor(fx * shift))
 
     @classmethod
     def from_checkpoint(cls, config: TrainConfig, scene_scale: float, checkpoint: dict) -> "GaussianModel":

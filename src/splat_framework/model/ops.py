@@ -11,6 +11,7 @@ per-row operations are:
 - ``append``: add new rows with given values (a strategy that grows something other
   than copies of existing rows, e.g. Scaffold-GS's anchors on a voxel grid).
 - ``reset_opa``: clamp opacities to at most ``value`` and zero their moments.
+- ``decay_opa``: multiply every opacity by a factor, moments kept (no surgery).
 
 Conventions:
 
@@ -216,3 +217,10 @@ def reset_opa(params: Params, optimizers: Optimizers, state: MutableMapping, val
     _update_param_with_optimizer(
         param_fn, lambda _, v: torch.zeros_like(v), params, optimizers, names=["opacities"]
     )
+
+
+@torch.no_grad()
+def decay_opa(params: Params, factor: float) -> None:
+    """Multiply ``sigmoid(opacities)`` by ``factor`` in (0, 1] in place; the Adam moments are kept."""
+    opa = params["opacities"]
+    opa.copy_(torch.logit(torch.sigmoid(opa) * factor))

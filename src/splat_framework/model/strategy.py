@@ -33,7 +33,7 @@ import torch
 from torch import Tensor
 
 from splat_framework.config import DensifyConfig
-from splat_framework.model.ops import duplicate, remove, reset_opa, split
+from splat_framework.model.ops import decay_opa, duplicate, remove, reset_opa, split
 
 __all__ = ["DefaultStrategy", "DensifyConfig", "Strategy", "check_rows"]
 
@@ -185,20 +185,19 @@ class DefaultStrategy(Strategy):
         """
         cfg = self.config
         counts = {"n_clone": 0, "n_split": 0, "n_prune": 0}
+        if cfg.opacity_decay < 1.0 and step > cfg.refine_start_iter:
+            decay_opa(params, cfg.opacity_decay)
         if step >= cfg.refine_stop_iter:
             return counts
         self._update_state(params, state, info)
-        if (
-            step > cfg.refine_start_iter
-            and step % cfg.refine_every == 0
-            and step % cfg.reset_every >= cfg.pause_refine_after_reset
-        ):
+        since_reset = step if cfg.reset_every is None else step % cfg.reset_every
+        if step > cfg.refine_start_iter and step % cfg.refine_every == 0 and since_reset >= cfg.pause_refine_after_reset:
             counts["n_clone"], counts["n_split"] = self._grow(params, optimizers, state, step)
             counts["n_prune"] = self._prune(params, optimizers, state, step)
             state["grad2d"].zero_()
             state["count"].zero_()
             state["radii"].zero_()
-        if step % cfg.reset_every == 0 and step > 0:
+        if cfg.reset_every is not None and step % cfg.reset_every == 0 and step > 0:
             reset_opa(params, optimizers, state, value=cfg.prune_opa * 2.0)
         return counts
 
@@ -265,7 +264,7 @@ class DefaultStrategy(Strategy):
     def _prune(self, params, optimizers, state, step: int) -> int:
         cfg = self.config
         is_prune = torch.sigmoid(params["opacities"].flatten()) < cfg.prune_opa
-        if step > cfg.reset_every:
+        if cfg.reset_every is not None and step > cfg.reset_every:
             max_scale = torch.exp(params["scales"]).max(dim=-1).values
             is_prune |= max_scale > cfg.prune_scale3d * state["scene_scale"]
             if step < cfg.refine_scale2d_stop_iter:

@@ -162,6 +162,7 @@ def rasterize(
                 "depths": [N] camera-space z of every mean (also culled ones).
                 "conics": [N, 3] inverse 2D covariance (a, b, c).
                 "width", "height": ints.
+                "background": [3] the colour blended in.
     """
     with thread_policy(means.device):
         return _rasterize(
@@ -260,5 +261,6 @@ def _rasterize(
         "conics": conics,
         "width": width,
         "height": height,
+        "background": background,
     }
     return RenderOutput(rgb=rgb, depth=depth, alpha=alpha, meta=meta)

@@ -175,6 +175,17 @@ def test_reset_opa_clamps_and_zeros_moments():
     assert row_ids(params, opts, "means").tolist() == [1, 2, 3]  # others untouched
 
 
+def test_decay_opa_scales_opacity_and_keeps_moments():
+    params, opts = make_params(3)
+    with torch.no_grad():
+        params["opacities"].copy_(torch.logit(torch.tensor([0.9, 0.5, 0.01])))
+    prime_adam(params, opts)
+    ops.decay_opa(params, 0.5)
+    torch.testing.assert_close(torch.sigmoid(params["opacities"].detach()), torch.tensor([0.45, 0.25, 0.005]))
+    assert row_ids(params, opts, "opacities").tolist() == [1, 2, 3]  # moments untouched, no surgery
+    assert opts["opacities"].param_groups[0]["params"][0] is params["opacities"]
+
+
 def test_surgery_before_first_adam_step():
     params, opts = make_params(3)
     ops.duplicate(params, opts, {}, torch.tensor([True, False, False]))
@@ -306,6 +317,26 @@ def test_opacity_reset_schedule_and_stop():
         "n_clone": 0, "n_split": 0, "n_prune": 0,
     }
     assert state["grad2d"] is None and torch.sigmoid(params["opacities"]).min() > 0.4
+
+
+def test_opacity_decay_from_refine_start_to_the_end_without_reset():
+    strat = DefaultStrategy(cfg(refine_start_iter=10, refine_stop_iter=20, refine_every=1000, reset_every=None,
+                                opacity_decay=0.9))
+    params, opts = make_params(3)
+    state = strat.initialize_state()
+    for step in range(1, 31):
+        strat.step_post_backward(params, opts, state, step, fake_info(3, {}))
+    # steps 11..30 decay (also after refine_stop_iter); reset_every=None never clamps to 2 * prune_opa
+    torch.testing.assert_close(torch.sigmoid(params["opacities"].detach()), torch.full((3,), 0.5 * 0.9**20))
+    params, opts = make_params(3)
+    for step in range(1, 31):
+        DefaultStrategy(cfg(refine_every=1000, reset_every=None)).step_post_backward(
+            params, opts, strat.initialize_state(), step, fake_info(3, {}))
+    torch.testing.assert_close(torch.sigmoid(params["opacities"].detach()), torch.full((3,), 0.5))
+    with pytest.raises(ValidationError):
+        cfg(opacity_decay=0.0)
+    with pytest.raises(ValidationError):
+        cfg(opacity_decay=1.5)
 
 
 def test_pause_refine_after_reset():
