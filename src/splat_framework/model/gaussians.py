@@ -334,21 +334,20 @@ class GaussianModel(nn.Module):
         if backdrop is not None and cfg.backdrop_weight > 0:
             gt = gt * (1.0 - backdrop)
             losses["backdrop"] = cfg.backdrop_weight * (outputs.alpha * backdrop).sum() / backdrop.sum().clamp_min(1.0)
+        depth = expected_depth(outputs.depth, outputs.alpha, cfg.depth_mode)
         if cfg.depth_smoothness > 0:
-            depth = expected_depth(outputs.depth, outputs.alpha, cfg.depth_mode)
             losses["depth_smooth"] = cfg.depth_smoothness * depth_smoothness(
                 depth, batch["image"], outputs.alpha, gamma=cfg.depth_smoothness_gamma)
         if cfg.stereo_weight > 0 and step >= cfg.stereo_start * self.config.total_steps:
             with section("stereo"):
-                losses["stereo"] = cfg.stereo_weight * self._stereo_loss(outputs, batch["image"], camera, step)
+                losses["stereo"] = cfg.stereo_weight * self._stereo_loss(outputs, depth, batch["image"], camera, step)
         with section("photometric"):
             return {"photometric": photometric_loss(outputs.rgb, gt, lambda_dssim=cfg.lambda_dssim)} | losses
 
-    def _stereo_loss(self, outputs: RenderOutput, image: Tensor, camera: Camera, step: int) -> Tensor:
+    def _stereo_loss(self, outputs: RenderOutput, depth: Tensor, image: Tensor, camera: Camera, step: int) -> Tensor:
         """losses.stereo_consistency against a partner shifted by a keyed draw of (seed, step), up to
-        ``stereo_disparity`` x width pixels of disparity at the view's mean covered depth."""
+        ``stereo_disparity`` x width pixels of disparity at the view's mean covered ``depth`` [H, W, 1]."""
         cfg = self.config.model
-        depth = expected_depth(outputs.depth, outputs.alpha, cfg.depth_mode)
         cover = outputs.alpha[..., 0] > 0.5
         if not bool(cover.any()):
             return depth.sum() * 0.0

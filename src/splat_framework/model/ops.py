@@ -30,6 +30,7 @@ Conventions:
 
 from __future__ import annotations
 
+import math
 from typing import Callable, Mapping, MutableMapping
 
 import torch
@@ -221,6 +222,9 @@ def reset_opa(params: Params, optimizers: Optimizers, state: MutableMapping, val
 
 @torch.no_grad()
 def decay_opa(params: Params, factor: float) -> None:
-    """Multiply ``sigmoid(opacities)`` by ``factor`` in (0, 1] in place; the Adam moments are kept."""
+    """Multiply ``sigmoid(opacities)`` by ``factor`` in (0, 1] in place; the Adam moments are kept.
+
+    In log space, ``logit(s f) = log s + log f - log(1 - s f)``, so a logit far below zero stays
+    finite (``torch.logit(torch.sigmoid(x) * f)`` underflows to -inf below x of about -88)."""
     opa = params["opacities"]
-    opa.copy_(torch.logit(torch.sigmoid(opa) * factor))
+    opa.copy_(torch.nn.functional.logsigmoid(opa) + math.log(factor) - torch.log1p(-torch.sigmoid(opa) * factor))

@@ -184,6 +184,10 @@ def test_decay_opa_scales_opacity_and_keeps_moments():
     torch.testing.assert_close(torch.sigmoid(params["opacities"].detach()), torch.tensor([0.45, 0.25, 0.005]))
     assert row_ids(params, opts, "opacities").tolist() == [1, 2, 3]  # moments untouched, no surgery
     assert opts["opacities"].param_groups[0]["params"][0] is params["opacities"]
+    with torch.no_grad():
+        params["opacities"].fill_(-120.0)  # sigmoid underflows in float32: the decay must stay finite
+    ops.decay_opa(params, 0.5)
+    torch.testing.assert_close(params["opacities"].detach(), torch.full((3,), -120.0 + math.log(0.5)))
 
 
 def test_surgery_before_first_adam_step():
