@@ -250,11 +250,15 @@ def main(argv: list[str] | None = None) -> Path:
 
 
 def sweep(args: argparse.Namespace, grid, out: Path):
-    """Train the missing runs of ``grid`` into ``out`` with the options' backend (nothing with --no-train)."""
-    from splat_framework.sweep import run_sweep
+    """Train the missing runs of ``grid`` into ``out`` with the options' backend (nothing with
+    --no-train, whose comparison figures are redrawn from the runs finished so far, as its tables are)."""
+    from splat_framework.sweep import run_sweep, write_figures
 
-    return run_sweep(grid, out, backend=args.backend, workers=args.workers, threads=args.threads,
-                     address=args.address, live=False if args.no_live else None, dry_run=args.no_train)
+    result = run_sweep(grid, out, backend=args.backend, workers=args.workers, threads=args.threads,
+                       address=args.address, live=False if args.no_live else None, dry_run=args.no_train)
+    if args.no_train:
+        write_figures(out, result.records)
+    return result
 
 
 def splice_sections(readme: Path, sections: dict[str, str]) -> None:

@@ -239,6 +239,10 @@ class GaussianModelConfig(SplatConfig):
     """Largest disparity of the stereo partner at the view's mean rendered depth, as a fraction of the image width (the shift is drawn uniformly up to it, either side), a rule in pixels so that it holds at any scene scale."""
     stereo_start: Fraction = 2 / 3
     """Fraction of the run after which the binocular consistency applies (Binocular3DGS: 20000 of 30000 iterations), once the depth is worth warping with."""
+    anisotropy_weight: NonNegative = 0.0
+    """Weight of the anisotropy regulariser (PhysGaussian; losses.scale_anisotropy: the mean excess of each Gaussian's largest-to-smallest scale ratio over max_anisotropy); 0 = off (scgaussian on DTU scan37, 3 views, seed 0, weight 1 at ratio 10: 16.19 -> 15.88 masked PSNR, so not on by default)."""
+    max_anisotropy: Annotated[float, Field(ge=1, allow_inf_nan=False)] = 10.0
+    """The scale ratio above which anisotropy_weight penalises a Gaussian."""
     drop_rate: Annotated[float, Field(ge=0, lt=1, allow_inf_nan=False)] = 0.0
     """DropGaussian (Park et al., CVPR 2025): each training step renders with every Gaussian dropped with this probability times the fraction of the run done (a ramp from 0), the kept ones' opacity divided by (1 - probability); evaluation renders all Gaussians; 0 = off."""
 

@@ -134,6 +134,23 @@ def depth_smoothness(depth: Tensor, image: Tensor, alpha: Tensor, gamma: float =
     return total / count.clamp_min(1.0)
 
 
+def scale_anisotropy(log_scales: Tensor, max_ratio: float) -> Tensor:
+    """Anisotropy regulariser (PhysGaussian, Xie et al., CVPR 2024): mean over Gaussians of
+    ``max(largest scale / smallest scale - max_ratio, 0)``, so that no Gaussian grows into a
+    needle that is thin in the training views and a streak in a novel one.
+
+    Args:
+        log_scales: [N, 3] log-scales.
+        max_ratio: the ratio above which a Gaussian is penalised (>= 1).
+    Returns:
+        A scalar; 0 (with a graph) for no Gaussians.
+    """
+    if log_scales.shape[0] == 0:
+        return log_scales.sum() * 0.0
+    spread = log_scales.amax(dim=-1) - log_scales.amin(dim=-1)
+    return F.relu(torch.exp(spread.clamp_max(30.0)) - max_ratio).mean()
+
+
 def stereo_consistency(shifted_rgb: Tensor, depth: Tensor, alpha: Tensor, image: Tensor, disparity_scale: Tensor,
                        min_alpha: float = 0.5) -> Tensor:
     """Binocular consistency (Han et al., "Binocular-Guided 3D Gaussian Splatting", NeurIPS 2024):

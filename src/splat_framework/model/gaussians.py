@@ -32,7 +32,7 @@ from ..cameras import Camera
 from ..config import TrainConfig
 from ..data.scene import SceneData
 from ..evaluation import expected_depth
-from ..losses import depth_smoothness, photometric_loss, stereo_consistency
+from ..losses import depth_smoothness, photometric_loss, scale_anisotropy, stereo_consistency
 from ..profiling import section
 from ..render import RenderOutput, rasterize, rgb_to_sh
 from ..rng import keyed_generator
@@ -338,6 +338,8 @@ class GaussianModel(nn.Module):
         if cfg.depth_smoothness > 0:
             losses["depth_smooth"] = cfg.depth_smoothness * depth_smoothness(
                 depth, batch["image"], outputs.alpha, gamma=cfg.depth_smoothness_gamma)
+        if cfg.anisotropy_weight > 0:
+            losses["anisotropy"] = cfg.anisotropy_weight * scale_anisotropy(self.params["scales"], cfg.max_anisotropy)
         if cfg.stereo_weight > 0 and step >= cfg.stereo_start * self.config.total_steps:
             with section("stereo"):
                 losses["stereo"] = cfg.stereo_weight * self._stereo_loss(outputs, depth, batch["image"], camera, step)

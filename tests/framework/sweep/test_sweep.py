@@ -6,6 +6,7 @@ import csv
 import importlib.util
 import io
 import json
+import shutil
 import statistics
 import sys
 from pathlib import Path
@@ -264,12 +265,16 @@ def test_ablation_script_two_methods_writes_table_figure_and_readme(tmp_path):
     new = readme.read_text()
     assert "old table" not in new and new.startswith("# R\n") and new.endswith("<!-- /ablation:synthetic-forward-tiny-v3 -->\ntail\n")
     assert "| 3DGS (reference random init) | `3dgs` |" in new and "](results/abl-synthetic-forward-tiny-v3.jpg)" in new
-    # --no-train: a table of what has finished, saying how many seeds each row holds; nothing trains
+    # --no-train: a table of what has finished, saying how many seeds each row holds; nothing trains;
+    # the comparison figure is redrawn from the finished runs, as the table is
+    shutil.rmtree(out / "figures")
     md2 = ablation.main(["--data", "synthetic/forward-tiny", "--views", "3", "--steps", "10", "--seeds", "0", "1",
                          "--methods", "3dgs", "--out", str(out), "--md", str(tmp_path / "abl2.md"),
                          "--override", "model.init_num_points=300", "--no-live", "--no-train"])
     assert "| 3DGS (reference random init) (1 of 2 seeds run) | `3dgs` |" in md2.read_text()
     assert not (out / "runs/synthetic-forward-tiny/3dgs/v3-s1/config.json").exists()
+    assert (out / "figures" / "synthetic-forward-tiny-v3.png").is_file()
+    assert "](abl2-synthetic-forward-tiny-v3.jpg)" in md2.read_text()
 
 
 @pytest.mark.skipif(importlib.util.find_spec("pycolmap") is None, reason="--poses estimated needs pycolmap")
