@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+
 import time
 import warnings
 
@@ -505,6 +507,28 @@ def test_learned_matcher_verified_matches_on_two_views(name, plane_scene):
     err = np.linalg.norm(_apply_h(H_ab, pa.astype(np.float64)) - pb, axis=1)
     assert np.median(err) < 1.0 and np.percentile(err, 90) < 2.5, (np.median(err), np.percentile(err, 90))
     assert ms.meta["config"]["matcher"] == name
+
+
+@needs_packaged
+def test_matching_leaves_torch_random_state_alone(plane_scene, monkeypatch):
+    """Building a learned matcher draws random initial weights; matching must not move the run's
+    random state, or a run whose matches were computed trains differently from one that read them
+    from the cache. The unguarded pipeline does move it (so this test can fail)."""
+    from splat_framework.matching import pipeline
+
+    img_a, img_b, cam_a, cam_b, _ = plane_scene
+    cfg = MatchConfig(matcher="aliked-lightglue", max_keypoints=256, learned_resize=320, cache=False)
+    torch.manual_seed(123)
+    expected = torch.rand(4)
+
+    def draw_after_matching() -> torch.Tensor:
+        torch.manual_seed(123)
+        compute_matches([img_a, img_b], [cam_a, cam_b], [0, 1], cfg)
+        return torch.rand(4)
+
+    assert torch.equal(draw_after_matching(), expected)
+    monkeypatch.setattr(pipeline, "rng_untouched", contextlib.nullcontext)
+    assert not torch.equal(draw_after_matching(), expected)
 
 
 def _tiny_pair() -> tuple[np.ndarray, np.ndarray]:
