@@ -14,7 +14,6 @@ import torch
 from torch import Tensor, nn
 
 from splat_framework.cameras import Camera
-from splat_framework.evaluation import expected_depth
 from splat_framework.model.gaussians import GaussianModel
 from splat_framework.model.ops import remove
 from splat_framework.profiling import section
@@ -165,7 +164,7 @@ class SCGaussianModel(GaussianModel):
         total, count = outputs.depth.sum() * 0.0, 0
         if view is None:
             return total
-        depth = expected_depth(outputs.depth, outputs.alpha, self.config.model.depth_mode)
+        depth = self.rendered_depth(outputs)
         sel_view = b.view == view
         for partner in torch.unique(b.partner_view[sel_view]).tolist():
             sel = sel_view & (b.partner_view == partner)

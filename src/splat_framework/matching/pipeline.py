@@ -6,7 +6,6 @@ import hashlib
 import json
 import time
 import warnings
-from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -80,20 +79,6 @@ def _verified(matcher: Matcher, img_a: np.ndarray, img_b: np.ndarray, F_known: n
     return pa, pb, counts, warn
 
 
-@contextmanager
-def rng_untouched():
-    """A block that leaves torch's random state as it found it (CPU and every CUDA device).
-
-    Matching runs in one: building a learned matcher initialises its modules at random before
-    loading the weights, so without it a run whose matches were computed trained differently
-    from the same run reading them from the cache (lego, 3 views, seed 0: 16.79 against 16.60)."""
-    import torch
-
-    devices = list(range(torch.cuda.device_count())) if torch.cuda.is_available() else []
-    with torch.random.fork_rng(devices=devices):
-        yield
-
-
 def compute_matches(
     images: list[np.ndarray],
     cameras: list["Camera"] | None,
@@ -152,7 +137,9 @@ def compute_matches(
             except Exception as e:  # corrupt / foreign file: recompute
                 warnings.warn(f"ignoring unreadable match cache {cache_path}: {type(e).__name__}: {e}", stacklevel=2)
 
-    with rng_untouched():
+    from ..rng import rng_untouched  # torch, imported only when matching runs
+
+    with rng_untouched():  # a learned matcher's random init must not move the run's random state
         ms = _match_all_pairs(ids, imgs, cams, fg, config, key)
     if cache_path is not None:
         ms.save(cache_path)

@@ -325,7 +325,9 @@ class GaussianModel(nn.Module):
 
         ``photometric`` always; ``backdrop`` (mean alpha [H, W, 1] over the batch's
         ``backdrop`` mask, whose target colour becomes black) on scenes with one;
-        ``depth_smooth`` (losses.depth_smoothness of the rendered depth) when its weight is > 0.
+        ``depth_smooth`` (losses.depth_smoothness of the rendered depth), ``anisotropy``
+        (losses.scale_anisotropy) and ``stereo`` (losses.stereo_consistency, from its start) when
+        their weights are > 0.
         """
         cfg = self.config.model
         gt = batch["image"]
@@ -334,17 +336,25 @@ class GaussianModel(nn.Module):
         if backdrop is not None and cfg.backdrop_weight > 0:
             gt = gt * (1.0 - backdrop)
             losses["backdrop"] = cfg.backdrop_weight * (outputs.alpha * backdrop).sum() / backdrop.sum().clamp_min(1.0)
-        depth = expected_depth(outputs.depth, outputs.alpha, cfg.depth_mode)
         if cfg.depth_smoothness > 0:
             losses["depth_smooth"] = cfg.depth_smoothness * depth_smoothness(
-                depth, batch["image"], outputs.alpha, gamma=cfg.depth_smoothness_gamma)
+                self.rendered_depth(outputs), batch["image"], outputs.alpha, gamma=cfg.depth_smoothness_gamma)
         if cfg.anisotropy_weight > 0:
             losses["anisotropy"] = cfg.anisotropy_weight * scale_anisotropy(self.params["scales"], cfg.max_anisotropy)
         if cfg.stereo_weight > 0 and step >= cfg.stereo_start * self.config.total_steps:
             with section("stereo"):
-                losses["stereo"] = cfg.stereo_weight * self._stereo_loss(outputs, depth, batch["image"], camera, step)
+                losses["stereo"] = cfg.stereo_weight * self._stereo_loss(
+                    outputs, self.rendered_depth(outputs), batch["image"], camera, step)
         with section("photometric"):
             return {"photometric": photometric_loss(outputs.rgb, gt, lambda_dssim=cfg.lambda_dssim)} | losses
+
+    def rendered_depth(self, outputs: RenderOutput) -> Tensor:
+        """[H, W, 1] the expected depth of ``outputs`` in the model's ``depth_mode``, computed once per
+        render (kept in ``outputs.meta["expected_depth"]``) for every loss term that needs it."""
+        depth = outputs.meta.get("expected_depth")
+        if depth is None:
+            depth = outputs.meta["expected_depth"] = expected_depth(outputs.depth, outputs.alpha, self.config.model.depth_mode)
+        return depth
 
     def _stereo_loss(self, outputs: RenderOutput, depth: Tensor, image: Tensor, camera: Camera, step: int) -> Tensor:
         """losses.stereo_consistency against a partner shifted by a keyed draw of (seed, step), up to
