@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import statistics
 import sys
 from datetime import date
 from pathlib import Path
@@ -129,12 +130,23 @@ def splice_block(text: str, key: str, block: str, source: str = "README", prefix
     return text[: i + len(start)] + "\n" + block.strip("\n") + "\n" + text[j:]
 
 
-def footer(command: str, threads: int | None = None) -> list[str]:
-    """The Markdown lines under a benchmark table: machine, torch threads, load average, date, command."""
-    try:
-        load = f", load average {os.getloadavg()[0]:.2f}"
-    except OSError:
-        load = ""
+def footer(command: str, threads: int | None = None, run_loads: list[float | None] | None = None) -> list[str]:
+    """The Markdown lines under a benchmark table: machine, torch threads, load average, date, command.
+
+    ``run_loads``: the load average each row's runs started under (``load_average_mean`` of a sweep
+    row; None where its runs predate that record); given, the line states those instead of the load
+    while the table is written, which for a table regenerated from finished runs says nothing."""
+    if run_loads is not None:
+        known = [v for v in run_loads if v is not None]
+        load = ", load average when the runs started "
+        load += f"{statistics.fmean(known):.2f} ({min(known):.2f}-{max(known):.2f} by row)" if known else "not recorded"
+        if known and len(known) < len(run_loads):
+            load += f", not recorded for {len(run_loads) - len(known)} of {len(run_loads)} rows"
+    else:
+        try:
+            load = f", load average {os.getloadavg()[0]:.2f}"
+        except OSError:
+            load = ""
     torch_threads = f", {threads} torch threads" if threads else ""
     return [
         "",
@@ -175,10 +187,10 @@ def ablation_markdown(
         sections.setdefault((r["data"], r["views"]), []).append(r)
     steps = f"{args.steps} iterations" if args.steps else "each method's default iterations"
     seeds = ", ".join(str(s) for s in args.seeds)
-    tail = footer(command)[1:]
     out: dict[str, str] = {}
     for (data, views), rs in sections.items():
         rs = sorted(rs, key=lambda r: order.get(r["method"], len(order)))
+        tail = footer(command, run_loads=[r.get("load_average_mean") for r in rs])[1:]
         lines = [
             f"### {title} on `{data}`, {views} training views",
             "",
@@ -310,7 +322,6 @@ def estimated_poses_tables(args: argparse.Namespace, grid, out: Path, command: s
 def estimated_poses_markdown(data: str, views, rows: dict[str, list[dict]], info: dict,
                              args: argparse.Namespace, command: str) -> str:
     """The dataset-vs-estimated-poses table of one (scene, views) group, with the pose errors."""
-    import statistics
 
     from splat_framework.sweep import fmt_value
 
@@ -350,7 +361,7 @@ def estimated_poses_markdown(data: str, views, rows: dict[str, list[dict]], info
                         ("num_gaussians", ",.0f"))]
                 label = "dataset (COLMAP, all views)" if poses == "dataset" else f"from the {views} training photos"
                 lines.append(f"| `{method}` | {label} | " + " | ".join(cells) + " |")
-    return "\n".join(lines + footer(command))
+    return "\n".join(lines + footer(command, run_loads=[r.get("load_average_mean") for rs in rows.values() for r in rs]))
 
 
 def grid_methods(rows: dict[str, list[dict]]) -> list[str]:

@@ -14,8 +14,10 @@ METRICS = ("psnr", "ssim", "lpips", "avg", "st_lpips", "psnr_before_pose_fit")
 """Test metrics reported per run (``metrics.json`` ``mean``; the last only with ``test_pose_steps``)."""
 PHASES = ("matching_s", "warmup_s", "train_s", "eval_s", "total_s")
 """Wall-time phases reported per run (``metrics.json`` ``timing``)."""
-NUMERIC_FIELDS = METRICS + PHASES + ("peak_rss_mb", "peak_gpu_mb", "num_gaussians", "render_fps")
-"""Every per-run number the table aggregates over seeds."""
+NUMERIC_FIELDS = METRICS + PHASES + ("peak_rss_mb", "peak_gpu_mb", "num_gaussians", "render_fps", "load_average")
+"""Every per-run number the table aggregates over seeds (``load_average``: the machine's 1-minute
+load average when the run started, from its ``sweep.json``, so that a table regenerated later still
+states the load its times were measured under)."""
 BACKENDS = ("local", "ray", "serial")
 GRID_KEYS = {
     "methods", "data", "views", "seeds", "steps", "overrides",

@@ -69,6 +69,7 @@ def record_for(run: RunSpec, status: str, result: dict | None = None, metrics: d
     if result:
         rec["peak_rss_mb"] = result.get("peak_rss_mb")
         rec["peak_gpu_mb"] = result.get("peak_gpu_mb")
+        rec["load_average"] = _num(result.get("load_average"))
     if metrics:
         mean = metrics.get("mean") or {}
         for k in METRICS:

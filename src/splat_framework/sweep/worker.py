@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
 import time
 import traceback
@@ -77,11 +78,20 @@ def build_config(spec: dict):
     return apply_overrides(base, deep_merge(spec.get("overrides") or {}, fixed))
 
 
+def load_average() -> float | None:
+    """The machine's 1-minute load average, None where the system does not report one."""
+    try:
+        return os.getloadavg()[0]
+    except (OSError, AttributeError):
+        return None
+
+
 def execute_run(spec: dict, threads: int | None = None) -> dict:
     """Train one run (in the calling process) and return its result.
 
     The result: status ("ok", "failed" or "interrupted"), error (one line or
-    None), wall_s, peak_rss_mb (this process's max RSS), peak_gpu_mb (CUDA only),
+    None), started (ISO time) and load_average (the machine's 1-minute load average, None where the
+    system has none) at its start, wall_s, peak_rss_mb (this process's max RSS), peak_gpu_mb (CUDA only),
     metrics (the metrics.json dict when ok). Also written as ``sweep.json`` in
     the run folder; stdout/stderr of the run go to ``sweep.log`` there. Never
     raises for a failing run.
@@ -91,7 +101,8 @@ def execute_run(spec: dict, threads: int | None = None) -> dict:
     t0 = time.perf_counter()
     rdir = Path(spec["run_dir"])
     rdir.mkdir(parents=True, exist_ok=True)
-    result: dict[str, Any] = {"status": "ok", "error": None, "attempt": spec.get("attempt")}
+    result: dict[str, Any] = {"status": "ok", "error": None, "attempt": spec.get("attempt"),
+                              "started": datetime.now().isoformat(timespec="seconds"), "load_average": load_average()}
     metrics = None
     cuda = False
     with open(rdir / "sweep.log", "a", encoding="utf-8") as log, redirect_stdout(log), redirect_stderr(log):

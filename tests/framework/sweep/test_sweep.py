@@ -275,6 +275,18 @@ def test_ablation_script_two_methods_writes_table_figure_and_readme(tmp_path):
     assert not (out / "runs/synthetic-forward-tiny/3dgs/v3-s1/config.json").exists()
     assert (out / "figures" / "synthetic-forward-tiny-v3.png").is_file()
     assert "](abl2-synthetic-forward-tiny-v3.jpg)" in md2.read_text()
+    # the Machine line states the load the runs were trained under (their sweep.json), not the load
+    # while a table is regenerated; runs from before that record say so
+    assert "load average when the runs started " in text and "by row)" in text
+    sj = out / "runs/synthetic-forward-tiny/3dgs/v3-s0/sweep.json"
+    rec = json.loads(sj.read_text())
+    assert rec["load_average"] >= 0 and rec["started"][:4].isdigit()
+    no_train = ["--data", "synthetic/forward-tiny", "--views", "3", "--steps", "10", "--seeds", "0", "--methods", "3dgs",
+                "--out", str(out), "--md", str(tmp_path / "abl3.md"), "--no-live", "--no-train"]
+    sj.write_text(json.dumps(rec | {"load_average": 7.25}))
+    assert "load average when the runs started 7.25 (7.25-7.25 by row);" in ablation.main(no_train).read_text()
+    sj.write_text(json.dumps({k: v for k, v in rec.items() if k != "load_average"}))
+    assert "load average when the runs started not recorded;" in ablation.main(no_train).read_text()
 
 
 @pytest.mark.skipif(importlib.util.find_spec("pycolmap") is None, reason="--poses estimated needs pycolmap")
