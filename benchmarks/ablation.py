@@ -143,10 +143,10 @@ def footer(command: str, threads: int | None = None, run_loads: list[float | Non
         if known and len(known) < len(run_loads):
             load += f", not recorded for {len(run_loads) - len(known)} of {len(run_loads)} rows"
     else:
-        try:
-            load = f", load average {os.getloadavg()[0]:.2f}"
-        except OSError:
-            load = ""
+        from splat_framework.sweep.worker import load_average
+
+        now = load_average()
+        load = f", load average {now:.2f}" if now is not None else ""
     torch_threads = f", {threads} torch threads" if threads else ""
     return [
         "",
@@ -322,7 +322,6 @@ def estimated_poses_tables(args: argparse.Namespace, grid, out: Path, command: s
 def estimated_poses_markdown(data: str, views, rows: dict[str, list[dict]], info: dict,
                              args: argparse.Namespace, command: str) -> str:
     """The dataset-vs-estimated-poses table of one (scene, views) group, with the pose errors."""
-
     from splat_framework.sweep import fmt_value
 
     def spread(xs: list[float]) -> str:

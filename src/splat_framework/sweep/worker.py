@@ -106,7 +106,7 @@ def execute_run(spec: dict, threads: int | None = None) -> dict:
     metrics = None
     cuda = False
     with open(rdir / "sweep.log", "a", encoding="utf-8") as log, redirect_stdout(log), redirect_stderr(log):
-        print(f"=== sweep run {spec.get('attempt')} started {datetime.now().isoformat(timespec='seconds')}", flush=True)
+        print(f"=== sweep run {spec.get('attempt')} started {result['started']}", flush=True)
         try:
             import torch
 
