@@ -67,6 +67,61 @@ def config_path(config_cls: type) -> str:
     return ""
 
 
+def tyro_error_line(box: str) -> str:
+    """tyro's error box (stderr of a failed parse) as one line: its first paragraph.
+
+    The box's borders and title go, the text before its first rule or blank line
+    stays, with indented detail lines (argument help) dropped and wrapped lines
+    joined: ``Error parsing --max-lines: invalid literal for int() with base 10: 'abc'``."""
+    rows = []
+    for raw in box.splitlines():
+        line = raw.strip()
+        if line.startswith(("╭", "╰")):
+            continue
+        line = line.strip("│").rstrip()
+        text = line.strip()
+        if set(text) <= {"─", " "} and text or (not text and rows):
+            if rows:
+                break
+            continue
+        if text and len(line) - len(line.lstrip()) <= 5:
+            rows.append(text)
+    return " ".join(rows) or "invalid arguments (see --help)"
+
+
+def parse_cli(f, *, prog: str, args: list[str] | None = None, field_prefix: str | None = None, **kwargs):
+    """``tyro.cli(f)`` whose failures are one line for :func:`run_cli` (exit 2), not a box.
+
+    A value tyro cannot parse (``--max-lines abc``), an unknown flag or a missing one
+    raises :class:`DataError` with tyro's message; a config value pydantic rejects
+    raises :class:`~splat_framework.config.InvalidArguments` naming the field, with
+    ``field_prefix`` (when given) in place of the path the field has in a training
+    config. ``--help`` prints as usual."""
+    import contextlib
+    import io
+
+    import tyro
+
+    from ..config import InvalidArguments, cli_parsing
+    from ..errors import DataError
+
+    captured = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(captured), cli_parsing():
+            parsed = tyro.cli(f, prog=prog, args=sys.argv[1:] if args is None else args, **kwargs)
+        sys.stderr.write(captured.getvalue())  # warnings while parsing
+        return parsed
+    except SystemExit as e:
+        if e.code in (0, None):
+            sys.stderr.write(captured.getvalue())
+            raise
+        raise DataError(tyro_error_line(captured.getvalue())) from None
+    except InvalidArguments as e:
+        if field_prefix is None:
+            raise
+        raise DataError(f"invalid config: {format_validation_error(e.error, field_prefix)}") from None
+
+
 def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
     """Warnings on the command line: ``warning: MESSAGE`` on one line (no source line)."""
     text = str(message).strip().splitlines()

@@ -12,14 +12,14 @@ Heavy imports (torch, cv2, kornia, the data loaders) happen inside functions so
 
 from __future__ import annotations
 
-import sys
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import tyro
+from pydantic import Field
 
+from ..config import SplatConfig
 from ..matching import MatchConfig
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -28,8 +28,11 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..matching import MatchSet
 
 
-@dataclass
-class MatchArgs:
+MAX_LINES = 100_000
+"""Upper bound of ``--max-lines`` (a picture with more lines is a solid smear)."""
+
+
+class MatchArgs(SplatConfig):
     """Compute verified pixel matches between every pair of training views."""
 
     data: str
@@ -38,16 +41,16 @@ class MatchArgs:
     out: Path
     """Output folder: matches.npz and one matches_i_j.png per pair."""
 
-    views: int | Literal["all"] = 3
+    views: Annotated[int, Field(ge=1)] | Literal["all"] = 3
     """Number of training views (the dataset's few-shot split), or "all"."""
 
     cache_dir: Path | None = None
     """Match cache folder (default: <out>/cache)."""
 
-    max_lines: int = 200
-    """Match lines drawn per picture."""
+    max_lines: int = Field(200, ge=0, le=MAX_LINES)
+    """Match lines drawn per picture (0 = the two views only)."""
 
-    config: Annotated[MatchConfig, tyro.conf.arg(name="")] = field(default_factory=MatchConfig)
+    config: Annotated[MatchConfig, tyro.conf.arg(name="")] = Field(default_factory=MatchConfig)
     """Matching settings."""
 
 
@@ -72,7 +75,10 @@ def run_matching(
     max_lines: int = 200,
     console: Any = None,
 ) -> "MatchSet":
-    """Compute matches, print a table, write ``matches.npz`` and ``matches_i_j.png`` files."""
+    """Compute matches, print a table, write the ``matches_i_j.png`` files, then ``matches.npz``.
+
+    Every file is written atomically and ``matches.npz`` last, so an interrupted or failed
+    run leaves either no match set or a complete one (and only whole pictures)."""
     from rich.console import Console
     from rich.table import Table
 
@@ -80,16 +86,17 @@ def run_matching(
 
     console = console or Console()
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     images = [_image_to_numpy(im) for im in images]
+    n_pairs = len(view_ids) * (len(view_ids) - 1) // 2
+    console.print(f"matching {len(view_ids)} views ({n_pairs} pairs) with {config.matcher}...", highlight=False)
     t0 = time.perf_counter()
     ms = compute_matches(images, cameras, view_ids, config, cache_dir)
     dt = time.perf_counter() - t0
-    ms.save(out_dir / "matches.npz")
     by_id = {int(v): im for v, im in zip(view_ids, images)}
     for i, j in ms.pairs():
         pa, pb = ms.get(i, j)
         draw_matches(by_id[i], by_id[j], pa, pb, out_dir / f"matches_{i}_{j}.png", max_lines=max_lines, seed=config.seed)
+    ms.save(out_dir / "matches.npz")  # last: its presence means the run finished
 
     cached = " (cached)" if ms.meta.get("cache_hit") else ""
     used = sorted(set(ms.meta.get("pair_matchers", {}).values()))  # "auto" uses dense, learned or both
@@ -107,36 +114,30 @@ def run_matching(
     return ms
 
 
-def main(args: MatchArgs) -> int:
+def main(args: MatchArgs) -> "MatchSet":
+    """Load the scene's training views and run :func:`run_matching` (bad input: DataError, exit 2)."""
     from rich.console import Console
 
     from splat_framework.data.images import load_image
     from splat_framework.data.parsers import load_scene
     from splat_framework.data.resolve import resolve_data_path
-    from splat_framework.data.scene import DataError
 
-    from ..matching import MissingWeightsError
-
-    console = Console()
-    try:
-        root = resolve_data_path(args.data)
-        scene = load_scene(root, views=args.views)
-        ids = [int(i) for i in scene.train_indices]
-        images = [
-            load_image(scene.image_paths[i], scale=scene.image_scale, white_background=scene.white_background)
-            for i in ids
-        ]
-        cameras = [scene.cameras[i] for i in ids]
-        cache = None if not args.config.cache else (args.cache_dir or Path(args.out) / "cache")
-        run_matching(images, cameras, ids, args.config, Path(args.out), cache, args.max_lines, console)
-    except (DataError, MissingWeightsError) as e:
-        console.print(f"[red]error:[/] {e}", highlight=False, soft_wrap=True)
-        return 2
-    return 0
+    root = resolve_data_path(args.data)
+    scene = load_scene(root, views=args.views)
+    ids = [int(i) for i in scene.train_indices]
+    images = [
+        load_image(scene.image_paths[i], scale=scene.image_scale, white_background=scene.white_background)
+        for i in ids
+    ]
+    cameras = [scene.cameras[i] for i in ids]
+    cache = None if not args.config.cache else (args.cache_dir or Path(args.out) / "cache")
+    return run_matching(images, cameras, ids, args.config, Path(args.out), cache, args.max_lines, Console())
 
 
 def entrypoint() -> None:
-    sys.exit(main(tyro.cli(MatchArgs)))
+    from .common import parse_cli, run_cli
+
+    run_cli(lambda: main(parse_cli(MatchArgs, prog="splat-match", field_prefix="")))
 
 
 if __name__ == "__main__":

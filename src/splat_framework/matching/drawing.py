@@ -17,7 +17,7 @@ def draw_matches(
     max_lines: int = 200,
     seed: int = 0,
 ) -> Path:
-    """Write a side-by-side picture of the two images with (a random subset of) match lines."""
+    """Write (atomically) a side-by-side picture of the two images with (a random subset of) match lines."""
     import cv2
 
     a, b = to_uint8_rgb(img_a), to_uint8_rgb(img_b)
@@ -43,8 +43,11 @@ def draw_matches(
         cv2.line(canvas, pi, qi, col, 1, cv2.LINE_AA, shift=4)
         cv2.circle(canvas, pi, 2 * s, col, 1, cv2.LINE_AA, shift=4)
         cv2.circle(canvas, qi, 2 * s, col, 1, cv2.LINE_AA, shift=4)
+    from ..io import atomic_write_bytes
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(path), canvas):
-        raise OSError(f"could not write {path}")
+    ok, encoded = cv2.imencode(path.suffix or ".png", canvas)
+    if not ok:
+        raise OSError(f"could not encode {path}")
+    atomic_write_bytes(path, encoded.tobytes())  # never a half-written picture
     return path

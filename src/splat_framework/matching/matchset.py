@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import io
 import json
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from ..io import atomic_write_bytes
 
 #: Bump when the matching pipeline changes in a way that invalidates caches.
 CACHE_VERSION = 3
@@ -79,9 +79,8 @@ class MatchSet:
 
     # ----------------------------------------------------------------- io
     def save(self, path: Path | str) -> Path:
-        """Write an .npz atomically (temp file in the same folder + os.replace)."""
+        """Write an .npz atomically (:func:`splat_framework.io.atomic_write_bytes`: a temp file in the same folder, fsync, rename)."""
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
         ps = self.pairs()
         flat = self.concatenated()
         meta = {
@@ -103,17 +102,7 @@ class MatchSet:
         }
         buf = io.BytesIO()
         np.savez(buf, **arrays)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                f.write(buf.getvalue())
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        atomic_write_bytes(path, buf.getvalue())
         return path
 
     @classmethod
