@@ -11,6 +11,7 @@ work starts. SIGTERM outside the training loop is treated like Ctrl-C.
 
 from __future__ import annotations
 
+import argparse
 import errno
 import signal
 import sys
@@ -120,6 +121,16 @@ def parse_cli(f, *, prog: str, args: list[str] | None = None, field_prefix: str 
         if field_prefix is None:
             raise
         raise DataError(f"invalid config: {format_validation_error(e.error, field_prefix)}") from None
+
+
+class OneLineArgumentParser(argparse.ArgumentParser):
+    """An argparse parser whose errors (``--workers`` without a value, an unknown flag, a bad
+    choice) are one line for :func:`run_cli` (a :class:`DataError`, exit 2), not usage + error."""
+
+    def error(self, message: str):  # noqa: D102 - argparse's hook
+        from ..errors import DataError
+
+        raise DataError(f"{self.prog}: {message} (see --help)")
 
 
 def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:

@@ -32,8 +32,16 @@ import sys
 from pathlib import Path
 
 
+class RunsFailed(Exception):
+    """Some runs of a sweep failed: exit 1 with one line naming them (their logs: ``sweep.log``)."""
+
+    cli_exit_code = 1
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    from .common import OneLineArgumentParser
+
+    p = OneLineArgumentParser(
         prog="splat-sweep",
         description="Run a grid of methods x datasets x view counts x seeds (resumable) and tabulate the results.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -100,11 +108,30 @@ def main(argv: list[str] | None = None):
         methods=s["methods"], data=s["data"], views=s.get("views", [3]), seeds=s.get("seeds", [0]),
         steps=s.get("steps"), overrides=s.get("overrides", {}),
     )
-    return run_sweep(
+    result = run_sweep(
         grid, Path(s["out"]), backend=s.get("backend", "local"), workers=s.get("workers"),
         threads=s.get("threads"), address=s.get("address"),
         mem_per_run_gb=s.get("mem_per_run_gb", DEFAULT_MEM_PER_RUN_GB),
         live=False if args.no_live else None, dry_run=args.dry_run,
+    )
+    if not args.dry_run:
+        check_all_succeeded(result)
+    return result
+
+
+def check_all_succeeded(result, shown: int = 3) -> None:
+    """Raise :class:`RunsFailed` (exit 1) naming the failed runs, each with its log
+    (``<run>/sweep.log``) or, for a run that never started, its error."""
+    failed = [r for r in result.records if r["status"] in ("failed", "interrupted")]
+    if not failed:
+        return
+    def where(rec: dict) -> str:
+        log = Path(rec["run_dir"]) / "sweep.log"
+        return f"{rec['run_dir']} ({f'log: {log}' if log.is_file() else rec.get('error') or rec['status']})"
+    more = f"; and {len(failed) - shown} more" if len(failed) > shown else ""
+    raise RunsFailed(
+        f"{len(failed)} of {len(result.records)} run(s) failed: {'; '.join(map(where, failed[:shown]))}{more} "
+        f"(all in {result.out / 'results.md'})"
     )
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path, PurePosixPath
@@ -158,6 +159,31 @@ def _as_int(key: str, value: Any) -> int:
         raise SweepError(f"{key}: {value!r} is not an integer") from None
 
 
+MAX_GRID_BYTES = 1 << 20
+"""Largest grid file read (1 MiB: a grid is a few lines)."""
+
+
+def read_grid_text(path: Path) -> str:
+    """The text of a grid file: a regular file (never a FIFO or device, which could block),
+    at most :data:`MAX_GRID_BYTES`, UTF-8 (a binary or UTF-16 file is a :class:`SweepError`)."""
+    import os
+    import stat
+
+    try:
+        st = os.stat(path)
+        if not stat.S_ISREG(st.st_mode):
+            raise SweepError(f"{path}: not a regular file (a grid file is a .toml or .json text file)")
+        if st.st_size > MAX_GRID_BYTES:
+            raise SweepError(f"{path}: {st.st_size} bytes, more than a grid file's {MAX_GRID_BYTES}")
+        data = path.read_bytes()
+    except OSError as e:
+        raise SweepError(f"{path}: cannot read grid file ({e.strerror or e})") from None
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise SweepError(f"{path}: not a UTF-8 text file (byte {e.start}: binary or UTF-16?)") from None
+
+
 def load_grid_file(path: Path) -> dict:
     """Settings of a grid file (``.toml`` or ``.json``), validated and normalised.
 
@@ -166,10 +192,7 @@ def load_grid_file(path: Path) -> dict:
     out, workers, threads, backend, address, mem_per_run_gb.
     """
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as e:
-        raise SweepError(f"{path}: cannot read grid file ({e.strerror or e})") from None
+    text = read_grid_text(path)
     try:
         if path.suffix.lower() == ".json":
             doc = json.loads(text)
@@ -177,7 +200,7 @@ def load_grid_file(path: Path) -> dict:
             import tomllib
 
             doc = tomllib.loads(text)
-    except (ValueError, json.JSONDecodeError) as e:  # TOMLDecodeError is a ValueError
+    except (ValueError, RecursionError) as e:  # TOMLDecodeError and JSONDecodeError are ValueErrors
         raise SweepError(f"{path}: not valid {'JSON' if path.suffix.lower() == '.json' else 'TOML'} ({e})") from None
     if not isinstance(doc, dict):
         raise SweepError(f"{path}: the grid must be a table/object")
@@ -190,18 +213,39 @@ def load_grid_file(path: Path) -> dict:
         raise SweepError(f"{path}: {e}") from None
 
 
+def _as_str(key: str, value: Any) -> str:
+    if not isinstance(value, str):
+        raise SweepError(f"{key}: {value!r} is not a string")
+    return value
+
+
+def _as_positive_float(key: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+        raise SweepError(f"{key}: {value!r} is not a number")
+    try:
+        x = float(value)
+    except ValueError:
+        raise SweepError(f"{key}: {value!r} is not a number") from None
+    if not math.isfinite(x) or x <= 0:
+        raise SweepError(f"{key}: {value!r} must be a finite number > 0")
+    return x
+
+
 def normalise_settings(doc: dict) -> dict:
-    """Type-check and normalise grid settings (values None are left out)."""
+    """Type-check and normalise grid settings (values None are left out); a wrongly typed
+    value is a :class:`SweepError` naming its key."""
     s: dict[str, Any] = {}
     for key, value in doc.items():
         if value is None:
             continue
         if key in ("methods", "data"):
-            s[key] = [str(x) for x in _as_list(key, value)]
+            s[key] = [_as_str(key, x) for x in _as_list(key, value)]
         elif key == "views":
             s[key] = [parse_views(x) for x in _as_list(key, value)]
         elif key == "seeds":
             s[key] = [_as_int(key, x) for x in _as_list(key, value)]
+            if any(not 0 <= x < 2**32 for x in s[key]):
+                raise SweepError(f"{key}: {value!r}: a seed is in [0, 2^32)")
         elif key in ("steps", "workers", "threads"):
             n = _as_int(key, value)
             if n < 1:
@@ -216,9 +260,9 @@ def normalise_settings(doc: dict) -> dict:
                 raise SweepError(f"backend: '{value}' is not one of {', '.join(BACKENDS)}")
             s[key] = value
         elif key == "mem_per_run_gb":
-            s[key] = float(value)
+            s[key] = _as_positive_float(key, value)
         else:
-            s[key] = str(value)
+            s[key] = _as_str(key, value)
     return s
 
 
