@@ -38,7 +38,9 @@ import numpy as np
 import torch
 
 from .cameras import camera_centers, pose_differences
+from .data.images import read_photo
 from .errors import DataError
+from .work_folder import make_work_folder, remove_stale_work_folders
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
 MAPPERS = ("incremental", "global")
@@ -125,9 +127,10 @@ def _stage_images(images: list[Path], dest: Path) -> None:
     sizes: dict[tuple[int, int], list[str]] = {}
     unreadable = []
     for path in images:
-        img = cv2.imread(str(path), cv2.IMREAD_COLOR)  # applies the EXIF orientation
-        if img is None:
-            unreadable.append(path.name)
+        try:
+            img = read_photo(path)  # decoded completely (a truncated JPEG is refused), EXIF orientation applied
+        except DataError as e:
+            unreadable.append(f"{path.name} ({str(e).removeprefix(f'{path}: ')})")
             continue
         sizes.setdefault((img.shape[1], img.shape[0]), []).append(path.name)
         cv2.imwrite(str(dest / f"{path.stem}.png"), img)
@@ -164,7 +167,8 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
     pycolmap = _pycolmap()
     t0 = time.perf_counter()
     out.parent.mkdir(parents=True, exist_ok=True)
-    work = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    remove_stale_work_folders(out)  # left by a run that crashed or was killed
+    work = make_work_folder(out)
     try:
         _stage_images(images, work / "input")
         db = work / "database.db"

@@ -3,13 +3,11 @@
 
 from __future__ import annotations
 
-import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Literal, Union
 
-import tyro
 from tyro.conf import Positional, arg, subcommand
 
 
@@ -69,12 +67,12 @@ def main(args: ImagesArgs | VideoArgs):
 
 
 def entrypoint() -> None:
-    from .common import run_cli
+    from .common import parse_cli, run_cli
 
-    args = tyro.cli(Args, args=sys.argv[1:], prog="splat-process",
-                    description="Estimate camera poses of your own photos or video (pycolmap) and write a scene "
-                                "folder that splat-train reads.")
-    run_cli(lambda: main(args))
+    run_cli(lambda: main(parse_cli(
+        Args, prog="splat-process",
+        description="Estimate camera poses of your own photos or video (pycolmap) and write a scene folder that "
+                    "splat-train reads.")))
 
 
 if __name__ == "__main__":

@@ -96,7 +96,9 @@ def read_image_size(path: Path | str) -> tuple[int, int]:
     return int(arr.shape[1]), int(arr.shape[0])
 
 
-def _decode(path: Path, data: bytes) -> np.ndarray:
+def _decode(path: Path, data: bytes, flags: int | None = None) -> np.ndarray:
+    """Decode an image file's bytes completely (``flags``: OpenCV's, default IMREAD_UNCHANGED);
+    an empty, truncated or undecodable file is a DataError naming ``path``."""
     import cv2
 
     if len(data) == 0:
@@ -110,12 +112,22 @@ def _decode(path: Path, data: bytes) -> np.ndarray:
         raise DataError(f"{path}: truncated PNG (no IEND chunk)")
     buf = np.frombuffer(data, dtype=np.uint8)
     try:
-        arr = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+        arr = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED if flags is None else flags)
     except cv2.error as e:  # pragma: no cover - depends on codec
         raise DataError(f"{path}: cannot decode image ({str(e).strip().splitlines()[-1]})") from None
     if arr is None or arr.size == 0:
         raise DataError(f"{path}: cannot decode image (corrupt or unsupported format)")
     return arr
+
+
+def read_photo(path: Path | str) -> np.ndarray:
+    """A photo as 8-bit BGR [H, W, 3], its EXIF orientation applied, decoded completely:
+    a missing, empty, truncated (JPEG without its end-of-image marker, PNG without IEND)
+    or undecodable file is a DataError naming it, never a photo with a grey tail."""
+    import cv2
+
+    path = Path(path)
+    return _decode(path, _read_bytes(path), cv2.IMREAD_COLOR)
 
 
 def _to_float(path: Path, arr: np.ndarray) -> np.ndarray:
