@@ -43,7 +43,7 @@ def test_match_bad_arguments_exit_2_in_one_line_writing_nothing(llff, tmp_path, 
     [
         (["--max-lines", "abc"], ("--max-lines", "abc")),
         (["--max-lines", "1000000"], ("max_lines", "less than or equal to")),
-        (["--views", "0"], ("views",)),
+        (["--views", "0"], ("views", "at least 1")),
         (["--seed", str(2**32)], ("seed",)),
         (["--no-such-flag", "1"], ("unrecognized", "--no-such-flag")),
         ([], ("missing", "--out")),

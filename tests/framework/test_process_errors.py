@@ -98,3 +98,23 @@ def test_a_killed_process_leaves_a_work_folder_that_the_next_run_removes_then_a_
     run_cli("process", "images", tmp_path / "photos", "--out", out, "--matcher", "sift",
             code=2, match=("p2.jpg", "truncated JPEG"), watch=[tmp_path], allowed=[work[0], tmp_path / "photos" / "p2.jpg"])
     assert not work[0].exists() and sorted(p.name for p in tmp_path.iterdir()) == ["photos"]
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["images", "photos", "--out", "s", "--mapper", "nosuch"], ("--mapper", "nosuch")),
+        (["video", "v.mp4", "--out", "s", "--frames", "abc"], ("--frames", "abc")),
+        (["pictures"], ("pictures",)),
+    ],
+)
+def test_process_arguments_are_parsed_to_one_line(args, words):
+    """tyro's refusals (an unknown mapper, a count that is not a number, an unknown subcommand)
+    are one DataError line (cli.common.parse_cli), not a usage box."""
+    from splat_framework.cli.common import parse_cli
+    from splat_framework.cli.process import Args
+
+    with pytest.raises(DataError) as e:
+        parse_cli(Args, prog="splat-process", args=args)
+    message = str(e.value)
+    assert "\n" not in message and all(w in message for w in words), message

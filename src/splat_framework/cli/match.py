@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import tyro
-from pydantic import Field
+from pydantic import AfterValidator, Field
 
 from ..config import SplatConfig
 from ..matching import MatchConfig
@@ -26,6 +26,12 @@ if TYPE_CHECKING:  # pragma: no cover
     from splat_framework.cameras import Camera
 
     from ..matching import MatchSet
+
+
+def _at_least_one_view(views: int | str) -> int | str:
+    if views != "all" and views < 1:
+        raise ValueError(f"{views} views: at least 1 (or 'all')")
+    return views
 
 
 MAX_LINES = 100_000
@@ -41,7 +47,7 @@ class MatchArgs(SplatConfig):
     out: Path
     """Output folder: matches.npz and one matches_i_j.png per pair."""
 
-    views: Annotated[int, Field(ge=1)] | Literal["all"] = 3
+    views: Annotated[int | Literal["all"], AfterValidator(_at_least_one_view)] = 3
     """Number of training views (the dataset's few-shot split), or "all"."""
 
     cache_dir: Path | None = None
