@@ -106,6 +106,7 @@ def test_a_killed_process_leaves_a_work_folder_that_the_next_run_removes_then_a_
         (["images", "photos", "--out", "s", "--mapper", "nosuch"], ("--mapper", "nosuch")),
         (["video", "v.mp4", "--out", "s", "--frames", "abc"], ("--frames", "abc")),
         (["pictures"], ("pictures",)),
+        ([], ("missing subcommand", "images", "video")),
     ],
 )
 def test_process_arguments_are_parsed_to_one_line(args, words):

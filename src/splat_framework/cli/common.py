@@ -71,13 +71,15 @@ def config_path(config_cls: type) -> str:
 def tyro_error_line(box: str) -> str:
     """tyro's error box (stderr of a failed parse) as one line: its first paragraph.
 
-    The box's borders and title go, the text before its first rule or blank line
-    stays, with indented detail lines (argument help) dropped and wrapped lines
-    joined: ``Error parsing --max-lines: invalid literal for int() with base 10: 'abc'``."""
-    rows = []
+    The box's borders go, the text before its first rule or blank line stays (after the
+    box's title when the text does not say it), with indented detail lines (argument
+    help) dropped and wrapped lines joined:
+    ``Error parsing --max-lines: invalid literal for int() with base 10: 'abc'``."""
+    rows, title = [], ""
     for raw in box.splitlines():
         line = raw.strip()
         if line.startswith(("╭", "╰")):
+            title = title or line.strip("╭╮╰╯─ ")
             continue
         line = line.strip("│").rstrip()
         text = line.strip()
@@ -87,7 +89,10 @@ def tyro_error_line(box: str) -> str:
             continue
         if text and len(line) - len(line.lstrip()) <= 5:
             rows.append(text)
-    return " ".join(rows) or "invalid arguments (see --help)"
+    text = " ".join(rows) or "invalid arguments (see --help)"
+    if title and title.lower() not in text.lower() and not text.startswith("Error parsing"):
+        text = f"{title.lower()}: {text}"  # "missing subcommand: Expected one of {images, video}."
+    return text
 
 
 def parse_cli(f, *, prog: str, args: list[str] | None = None, field_prefix: str | None = None, **kwargs):
