@@ -169,6 +169,52 @@ def test_scene_arguments_are_parsed_to_one_line(args, words):
     assert "\n" not in message and all(w.lower() in message.lower() for w in words), message
 
 
+def test_scene_ctrl_c_exits_130_and_leaves_nothing(tmp_path):
+    """SIGINT while the scene renders (in its work folder beside --out): exit 130, one line,
+    no --out and no work folder left."""
+    out = tmp_path / "s"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "splat_framework.cli.scene", "forward", "--out", str(out), "--views", "300",
+         "--width", "160", "--height", "120"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=cli_env(),
+    )
+    deadline = time.monotonic() + 60
+    while proc.poll() is None and time.monotonic() < deadline and not list(tmp_path.glob(".s.work-*/images/*.png")):
+        time.sleep(0.01)  # the first picture is written: rendering
+    proc.send_signal(signal.SIGINT)
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and stderr.strip() == "interrupted", stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_building_moves_a_finished_folder_into_place_and_merges_into_an_existing_one(tmp_path):
+    from splat_framework.work_folder import building
+
+    out = tmp_path / "out"
+    with building(out) as work:
+        (work / "images").mkdir()
+        (work / "images" / "a.png").write_text("new")
+        (work / "scene.json").write_text("{}")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+    assert sorted(str(p.relative_to(out)) for p in out.rglob("*")) == ["images", "images/a.png", "scene.json"]
+    (out / "images" / "mine.txt").write_text("keep")
+    (tmp_path / "elsewhere").mkdir()
+    (out / "scene.json").unlink()
+    (out / "scene.json").symlink_to(tmp_path / "elsewhere" / "target")  # replaced, never followed
+    with building(out) as work:
+        (work / "images").mkdir()
+        (work / "images" / "a.png").write_text("newer")
+        (work / "scene.json").write_text("{}")
+    assert (out / "images" / "mine.txt").read_text() == "keep" and (out / "images" / "a.png").read_text() == "newer"
+    assert not (out / "scene.json").is_symlink() and list((tmp_path / "elsewhere").iterdir()) == []
+    with pytest.raises(KeyboardInterrupt), building(out) as work:
+        (work / "images").mkdir()
+        (work / "images" / "a.png").write_text("half")
+        raise KeyboardInterrupt
+    assert (out / "images" / "a.png").read_text() == "newer"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["elsewhere", "out"]
+
+
 # ------------------------------------------------------------------ splat-sweep
 
 GRID = 'methods = ["3dgs"]\ndata = ["synthetic/forward-tiny"]\nout = "o"\n'

@@ -52,6 +52,7 @@ def main(args: SceneArgs) -> Path:
 
     from ..data.synthetic.generate import DEFAULTS, ensure_generated, generate_scene
     from ..errors import DataError
+    from ..work_folder import building
 
     console = Console()
     dflt = DEFAULTS[args.kind]
@@ -68,9 +69,11 @@ def main(args: SceneArgs) -> Path:
     with console.status(f"rendering the {args.kind} scene ({params['width']}x{params['height']})..."):
         if args.out is None:
             out = ensure_generated(args.kind, params)
-        else:
+        else:  # built beside --out and moved into place at the end: Ctrl-C leaves nothing half-written
             p = dict(params)
-            out = generate_scene(p.pop("kind"), args.out, **p)
+            with building(args.out) as work:
+                generate_scene(p.pop("kind"), work, **p)
+            out = args.out
     dt = time.perf_counter() - t0
 
     table = Table(title=f"synthetic {args.kind} scene (seed {args.seed}) in {out}")
