@@ -62,6 +62,15 @@ def test_match_arguments_are_parsed_to_one_line(tmp_path, args, words):
     assert "\n" not in message and all(w.lower() in message.lower() for w in words), message
 
 
+def test_match_out_through_a_file_is_one_line_exit_2(llff, tmp_path):
+    """A path the user gave that cannot be a folder (--out a file, or a folder under one): exit 2
+    naming it (cli.common.run_cli's path errors), the file untouched."""
+    (tmp_path / "file").write_text("mine")
+    for out in (tmp_path / "file", tmp_path / "file" / "m"):
+        run_cli("match", "--data", llff, "--out", out, "--matcher", "dense", code=2,
+                match=(str(tmp_path / "file"), "not a directory"), watch=[tmp_path, llff])
+
+
 def test_match_ctrl_c_exits_130_and_leaves_nothing_half_written(tmp_path):
     """SIGINT while pairs are being matched: exit 130, one line "interrupted", no output at all."""
     scene = make_llff(tmp_path / "scene", 6, w=160, h=120, full_factor=1, folder="images")  # SIFT on noise: ~0.5 s a pair

@@ -2,7 +2,9 @@
 
 Exit codes: 0 success, 2 bad input or config, 1 internal error (or an
 environment failure such as a full disk, reported in one line), 130
-interrupted (after a checkpoint was written when training).
+interrupted (after a checkpoint was written when training). A path that cannot
+be what it must (a file where a folder goes, a path through a file) is bad
+input: one line naming it, exit 2.
 
 Invalid config values (pydantic validation, e.g. ``--model.sh-degree 9``) are
 reported as one line naming the dotted field (``model.sh_degree``) before any
@@ -21,7 +23,10 @@ from typing import Callable
 _ENV_ERRNOS = {
     errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG, errno.EMFILE,
 }
-"""OSErrors caused by the machine rather than by a bug: reported in one line."""
+"""OSErrors caused by the machine rather than by a bug: reported in one line, exit 1."""
+_PATH_ERRNOS = {errno.ENOTDIR, errno.EISDIR, errno.ENAMETOOLONG, errno.ELOOP}
+"""OSErrors caused by a path the user gave (a component is a file, a folder where a file goes,
+a name too long, a symlink loop): reported in one line naming it, exit 2."""
 
 
 def format_validation_error(e, prefix: str = "") -> str:
@@ -179,11 +184,11 @@ def run_cli(main: Callable[[], object]) -> None:
         if code is not None:  # an OSError subclass that declares its own one-line message
             print(f"error: {e}", file=sys.stderr)
             sys.exit(code)
-        if e.errno not in _ENV_ERRNOS:
+        if e.errno not in _ENV_ERRNOS | _PATH_ERRNOS:
             raise
         where = f"{e.filename}: " if e.filename else ""
         print(f"error: {where}{e.strerror or e}", file=sys.stderr)
-        sys.exit(1)
+        sys.exit(2 if e.errno in _PATH_ERRNOS else 1)
     except Exception as e:
         code = getattr(type(e), "cli_exit_code", None)
         if code is None:
