@@ -154,6 +154,7 @@ def test_round_trip_renders_identically(run_dir, tmp_path, monkeypatch):
     assert (got.alpha - expect.alpha).abs().max() < 1e-5
 
 
+@pytest.mark.bad_input("`splat-scene --out FILE`, `splat-export --ply DIR`, `--data some/dir/..`", "exit 2 with one line; run folders never leave `outputs/`")
 def test_default_output_and_bad_run_dir(run_dir, tmp_path, monkeypatch, capsys):
     from splat_framework.cli.export import ExportArgs, main
 

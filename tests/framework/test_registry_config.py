@@ -271,6 +271,7 @@ def test_bad_cli_values_exit_2_with_one_line(tmp_path):
     (["--device", "bogus"], "device"),
     (["--device", "cuda:7"], "cuda:7"),
 ])
+@pytest.mark.bad_input("numbers out of range (`--steps 0`, `--model.init-num-points -5`, a NaN learning rate, ...), unknown devices", "exit 2, one line naming the field and its range")
 def test_out_of_range_numbers_and_devices_exit_2_naming_the_field(tmp_path, args, field):
     r = subprocess.run(
         [sys.executable, "-m", "splat_framework.cli.train", "3dgs", "--data", "synthetic/forward-tiny",
@@ -320,6 +321,7 @@ def test_scgaussian_may_start_from_rays_only_and_ranges_hold_in_toml_overrides()
         apply_overrides(config_scgaussian(), {"model": {"z_lr": float("nan")}})
 
 
+@pytest.mark.bad_input("a TOML variant with a wrong type, a syntax error, a circular `base`", "one warning line naming the file and field; other methods unaffected; exit 2 only when that variant is asked for")
 def test_broken_variants_warn_in_one_line_and_fail_only_when_asked_for(tmp_path, monkeypatch):
     """A variant with a wrong type, a TOML syntax error or a circular base: one warning line each naming
     the file, every other method still works (``--help`` included), and asking for the broken variant

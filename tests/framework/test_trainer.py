@@ -70,6 +70,7 @@ def test_run_writes_documented_outputs_and_learns(tmp_path, capsys):
     assert "Traceback" not in err
 
 
+@pytest.mark.bad_input("`splat-scene --out FILE`, `splat-export --ply DIR`, `--data some/dir/..`", "exit 2 with one line; run folders never leave `outputs/`")
 def test_default_run_dirs_are_new_timestamped_folders(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     cfg = get_method("3dgs").default_config().model_copy(update={"data": "synthetic/forward-tiny"})
@@ -86,6 +87,7 @@ def test_default_run_dirs_are_new_timestamped_folders(tmp_path, monkeypatch):
         assert run.parts[:3] == ("outputs", scene, "3dgs") and ".." not in run.parts, run
 
 
+@pytest.mark.bad_input("kill -9 during a checkpoint write", "partial `.tmp` files are removed when the run folder is opened again")
 def test_run_folder_rules(tmp_path):
     run = tmp_path / "run"
     (run / "checkpoints").mkdir(parents=True)
