@@ -14,18 +14,31 @@ project's CPU rasterizer is slow. Beside it:
 
 Cameras are OpenCV-convention in both this project and viser (x right, y down,
 z forward), so poses pass through unchanged.
+
+Where it listens (127.0.0.1 unless a host is given, a free port, the true URL) is
+:mod:`splat_framework.serving`'s. Nothing a client sends prints a traceback into the
+terminal (:func:`_quiet_client_errors`), and no client can open a public share tunnel.
 """
 
 from __future__ import annotations
 
+import contextlib
 import copy
+import functools
+import io
+import logging
 import threading
+import warnings
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from .serving import LOOPBACK, ServingWarning, exposure_warning, free_port, server_url
+
 __all__ = ["Viewer", "splat_arrays"]
+
+log = logging.getLogger(__name__)
 
 RAY_RGB = (1.0, 0.55, 0.1)
 ORDINARY_RGB = (0.2, 0.45, 1.0)
@@ -61,6 +74,57 @@ def splat_arrays(model, by_type: bool = False) -> dict[str, np.ndarray]:
     }
 
 
+class _ClientErrorsToDebug(logging.Filter):
+    """Turns a record carrying an exception (the websockets server's "connection handler failed"
+    after a malformed client message) into one DEBUG line: shown only when debug logging is on."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.exc_info:
+            exc = record.exc_info[1]
+            record.msg, record.args = f"{record.getMessage()}: {type(exc).__name__}: {exc}".replace("\n", " "), None
+            record.exc_info = record.exc_text = None
+            record.levelno, record.levelname = logging.DEBUG, "DEBUG"
+        return True
+
+
+_CLIENT_ERRORS = _ClientErrorsToDebug()
+
+
+def _client_loop_error(loop, context: dict) -> None:
+    """The viser event loop's exception handler: a failure in a task started by a client's message
+    (a malformed one) is one DEBUG line, not asyncio's traceback."""
+    exc = context.get("exception")
+    log.debug("viewer client message dropped: %s%s", context.get("message", ""), f": {type(exc).__name__}: {exc}" if exc else "")
+
+
+def _quiet_client_errors(server) -> None:
+    """Route what malformed client messages raise to one DEBUG line: viser hands a message it
+    cannot decode to the websockets server, which logs the handler's traceback at ERROR
+    (``websockets.server``); a message that decodes but fails in a handler task reaches the
+    event loop's exception handler; one whose fields have the wrong types also brings viser's
+    warning (ignored). GUI callbacks are wrapped by :func:`_from_client`."""
+    logging.getLogger("websockets.server").addFilter(_CLIENT_ERRORS)  # the same filter object: added once
+    # viser's warning when a client's field has the wrong type (the message is then dropped or fails as above)
+    warnings.filterwarnings("ignore", message=r"\[viser\] .* does not match annotation", category=UserWarning)
+    loop = getattr(server, "_event_loop", None)
+    if loop is not None:
+        loop.set_exception_handler(_client_loop_error)
+
+
+def _from_client(callback):
+    """A GUI callback run on a client's message: a failure is one DEBUG line (viser's thread pool
+    would print its traceback into the terminal)."""
+
+    @functools.wraps(callback)
+    def run(event) -> None:
+        try:
+            callback(event)
+        except Exception as e:  # noqa: BLE001 - whatever a client's message caused
+            log.debug("viewer callback failed on a client's message: %s: %s", type(e).__name__, e)
+
+    return run
+
+
 def _has_types(model) -> bool:
     """Whether the model flags its rows as ray-based or ordinary (SCGaussian's ``is_ray``)."""
     return "is_ray" in model.params
@@ -92,21 +156,28 @@ class Viewer:
     """A viser server showing one model and a dataset's cameras.
 
     Args:
-        port: TCP port (0 = any free one); the URL is :attr:`url`.
-        host: interface to listen on ("0.0.0.0": reachable from other machines).
+        port: TCP port, 0..65535 (0 = any free one); a port in use: the next free one, said in a
+            :class:`~splat_framework.serving.ServingWarning`. The port served is :attr:`port`, the URL :attr:`url`.
+        host: interface to listen on: 127.0.0.1 (this machine only) by default; any other address
+            (0.0.0.0: every interface) brings a ServingWarning naming what becomes reachable.
     """
 
-    def __init__(self, port: int = 8080, host: str = "0.0.0.0") -> None:
+    def __init__(self, port: int = 8080, host: str = LOOPBACK) -> None:
         import viser
+        from viser import _messages as viser_messages
 
-        if port == 0:
-            import socket
-
-            with socket.socket() as s:
-                s.bind(("127.0.0.1", 0))
-                port = s.getsockname()[1]
-        self.server = viser.ViserServer(host=host, port=port, verbose=False)
-        self.port = self.server.get_port()
+        chosen = free_port(host, port)  # a bad port or host: one-line InvalidAddress here, never a dead server thread
+        with contextlib.redirect_stdout(io.StringIO()):  # viser's banner, whose URL says localhost whatever the host
+            self.server = viser.ViserServer(host=host, port=chosen, verbose=False)
+        self.host, self.port = host, self.server.get_port()
+        if port and self.port != port:
+            warnings.warn(f"port {port} is in use; serving on {self.port}", ServingWarning, stacklevel=2)
+        exposed = exposure_warning(host, self.port)
+        if exposed:
+            warnings.warn(exposed, ServingWarning, stacklevel=2)
+        # a client's "share" request would open a public tunnel to this viewer: not ours to grant
+        self.server._websock_server.unregister_handler(viser_messages.ShareUrlRequest)
+        _quiet_client_errors(self.server)
         self._lock = threading.Lock()  # the model is read by viser's GUI thread and written by training
         self._model = None
         self._background = None
@@ -115,18 +186,19 @@ class Viewer:
         self.num_splats = 0
         gui = self.server.gui
         self._by_type = gui.add_checkbox("Colour by type", initial_value=False, hint="ray-based orange, ordinary blue")
-        self._by_type.on_update(lambda _: self._draw_splats())
+        self._by_type.on_update(_from_client(lambda _: self._draw_splats()))
         self._status = gui.add_markdown("")
         self._chosen = gui.add_dropdown("Camera", ["(none)"])
         goto = gui.add_button("Go to camera")
-        goto.on_click(lambda _: self.go_to(self._chosen.value))
+        goto.on_click(_from_client(lambda _: self.go_to(self._chosen.value)))
         render = gui.add_button("Render with splat")
-        render.on_click(lambda _: self.render_panel(self._chosen.value))
+        render.on_click(_from_client(lambda _: self.render_panel(self._chosen.value)))
         self._image = gui.add_image(np.zeros((8, 24, 3), np.uint8), label="splat render: RGB | depth | |error|")
 
     @property
     def url(self) -> str:
-        return f"http://localhost:{self.port}"
+        """The address a browser opens (localhost on 127.0.0.1, the host given otherwise)."""
+        return server_url(self.host, self.port)
 
     # ----------------------------------------------------------------- scene
     def set_model(self, model, background: torch.Tensor, note: str = "", snapshot: bool = False) -> None:
@@ -223,7 +295,7 @@ class Viewer:
             self.close()
 
 
-def view_run(run_dir: Path, port: int = 8080, host: str = "0.0.0.0", device: str | None = None,
+def view_run(run_dir: Path, port: int = 8080, host: str = LOOPBACK, device: str | None = None,
              trust_edits: bool = False) -> Viewer:
     """A :class:`Viewer` of a trained run: its newest checkpoint, training and test cameras."""
     from .run import background_for, load_run
@@ -240,7 +312,7 @@ class ViewerCallback:
     first step and shows the model every ``every`` steps (a copy of its parameters: sending ~30k
     Gaussians costs milliseconds, about nothing against a training step)."""
 
-    def __init__(self, port: int = 8080, every: int = 100, host: str = "0.0.0.0") -> None:
+    def __init__(self, port: int = 8080, every: int = 100, host: str = LOOPBACK) -> None:
         self.port, self.every, self.host = port, max(int(every), 1), host
         self.viewer: Viewer | None = None
 
