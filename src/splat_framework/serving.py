@@ -9,7 +9,8 @@ One mechanism for everything this project serves (``splat-view``, ``splat-train 
   command line is parsed (one line, exit 2; :class:`InvalidAddress`), never handed to a
   server thread that would die on it and leave the command waiting forever;
 - a port in use is said in one line and the next free one is used (:func:`free_port`);
-- the URL printed is the one that works (:func:`server_url`).
+- the URL printed is the one that works (:func:`server_url`);
+- a browser page of another site cannot use it, even on loopback (:func:`client_allowed`).
 
 Torch-free and cheap to import: the CLIs' configs use :data:`Port`.
 """
@@ -20,13 +21,14 @@ import errno
 import ipaddress
 import socket
 from typing import Annotated
+from urllib.parse import urlsplit
 
 from pydantic import Field
 from tyro.constructors import PrimitiveConstructorSpec
 
 __all__ = [
     "LOOPBACK", "MAX_PORT", "Port", "InvalidAddress", "ServingWarning", "check_port", "free_port",
-    "is_loopback", "server_url", "exposure_warning",
+    "is_loopback", "server_url", "exposure_warning", "client_allowed",
 ]
 
 LOOPBACK = "127.0.0.1"
@@ -148,3 +150,27 @@ def exposure_warning(host: str, port: int) -> str | None:
            else f"every machine that can reach {host}")
     return (f"the viewer listens on {host} port {port}, open to {who}: anyone there can see {EXPOSED}, "
             f"without a password (the default host, {LOOPBACK}, keeps it on this machine)")
+
+
+def client_allowed(bound_host: str, request_host: str | None, origin: str | None) -> bool:
+    """Whether a websocket client of a server listening on ``bound_host`` may connect, from its
+    handshake's ``Host`` and ``Origin`` headers.
+
+    Listening on loopback stops other machines, not other web sites: any page the user opens can
+    script a websocket to ``ws://localhost:PORT``. So a browser's connection (it always sends
+    ``Origin``) is accepted only from a page this server served (Origin = its Host), and on loopback
+    only under a loopback name (a DNS-rebinding page connects under its own domain, which then
+    resolves to 127.0.0.1). Clients that are not browsers send no Origin and are accepted."""
+    if not request_host:
+        return False
+    try:
+        name = urlsplit(f"//{request_host}").hostname or ""
+    except ValueError:
+        return False
+    if is_loopback(bound_host) and name != "localhost":
+        try:
+            if not ipaddress.ip_address(name).is_loopback:
+                return False
+        except ValueError:
+            return False
+    return origin is None or urlsplit(origin.strip()).netloc.lower() == request_host.strip().lower()

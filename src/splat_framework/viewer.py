@@ -17,7 +17,8 @@ z forward), so poses pass through unchanged.
 
 Where it listens (127.0.0.1 unless a host is given, a free port, the true URL) is
 :mod:`splat_framework.serving`'s. Nothing a client sends prints a traceback into the
-terminal (:func:`_quiet_client_errors`), and no client can open a public share tunnel.
+terminal (:func:`_quiet_client_errors`), no client can open a public share tunnel, and no
+page of another web site can read the viewer (:func:`_refuse_foreign_pages`).
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .serving import LOOPBACK, ServingWarning, exposure_warning, free_port, server_url
+from .serving import LOOPBACK, ServingWarning, client_allowed, exposure_warning, free_port, server_url
 
 __all__ = ["Viewer", "splat_arrays"]
 
@@ -111,6 +112,24 @@ def _quiet_client_errors(server) -> None:
         loop.set_exception_handler(_client_loop_error)
 
 
+def _refuse_foreign_pages(server, host: str) -> None:
+    """Close, before anything is sent to it, a websocket opened by a page of another web site or
+    under a non-loopback name on a loopback server (:func:`~splat_framework.serving.client_allowed`).
+    Runs first among viser's connect callbacks, which are awaited before a client's messages flow."""
+    websock = server._websock_server
+
+    async def check(client) -> None:
+        connection = websock._live_connections.get(client.client_id)
+        if connection is None:
+            return
+        headers = connection.request.headers
+        if not client_allowed(host, headers.get("Host"), headers.get("Origin")):
+            log.debug("viewer refused a client: Host %r, Origin %r", headers.get("Host"), headers.get("Origin"))
+            await connection.close(1008, "this page may not use the viewer")
+
+    websock._client_connect_cb.insert(0, check)
+
+
 def _from_client(callback):
     """A GUI callback run on a client's message: a failure is one DEBUG line (viser's thread pool
     would print its traceback into the terminal)."""
@@ -178,6 +197,7 @@ class Viewer:
         # a client's "share" request would open a public tunnel to this viewer: not ours to grant
         self.server._websock_server.unregister_handler(viser_messages.ShareUrlRequest)
         _quiet_client_errors(self.server)
+        _refuse_foreign_pages(self.server, host)
         self._lock = threading.Lock()  # the model is read by viser's GUI thread and written by training
         self._model = None
         self._background = None

@@ -92,40 +92,54 @@ def _stop(proc: subprocess.Popen) -> str:
 
 @pytest.mark.slow
 @needs_other
-def test_splat_view_host_opens_it_with_a_warning_and_a_taken_port_moves_on(run_dir):
+def test_splat_view_listens_on_loopback_and_a_taken_port_moves_on(run_dir):
+    """Before: ``splat-view RUN --port P`` listened on 0.0.0.0 (HTTP 200 on the machine's other
+    address) while the URL said localhost; a taken port was skipped silently by viser."""
     with socket.socket() as taken:
-        taken.bind(("0.0.0.0", 0))
+        taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        proc, line = None, ""
+        proc = None
         try:
-            proc, line = _serve(["splat_framework.cli.view", str(run_dir), "--port", str(port), "--host", "0.0.0.0"],
-                                "viewer of")
+            proc, line = _serve(["splat_framework.cli.view", str(run_dir), "--port", str(port)], "viewer of")
             served = int(line.rsplit(":", 1)[1].split()[0])
-            assert served != port and f"http://{socket.gethostname()}:{served}" in line
-            assert answers(OTHER, served)
+            assert served != port and f"at http://localhost:{served} " in line
+            assert answers("127.0.0.1", served) and not answers(OTHER, served)
         finally:
             err = _stop(proc) if proc else ""
-    lines = [x for x in err.splitlines() if x.strip()]
-    assert f"warning: port {port} is in use; serving on {served}" in lines
-    assert any(x.startswith("warning: the viewer listens on 0.0.0.0") and "thumbnails" in x for x in lines), err
-    assert "Traceback" not in err
+    assert [x for x in err.splitlines() if x.strip()] == [f"warning: port {port} is in use; serving on {served}"]
 
 
 @pytest.mark.slow
 @needs_other
-def test_splat_train_viewer_listens_on_loopback(tmp_path):
+def test_splat_train_viewer_host_opens_it_with_a_warning(tmp_path):
+    """Before: splat-train --viewer listened on 0.0.0.0 with no option to choose the address."""
+    from splat_framework.registry import get_method
+
+    assert get_method("3dgs").default_config().viewer_host == "127.0.0.1"
     proc = None
     try:
         proc, line = _serve(["splat_framework.cli.train", "3dgs", "--data", "synthetic/forward-tiny", "--steps", "2",
                              "--output", str(tmp_path / "run"), "--no-progress", "--viewer", "--viewer-port", "0",
-                             "--model.init-num-points", "300"], "viewer at")
+                             "--viewer-host", "0.0.0.0", "--model.init-num-points", "300"], "viewer at")
         url = line.split("viewer at", 1)[1].strip()
         port = int(url.rsplit(":", 1)[1])
-        assert url == f"http://localhost:{port}" and answers("127.0.0.1", port) and not answers(OTHER, port)
+        assert url == f"http://{socket.gethostname()}:{port}" and answers(OTHER, port)
     finally:
         err = _stop(proc) if proc else ""
-    assert "warning" not in err and "Traceback" not in err
+    warned = [x for x in err.splitlines() if x.startswith("warning: the viewer listens on 0.0.0.0")]
+    assert len(warned) == 1 and "thumbnails" in warned[0] and "Render with splat" in warned[0], err
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("host", ["nosuch.invalid", "192.0.2.1"])  # 192.0.2.1: TEST-NET-1, no machine's address
+def test_a_host_that_cannot_be_listened_on_is_one_error(host):
+    """Before: viser tried 1000 ports on it, then the command waited forever for a server that never started."""
+    from splat_framework.serving import InvalidAddress
+    from splat_framework.viewer import Viewer
+
+    with pytest.raises(InvalidAddress, match="cannot listen on"):
+        Viewer(port=0, host=host)
 
 
 def _send_malformed(port: int, gui_uuids: list[str]) -> None:
@@ -171,3 +185,35 @@ def test_malformed_websocket_messages_print_no_traceback(run_dir, capfd, recwarn
         assert answers("127.0.0.1", viewer.port) and viewer.server._share_tunnel is None
     finally:
         viewer.close()
+
+
+def test_pages_of_other_sites_cannot_use_the_viewer():
+    """Loopback stops other machines, not other web sites: a page the user opens elsewhere (its
+    Origin), or one that rebinds its domain to 127.0.0.1 (its Host), is closed before any message."""
+    import viser
+    from websockets.asyncio.client import connect
+    from websockets.exceptions import ConnectionClosed
+
+    from splat_framework.viewer import Viewer
+
+    v = Viewer(port=0)
+
+    async def first_message(uri: str, origin: str | None) -> int | str:
+        """The close code, or "message" when the server sends the scene."""
+        sock = socket.create_connection(("127.0.0.1", v.port))
+        async with connect(uri, origin=origin, sock=sock, subprotocols=[f"viser-v{viser.__version__}"],
+                           max_size=None) as ws:
+            try:
+                await asyncio.wait_for(ws.recv(), 10)
+                return "message"
+            except ConnectionClosed as e:
+                return e.rcvd.code
+
+    try:
+        own = f"http://localhost:{v.port}"
+        assert asyncio.run(first_message(f"ws://localhost:{v.port}", own)) == "message"
+        assert asyncio.run(first_message(f"ws://127.0.0.1:{v.port}", None)) == "message"  # not a browser
+        assert asyncio.run(first_message(f"ws://localhost:{v.port}", "http://evil.example")) == 1008
+        assert asyncio.run(first_message(f"ws://evil.example:{v.port}", f"http://evil.example:{v.port}")) == 1008
+    finally:
+        v.close()
