@@ -16,18 +16,15 @@ Cameras are OpenCV-convention in both this project and viser (x right, y down,
 z forward), so poses pass through unchanged.
 
 Where it listens (127.0.0.1 unless a host is given, a free port, the true URL) is
-:mod:`splat_framework.serving`'s. Nothing a client sends prints a traceback into the
-terminal (:func:`_quiet_client_errors`), no client can open a public share tunnel, and no
-page of another web site can read the viewer (:func:`_refuse_foreign_pages`).
+:mod:`splat_framework.serving`'s; what its clients may do (no traceback from a malformed
+message, no share tunnel, no page of another web site) is :mod:`splat_framework.viser_clients`'.
 """
 
 from __future__ import annotations
 
 import contextlib
 import copy
-import functools
 import io
-import logging
 import threading
 import warnings
 from pathlib import Path
@@ -35,11 +32,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .serving import LOOPBACK, ServingWarning, client_allowed, exposure_warning, free_port, server_url
+from .serving import LOOPBACK, ServingWarning, exposure_warning, free_port, server_url
+from .viser_clients import from_client, guard_clients
 
 __all__ = ["Viewer", "splat_arrays"]
-
-log = logging.getLogger(__name__)
 
 RAY_RGB = (1.0, 0.55, 0.1)
 ORDINARY_RGB = (0.2, 0.45, 1.0)
@@ -73,75 +69,6 @@ def splat_arrays(model, by_type: bool = False) -> dict[str, np.ndarray]:
         "rgbs": rgb.cpu().numpy(),
         "opacities": torch.sigmoid(g["opacities"].float()).reshape(-1, 1).cpu().numpy(),
     }
-
-
-class _ClientErrorsToDebug(logging.Filter):
-    """Turns a record carrying an exception (the websockets server's "connection handler failed"
-    after a malformed client message) into one DEBUG line: shown only when debug logging is on."""
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        if record.exc_info:
-            exc = record.exc_info[1]
-            record.msg, record.args = f"{record.getMessage()}: {type(exc).__name__}: {exc}".replace("\n", " "), None
-            record.exc_info = record.exc_text = None
-            record.levelno, record.levelname = logging.DEBUG, "DEBUG"
-        return True
-
-
-_CLIENT_ERRORS = _ClientErrorsToDebug()
-
-
-def _client_loop_error(loop, context: dict) -> None:
-    """The viser event loop's exception handler: a failure in a task started by a client's message
-    (a malformed one) is one DEBUG line, not asyncio's traceback."""
-    exc = context.get("exception")
-    log.debug("viewer client message dropped: %s%s", context.get("message", ""), f": {type(exc).__name__}: {exc}" if exc else "")
-
-
-def _quiet_client_errors(server) -> None:
-    """Route what malformed client messages raise to one DEBUG line: viser hands a message it
-    cannot decode to the websockets server, which logs the handler's traceback at ERROR
-    (``websockets.server``); a message that decodes but fails in a handler task reaches the
-    event loop's exception handler; one whose fields have the wrong types also brings viser's
-    warning (ignored). GUI callbacks are wrapped by :func:`_from_client`."""
-    logging.getLogger("websockets.server").addFilter(_CLIENT_ERRORS)  # the same filter object: added once
-    # viser's warning when a client's field has the wrong type (the message is then dropped or fails as above)
-    warnings.filterwarnings("ignore", message=r"\[viser\] .* does not match annotation", category=UserWarning)
-    loop = getattr(server, "_event_loop", None)
-    if loop is not None:
-        loop.set_exception_handler(_client_loop_error)
-
-
-def _refuse_foreign_pages(server, host: str) -> None:
-    """Close, before anything is sent to it, a websocket opened by a page of another web site or
-    under a non-loopback name on a loopback server (:func:`~splat_framework.serving.client_allowed`).
-    Runs first among viser's connect callbacks, which are awaited before a client's messages flow."""
-    websock = server._websock_server
-
-    async def check(client) -> None:
-        connection = websock._live_connections.get(client.client_id)
-        if connection is None:
-            return
-        headers = connection.request.headers
-        if not client_allowed(host, headers.get("Host"), headers.get("Origin")):
-            log.debug("viewer refused a client: Host %r, Origin %r", headers.get("Host"), headers.get("Origin"))
-            await connection.close(1008, "this page may not use the viewer")
-
-    websock._client_connect_cb.insert(0, check)
-
-
-def _from_client(callback):
-    """A GUI callback run on a client's message: a failure is one DEBUG line (viser's thread pool
-    would print its traceback into the terminal)."""
-
-    @functools.wraps(callback)
-    def run(event) -> None:
-        try:
-            callback(event)
-        except Exception as e:  # noqa: BLE001 - whatever a client's message caused
-            log.debug("viewer callback failed on a client's message: %s: %s", type(e).__name__, e)
-
-    return run
 
 
 def _has_types(model) -> bool:
@@ -183,7 +110,6 @@ class Viewer:
 
     def __init__(self, port: int = 8080, host: str = LOOPBACK) -> None:
         import viser
-        from viser import _messages as viser_messages
 
         chosen = free_port(host, port)  # a bad port or host: one-line InvalidAddress here, never a dead server thread
         with contextlib.redirect_stdout(io.StringIO()):  # viser's banner, whose URL says localhost whatever the host
@@ -194,10 +120,7 @@ class Viewer:
         exposed = exposure_warning(host, self.port)
         if exposed:
             warnings.warn(exposed, ServingWarning, stacklevel=2)
-        # a client's "share" request would open a public tunnel to this viewer: not ours to grant
-        self.server._websock_server.unregister_handler(viser_messages.ShareUrlRequest)
-        _quiet_client_errors(self.server)
-        _refuse_foreign_pages(self.server, host)
+        guard_clients(self.server, host)
         self._lock = threading.Lock()  # the model is read by viser's GUI thread and written by training
         self._model = None
         self._background = None
@@ -206,13 +129,13 @@ class Viewer:
         self.num_splats = 0
         gui = self.server.gui
         self._by_type = gui.add_checkbox("Colour by type", initial_value=False, hint="ray-based orange, ordinary blue")
-        self._by_type.on_update(_from_client(lambda _: self._draw_splats()))
+        self._by_type.on_update(from_client(lambda _: self._draw_splats()))
         self._status = gui.add_markdown("")
         self._chosen = gui.add_dropdown("Camera", ["(none)"])
         goto = gui.add_button("Go to camera")
-        goto.on_click(_from_client(lambda _: self.go_to(self._chosen.value)))
+        goto.on_click(from_client(lambda _: self.go_to(self._chosen.value)))
         render = gui.add_button("Render with splat")
-        render.on_click(_from_client(lambda _: self.render_panel(self._chosen.value)))
+        render.on_click(from_client(lambda _: self.render_panel(self._chosen.value)))
         self._image = gui.add_image(np.zeros((8, 24, 3), np.uint8), label="splat render: RGB | depth | |error|")
 
     @property
