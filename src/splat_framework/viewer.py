@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .serving import LOOPBACK, ServingWarning, exposure_warning, free_port, server_url
+from .serving import LOOPBACK, ServingWarning, check_port, exposure_warning, free_port, server_url
 from .viser_clients import from_client, guard_clients
 
 __all__ = ["Viewer", "splat_arrays"]
@@ -253,9 +253,14 @@ def view_run(run_dir: Path, port: int = 8080, host: str = LOOPBACK, device: str 
 class ViewerCallback:
     """A training callback (``trainer.train(config, callbacks)``) that opens a :class:`Viewer` at the
     first step and shows the model every ``every`` steps (a copy of its parameters: sending ~30k
-    Gaussians costs milliseconds, about nothing against a training step)."""
+    Gaussians costs milliseconds, about nothing against a training step).
+
+    A port or host it could not listen on raises :class:`~splat_framework.serving.InvalidAddress`
+    here, before training starts (and before anything is written)."""
 
     def __init__(self, port: int = 8080, every: int = 100, host: str = LOOPBACK) -> None:
+        check_port(port)
+        free_port(host, 0)  # the host is this machine's (any port: the one asked for may be free by step 1)
         self.port, self.every, self.host = port, max(int(every), 1), host
         self.viewer: Viewer | None = None
 

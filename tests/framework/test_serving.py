@@ -142,6 +142,13 @@ def test_a_host_that_cannot_be_listened_on_is_one_error(host):
         Viewer(port=0, host=host)
 
 
+def test_splat_train_checks_the_viewer_host_before_training(tmp_path):
+    """Before: the viewer opened at step 1, after the run folder was written; on a bad host, viser hung."""
+    run_cli("train", "3dgs", "--data", "synthetic/forward-tiny", "--output", tmp_path / "run", "--viewer",
+            "--viewer-host", "nosuch.invalid", code=2, match="cannot listen on host 'nosuch.invalid'",
+            watch=[tmp_path], timeout=60)
+
+
 def _send_malformed(port: int, gui_uuids: list[str]) -> None:
     """Send what no viser client sends: text, bytes that are not msgpack, unknown message types,
     GUI updates with values of the wrong type, a share-tunnel request; one connection each."""
