@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .serving import LOOPBACK, ServingWarning, check_port, exposure_warning, free_port, server_url
+from .serving import LOOPBACK, InvalidAddress, ServingWarning, check_port, exposure_warning, free_port, server_url
 from .viser_clients import from_client, guard_clients
 
 __all__ = ["Viewer", "splat_arrays"]
@@ -98,6 +98,37 @@ def _thumbnail(image: torch.Tensor) -> np.ndarray:
     return cv2.resize(img, (max(1, round(img.shape[1] * f)), max(1, round(img.shape[0] * f))), interpolation=cv2.INTER_AREA)
 
 
+STARTUP_S = 60.0
+"""How long a viewer may take to start listening before the command gives up on it."""
+
+
+def _start_server(host: str, port: int, timeout: float | None = None):
+    """A ``viser.ViserServer`` listening on ``host``:``port``, or :class:`InvalidAddress` when it has
+    not started within ``timeout`` seconds (default :data:`STARTUP_S`): viser's constructor waits,
+    without a timeout, for a server thread that may have died (then the command never ended).
+    Viser's banner is swallowed (its URL says localhost whatever the host; ours is :attr:`Viewer.url`)."""
+    import viser
+
+    started: dict = {}
+
+    def start() -> None:
+        try:
+            with contextlib.redirect_stdout(io.StringIO()):
+                started["server"] = viser.ViserServer(host=host, port=port, verbose=False)
+        except BaseException as e:  # noqa: BLE001 - re-raised in the caller's thread
+            started["error"] = e
+
+    thread = threading.Thread(target=start, name="viewer-start", daemon=True)
+    thread.start()
+    thread.join(STARTUP_S if timeout is None else timeout)
+    if "error" in started:
+        raise started["error"]
+    if "server" not in started:
+        raise InvalidAddress(f"the viewer did not start listening on {host} port {port} "
+                             f"within {STARTUP_S if timeout is None else timeout:.0f} s")
+    return started["server"]
+
+
 class Viewer:
     """A viser server showing one model and a dataset's cameras.
 
@@ -109,11 +140,8 @@ class Viewer:
     """
 
     def __init__(self, port: int = 8080, host: str = LOOPBACK) -> None:
-        import viser
-
         chosen = free_port(host, port)  # a bad port or host: one-line InvalidAddress here, never a dead server thread
-        with contextlib.redirect_stdout(io.StringIO()):  # viser's banner, whose URL says localhost whatever the host
-            self.server = viser.ViserServer(host=host, port=chosen, verbose=False)
+        self.server = _start_server(host, chosen)
         self.host, self.port = host, self.server.get_port()
         if port and self.port != port:
             warnings.warn(f"port {port} is in use; serving on {self.port}", ServingWarning, stacklevel=2)

@@ -8,6 +8,7 @@ import contextlib
 import socket
 import subprocess
 import sys
+import threading
 import time
 import urllib.request
 
@@ -140,6 +141,23 @@ def test_a_host_that_cannot_be_listened_on_is_one_error(host):
 
     with pytest.raises(InvalidAddress, match="cannot listen on"):
         Viewer(port=0, host=host)
+
+
+def test_a_server_thread_that_dies_ends_the_wait(monkeypatch):
+    """viser's constructor waits without a timeout for its server thread; one that dies (as on
+    ``--port -1`` before) made the command hang. Now: an error after the startup timeout."""
+    import websockets.asyncio.server
+
+    from splat_framework.serving import InvalidAddress
+    from splat_framework.viewer import _start_server
+
+    def dies(*args, **kwargs):
+        raise RuntimeError("server thread died")
+
+    monkeypatch.setattr(websockets.asyncio.server, "serve", dies)
+    monkeypatch.setattr(threading, "excepthook", lambda args: None)  # the dying thread's own report
+    with pytest.raises(InvalidAddress, match="did not start listening on 127.0.0.1"):
+        _start_server("127.0.0.1", 0, timeout=1)
 
 
 def test_splat_train_checks_the_viewer_host_before_training(tmp_path):
