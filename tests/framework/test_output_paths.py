@@ -34,7 +34,7 @@ def dataset(tmp_path) -> Path:
     from support import make_llff
 
     root = tmp_path / "my-dataset"
-    make_llff(root, n=3, w=16, h=12)
+    make_llff(root, n=4, w=16, h=12)
     return root
 
 
