@@ -25,6 +25,7 @@ import os
 import shutil
 import stat
 from dataclasses import dataclass
+from fnmatch import fnmatch
 from pathlib import Path
 from typing import Callable, Iterable
 
@@ -169,10 +170,23 @@ MATCH_FOLDER = OutputKind(
     entries=("matches.npz", "matches_*_*.png"),  # the cache/ stays: it is keyed by the inputs
     recognise=lambda p: _is_regular(Path(p) / "matches.npz"),
 )
-SWEEP_FOLDER = OutputKind(
-    "sweep", "sweep folder", "splat-sweep", True,
-    recognise=lambda p: _is_regular(Path(p) / "results.json") and (Path(p) / "runs").is_dir(),
-)
+def _is_legacy_sweep(folder: Path) -> bool:
+    """A sweep folder written before the marker existed: its ``results.json`` (runs and rows), or a
+    ``runs/`` folder and nothing but what a sweep writes (the runs of a sweep killed before its tables)."""
+    folder = Path(folder)
+    results = folder / "results.json"
+    if _is_regular(results):
+        try:
+            payload = json.loads(results.read_text(encoding="utf-8"))
+            return isinstance(payload, dict) and {"runs", "rows"} <= payload.keys()
+        except (OSError, ValueError):
+            return False
+    names = [p.name for p in folder.iterdir()]
+    return "runs" in names and all(any(fnmatch(n, pat) for pat in SWEEP_ENTRIES) for n in names)
+
+
+SWEEP_ENTRIES = ("runs", "results.md", "results.csv", "figures", ".results.*.tmp")
+SWEEP_FOLDER = OutputKind("sweep", "sweep folder", "splat-sweep", True, recognise=_is_legacy_sweep)
 
 
 def _describe_special(mode: int) -> str:

@@ -39,13 +39,14 @@ def prepare_run_dir(config: TrainConfig) -> Path:
     """
     if config.resume and config.overwrite:
         raise DataError("--resume and --overwrite exclude each other (continue the run, or start it again)")
+    inputs = [Path(config.data)] if Path(config.data).exists() else []
     if config.output is None:
         if config.resume:
             raise DataError("--resume needs --output RUN_FOLDER (the run to continue)")
         run_dir = default_run_dir(config)
+        check_path(run_dir, RUN_FOLDER, inputs=inputs, flag="--output")
     else:
         run_dir = Path(config.output)
-        inputs = [Path(config.data)] if Path(config.data).exists() else []
         if config.resume:  # what is there is checked by the trainer (config.json, checkpoints)
             check_path(run_dir, RUN_FOLDER, inputs=inputs, flag="--output")
         elif check_output(run_dir, RUN_FOLDER, overwrite=config.overwrite, inputs=inputs, flag="--output"):
