@@ -199,3 +199,18 @@ def test_sweep_refuses_a_folder_that_is_not_a_sweep(tmp_path):
     folder = user_folder(tmp_path / "paper", **{"results.md": "my table"})
     run_cli("sweep", "--methods", "3dgs", "--data", tmp_path / "no-such-data", "--steps", 1, "--no-live",
             "--out", folder, code=2, match="not a sweep folder written by splat-sweep", watch=[tmp_path])
+
+
+def test_clearing_an_output_unlinks_links_inside_and_keeps_the_users_files(tmp_path):
+    """--overwrite's removal (the same function for every command) never descends into a symlink."""
+    from splat_framework.output_paths import RUN_FOLDER, clear_output
+
+    elsewhere = user_folder(tmp_path / "elsewhere", **{"precious.png": "x", "a_render.png": "y"})
+    run = _fake_run(tmp_path / "run")
+    (run / "renders").mkdir()
+    os.symlink(elsewhere, run / "renders" / "linked")  # a link inside a folder that is removed
+    os.symlink(elsewhere / "a_render.png", run / "spiral.mp4")  # a link in place of a file we write
+    (run / "notes.txt").write_text("mine")
+    clear_output(run, RUN_FOLDER)
+    assert sorted(p.name for p in run.iterdir()) == ["notes.txt"]
+    assert sorted(p.name for p in elsewhere.iterdir()) == ["a_render.png", "precious.png"]

@@ -25,12 +25,14 @@ class ExportArgs:
 
 
 def main(args: ExportArgs) -> Path:
-    from ..export import export_ply
     from ..output_paths import PLY_FILE, check_output
-    from ..run import load_trained_model
 
     out = args.ply if args.ply is not None else Path(args.run_dir) / "point_cloud.ply"
-    check_output(out, PLY_FILE, overwrite=args.overwrite or args.ply is None, flag="--ply")
+    check_output(out, PLY_FILE, overwrite=args.overwrite or args.ply is None, flag="--ply")  # before torch loads
+
+    from ..export import export_ply
+    from ..run import load_trained_model
+
     _, model = load_trained_model(args.run_dir, args.device, trust_edits=args.trust_edited_config)
     export_ply(model, out)
     print(f"wrote {model.num_gaussians} Gaussians to {out}")

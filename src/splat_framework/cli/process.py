@@ -51,10 +51,11 @@ Args = Union[
 
 def main(args: ImagesArgs | VideoArgs):
     from ..output_paths import PROCESSED_SCENE, check_output
-    from ..sfm import estimate_scene, list_images, pick_video_frames
 
     source = args.video if isinstance(args, VideoArgs) else args.folder
     check_output(args.out, PROCESSED_SCENE, overwrite=args.overwrite, inputs=[source])  # before any work
+
+    from ..sfm import estimate_scene, list_images, pick_video_frames
     if isinstance(args, VideoArgs):
         with tempfile.TemporaryDirectory(prefix="splat-frames-") as tmp:
             frames = pick_video_frames(args.video, args.frames, Path(tmp) / "frames")

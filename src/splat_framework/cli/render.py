@@ -45,13 +45,8 @@ def camera_path(kind: str, dm, frames: int) -> tuple[str, list]:
 
 
 def main(args: RenderArgs) -> Path:
-    import torch
-    from rich.progress import track
-
     from ..errors import DataError
-    from ..evaluation import colorize_depth, expected_depth, model_depth_mode, to_uint8, write_png
     from ..output_paths import RENDER_FOLDER, VIDEO_FILE, check_output, claim_output
-    from ..run import background_for, load_run
 
     if args.frames < 1:
         raise DataError(f"--frames must be >= 1, got {args.frames}")
@@ -64,6 +59,13 @@ def main(args: RenderArgs) -> Path:
     elif args.out is not None:
         for target in video_targets(args.out, args.depth):
             check_output(target, VIDEO_FILE, overwrite=replace)
+
+    import torch
+    from rich.progress import track
+
+    from ..evaluation import colorize_depth, expected_depth, model_depth_mode, to_uint8, write_png
+    from ..run import background_for, load_run
+
     config, dm, model = load_run(args.run_dir, args.device, args.trust_edited_config)
     bg = background_for(dm.scene, config.device)
     if args.path == "test":
