@@ -52,13 +52,17 @@ def main(args: RenderArgs) -> Path:
         raise DataError(f"--frames must be >= 1, got {args.frames}")
     if args.fps < 1:
         raise DataError(f"--fps must be >= 1, got {args.fps}")
-    replace = args.overwrite or args.out is None
+    replace = args.overwrite or args.out is None  # the defaults inside RUN_DIR are the run's own
+
+    def check_video(out: Path) -> None:
+        for target in video_targets(out, args.depth):
+            check_output(target, VIDEO_FILE, overwrite=replace)
+
     if args.path == "test":
         out = args.out or args.run_dir / "renders"
         check_output(out, RENDER_FOLDER, overwrite=replace)
-    elif args.out is not None:
-        for target in video_targets(args.out, args.depth):
-            check_output(target, VIDEO_FILE, overwrite=replace)
+    elif args.out is not None:  # checked before anything loads; the default name waits for --path auto
+        check_video(args.out)
 
     import torch
     from rich.progress import track
@@ -82,8 +86,7 @@ def main(args: RenderArgs) -> Path:
         return out
     kind, cams = camera_path(args.path, dm, args.frames)
     out = args.out or args.run_dir / f"{kind}.mp4"
-    for target in video_targets(out, args.depth):
-        check_output(target, VIDEO_FILE, overwrite=replace)
+    check_video(out)
     return write_video(model, cams, bg, out, args.fps, args.depth)
 
 
