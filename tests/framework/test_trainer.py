@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from splat_framework.config import SCHEMA_VERSION, apply_overrides, read_config_json
+from splat_framework.config import SCHEMA_VERSION, apply_overrides, read_config_json, save_config
 from splat_framework.data import DataError, load_scene, resolve_data_path
 from splat_framework.data.datamanager import view_bytes
 from splat_framework.evaluation import evaluate
@@ -95,6 +95,11 @@ def test_run_folder_rules(tmp_path):
     (run / "metrics.json").write_text("{}")
     (run / "notes.txt").write_text("keep me")
     cfg = get_method("3dgs").default_config().model_copy(update={"output": run})
+    # a folder without a config.json that splat-train signed is not a run folder: never replaced
+    for flags in ({}, {"overwrite": True}):
+        with pytest.raises(DataError, match="not a run folder"):
+            prepare_run_dir(cfg.model_copy(update=flags))
+    save_config(cfg, run / "config.json")
     with pytest.raises(DataError, match="not empty.*--resume.*--overwrite"):
         prepare_run_dir(cfg)
     with pytest.raises(DataError, match="exclude"):
@@ -108,10 +113,10 @@ def test_run_folder_rules(tmp_path):
     assert prepare_run_dir(cfg.model_copy(update={"resume": True})) == run
     assert (run / "checkpoints" / "step-0000010.ckpt").exists()
     assert not any(f.exists() for f in stale) and (run / "notes.txt").exists()
-    # --overwrite: the old run's checkpoints and metrics cannot leak into the new one
+    # --overwrite: the old run's config, checkpoints and metrics cannot leak into the new one
     prepare_run_dir(cfg.model_copy(update={"overwrite": True}))
     assert not (run / "checkpoints" / "step-0000010.ckpt").exists() and not (run / "metrics.json").exists()
-    assert (run / "notes.txt").read_text() == "keep me"
+    assert not (run / "config.json").exists() and (run / "notes.txt").read_text() == "keep me"
     # an empty folder is fine without flags
     empty = tmp_path / "empty"
     empty.mkdir()

@@ -47,6 +47,9 @@ class MatchArgs:
     max_lines: int = 200
     """Match lines drawn per picture."""
 
+    overwrite: bool = False
+    """Replace the results in --out when splat-match wrote them (matches.npz, matches_*.png; the cache stays)."""
+
     config: Annotated[MatchConfig, tyro.conf.arg(name="")] = field(default_factory=MatchConfig)
     """Matching settings."""
 
@@ -116,10 +119,12 @@ def main(args: MatchArgs) -> int:
     from splat_framework.data.scene import DataError
 
     from ..matching import MissingWeightsError
+    from ..output_paths import MATCH_FOLDER, check_output, claim_output
 
     console = Console()
     try:
         root = resolve_data_path(args.data)
+        check_output(args.out, MATCH_FOLDER, overwrite=args.overwrite, inputs=[root])
         scene = load_scene(root, views=args.views)
         ids = [int(i) for i in scene.train_indices]
         images = [
@@ -128,6 +133,7 @@ def main(args: MatchArgs) -> int:
         ]
         cameras = [scene.cameras[i] for i in ids]
         cache = None if not args.config.cache else (args.cache_dir or Path(args.out) / "cache")
+        claim_output(args.out, MATCH_FOLDER, overwrite=args.overwrite, inputs=[root])
         run_matching(images, cameras, ids, args.config, Path(args.out), cache, args.max_lines, console)
     except (DataError, MissingWeightsError) as e:
         console.print(f"[red]error:[/] {e}", highlight=False, soft_wrap=True)

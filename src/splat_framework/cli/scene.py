@@ -35,6 +35,8 @@ class SceneArgs:
     """forward: number of images (default 20); object: number of training frames (default 100), plus 40% as many test frames."""
     seed: int = 0
     """Seed for the layout, textures and cameras; the same seed gives byte-identical files."""
+    overwrite: bool = False
+    """Replace --out when it is a scene folder that splat-scene wrote (only its own files are removed)."""
 
 
 def main(args: SceneArgs) -> Path:
@@ -44,7 +46,7 @@ def main(args: SceneArgs) -> Path:
     from rich.table import Table
 
     from ..data.synthetic.generate import DEFAULTS, ensure_generated, generate_scene
-    from ..errors import DataError
+    from ..output_paths import SCENE_FOLDER, claim_output
 
     console = Console()
     dflt = DEFAULTS[args.kind]
@@ -55,8 +57,8 @@ def main(args: SceneArgs) -> Path:
         n_views=args.views or dflt["n_views"],
         seed=args.seed,
     )
-    if args.out is not None and args.out.exists() and not args.out.is_dir():
-        raise DataError(f"{args.out}: exists and is not a folder (--out names the scene folder to write)")
+    if args.out is not None:
+        claim_output(args.out, SCENE_FOLDER, overwrite=args.overwrite)
     t0 = time.perf_counter()
     with console.status(f"rendering the {args.kind} scene ({params['width']}x{params['height']})..."):
         if args.out is None:
