@@ -1,7 +1,7 @@
 """SCGaussian's method specs, registered through the ``splat_framework.methods`` entry point.
 
 Kept torch-free: the CLI reads it to build ``--help``. Paper ablation rows are
-TOML variants in ``scg_plugin/configs/`` (package data, see ``splat_framework.registry``).
+TOML variants in the top-level ``configs/`` (the package ``splat_configs``, see ``splat_framework.registry``).
 """
 
 from splat_framework.registry import MethodSpec

@@ -22,6 +22,8 @@ from typing import Annotated, Any, Iterator, Literal, Union
 import tyro
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from .serving import LOOPBACK, Port
+
 SCHEMA_VERSION = 1
 """Version of the saved ``config.json`` layout; bump on incompatible change."""
 
@@ -290,8 +292,10 @@ class TrainConfig(SplatConfig):
     """Show the rich progress bar."""
     viewer: Annotated[bool, RUN_OPTION] = False
     """Open the web viewer (splat-view) while training, showing the model every viewer_every iterations; it stays open after training until Ctrl-C."""
-    viewer_port: Annotated[int, RUN_OPTION, Field(ge=0, le=65535)] = 8080
-    """TCP port of the training viewer (0 = any free port)."""
+    viewer_port: Annotated[Port, RUN_OPTION] = 8080
+    """TCP port of the training viewer, 0..65535 (0 = any free port; a port in use: the next free one, said in one line)."""
+    viewer_host: Annotated[str, RUN_OPTION] = LOOPBACK
+    """Interface the training viewer listens on: 127.0.0.1, this machine only (default); any other address, e.g. 0.0.0.0 for every interface, lets other machines see the model, the photos' thumbnails and "Render with splat" (a warning says so)."""
     viewer_every: Annotated[int, RUN_OPTION, Field(ge=1)] = 100
     """Send the model to the training viewer every this many iterations."""
     compile: Annotated[bool, RUN_OPTION] = True

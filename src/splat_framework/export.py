@@ -1,7 +1,9 @@
 """Export trained Gaussians in the 3DGS reference PLY layout, and read such files back.
 
 Layout (what ``GaussianModel.save_ply`` of the 3DGS reference writes and
-common splat viewers read): one ``vertex`` element, binary little-endian,
+common splat viewers read; the header also carries the comment line
+``comment written by splat-export``, by which splat-export recognises its own
+files before replacing one): one ``vertex`` element, binary little-endian,
 every property ``float`` (float32), in this order::
 
     x y z                      position (ray-based Gaussians: their true position)
@@ -30,6 +32,7 @@ from torch import Tensor
 
 from .errors import DataError
 from .io import atomic_write_bytes
+from .output_paths import PLY_COMMENT
 
 __all__ = ["export_ply", "gaussians_for_export", "load_ply", "ply_property_names", "write_ply"]
 
@@ -85,7 +88,7 @@ def write_ply(path: Path, gaussians: dict[str, Tensor]) -> Path:
     for i, name in enumerate(names):
         vertex[name] = columns[:, i]
     header = "\n".join(
-        ["ply", "format binary_little_endian 1.0", f"element vertex {n}"]
+        ["ply", "format binary_little_endian 1.0", PLY_COMMENT, f"element vertex {n}"]
         + [f"property float {name}" for name in names]
         + ["end_header"]
     ) + "\n"

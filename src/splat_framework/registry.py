@@ -1,22 +1,26 @@
 """Method registry: built-ins and plugins register the same way.
 
 A package declares methods in the entry-point group ``splat_framework.methods``;
-each entry point names a :class:`MethodSpec`. Named config variants (paper
-ablation rows) are TOML files::
+each entry point names a :class:`MethodSpec`. Named config variants (the paper's
+rows) are TOML files::
 
-    # src/scg_plugin/configs/scgaussian-no-rg.toml
+    # configs/scgaussian-hybrid.toml
     base = "scgaussian"
-    description = "SCGaussian without the rendering-geometry loss"
+    description = "Paper, ablation table, row 'hybrid representation': ..."
     [overrides.model]
     lambda_rg = 0.0
 
-shipped as package data: a package lists the packages holding its variants in
-the entry-point group ``splat_framework.configs`` (``scg_plugin =
-"scg_plugin.configs"``), so they are found the same way from a checkout, an
-editable install or a wheel. Folders listed in ``$SPLAT_CONFIG_PATH``
-(os.pathsep-separated) come first: a user's file of the same name wins. A
-variant keeps its own name, so runs of different variants never share an
-output folder.
+The project's own variants live in the top-level ``configs/`` folder, installed as
+the package ``splat_configs``; any package lists the packages holding its variants
+in the entry-point group ``splat_framework.configs`` (``splat = "splat_configs"``
+here; a plugin ships its own the same way), so they are found from a checkout, an
+editable install or a wheel alike.
+
+Search order: the folders of ``$SPLAT_CONFIG_PATH`` (os.pathsep-separated), in
+order, then the entry-point packages in the order ``importlib.metadata`` lists
+them. The first file of a name wins; every later file of the same name is
+ignored with one warning naming both files. A variant keeps its own name, so
+runs of different variants never share an output folder.
 
 Importing this module and listing methods never imports torch.
 """
@@ -72,7 +76,7 @@ class MethodSpec:
 
 def default_config_dirs() -> list[Path]:
     """Folders searched for TOML variants, in precedence order: ``$SPLAT_CONFIG_PATH``, then the
-    packages named in the ``splat_framework.configs`` entry points (package data)."""
+    packages named in the ``splat_framework.configs`` entry points (package data), each once."""
     dirs = []
     env = os.environ.get("SPLAT_CONFIG_PATH")
     if env:
@@ -83,7 +87,7 @@ def default_config_dirs() -> list[Path]:
         except (ImportError, TypeError, ValueError) as e:  # a broken plugin must not kill the CLI
             warnings.warn(f"config variants '{ep.name}' ({ep.value}) cannot be located: {e}", stacklevel=2)
             continue
-        if folder.is_dir():
+        if folder.is_dir() and folder not in dirs:
             dirs.append(folder)
     return dirs
 
@@ -114,7 +118,10 @@ def _load_variants(base: dict[str, MethodSpec], dirs: list[Path]) -> dict[str, M
     _BROKEN.clear()
     for d in dirs:  # the first folder with a name wins
         for f in sorted(d.glob("*.toml")):
-            pending.setdefault(f.stem, f)
+            first = pending.setdefault(f.stem, f)
+            if first != f:
+                warnings.warn(f"{f}: variant '{f.stem}' is also defined by {first}, which wins; ignored",
+                              VariantWarning, stacklevel=2)
     resolved = dict(base)
     progress = True
     while pending and progress:  # variants may build on other variants

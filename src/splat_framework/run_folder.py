@@ -5,9 +5,10 @@ from __future__ import annotations
 from datetime import datetime
 from pathlib import Path
 
-from .checkpoint import list_checkpoints, remove_stale_temporaries
+from .checkpoint import remove_stale_temporaries
 from .config import TrainConfig
 from .data import DataError
+from .output_paths import RUN_FOLDER, check_output, check_path, clear_output
 
 
 def default_run_dir(config: TrainConfig) -> Path:
@@ -30,27 +31,26 @@ def prepare_run_dir(config: TrainConfig) -> Path:
 
     Raises DataError (one line, exit code 2 in the CLIs) when ``--output``
     exists and is not empty and neither ``--resume`` nor ``--overwrite`` is
-    given. With ``--overwrite`` the old checkpoints and metrics are removed so
-    that nothing of the previous run can be mistaken for this one's.
+    given, when it is not a run folder (see :mod:`splat_framework.output_paths`),
+    or when it is, holds, or lies inside the ``--data`` folder. With ``--overwrite``
+    what the previous run wrote (config, checkpoints, metrics, renders) is removed,
+    symlinks unlinked and never followed, so that nothing of it can be mistaken for
+    this one's; files of the user's in the folder are kept.
     """
     if config.resume and config.overwrite:
         raise DataError("--resume and --overwrite exclude each other (continue the run, or start it again)")
+    inputs = [Path(config.data)] if Path(config.data).exists() else []
     if config.output is None:
         if config.resume:
             raise DataError("--resume needs --output RUN_FOLDER (the run to continue)")
         run_dir = default_run_dir(config)
+        check_path(run_dir, RUN_FOLDER, inputs=inputs, flag="--output")
     else:
         run_dir = Path(config.output)
-        if run_dir.exists() and not run_dir.is_dir():
-            raise DataError(f"{run_dir}: --output exists and is not a folder")
-        if run_dir.exists() and any(run_dir.iterdir()) and not (config.resume or config.overwrite):
-            raise DataError(
-                f"{run_dir}: run folder exists and is not empty (use --resume to continue it or --overwrite to replace it)"
-            )
-        if config.overwrite and run_dir.is_dir():
-            for old in list_checkpoints(run_dir / "checkpoints"):
-                old.unlink(missing_ok=True)
-            (run_dir / "metrics.json").unlink(missing_ok=True)
+        if config.resume:  # what is there is checked by the trainer (config.json, checkpoints)
+            check_path(run_dir, RUN_FOLDER, inputs=inputs, flag="--output")
+        elif check_output(run_dir, RUN_FOLDER, overwrite=config.overwrite, inputs=inputs, flag="--output"):
+            clear_output(run_dir, RUN_FOLDER)
     run_dir.mkdir(parents=True, exist_ok=True)
     for folder in (run_dir, run_dir / "checkpoints", run_dir / "renders"):  # partial files of a killed run
         remove_stale_temporaries(folder)

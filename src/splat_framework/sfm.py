@@ -40,6 +40,7 @@ import torch
 from .cameras import camera_centers, pose_differences
 from .data.images import read_photo
 from .errors import DataError
+from .output_paths import PROCESSED_SCENE, check_output, install_output
 from .work_folder import make_work_folder, remove_stale_work_folders
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
@@ -152,7 +153,8 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
     SIMPLE_PINHOLE keeps the photos as they are).
 
     Raises DataError (one line) when an image is unreadable, sizes differ, fewer than 2
-    images register, or ``out`` exists (without ``overwrite``)."""
+    images register, or ``out`` may not be written (see :mod:`splat_framework.output_paths`: a folder
+    that splat-process did not write, the photos' folder, or, without ``overwrite``, an earlier scene)."""
     if mapper not in MAPPERS:
         raise DataError(f"--mapper must be one of {', '.join(MAPPERS)}, got {mapper!r}")
     plugins = photo_matchers()
@@ -162,8 +164,7 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
     if matcher != "sift" and matcher not in plugins:
         raise DataError(f"--matcher must be one of {', '.join(['auto', 'sift', *sorted(plugins)])}, got {matcher!r}")
     out = Path(out)
-    if out.exists() and not overwrite and any(out.iterdir() if out.is_dir() else [out]):
-        raise DataError(f"{out}: exists and is not empty; pass --overwrite or another --out")
+    check_output(out, PROCESSED_SCENE, overwrite=overwrite, inputs={Path(p).parent for p in images})
     pycolmap = _pycolmap()
     t0 = time.perf_counter()
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -222,9 +223,7 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
             reprojection_px=float(best.compute_mean_reprojection_error()),
             seconds=time.perf_counter() - t0, mapper=mapper, matcher=matcher,
         )
-        if out.exists():
-            shutil.rmtree(out) if out.is_dir() else out.unlink()
-        scene.rename(out)
+        install_output(scene, out, PROCESSED_SCENE)
         return summary
     finally:
         shutil.rmtree(work, ignore_errors=True)

@@ -14,16 +14,26 @@ project's CPU rasterizer is slow. Beside it:
 
 Cameras are OpenCV-convention in both this project and viser (x right, y down,
 z forward), so poses pass through unchanged.
+
+Where it listens (127.0.0.1 unless a host is given, a free port, the true URL) is
+:mod:`splat_framework.serving`'s; what its clients may do (no traceback from a malformed
+message, no share tunnel, no page of another web site) is :mod:`splat_framework.viser_clients`'.
 """
 
 from __future__ import annotations
 
+import contextlib
 import copy
+import io
 import threading
+import warnings
 from pathlib import Path
 
 import numpy as np
 import torch
+
+from .serving import LOOPBACK, InvalidAddress, ServingWarning, check_port, exposure_warning, free_port, server_url
+from .viser_clients import from_client, guard_clients
 
 __all__ = ["Viewer", "splat_arrays"]
 
@@ -88,25 +98,57 @@ def _thumbnail(image: torch.Tensor) -> np.ndarray:
     return cv2.resize(img, (max(1, round(img.shape[1] * f)), max(1, round(img.shape[0] * f))), interpolation=cv2.INTER_AREA)
 
 
+STARTUP_S = 60.0
+"""How long a viewer may take to start listening before the command gives up on it."""
+
+
+def _start_server(host: str, port: int, timeout: float | None = None):
+    """A ``viser.ViserServer`` listening on ``host``:``port``, or :class:`InvalidAddress` when it has
+    not started within ``timeout`` seconds (default :data:`STARTUP_S`): viser's constructor waits,
+    without a timeout, for a server thread that may have died (then the command never ended).
+    Viser's banner is swallowed (its URL says localhost whatever the host; ours is :attr:`Viewer.url`)."""
+    import viser
+
+    started: dict = {}
+
+    def start() -> None:
+        try:
+            with contextlib.redirect_stdout(io.StringIO()):
+                started["server"] = viser.ViserServer(host=host, port=port, verbose=False)
+        except BaseException as e:  # noqa: BLE001 - re-raised in the caller's thread
+            started["error"] = e
+
+    thread = threading.Thread(target=start, name="viewer-start", daemon=True)
+    thread.start()
+    thread.join(STARTUP_S if timeout is None else timeout)
+    if "error" in started:
+        raise started["error"]
+    if "server" not in started:
+        raise InvalidAddress(f"the viewer did not start listening on {host} port {port} "
+                             f"within {STARTUP_S if timeout is None else timeout:.0f} s")
+    return started["server"]
+
+
 class Viewer:
     """A viser server showing one model and a dataset's cameras.
 
     Args:
-        port: TCP port (0 = any free one); the URL is :attr:`url`.
-        host: interface to listen on ("0.0.0.0": reachable from other machines).
+        port: TCP port, 0..65535 (0 = any free one); a port in use: the next free one, said in a
+            :class:`~splat_framework.serving.ServingWarning`. The port served is :attr:`port`, the URL :attr:`url`.
+        host: interface to listen on: 127.0.0.1 (this machine only) by default; any other address
+            (0.0.0.0: every interface) brings a ServingWarning naming what becomes reachable.
     """
 
-    def __init__(self, port: int = 8080, host: str = "0.0.0.0") -> None:
-        import viser
-
-        if port == 0:
-            import socket
-
-            with socket.socket() as s:
-                s.bind(("127.0.0.1", 0))
-                port = s.getsockname()[1]
-        self.server = viser.ViserServer(host=host, port=port, verbose=False)
-        self.port = self.server.get_port()
+    def __init__(self, port: int = 8080, host: str = LOOPBACK) -> None:
+        chosen = free_port(host, port)  # a bad port or host: one-line InvalidAddress here, never a dead server thread
+        self.server = _start_server(host, chosen)
+        self.host, self.port = host, self.server.get_port()
+        if port and self.port != port:
+            warnings.warn(f"port {port} is in use; serving on {self.port}", ServingWarning, stacklevel=2)
+        exposed = exposure_warning(host, self.port)
+        if exposed:
+            warnings.warn(exposed, ServingWarning, stacklevel=2)
+        guard_clients(self.server, host)
         self._lock = threading.Lock()  # the model is read by viser's GUI thread and written by training
         self._model = None
         self._background = None
@@ -115,18 +157,19 @@ class Viewer:
         self.num_splats = 0
         gui = self.server.gui
         self._by_type = gui.add_checkbox("Colour by type", initial_value=False, hint="ray-based orange, ordinary blue")
-        self._by_type.on_update(lambda _: self._draw_splats())
+        self._by_type.on_update(from_client(lambda _: self._draw_splats()))
         self._status = gui.add_markdown("")
         self._chosen = gui.add_dropdown("Camera", ["(none)"])
         goto = gui.add_button("Go to camera")
-        goto.on_click(lambda _: self.go_to(self._chosen.value))
+        goto.on_click(from_client(lambda _: self.go_to(self._chosen.value)))
         render = gui.add_button("Render with splat")
-        render.on_click(lambda _: self.render_panel(self._chosen.value))
+        render.on_click(from_client(lambda _: self.render_panel(self._chosen.value)))
         self._image = gui.add_image(np.zeros((8, 24, 3), np.uint8), label="splat render: RGB | depth | |error|")
 
     @property
     def url(self) -> str:
-        return f"http://localhost:{self.port}"
+        """The address a browser opens (localhost on 127.0.0.1, the host given otherwise)."""
+        return server_url(self.host, self.port)
 
     # ----------------------------------------------------------------- scene
     def set_model(self, model, background: torch.Tensor, note: str = "", snapshot: bool = False) -> None:
@@ -223,7 +266,7 @@ class Viewer:
             self.close()
 
 
-def view_run(run_dir: Path, port: int = 8080, host: str = "0.0.0.0", device: str | None = None,
+def view_run(run_dir: Path, port: int = 8080, host: str = LOOPBACK, device: str | None = None,
              trust_edits: bool = False) -> Viewer:
     """A :class:`Viewer` of a trained run: its newest checkpoint, training and test cameras."""
     from .run import background_for, load_run
@@ -238,9 +281,14 @@ def view_run(run_dir: Path, port: int = 8080, host: str = "0.0.0.0", device: str
 class ViewerCallback:
     """A training callback (``trainer.train(config, callbacks)``) that opens a :class:`Viewer` at the
     first step and shows the model every ``every`` steps (a copy of its parameters: sending ~30k
-    Gaussians costs milliseconds, about nothing against a training step)."""
+    Gaussians costs milliseconds, about nothing against a training step).
 
-    def __init__(self, port: int = 8080, every: int = 100, host: str = "0.0.0.0") -> None:
+    A port or host it could not listen on raises :class:`~splat_framework.serving.InvalidAddress`
+    here, before training starts (and before anything is written)."""
+
+    def __init__(self, port: int = 8080, every: int = 100, host: str = LOOPBACK) -> None:
+        check_port(port)
+        free_port(host, 0)  # the host is this machine's (any port: the one asked for may be free by step 1)
         self.port, self.every, self.host = port, max(int(every), 1), host
         self.viewer: Viewer | None = None
 

@@ -20,7 +20,7 @@ import stat
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 OWNER_FILE = "splat-owner.json"
 """The file in a work folder naming its owner: ``{"pid": int, "host": str}``."""
@@ -82,29 +82,15 @@ def remove_stale_work_folders(out: Path) -> list[Path]:
     return removed
 
 
-def _merge(src: Path, dst: Path) -> None:
-    """Move the tree ``src`` into the existing folder ``dst``: a folder of ``src`` missing in ``dst``
-    moves by one rename, one present there (a real folder, never a symlink's target) is merged into,
-    a file replaces the entry of the same path (a symlink there is replaced, not followed).
-    Nothing of ``dst`` that ``src`` has no entry for is touched."""
-    for name in sorted(os.listdir(src)):
-        s, d = src / name, dst / name
-        if stat.S_ISDIR(os.lstat(s).st_mode) and os.path.lexists(d) and stat.S_ISDIR(os.lstat(d).st_mode):
-            _merge(s, d)
-        else:
-            os.replace(s, d)
-
-
 @contextmanager
-def building(out: Path) -> Iterator[Path]:
-    """Build the folder ``out`` in a fresh work folder beside it (yielded), then move it into place.
+def building(out: Path, install: Callable[[Path, Path], object]) -> Iterator[Path]:
+    """Build the folder ``out`` in a fresh work folder beside it (yielded), then ``install(work, out)``.
 
-    On success ``out`` is created from the work folder by one rename when it does not exist;
-    when it is an existing folder, each file built replaces the file of the same path in it
-    (nothing else in ``out`` is touched; whether ``out`` may be written at all is the caller's
-    decision). On any failure or interruption (Ctrl-C) the work folder
-    is removed and ``out`` is untouched; after a crash (``kill -9``) the next :func:`building`
-    of the same output removes it."""
+    ``install`` moves the finished folder into place (e.g. :func:`splat_framework.output_paths.install_output`,
+    which renames it when ``out`` does not exist); the work folder then has the mode a new
+    folder gets and no owner file. On any failure or interruption (Ctrl-C) the work folder is
+    removed and ``out`` is untouched; after a crash (``kill -9``) the next :func:`building` of
+    the same output removes it."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_work_folders(out)
@@ -112,12 +98,9 @@ def building(out: Path) -> Iterator[Path]:
     try:
         yield work
         (work / OWNER_FILE).unlink()
-        if not os.path.lexists(out):
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(work, 0o777 & ~umask)  # a folder as mkdir makes it, not mkdtemp's private 0700
-            os.rename(work, out)
-            return
-        _merge(work, out)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(work, 0o777 & ~umask)  # a folder as mkdir makes it, not mkdtemp's private 0700
+        install(work, out)
     finally:
         shutil.rmtree(work, ignore_errors=True)

@@ -32,6 +32,7 @@ def raises_data_error(fn, *match: str) -> str:
 # ----------------------------------------------------------------- folders
 
 
+@pytest.mark.bad_input("a dataset folder that is missing, empty or of no known format; missing, corrupt or truncated images; malformed or non-finite poses", "exit 2, one line naming the file and the problem")
 def test_missing_folder(tmp_path):
     raises_data_error(lambda: load_scene(tmp_path / "nope"), "nope", "no such dataset folder")
 
@@ -41,6 +42,7 @@ def test_empty_folder(tmp_path):
     raises_data_error(lambda: load_scene(tmp_path / "empty"), "empty", "empty folder")
 
 
+@pytest.mark.bad_input("a dataset folder that is missing, empty or of no known format; missing, corrupt or truncated images; malformed or non-finite poses", "exit 2, one line naming the file and the problem")
 def test_unknown_format(tmp_path):
     (tmp_path / "x").mkdir()
     (tmp_path / "x" / "readme.txt").write_text("hi")
@@ -119,6 +121,7 @@ def test_truncated_png(tmp_path, fraction):
     raises_data_error(lambda: DataManager(scene), bad.name, "truncated")
 
 
+@pytest.mark.bad_input("a dataset folder that is missing, empty or of no known format; missing, corrupt or truncated images; malformed or non-finite poses", "exit 2, one line naming the file and the problem")
 def test_truncated_jpeg(tmp_path):
     rng = np.random.default_rng(0)
     p = tmp_path / "x.jpg"
@@ -189,12 +192,14 @@ def test_poses_count_mismatch(tmp_path):
 
 
 @pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+@pytest.mark.bad_input("a dataset folder that is missing, empty or of no known format; missing, corrupt or truncated images; malformed or non-finite poses", "exit 2, one line naming the file and the problem")
 def test_poses_non_finite(tmp_path, value):
     arr = _valid_rows()
     arr[1, 3] = value
     raises_data_error(lambda: load_scene(_llff_with(tmp_path, arr)), "poses_bounds.npy", "non-finite", "row 1")
 
 
+@pytest.mark.bad_input("a dataset folder that is missing, empty or of no known format; missing, corrupt or truncated images; malformed or non-finite poses", "exit 2, one line naming the file and the problem")
 def test_poses_non_orthonormal(tmp_path):
     arr = _valid_rows()
     arr[2, :15] = (arr[2, :15].reshape(3, 5) * [1.5, 1.5, 1.5, 1, 1]).reshape(-1)

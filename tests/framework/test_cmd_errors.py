@@ -64,15 +64,32 @@ def test_match_arguments_are_parsed_to_one_line(tmp_path, args, words):
 
 def test_match_out_through_a_file_is_one_line_exit_2(llff, tmp_path):
     """A path the user gave that cannot be a folder (--out a file, or a folder under one): exit 2
-    naming it (cli.common.run_cli's path errors), the file untouched."""
+    naming it (the output guard, and behind it cli.common.run_cli's path errors), the file untouched."""
     (tmp_path / "file").write_text("mine")
     for out in (tmp_path / "file", tmp_path / "file" / "m"):
         run_cli("match", "--data", llff, "--out", out, "--matcher", "dense", code=2,
-                match=(str(tmp_path / "file"), "not a directory"), watch=[tmp_path, llff])
+                match=str(tmp_path / "file"), watch=[tmp_path, llff])
+
+
+def test_a_path_through_a_file_is_one_line_exit_2_wherever_it_is_met(tmp_path, capsys):
+    """run_cli: an OSError that a path the user gave causes (ENOTDIR, EISDIR, ...) is one line
+    naming it and exit 2, whichever command meets it and wherever."""
+    from splat_framework.cli.common import run_cli as run
+
+    (tmp_path / "file").write_text("mine")
+    sigterm = signal.getsignal(signal.SIGTERM)  # run_cli installs its own
+    try:
+        with pytest.raises(SystemExit) as e:
+            run(lambda: (tmp_path / "file" / "sub").mkdir(parents=True))
+    finally:
+        signal.signal(signal.SIGTERM, sigterm)
+    err = capsys.readouterr().err.strip()
+    assert e.value.code == 2 and err == f"error: {tmp_path / 'file' / 'sub'}: Not a directory", err
 
 
 def test_match_ctrl_c_exits_130_and_leaves_nothing_half_written(tmp_path):
-    """SIGINT while pairs are being matched: exit 130, one line "interrupted", no output at all."""
+    """SIGINT while pairs are being matched: exit 130, one line "interrupted", no result written
+(the output folder claimed before the work holds its marker only)."""
     scene = make_llff(tmp_path / "scene", 6, w=240, h=180, full_factor=1, folder="images")  # SIFT on noise: slow pairs
     out = tmp_path / "m"
     before = snapshot(tmp_path)
@@ -87,7 +104,8 @@ def test_match_ctrl_c_exits_130_and_leaves_nothing_half_written(tmp_path):
     stdout, stderr = proc.communicate(timeout=120)
     assert proc.returncode == 130, (stdout, stderr)
     assert "Traceback" not in stderr and stderr.strip().splitlines()[-1] == "interrupted", stderr  # after per-pair warnings
-    assert not changed_paths(before, snapshot(tmp_path)), "an interrupted splat-match wrote something"
+    changed = changed_paths(before, snapshot(tmp_path))
+    assert changed <= {"m", os.path.join("m", ".splat-output.json")}, changed  # at most the claimed folder, no result
 
 
 def test_match_writes_matches_npz_last(tmp_path, monkeypatch):
@@ -195,32 +213,28 @@ def test_scene_ctrl_c_exits_130_and_leaves_nothing(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_building_moves_a_finished_folder_into_place_and_merges_into_an_existing_one(tmp_path):
-    from splat_framework.work_folder import building
+def test_building_installs_a_finished_folder_and_nothing_of_an_interrupted_one(tmp_path):
+    import stat
+
+    from splat_framework.work_folder import OWNER_FILE, building
 
     out = tmp_path / "out"
-    with building(out) as work:
+    with building(out, os.rename) as work:
         (work / "images").mkdir()
         (work / "images" / "a.png").write_text("new")
-        (work / "scene.json").write_text("{}")
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
-    assert sorted(str(p.relative_to(out)) for p in out.rglob("*")) == ["images", "images/a.png", "scene.json"]
-    (out / "images" / "mine.txt").write_text("keep")
-    (tmp_path / "elsewhere").mkdir()
-    (out / "scene.json").unlink()
-    (out / "scene.json").symlink_to(tmp_path / "elsewhere" / "target")  # replaced, never followed
-    with building(out) as work:
-        (work / "images").mkdir()
-        (work / "images" / "a.png").write_text("newer")
-        (work / "scene.json").write_text("{}")
-    assert (out / "images" / "mine.txt").read_text() == "keep" and (out / "images" / "a.png").read_text() == "newer"
-    assert not (out / "scene.json").is_symlink() and list((tmp_path / "elsewhere").iterdir()) == []
-    with pytest.raises(KeyboardInterrupt), building(out) as work:
-        (work / "images").mkdir()
-        (work / "images" / "a.png").write_text("half")
+        assert work.parent == tmp_path and work.name.startswith(".out.work-")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"] and not (out / OWNER_FILE).exists()
+    assert stat.S_IMODE(out.stat().st_mode) == 0o777 & ~_umask()
+    with pytest.raises(KeyboardInterrupt), building(tmp_path / "other", os.rename) as work:
+        (work / "half.png").write_text("half")
         raise KeyboardInterrupt
-    assert (out / "images" / "a.png").read_text() == "newer"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["elsewhere", "out"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 # ------------------------------------------------------------------ splat-sweep

@@ -207,6 +207,7 @@ def test_a_run_saved_with_an_unusable_device_is_one_line_exit_2(run_dir, tmp_pat
     assert (run / "metrics.json").read_bytes() == before
 
 
+@pytest.mark.bad_input("a run's `config.json` without its checksum or edited", "refused (exit 2) unless `--trust-edited-config`")
 def test_an_edited_or_unsigned_config_is_refused_unless_trusted(run_dir, tmp_path):
     """config.json stripped of its checksum (or edited): splat-eval exits 2 naming the file and the flag;
     with --trust-edited-config it is used."""

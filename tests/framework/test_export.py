@@ -24,11 +24,13 @@ REFERENCE_NAMES = (
 
 
 def read_header(path: Path) -> tuple[list[str], int]:
+    """(header lines without comments, byte offset of the data)."""
     lines = []
     with open(path, "rb") as f:
         while True:
             line = f.readline().decode("ascii").rstrip("\n")
-            lines.append(line)
+            if not line.startswith("comment "):
+                lines.append(line)
             if line == "end_header":
                 return lines, f.tell()
 
@@ -54,6 +56,7 @@ def test_header_matches_the_reference(tmp_path):
     assert all(p.startswith("property float ") for p in props)
     assert [p.split()[-1] for p in props] == REFERENCE_NAMES == ply_property_names(15)
     assert path.stat().st_size == offset + 7 * len(REFERENCE_NAMES) * 4
+    assert path.read_bytes().split(b"\n")[2] == b"comment written by splat-export"  # how splat-export knows its files
     assert not list(tmp_path.glob(".*tmp"))  # atomic write left nothing behind
 
 
@@ -154,6 +157,7 @@ def test_round_trip_renders_identically(run_dir, tmp_path, monkeypatch):
     assert (got.alpha - expect.alpha).abs().max() < 1e-5
 
 
+@pytest.mark.bad_input("`splat-scene --out FILE`, `splat-export --ply DIR`, `--data some/dir/..`", "exit 2 with one line; run folders never leave `outputs/`")
 def test_default_output_and_bad_run_dir(run_dir, tmp_path, monkeypatch, capsys):
     from splat_framework.cli.export import ExportArgs, main
 

@@ -86,6 +86,7 @@ CRAFTED = {
 
 
 @pytest.mark.parametrize("case", sorted(CRAFTED))
+@pytest.mark.bad_input("crafted or fuzzed PLY files, TOML variants, config.json, checkpoints", "a result or one-line `DataError`/`CheckpointError`, never another exception")
 def test_crafted_ply_files_give_one_line_errors(tmp_path, case):
     path = tmp_path / "bad.ply"
     path.write_bytes(CRAFTED[case])
@@ -96,6 +97,7 @@ def test_crafted_ply_files_give_one_line_errors(tmp_path, case):
 # ------------------------------------------------------------------ PLY, fuzzed
 @FUZZ
 @given(st.data())
+@pytest.mark.bad_input("crafted or fuzzed PLY files, TOML variants, config.json, checkpoints", "a result or one-line `DataError`/`CheckpointError`, never another exception")
 def test_fuzzed_ply_files_load_or_raise_data_error(data):
     kind = data.draw(st.sampled_from(["bytes", "cut", "flip", "header line"]))
     if kind == "bytes":
@@ -132,6 +134,7 @@ TOML_PIECES = ['base = "3dgs"', 'base = "nope"', "base = 3", '[overrides]', '[ov
 
 @FUZZ
 @given(st.lists(st.sampled_from(TOML_PIECES), max_size=6))
+@pytest.mark.bad_input("crafted or fuzzed PLY files, TOML variants, config.json, checkpoints", "a result or one-line `DataError`/`CheckpointError`, never another exception")
 def test_fuzzed_toml_variants_never_break_discovery(pieces):
     with tempfile.TemporaryDirectory() as d:
         (Path(d) / "fuzzed.toml").write_text("\n".join(pieces) + "\n")
@@ -158,6 +161,7 @@ VALID_CONFIG = _valid_config_json()
 
 @FUZZ
 @given(st.data())
+@pytest.mark.bad_input("crafted or fuzzed PLY files, TOML variants, config.json, checkpoints", "a result or one-line `DataError`/`CheckpointError`, never another exception")
 def test_fuzzed_config_json_reads_or_raises_data_error(data):
     blob = bytearray(VALID_CONFIG)
     if data.draw(st.booleans()):
@@ -205,6 +209,7 @@ def test_checkpoint_payloads_with_a_valid_checksum_are_checked(tmp_path, case):
 
 @FUZZ
 @given(st.data())
+@pytest.mark.bad_input("crafted or fuzzed PLY files, TOML variants, config.json, checkpoints", "a result or one-line `DataError`/`CheckpointError`, never another exception")
 def test_fuzzed_checkpoint_files_load_or_raise_checkpoint_error(data):
     with tempfile.TemporaryDirectory() as d:
         good = save_checkpoint(Path(d), 1, {"step": 1, "params": {"x": torch.ones(3)}})

@@ -134,12 +134,17 @@ def test_an_existing_out_is_kept_unless_overwrite(forward, tmp_path):
     out = tmp_path / "scene"
     out.mkdir()
     (out / "keep.txt").write_text("mine")
-    assert_one_line_exit_2(run_process("images", str(photos), "--out", str(out)), "--overwrite")
+    # a folder splat-process did not write is never replaced, --overwrite or not
+    assert_one_line_exit_2(run_process("images", str(photos), "--out", str(out), "--overwrite"), "splat-process")
     assert (out / "keep.txt").read_text() == "mine"
+    (out / "keep.txt").unlink()
+    assert run_process("images", str(photos), "--out", str(out)).returncode == 0
+    (out / "keep.txt").write_text("mine")  # the user's own file in the scene folder
+    assert_one_line_exit_2(run_process("images", str(photos), "--out", str(out)), "--overwrite")
     res = run_process("images", str(photos), "--out", str(out), "--overwrite")
     assert res.returncode == 0, res.stderr
     assert "3 of 3 images registered" in res.stdout and f"splat-train scgaussian --data {out}" in res.stdout
-    assert not (out / "keep.txt").exists() and (out / "sparse" / "0" / "cameras.bin").is_file()
+    assert (out / "keep.txt").read_text() == "mine" and (out / "sparse" / "0" / "cameras.bin").is_file()
 
 
 def test_three_photos_train_on_all_three_with_no_test_view(forward, tmp_path):

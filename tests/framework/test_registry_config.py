@@ -71,7 +71,7 @@ def test_variant_files_override_base(tmp_path, monkeypatch):
 def test_user_folder_wins_and_a_broken_variant_package_warns(tmp_path, monkeypatch):
     eps = [
         EntryPoint("3dgs", "splat_framework.methods.gaussian_splatting:spec_3dgs", registry.ENTRY_POINT_GROUP),
-        EntryPoint("splat_framework", "splat_framework.configs", registry.CONFIG_ENTRY_POINT_GROUP),
+        EntryPoint("splat", "splat_configs", registry.CONFIG_ENTRY_POINT_GROUP),
         EntryPoint("gone", "no_such_package_xyz.configs", registry.CONFIG_ENTRY_POINT_GROUP),
     ]
     _fake_eps(monkeypatch, eps)
@@ -81,14 +81,42 @@ def test_user_folder_wins_and_a_broken_variant_package_warns(tmp_path, monkeypat
         warnings.simplefilter("always")
         dirs = registry.default_config_dirs()
         methods = registry.discover_methods()
-    assert dirs[0] == tmp_path and (REPO / "src" / "splat_framework" / "configs") in dirs
+    assert dirs == [tmp_path, REPO / "configs"]
     assert any("gone" in str(x.message) and "cannot be located" in str(x.message) for x in w)
     assert methods["3dgs-frustum"].description == "mine"
+    shadowed = [str(x.message) for x in w if "also defined by" in str(x.message)]
+    assert shadowed == [f"{REPO / 'configs' / '3dgs-frustum.toml'}: variant '3dgs-frustum' is also defined by "
+                        f"{tmp_path / '3dgs-frustum.toml'}, which wins; ignored"]
+
+
+def test_the_paper_rows_live_in_the_top_level_configs_folder():
+    """``configs/`` holds every variant of the project, each describing its row in one line; no package of
+    ``src/`` ships variants of its own."""
+    import tomllib
+
+    rows = sorted((REPO / "configs").glob("*.toml"))
+    assert len(rows) >= 11 and not list((REPO / "src").glob("*/configs/*.toml"))
+    for f in rows:
+        doc = tomllib.loads(f.read_text())
+        description = doc["description"]
+        assert "\n" not in description and description.split(":")[0].startswith(("Paper", "Not a paper row")), f
+    methods = registry.discover_methods()
+    assert {f.stem for f in rows} <= set(methods)
+
+
+def _listed_methods(help_text: str) -> list[str]:
+    """The method and variant names of ``splat-train --help`` (its subcommand choices)."""
+    import re
+
+    choices = re.search(r"\{([^{}]+)\}", help_text)
+    assert choices, help_text
+    return sorted(choices.group(1).split(","))
 
 
 @pytest.mark.slow
 def test_variants_survive_a_wheel_install(tmp_path):
-    """Built as a wheel and installed (not editable) into a fresh venv, ``splat-train --help`` lists every variant.
+    """Built as a wheel and installed (not editable) into a fresh venv, ``splat-train --help`` lists exactly the
+    methods and variants of the checkout.
 
     The fresh venv sees this environment's dependencies (torch, ...) through a .pth line, which does not
     run the editable install's own .pth, so splat itself comes from the wheel only."""
@@ -97,11 +125,13 @@ def test_variants_survive_a_wheel_install(tmp_path):
     import venv
 
     project = tmp_path / "project"  # a copy: setuptools writes build/ next to pyproject.toml
-    shutil.copytree(REPO / "src", project / "src", ignore=shutil.ignore_patterns("*.egg-info", "__pycache__"))
-    for name in ("pyproject.toml", "README.md"):
+    for name in ("src", "configs"):
+        shutil.copytree(REPO / name, project / name, ignore=shutil.ignore_patterns("*.egg-info", "__pycache__"))
+    for name in ("pyproject.toml", "setup.py", "README.md"):
         shutil.copy(REPO / name, project / name)
-    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w",
-                    str(tmp_path), str(project)], check=True, capture_output=True, timeout=300)
+    built = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(tmp_path), str(project)],
+                           capture_output=True, text=True, timeout=600)
+    assert built.returncode == 0, built.stderr
     wheel = next(tmp_path.glob("splat-*.whl"))
     env_dir = tmp_path / "venv"
     venv.create(env_dir, with_pip=False)
@@ -112,15 +142,16 @@ def test_variants_survive_a_wheel_install(tmp_path):
     subprocess.run([str(py), "-m", "pip", "install", "--no-deps", "--no-index", "-q", str(wheel)],
                    check=True, capture_output=True, timeout=300)
     env = {k: v for k, v in os.environ.items() if k not in ("SPLAT_CONFIG_PATH", "PYTHONPATH")}
-    where = subprocess.run([str(py), "-c", "import scg_plugin; print(scg_plugin.__file__)"], cwd=tmp_path, env=env,
-                           capture_output=True, text=True, check=True).stdout
-    assert where.startswith(str(fresh_site))  # really the wheel's copy, not the checkout
+    where = subprocess.run([str(py), "-c", "import scg_plugin, splat_configs; print(scg_plugin.__file__, splat_configs.__file__)"],
+                           cwd=tmp_path, env=env, capture_output=True, text=True, check=True).stdout.split()
+    assert all(w.startswith(str(fresh_site)) for w in where), where  # really the wheel's copy, not the checkout
     out = subprocess.run([str(env_dir / "bin" / "splat-train"), "--help"], cwd=tmp_path, env=env,
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
-    expected = sorted(f.stem for f in (REPO / "src").glob("*/configs/*.toml"))
-    assert len(expected) >= 11
-    assert all(n in out.stdout for n in expected), out.stdout
+    here = subprocess.run([sys.executable, "-m", "splat_framework.cli.train", "--help"], env=env,
+                          capture_output=True, text=True, timeout=120)
+    assert _listed_methods(out.stdout) == _listed_methods(here.stdout)
+    assert {f.stem for f in (REPO / "configs").glob("*.toml")} <= set(_listed_methods(out.stdout))
 
 
 def test_bad_override_names_the_field():
@@ -271,6 +302,7 @@ def test_bad_cli_values_exit_2_with_one_line(tmp_path):
     (["--device", "bogus"], "device"),
     (["--device", "cuda:7"], "cuda:7"),
 ])
+@pytest.mark.bad_input("numbers out of range (`--steps 0`, `--model.init-num-points -5`, a NaN learning rate, ...), unknown devices", "exit 2, one line naming the field and its range")
 def test_out_of_range_numbers_and_devices_exit_2_naming_the_field(tmp_path, args, field):
     r = subprocess.run(
         [sys.executable, "-m", "splat_framework.cli.train", "3dgs", "--data", "synthetic/forward-tiny",
@@ -320,6 +352,7 @@ def test_scgaussian_may_start_from_rays_only_and_ranges_hold_in_toml_overrides()
         apply_overrides(config_scgaussian(), {"model": {"z_lr": float("nan")}})
 
 
+@pytest.mark.bad_input("a TOML variant with a wrong type, a syntax error, a circular `base`", "one warning line naming the file and field; other methods unaffected; exit 2 only when that variant is asked for")
 def test_broken_variants_warn_in_one_line_and_fail_only_when_asked_for(tmp_path, monkeypatch):
     """A variant with a wrong type, a TOML syntax error or a circular base: one warning line each naming
     the file, every other method still works (``--help`` included), and asking for the broken variant

@@ -102,6 +102,7 @@ def forget_fields(path, *dotted):
     atomic_write_json(path, payload)
 
 # ------------------------------------------------------------------ resume
+@pytest.mark.bad_input("`--resume` with a different seed or any experiment setting", "exit 2 naming each setting; run options (device, progress, ...) may change")
 def test_resume_reproduces_uninterrupted_run_3dgs(tmp_path):
     cfg_fn = lambda out, **kw: fixed_config("3dgs", out, **kw)  # noqa: E731
     straight = Trainer(cfg_fn(tmp_path / "a"))
@@ -145,6 +146,7 @@ def test_resume_reproduces_uninterrupted_run_scgaussian(tmp_path):
     assert torch.equal(resumed.model.bundle.z.cpu(), straight.model.bundle.z.cpu())
 
 
+@pytest.mark.bad_input("a checkpoint that is truncated, corrupt, or checksummed but of the wrong layout", "one line, the previous checkpoint is used")
 def test_corrupt_checkpoint_on_resume_falls_back_to_previous(tmp_path, capsys):
     out = tmp_path / "run"
     cfg_fn = lambda out, **kw: fixed_config("3dgs", out, checkpoint_every=5, **kw)  # noqa: E731
@@ -168,6 +170,7 @@ def test_corrupt_checkpoint_on_resume_falls_back_to_previous(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("damage", ["missing parameter", "wrong shape", "float64", "optimizer shape", "rows differ"])
+@pytest.mark.bad_input("a checkpoint that is truncated, corrupt, or checksummed but of the wrong layout", "one line, the previous checkpoint is used")
 def test_a_checkpoint_with_a_valid_checksum_but_wrong_contents_falls_back(tmp_path, capsys, damage):
     """A checksum proves the bytes, not the layout: a newest checkpoint with a missing parameter, a wrong
     shape or dtype is reported in one line and the previous one is used, by --resume and by splat-eval,
@@ -370,6 +373,7 @@ def test_sigint_in_process_saves_checkpoint(tmp_path):
     assert signal.getsignal(signal.SIGINT) is before  # handlers restored
 
 
+@pytest.mark.bad_input("Ctrl-C twice, the second during a checkpoint write", "the write finishes, exit 130")
 def test_a_second_sigint_during_the_checkpoint_write_waits_for_it(tmp_path, monkeypatch):
     """Two SIGINTs close together: the second arrives while the stop's checkpoint is being written;
     the write completes (nothing is lost) and the run ends as interrupted."""
@@ -391,6 +395,7 @@ def test_a_second_sigint_during_the_checkpoint_write_waits_for_it(tmp_path, monk
     assert load_latest(out / "checkpoints")[1]["step"] == 3
 
 
+@pytest.mark.bad_input("Ctrl-C during setup (matching, warm-up)", "one line saying nothing was trained; the empty run folder is removed")
 def test_a_stop_during_setup_leaves_no_empty_run_folder(tmp_path, monkeypatch):
     """Ctrl-C during the setup (SCGaussian: matching and warm-up) of a new run: the empty run folder is
     removed and the message says nothing was trained; for a resumed run the folder is left as it was."""
@@ -473,5 +478,5 @@ def test_existing_output_without_flags_exits_2(tmp_path):
     res = _cli(["3dgs", "--data", "synthetic/forward-tiny", "--output", str(out)], _env(tmp_path), timeout=120)
     assert res.returncode == 2
     lines = res.stderr.strip().splitlines()
-    assert len(lines) == 1 and "--resume" in lines[0] and "--overwrite" in lines[0]
+    assert len(lines) == 1 and "not a run folder" in lines[0]  # --overwrite would not replace it either
     assert sorted(p.name for p in out.iterdir()) == ["something"]

@@ -96,10 +96,13 @@ def test_spiral_cameras_look_at_the_scene(run_dir):
 def test_test_views_write_pngs(run_dir, tmp_path, monkeypatch):
     import cv2
 
+    from splat_framework.output_paths import MARKER
+
     out = tmp_path / "pngs"
     render_cli(monkeypatch, run_dir, "--path", "test", "--out", out)
     names = sorted(p.name for p in out.iterdir())
-    assert names == sorted(f"image{i:03d}_{k}.png" for i in (0, 8, 16) for k in ("render", "depth"))
+    expected = [MARKER, *(f"image{i:03d}_{k}.png" for i in (0, 8, 16) for k in ("render", "depth"))]
+    assert names == sorted(expected)  # the marker: splat-render wrote this folder (and may replace it)
     assert cv2.imread(str(out / "image000_render.png")).shape == (48, 64, 3)
 
 

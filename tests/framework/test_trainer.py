@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from splat_framework.config import SCHEMA_VERSION, apply_overrides, read_config_json
+from splat_framework.config import SCHEMA_VERSION, apply_overrides, read_config_json, save_config
 from splat_framework.data import DataError, load_scene, resolve_data_path
 from splat_framework.data.datamanager import view_bytes
 from splat_framework.evaluation import evaluate
@@ -70,6 +70,7 @@ def test_run_writes_documented_outputs_and_learns(tmp_path, capsys):
     assert "Traceback" not in err
 
 
+@pytest.mark.bad_input("`splat-scene --out FILE`, `splat-export --ply DIR`, `--data some/dir/..`", "exit 2 with one line; run folders never leave `outputs/`")
 def test_default_run_dirs_are_new_timestamped_folders(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     cfg = get_method("3dgs").default_config().model_copy(update={"data": "synthetic/forward-tiny"})
@@ -86,6 +87,7 @@ def test_default_run_dirs_are_new_timestamped_folders(tmp_path, monkeypatch):
         assert run.parts[:3] == ("outputs", scene, "3dgs") and ".." not in run.parts, run
 
 
+@pytest.mark.bad_input("kill -9 during a checkpoint write", "partial `.tmp` files are removed when the run folder is opened again")
 def test_run_folder_rules(tmp_path):
     run = tmp_path / "run"
     (run / "checkpoints").mkdir(parents=True)
@@ -93,6 +95,11 @@ def test_run_folder_rules(tmp_path):
     (run / "metrics.json").write_text("{}")
     (run / "notes.txt").write_text("keep me")
     cfg = get_method("3dgs").default_config().model_copy(update={"output": run})
+    # a folder without a config.json that splat-train signed is not a run folder: never replaced
+    for flags in ({}, {"overwrite": True}):
+        with pytest.raises(DataError, match="not a run folder"):
+            prepare_run_dir(cfg.model_copy(update=flags))
+    save_config(cfg, run / "config.json")
     with pytest.raises(DataError, match="not empty.*--resume.*--overwrite"):
         prepare_run_dir(cfg)
     with pytest.raises(DataError, match="exclude"):
@@ -106,10 +113,10 @@ def test_run_folder_rules(tmp_path):
     assert prepare_run_dir(cfg.model_copy(update={"resume": True})) == run
     assert (run / "checkpoints" / "step-0000010.ckpt").exists()
     assert not any(f.exists() for f in stale) and (run / "notes.txt").exists()
-    # --overwrite: the old run's checkpoints and metrics cannot leak into the new one
+    # --overwrite: the old run's config, checkpoints and metrics cannot leak into the new one
     prepare_run_dir(cfg.model_copy(update={"overwrite": True}))
     assert not (run / "checkpoints" / "step-0000010.ckpt").exists() and not (run / "metrics.json").exists()
-    assert (run / "notes.txt").read_text() == "keep me"
+    assert not (run / "config.json").exists() and (run / "notes.txt").read_text() == "keep me"
     # an empty folder is fine without flags
     empty = tmp_path / "empty"
     empty.mkdir()

@@ -15,7 +15,9 @@ class ExportArgs:
     run_dir: Annotated[Positional[Path], arg(metavar="RUN_DIR")]
     """Run folder written by splat-train."""
     ply: Path | None = None
-    """Output PLY file (default RUN_DIR/point_cloud.ply)."""
+    """Output PLY file (default RUN_DIR/point_cloud.ply). A new file, or one splat-export wrote (with --overwrite)."""
+    overwrite: bool = False
+    """Replace --ply when it is a PLY that splat-export wrote (RUN_DIR/point_cloud.ply is always replaced)."""
     device: str = "cpu"
     """Torch device used to load the checkpoint."""
     trust_edited_config: bool = False
@@ -23,13 +25,14 @@ class ExportArgs:
 
 
 def main(args: ExportArgs) -> Path:
-    from ..errors import DataError
+    from ..output_paths import PLY_FILE, check_output
+
+    out = args.ply if args.ply is not None else Path(args.run_dir) / "point_cloud.ply"
+    check_output(out, PLY_FILE, overwrite=args.overwrite or args.ply is None, flag="--ply")  # before torch loads
+
     from ..export import export_ply
     from ..run import load_trained_model
 
-    out = args.ply if args.ply is not None else Path(args.run_dir) / "point_cloud.ply"
-    if out.is_dir():
-        raise DataError(f"{out}: is a folder; --ply names the file to write (e.g. {out / 'point_cloud.ply'})")
     _, model = load_trained_model(args.run_dir, args.device, trust_edits=args.trust_edited_config)
     export_ply(model, out)
     print(f"wrote {model.num_gaussians} Gaussians to {out}")

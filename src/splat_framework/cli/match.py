@@ -56,6 +56,9 @@ class MatchArgs(SplatConfig):
     max_lines: int = Field(200, ge=0, le=MAX_LINES)
     """Match lines drawn per picture (0 = the two views only)."""
 
+    overwrite: bool = False
+    """Replace the results in --out when splat-match wrote them (matches.npz, matches_*.png; the cache stays)."""
+
     config: Annotated[MatchConfig, tyro.conf.arg(name="")] = Field(default_factory=MatchConfig)
     """Matching settings."""
 
@@ -128,7 +131,10 @@ def main(args: MatchArgs) -> "MatchSet":
     from splat_framework.data.parsers import load_scene
     from splat_framework.data.resolve import resolve_data_path
 
+    from ..output_paths import MATCH_FOLDER, check_output, claim_output
+
     root = resolve_data_path(args.data)
+    check_output(args.out, MATCH_FOLDER, overwrite=args.overwrite, inputs=[root])
     scene = load_scene(root, views=args.views)
     ids = [int(i) for i in scene.train_indices]
     images = [
@@ -137,6 +143,7 @@ def main(args: MatchArgs) -> "MatchSet":
     ]
     cameras = [scene.cameras[i] for i in ids]
     cache = None if not args.config.cache else (args.cache_dir or Path(args.out) / "cache")
+    claim_output(args.out, MATCH_FOLDER, overwrite=args.overwrite, inputs=[root])
     return run_matching(images, cameras, ids, args.config, Path(args.out), cache, args.max_lines, Console())
 
 

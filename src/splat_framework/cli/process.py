@@ -22,7 +22,7 @@ class ImagesArgs:
     matcher: str = "auto"
     """Correspondences COLMAP maps from: "sift" (COLMAP's own), a learned matcher that a plugin registers (aliked-lightglue, disk-lightglue from SCGaussian), or "auto": aliked-lightglue where registered and its weights are installed, else sift (one-line notice). From 3 photos the learned matches register more and better: DTU scan37's 3 views 0 of 3 with SIFT, 3 of 3 with aliked-lightglue; fern's 3 views rotations 1.9 -> 0.9 degrees off, focal 9.2 -> 1.5 %."""
     overwrite: bool = False
-    """Replace --out when it exists."""
+    """Replace --out when it is a scene folder that splat-process wrote (only its images/ and sparse/ are removed)."""
 
 
 @dataclass
@@ -38,7 +38,7 @@ class VideoArgs:
     matcher: str = "auto"
     """Correspondences COLMAP maps from: "sift" (COLMAP's own), a learned matcher that a plugin registers (aliked-lightglue, disk-lightglue from SCGaussian), or "auto": aliked-lightglue where registered and its weights are installed, else sift (one-line notice). From 3 photos the learned matches register more and better: DTU scan37's 3 views 0 of 3 with SIFT, 3 of 3 with aliked-lightglue; fern's 3 views rotations 1.9 -> 0.9 degrees off, focal 9.2 -> 1.5 %."""
     overwrite: bool = False
-    """Replace --out when it exists."""
+    """Replace --out when it is a scene folder that splat-process wrote (only its images/ and sparse/ are removed)."""
 
 
 Args = Union[
@@ -48,8 +48,12 @@ Args = Union[
 
 
 def main(args: ImagesArgs | VideoArgs):
-    from ..sfm import estimate_scene, list_images, pick_video_frames
+    from ..output_paths import PROCESSED_SCENE, check_output
 
+    source = args.video if isinstance(args, VideoArgs) else args.folder
+    check_output(args.out, PROCESSED_SCENE, overwrite=args.overwrite, inputs=[source])  # before any work
+
+    from ..sfm import estimate_scene, list_images, pick_video_frames
     if isinstance(args, VideoArgs):
         with tempfile.TemporaryDirectory(prefix="splat-frames-") as tmp:
             frames = pick_video_frames(args.video, args.frames, Path(tmp) / "frames")

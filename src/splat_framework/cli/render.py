@@ -21,7 +21,9 @@ class RenderArgs:
     fps: int = 30
     """Video frame rate."""
     out: Path | None = None
-    """Output folder for PNGs, or the video file (default RUN_DIR/renders, or RUN_DIR/<spiral|orbit>.mp4)."""
+    """Output folder for PNGs, or the video file (default RUN_DIR/renders, or RUN_DIR/<spiral|orbit>.mp4). A new path, or one splat-render wrote (with --overwrite)."""
+    overwrite: bool = False
+    """Replace --out when splat-render wrote it (the defaults inside RUN_DIR are always replaced); only its own PNGs are removed from a folder."""
     depth: bool = False
     """Also write a colour-mapped depth video next to the RGB one (<out>_depth.mp4)."""
     device: str | None = None
@@ -43,21 +45,35 @@ def camera_path(kind: str, dm, frames: int) -> tuple[str, list]:
 
 
 def main(args: RenderArgs) -> Path:
-    import torch
-    from rich.progress import track
-
     from ..errors import DataError
-    from ..evaluation import colorize_depth, expected_depth, model_depth_mode, to_uint8, write_png
-    from ..run import background_for, load_run
+    from ..output_paths import RENDER_FOLDER, VIDEO_FILE, check_output, claim_output
 
     if args.frames < 1:
         raise DataError(f"--frames must be >= 1, got {args.frames}")
     if args.fps < 1:
         raise DataError(f"--fps must be >= 1, got {args.fps}")
+    replace = args.overwrite or args.out is None  # the defaults inside RUN_DIR are the run's own
+
+    def check_video(out: Path) -> None:
+        for target in video_targets(out, args.depth):
+            check_output(target, VIDEO_FILE, overwrite=replace)
+
+    if args.path == "test":
+        out = args.out or args.run_dir / "renders"
+        check_output(out, RENDER_FOLDER, overwrite=replace)
+    elif args.out is not None:  # checked before anything loads; the default name waits for --path auto
+        check_video(args.out)
+
+    import torch
+    from rich.progress import track
+
+    from ..evaluation import colorize_depth, expected_depth, model_depth_mode, to_uint8, write_png
+    from ..run import background_for, load_run
+
     config, dm, model = load_run(args.run_dir, args.device, args.trust_edited_config)
     bg = background_for(dm.scene, config.device)
     if args.path == "test":
-        out = args.out or args.run_dir / "renders"
+        claim_output(out, RENDER_FOLDER, overwrite=replace)
         views = dm.eval_views()
         mode = model_depth_mode(model)
         with torch.no_grad():
@@ -70,7 +86,14 @@ def main(args: RenderArgs) -> Path:
         return out
     kind, cams = camera_path(args.path, dm, args.frames)
     out = args.out or args.run_dir / f"{kind}.mp4"
+    check_video(out)
     return write_video(model, cams, bg, out, args.fps, args.depth)
+
+
+def video_targets(out: Path, depth: bool) -> list[Path]:
+    """The files a video render writes: ``out``, and ``<out>_depth.mp4`` with ``depth``."""
+    out = Path(out)
+    return [out] + ([out.with_name(out.stem + "_depth.mp4")] if depth else [])
 
 
 def write_video(model, cams, bg, out: Path, fps: int, depth: bool) -> Path:
@@ -90,7 +113,7 @@ def write_video(model, cams, bg, out: Path, fps: int, depth: bool) -> Path:
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     w, h = cams[0].width, cams[0].height
-    targets = [out] + ([out.with_name(out.stem + "_depth.mp4")] if depth else [])
+    targets = video_targets(out, depth)
     tmps = [t.with_name("." + t.name + ".tmp.mp4") for t in targets]
     mode = model_depth_mode(model)
     inv_range = (1.0 / max(c.far for c in cams), 1.0 / min(c.near for c in cams))

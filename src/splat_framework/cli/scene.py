@@ -42,6 +42,8 @@ class SceneArgs(SplatConfig):
     """forward: number of images (default 20); object: number of training frames (default 100), plus 40% as many test frames; 1 to 1000."""
     seed: int = Field(0, ge=0, lt=2**32)
     """Seed for the layout, textures and cameras; the same seed gives byte-identical files."""
+    overwrite: bool = False
+    """Replace --out when it is a scene folder that splat-scene wrote (only its own files are removed)."""
 
 
 def main(args: SceneArgs) -> Path:
@@ -51,7 +53,7 @@ def main(args: SceneArgs) -> Path:
     from rich.table import Table
 
     from ..data.synthetic.generate import DEFAULTS, ensure_generated, generate_scene
-    from ..errors import DataError
+    from ..output_paths import SCENE_FOLDER, check_output, install_output
     from ..work_folder import building
 
     console = Console()
@@ -63,15 +65,15 @@ def main(args: SceneArgs) -> Path:
         n_views=dflt["n_views"] if args.views is None else args.views,
         seed=args.seed,
     )
-    if args.out is not None and args.out.exists() and not args.out.is_dir():
-        raise DataError(f"{args.out}: exists and is not a folder (--out names the scene folder to write)")
+    if args.out is not None:
+        check_output(args.out, SCENE_FOLDER, overwrite=args.overwrite)  # every refusal before any work
     t0 = time.perf_counter()
     with console.status(f"rendering the {args.kind} scene ({params['width']}x{params['height']})..."):
         if args.out is None:
             out = ensure_generated(args.kind, params)
         else:  # built beside --out and moved into place at the end: Ctrl-C leaves nothing half-written
             p = dict(params)
-            with building(args.out) as work:
+            with building(args.out, lambda staged, out: install_output(staged, out, SCENE_FOLDER)) as work:
                 generate_scene(p.pop("kind"), work, **p)
             out = args.out
     dt = time.perf_counter() - t0

@@ -47,7 +47,7 @@ def main(args: list[str] | None = None) -> dict:
         return train(config)
     from ..viewer import ViewerCallback
 
-    live = ViewerCallback(port=config.viewer_port, every=config.viewer_every)
+    live = ViewerCallback(port=config.viewer_port, every=config.viewer_every, host=config.viewer_host)
     metrics = train(config, callbacks=[live])
     if live.viewer is not None:
         print(f"training done; the viewer stays at {live.viewer.url} (Ctrl-C to stop)", flush=True)

@@ -9,15 +9,17 @@ from typing import Annotated
 
 from tyro.conf import Positional, arg
 
+from ..serving import LOOPBACK, Port
+
 
 @dataclass
 class ViewArgs:
     run_dir: Annotated[Positional[Path], arg(metavar="RUN_DIR")]
     """Run folder written by splat-train."""
-    port: int = 8080
-    """TCP port of the viewer (0 = any free port)."""
-    host: str = "0.0.0.0"
-    """Interface to listen on (0.0.0.0: reachable from other machines; 127.0.0.1: this one only)."""
+    port: Port = 8080
+    """TCP port of the viewer, 0..65535 (0 = any free port; a port in use: the next free one, said in one line)."""
+    host: str = LOOPBACK
+    """Interface to listen on: 127.0.0.1, this machine only (default); any other address, e.g. 0.0.0.0 for every interface, lets other machines see the model, the photos' thumbnails and "Render with splat" (a warning says so)."""
     device: str | None = None
     """Torch device of the 'Render with splat' button (default: the run's)."""
     trust_edited_config: bool = False
@@ -40,9 +42,12 @@ def entrypoint() -> None:
 
     from .common import run_cli
 
-    args = tyro.cli(ViewArgs, args=sys.argv[1:], prog="splat-view",
-                    description="Open a trained run in a web viewer: the Gaussians, the cameras, and splat's own renders.")
-    run_cli(lambda: main(args))
+    def parse_and_view():  # parsing inside run_cli: an invalid port is one line and exit 2
+        args = tyro.cli(ViewArgs, args=sys.argv[1:], prog="splat-view",
+                        description="Open a trained run in a web viewer: the Gaussians, the cameras, and splat's own renders.")
+        return main(args)
+
+    run_cli(parse_and_view)
 
 
 if __name__ == "__main__":

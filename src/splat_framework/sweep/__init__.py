@@ -42,6 +42,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from ..resources import available_cores
+from ..output_paths import SWEEP_FOLDER, check_output, mark_output
 from .backends import import_ray, run_local, run_ray, run_serial, spec_dict
 from .grid import (
     BACKENDS,
@@ -106,6 +107,8 @@ def run_sweep(
 ) -> SweepResult:
     """Run every missing run of ``grid`` into ``out`` and write the results tables.
 
+    ``out`` is new, empty or a sweep folder (see :mod:`splat_framework.output_paths`),
+    else a :class:`~splat_framework.errors.DataError` before anything runs.
     Runs whose metrics.json exists are skipped. Unknown methods raise
     :class:`SweepError` before anything runs; any other problem of a single
     run (bad override, missing dataset, a crash, a conflicting old run) is
@@ -118,6 +121,7 @@ def run_sweep(
     if backend == "ray":
         import_ray()  # fail before anything runs
     out = Path(out)
+    check_output(out, SWEEP_FOLDER, keep=True, inputs=[Path(d) for d in grid.data if Path(d).exists()])
     runs = grid.runs(out)
     known = discover_methods()
     unknown = [m for m in unique(grid.methods) if m not in known]
@@ -171,6 +175,7 @@ def run_sweep(
         return SweepResult(out, ordered(), aggregate(ordered()), 0, skipped, 0)
 
     out.mkdir(parents=True, exist_ok=True)
+    mark_output(out, SWEEP_FOLDER)
     write_tables(out, ordered(), settings)
     workers = max(1, min(workers, len(todo) or 1))
     if backend != "serial":  # serial runs in this process: leave its thread count alone unless asked

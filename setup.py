@@ -1,0 +1,12 @@
+"""Packaging beyond pyproject.toml: the top-level ``configs/`` folder ships as the package ``splat_configs``.
+
+(pyproject.toml's package discovery cannot map a folder outside ``src/`` under another
+name; everything else lives in pyproject.toml.)
+"""
+
+from setuptools import find_packages, setup
+
+setup(
+    packages=[*find_packages("src"), "splat_configs"],
+    package_dir={"": "src", "splat_configs": "configs"},
+)

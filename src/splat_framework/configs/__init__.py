@@ -1,1 +1,0 @@
-"""Named config variants of the built-in methods, shipped as package data."""

@@ -1,0 +1,216 @@
+"""One output-path guard for every command that writes (issue 40): nothing of the user's is replaced.
+
+Each test runs the command in a subprocess (tests/cli_harness.py) and watches the
+surrounding folder: a refused command changes nothing there.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+from cli_harness import run_cli
+
+from splat_framework.errors import DataError
+from splat_framework.output_paths import MARKER, PLY_COMMENT, RENDER_FOLDER, SCENE_FOLDER, check_output
+
+TINY_SCENE = ("--width", 16, "--height", 12, "--views", 3)
+
+
+def user_folder(path: Path, **files: str) -> Path:
+    """A folder of the user's holding ``files`` (name -> text)."""
+    path.mkdir(parents=True)
+    for name, text in files.items():
+        (path / name).write_text(text)
+    return path
+
+
+@pytest.fixture
+def dataset(tmp_path) -> Path:
+    """A tiny forward-facing dataset the user owns (LLFF layout, not written by splat-scene)."""
+    from support import make_llff
+
+    root = tmp_path / "my-dataset"
+    make_llff(root, n=4, w=16, h=12)
+    return root
+
+
+# ------------------------------------------------------------------ splat-process
+
+
+def test_process_refuses_the_photo_folder_as_its_output(tmp_path):
+    from support import write_png
+
+    photos = user_folder(tmp_path / "photos")
+    for i in range(3):
+        write_png(photos / f"IMG_{i}.png", 16, 12, seed=i)
+    run_cli("process", "images", photos, "--out", photos, "--overwrite", "--matcher", "sift",
+            code=2, match="is the input", watch=[tmp_path])
+    run_cli("process", "images", photos, "--out", photos / "scene", "--overwrite", "--matcher", "sift",
+            code=2, match="inside the input", watch=[tmp_path])
+
+
+def test_process_overwrite_refuses_a_folder_it_did_not_write(tmp_path):
+    from support import write_png
+
+    photos = user_folder(tmp_path / "photos")
+    for i in range(3):
+        write_png(photos / f"IMG_{i}.png", 16, 12, seed=i)
+    mine = user_folder(tmp_path / "mine", **{"notes.txt": "keep"})
+    run_cli("process", "images", photos, "--out", mine, "--overwrite", "--matcher", "sift",
+            code=2, match="not a scene folder written by splat-process", watch=[tmp_path])
+
+
+# ------------------------------------------------------------------ splat-scene
+
+
+def test_scene_refuses_an_existing_dataset(dataset, tmp_path):
+    run_cli("scene", "forward", "--out", dataset, *TINY_SCENE,
+            code=2, match="not a scene folder written by splat-scene", watch=[tmp_path])
+
+
+def test_scene_replaces_its_own_folder_only_with_overwrite_and_keeps_the_rest(tmp_path):
+    out = tmp_path / "scene"
+    run_cli("scene", "forward", "--out", out, *TINY_SCENE, code=0, watch=[tmp_path], allowed=[out])
+    assert (out / MARKER).is_file() and (out / "poses_bounds.npy").is_file()
+    with pytest.raises(DataError, match="--overwrite"):  # the same check as the CLI's, in-process
+        check_output(out, SCENE_FOLDER)
+    (out / "notes.txt").write_text("mine")
+    before = (out / "poses_bounds.npy").read_bytes()
+    run_cli("scene", "forward", "--out", out, *TINY_SCENE, "--seed", 1, "--overwrite", code=0,
+            watch=[tmp_path], allowed=[out])
+    assert (out / "notes.txt").read_text() == "mine" and (out / "poses_bounds.npy").read_bytes() != before
+
+
+# ------------------------------------------------------------------ splat-train
+
+
+def _fake_run(folder: Path) -> Path:
+    """A run folder as splat-train leaves it: a signed config.json, metrics, checkpoints."""
+    from splat_framework.config import save_config
+    from splat_framework.registry import get_method
+
+    (folder / "checkpoints").mkdir(parents=True)
+    save_config(get_method("3dgs").default_config(), folder / "config.json")
+    (folder / "metrics.json").write_text("{}")
+    (folder / "checkpoints" / "step-0000010.ckpt").write_bytes(b"old run")
+    return folder
+
+
+def test_train_overwrite_unlinks_a_checkpoints_symlink_and_never_follows_it(tmp_path):
+    other = _fake_run(tmp_path / "other-run")
+    run = _fake_run(tmp_path / "run")
+    shutil.rmtree(run / "checkpoints")
+    os.symlink(other / "checkpoints", run / "checkpoints")
+    run_cli("train", "3dgs", "--data", tmp_path / "no-such-data", "--output", run, "--overwrite",
+            code=2, match="no-such-data", watch=[tmp_path], allowed=[run])
+    assert not os.path.lexists(run / "checkpoints") and not (run / "config.json").exists()
+    assert (other / "checkpoints" / "step-0000010.ckpt").read_bytes() == b"old run"
+
+
+def test_train_overwrite_refuses_a_folder_that_is_not_a_run(tmp_path):
+    folder = user_folder(tmp_path / "results", **{"config.json": '{"mine": 1}', "metrics.json": '{"psnr": 30}'})
+    run_cli("train", "3dgs", "--data", tmp_path / "no-such-data", "--output", folder, "--overwrite",
+            code=2, match="not a run folder written by splat-train", watch=[tmp_path])
+
+
+def test_train_refuses_an_output_inside_its_data(dataset, tmp_path):
+    run_cli("train", "3dgs", "--data", dataset, "--output", dataset / "run", "--steps", 1,
+            code=2, match="inside the input", watch=[tmp_path])
+
+
+# ------------------------------------------------------------------ splat-export
+
+
+def test_export_refuses_a_fifo_and_a_device_node(run_dir, tmp_path):
+    fifo = tmp_path / "pipe.ply"
+    os.mkfifo(fifo)
+    run_cli("export", run_dir, "--ply", fifo, "--overwrite", code=2, match="FIFO", watch=[tmp_path])
+    device = tmp_path / "null.ply"
+    os.symlink("/dev/null", device)  # /dev/null itself stays out of reach of a failing test
+    run_cli("export", run_dir, "--ply", device, "--overwrite", code=2, match="device node", watch=[tmp_path])
+
+
+def test_export_never_replaces_a_file_it_did_not_write(run_dir, tmp_path):
+    theirs = tmp_path / "scan.ply"
+    theirs.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 0\nend_header\n")
+    run_cli("export", run_dir, "--ply", theirs, "--overwrite", code=2, match="not a PLY file written by splat-export",
+            watch=[tmp_path])
+
+
+def test_export_replaces_its_own_ply_only_with_overwrite(run_dir, tmp_path):
+    ply = tmp_path / "out.ply"
+    run_cli("export", run_dir, "--ply", ply, code=0, watch=[tmp_path], allowed=[ply])
+    assert PLY_COMMENT.encode() in ply.read_bytes().split(b"end_header")[0]
+    run_cli("export", run_dir, "--ply", ply, code=2, match="--overwrite", watch=[tmp_path])
+    run_cli("export", run_dir, "--ply", ply, "--overwrite", code=0, watch=[tmp_path], allowed=[ply])
+
+
+def test_export_path_below_a_file_and_an_unwritable_folder(run_dir, tmp_path):
+    (tmp_path / "notes.txt").write_text("mine")
+    run_cli("export", run_dir, "--ply", tmp_path / "notes.txt" / "out.ply", code=2, match="is not a folder",
+            watch=[tmp_path])
+    locked = Path("/proc/sys")  # not writable even by root
+    if os.access(locked, os.W_OK):
+        pytest.skip("/proc/sys is writable here")
+    run_cli("export", run_dir, "--ply", locked / "out.ply", code=1, match="cannot write", watch=[tmp_path])
+
+
+# ------------------------------------------------------------------ splat-render
+
+
+def test_render_refuses_a_folder_or_video_of_the_user(run_dir, tmp_path):
+    photos = user_folder(tmp_path / "holiday", **{"IMG_0001_render.png": "not a render"})
+    run_cli("render", run_dir, "--out", photos, "--overwrite", code=2,
+            match="not a render folder written by splat-render", watch=[tmp_path])
+    video = tmp_path / "wedding.mp4"
+    video.write_bytes(b"\0\0\0\x18ftypmp42")
+    run_cli("render", run_dir, "--path", "spiral", "--frames", 2, "--out", video, "--overwrite",
+            code=2, match="not a video written by splat-render", watch=[tmp_path])
+
+
+def test_render_refreshes_its_own_folder_with_overwrite_keeping_other_files(run_dir, tmp_path):
+    out = tmp_path / "renders"
+    run_cli("render", run_dir, "--out", out, code=0, watch=[tmp_path], allowed=[out])
+    assert json.loads((out / MARKER).read_text())["written_by"] == "splat-render"
+    with pytest.raises(DataError, match="--overwrite"):
+        check_output(out, RENDER_FOLDER)
+    (out / "notes.txt").write_text("mine")
+    (out / "old_view_render.png").write_bytes(b"a render of a view that no longer exists")
+    run_cli("render", run_dir, "--out", out, "--overwrite", code=0, watch=[tmp_path], allowed=[out])
+    assert (out / "notes.txt").read_text() == "mine" and not (out / "old_view_render.png").exists()
+
+
+# ------------------------------------------------------------------ splat-match and splat-sweep
+
+
+def test_match_output_is_a_file_or_the_data(dataset, tmp_path):
+    target = tmp_path / "matches.txt"
+    target.write_text("mine")
+    for out, says in ((target, "is not a folder"), (dataset, "is the input")):
+        r = run_cli("match", "--data", dataset, "--out", out, code=2, watch=[tmp_path])
+        assert says in r.stdout + r.stderr and len((r.stdout + r.stderr).strip().splitlines()) == 1
+
+
+def test_sweep_refuses_a_folder_that_is_not_a_sweep(tmp_path):
+    folder = user_folder(tmp_path / "paper", **{"results.md": "my table"})
+    run_cli("sweep", "--methods", "3dgs", "--data", tmp_path / "no-such-data", "--steps", 1, "--no-live",
+            "--out", folder, code=2, match="not a sweep folder written by splat-sweep", watch=[tmp_path])
+
+
+def test_clearing_an_output_unlinks_links_inside_and_keeps_the_users_files(tmp_path):
+    """--overwrite's removal (the same function for every command) never descends into a symlink."""
+    from splat_framework.output_paths import RUN_FOLDER, clear_output
+
+    elsewhere = user_folder(tmp_path / "elsewhere", **{"precious.png": "x", "a_render.png": "y"})
+    run = _fake_run(tmp_path / "run")
+    (run / "renders").mkdir()
+    os.symlink(elsewhere, run / "renders" / "linked")  # a link inside a folder that is removed
+    os.symlink(elsewhere / "a_render.png", run / "spiral.mp4")  # a link in place of a file we write
+    (run / "notes.txt").write_text("mine")
+    clear_output(run, RUN_FOLDER)
+    assert sorted(p.name for p in run.iterdir()) == ["notes.txt"]
+    assert sorted(p.name for p in elsewhere.iterdir()) == ["a_render.png", "precious.png"]
