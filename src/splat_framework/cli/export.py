@@ -26,12 +26,14 @@ def main(args: ExportArgs) -> Path:
     from ..errors import DataError
     from ..export import export_ply
     from ..run import load_trained_model
+    from ..run_lock import owned, writes_inside
 
     out = args.ply if args.ply is not None else Path(args.run_dir) / "point_cloud.ply"
     if out.is_dir():
         raise DataError(f"{out}: is a folder; --ply names the file to write (e.g. {out / 'point_cloud.ply'})")
-    _, model = load_trained_model(args.run_dir, args.device, trust_edits=args.trust_edited_config)
-    export_ply(model, out)
+    with owned(args.run_dir, writes=writes_inside(args.run_dir, out)):  # a PLY elsewhere only reads the run
+        _, model = load_trained_model(args.run_dir, args.device, trust_edits=args.trust_edited_config)
+        export_ply(model, out)
     print(f"wrote {model.num_gaussians} Gaussians to {out}")
     return out
 

@@ -43,17 +43,25 @@ def camera_path(kind: str, dm, frames: int) -> tuple[str, list]:
 
 
 def main(args: RenderArgs) -> Path:
-    import torch
-    from rich.progress import track
-
     from ..errors import DataError
-    from ..evaluation import colorize_depth, expected_depth, model_depth_mode, to_uint8, write_png
-    from ..run import background_for, load_run
+    from ..run_lock import owned, writes_inside
 
     if args.frames < 1:
         raise DataError(f"--frames must be >= 1, got {args.frames}")
     if args.fps < 1:
         raise DataError(f"--fps must be >= 1, got {args.fps}")
+    # the default outputs lie in the run folder (own it meanwhile); an --out elsewhere only reads the run
+    with owned(args.run_dir, writes=args.out is None or writes_inside(args.run_dir, args.out)):
+        return render_run(args)
+
+
+def render_run(args: RenderArgs) -> Path:
+    import torch
+    from rich.progress import track
+
+    from ..evaluation import colorize_depth, expected_depth, model_depth_mode, to_uint8, write_png
+    from ..run import background_for, load_run
+
     config, dm, model = load_run(args.run_dir, args.device, args.trust_edited_config)
     bg = background_for(dm.scene, config.device)
     if args.path == "test":
