@@ -35,6 +35,7 @@ from __future__ import annotations
 import errno
 import os
 import socket
+import stat
 import sys
 import time
 from contextlib import contextmanager
@@ -46,6 +47,9 @@ from .errors import DataError
 
 LOCK_NAME = ".splat.lock"
 """The lock file inside a run folder (ignored when a folder's emptiness is judged)."""
+
+_OPEN_FLAGS = os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC
+"""A symlink or a FIFO planted at the lock's name is never followed nor waited on."""
 
 _HOLDER_WAIT_S = 0.5
 """How long a refused process waits for the holder to finish writing its identity."""
@@ -149,10 +153,13 @@ def acquire(folder: Path) -> RunLock:
     path = key / LOCK_NAME
     while True:
         try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | _OPEN_FLAGS, 0o600)
         except OSError as e:
             why = "a symlink is in its place" if e.errno == errno.ELOOP else (e.strerror or str(e))
             raise DataError(f"{path}: cannot create the run folder's lock file ({why})") from None
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            os.close(fd)
+            raise DataError(f"{path}: not a regular file, so it cannot be the run folder's lock file")
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -164,9 +171,13 @@ def acquire(folder: Path) -> RunLock:
         os.close(fd)  # the holder we waited on deleted that file as it released: lock the new one
     stamp = datetime.now().isoformat(timespec="seconds")
     record = f"pid {os.getpid()} on {socket.gethostname()}, started {stamp}: {command_line()}\n"
-    os.ftruncate(fd, 0)
-    os.pwrite(fd, record.encode("utf-8", "replace"), 0)
     lock = _held[key] = RunLock(key, fd)
+    try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, record.encode("utf-8", "replace"), 0)
+    except OSError:  # a full disk: report it (one line in the CLIs), holding nothing
+        lock.release()
+        raise
     return lock
 
 
@@ -178,10 +189,12 @@ def holder(folder: Path) -> str | None:
     if holds(folder):
         return None
     try:
-        fd = os.open(Path(folder) / LOCK_NAME, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+        fd = os.open(Path(folder) / LOCK_NAME, os.O_RDONLY | _OPEN_FLAGS)
     except OSError:
         return None
     try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return None
         fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
     except BlockingIOError:
         return _read_holder(fd) or "identity not written yet"

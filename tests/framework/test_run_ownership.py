@@ -7,6 +7,7 @@ edit; the run folder must come out of a refusal unchanged.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import signal
 import subprocess
@@ -18,10 +19,13 @@ from pathlib import Path
 import pytest
 from cli_harness import cli_env, run_cli
 
+from splat_framework import run_lock
 from splat_framework.checkpoint import list_checkpoints, load_checkpoint
 from splat_framework.config import read_config_json
 from splat_framework.errors import DataError
 from splat_framework.io import CHECKSUM_KEY, atomic_write_json, read_json
+from splat_framework.registry import get_method
+from splat_framework.run_folder import prepare_run_dir
 from splat_framework.run_lock import LOCK_NAME
 
 TINY = ("3dgs", "--data", "synthetic/forward-tiny", "--no-progress", "--no-save-renders",
@@ -54,45 +58,55 @@ def hold_lock(folder: Path) -> subprocess.Popen:
     return proc
 
 
+@pytest.fixture(scope="module")
+def seed0_run(tmp_path_factory):
+    """A finished 10-step run, seed 0 (each test copies it)."""
+    out = tmp_path_factory.mktemp("ownership") / "run"
+    env = cli_env(SPLAT_COMPILE="0", SPLAT_CACHE=tmp_path_factory.getbasetemp() / "splatcache")
+    run_cli("train", *train_args(out, 10), code=0, env=env)
+    return out
+
+
 # -------------------------------------------------------------- one owner
 def test_a_second_training_on_the_same_output_is_refused_while_the_first_finishes(tmp_path):
     """Two splat-train on one --output: before, both exited 0 and only the second run survived. Now the
-    second (fresh, --resume or --overwrite) and a splat-eval of the folder exit 2 naming the first,
-    whose run finishes intact."""
+    second (fresh or --resume) and a splat-eval of the folder exit 2 naming the first, whose run then
+    finishes intact. The first is paused (SIGSTOP) while the others try, so that it is still running
+    whatever the machine's load."""
     out = tmp_path / "run"
-    first = subprocess.Popen([sys.executable, "-m", "splat_framework.cli.train", *train_args(out, 500, "--seed", 3)],
+    first = subprocess.Popen([sys.executable, "-m", "splat_framework.cli.train", *train_args(out, 30, "--seed", 3)],
                              env=cli_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        holder = wait_for_lock(out, first)
-        assert "splat-train 3dgs" in holder
+        assert "splat-train 3dgs" in wait_for_lock(out, first)
+        first.send_signal(signal.SIGSTOP)
         who = (f"pid {first.pid} ", "splat-train 3dgs", "in use")
-        tries = [("train", *train_args(out, 20)), ("train", *train_args(out, 20, "--resume")),
-                 ("train", *train_args(out, 20, "--overwrite")), ("eval", out)]
+        tries = [("train", *train_args(out, 20)), ("train", *train_args(out, 20, "--resume")), ("eval", out)]
         with ThreadPoolExecutor(len(tries)) as pool:
             for refused in [pool.submit(run_cli, *t, code=2, match=who) for t in tries]:
                 refused.result()
-        assert first.poll() is None, "the refusals must have met the first run still training"
+        first.send_signal(signal.SIGCONT)
         _, err = first.communicate(timeout=300)
     finally:
         if first.poll() is None:
             first.kill()
     assert first.returncode == 0, err
-    assert read_json(out / "metrics.json", require_checksum=True)["steps"] == 500
+    assert read_json(out / "metrics.json", require_checksum=True)["steps"] == 30
     assert read_config_json(out / "config.json")[1]["seed"] == 3
-    assert load_checkpoint(list_checkpoints(out / "checkpoints")[-1])["step"] == 500
+    assert load_checkpoint(list_checkpoints(out / "checkpoints")[-1])["step"] == 30
     assert not (out / LOCK_NAME).exists(), "the lock file is removed when the run ends"
 
 
-def test_writers_into_a_held_run_are_refused_readers_are_not_and_a_dead_holder_blocks_nothing(run_dir, tmp_path):
-    """eval, render and export into the run folder exit 2 naming the holder and change nothing; an
-    export to a PLY elsewhere only reads the run and proceeds; once the holder is killed (kill -9, its
-    lock file left behind) the same commands run."""
+def test_writers_into_a_held_run_are_refused_readers_are_not_and_a_dead_holder_blocks_nothing(seed0_run, tmp_path):
+    """train --overwrite, eval, render and export into the run folder exit 2 naming the holder and change
+    nothing (--overwrite deleted the holder's checkpoints before); an export to a PLY elsewhere only
+    reads the run and proceeds; once the holder is killed (kill -9, its lock file left behind) the
+    same export into the folder runs."""
     run = tmp_path / "run"
-    shutil.copytree(run_dir, run, ignore=shutil.ignore_patterns("renders"))
+    shutil.copytree(seed0_run, run)
     holder = hold_lock(run)
     try:
         who = (f"pid {holder.pid} ", "in use")
-        for args in (("eval", run), ("render", run), ("export", run)):
+        for args in (("train", *train_args(run, 10, "--overwrite")), ("eval", run), ("render", run), ("export", run)):
             run_cli(*args, code=2, match=who, watch=[tmp_path])
         elsewhere = tmp_path / "copy.ply"
         run_cli("export", run, "--ply", elsewhere, code=0, watch=[tmp_path], allowed=[elsewhere])
@@ -104,29 +118,25 @@ def test_writers_into_a_held_run_are_refused_readers_are_not_and_a_dead_holder_b
     assert not (run / LOCK_NAME).exists()
 
 
-def test_a_stale_lock_file_does_not_block_a_new_run(tmp_path):
-    """A folder holding only the lock file of a run killed before it wrote anything is still an empty
-    folder: a new run starts there (no --overwrite needed)."""
+def test_a_stale_lock_file_leaves_a_folder_empty_for_a_new_run(tmp_path):
+    """A folder holding only the lock file of a run killed before it wrote anything is still empty: a
+    new run starts there without --overwrite, and owns it."""
     out = tmp_path / "run"
     out.mkdir()
     holder = hold_lock(out)
     holder.send_signal(signal.SIGKILL)
     holder.wait()
     assert [p.name for p in out.iterdir()] == [LOCK_NAME]
-    run_cli("train", *train_args(out, 5), code=0)
-    assert read_json(out / "metrics.json", require_checksum=True)["steps"] == 5
+    cfg = get_method("3dgs").default_config().model_copy(update={"output": out})
+    try:
+        assert prepare_run_dir(cfg) == out
+        assert f"pid {os.getpid()} " in (out / LOCK_NAME).read_text()
+    finally:
+        run_lock.release(out)
+    assert not out.joinpath(LOCK_NAME).exists()
 
 
 # -------------------------------------------------------------- provenance
-@pytest.fixture(scope="module")
-def seed0_run(tmp_path_factory):
-    """A finished 10-step run, seed 0 (copied by each test)."""
-    out = tmp_path_factory.mktemp("provenance") / "run"
-    env = cli_env(SPLAT_COMPILE="0", SPLAT_CACHE=tmp_path_factory.getbasetemp() / "splatcache")
-    run_cli("train", *train_args(out, 10), code=0, env=env)
-    return out
-
-
 def edited_copy(seed0_run: Path, tmp_path: Path, edit: str) -> Path:
     """A copy of the seed-0 run whose config.json is deleted, stripped of its checksum, or has its seed
     changed to 5 (``"delete"``, ``"unsigned"``, ``"seed"``: seed 5 and checksum stripped)."""
@@ -154,11 +164,10 @@ def test_resume_refuses_a_missing_or_unsigned_config(seed0_run, tmp_path, edit, 
     run_cli("train", *train_args(run, 10, "--resume", "--seed", 5), code=2, match=match, watch=[tmp_path])
 
 
-@pytest.mark.parametrize("edit", ["delete", "seed"])
-def test_trusted_resume_is_checked_against_the_checkpoints_own_record(seed0_run, tmp_path, edit):
-    """--trust-edited-config does not let an edited or missing config.json change the experiment: the
-    newest checkpoint records seed 0 under its own checksum, and nothing is rewritten."""
-    run = edited_copy(seed0_run, tmp_path, edit)
+def test_trusted_resume_is_checked_against_the_checkpoints_own_record(seed0_run, tmp_path):
+    """--trust-edited-config does not let an edited config.json change the experiment (nor re-sign it):
+    the newest checkpoint records seed 0 under its own checksum, and nothing is rewritten."""
+    run = edited_copy(seed0_run, tmp_path, "seed")
     run_cli("train", *train_args(run, 10, "--resume", "--seed", 5, "--trust-edited-config"), code=2,
             match=("step-0000010.ckpt", "cannot change the experiment", "seed (0 -> 5)"), watch=[tmp_path])
 
@@ -183,3 +192,27 @@ def test_an_edited_config_names_the_flag_that_accepts_it(seed0_run, tmp_path):
     with pytest.raises(DataError, match="checksum mismatch.*--trust-edited-config"):
         read_config_json(path)
     assert read_config_json(path, trust_edits=True)[1]["seed"] == 5
+
+
+def test_the_lock_file_is_never_a_planted_symlink_or_fifo(tmp_path):
+    """A symlink or a FIFO at the lock file's name is refused in one line (never followed: the symlink's
+    target is untouched; never waited on); a plain lock is released with its file."""
+    target = tmp_path / "someone_elses.txt"
+    target.write_text("keep")
+    for plant in ("symlink", "fifo"):
+        run = tmp_path / plant
+        run.mkdir()
+        if plant == "symlink":
+            os.symlink(target, run / LOCK_NAME)
+        else:
+            os.mkfifo(run / LOCK_NAME)
+        with pytest.raises(DataError, match=LOCK_NAME):
+            run_lock.acquire(run)
+        assert run_lock.holder(run) is None
+    assert target.read_text() == "keep"
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    with run_lock.owned(plain) as lock:
+        assert run_lock.holds(plain) and lock is run_lock.acquire(plain)  # the process's own lock, again
+        assert run_lock.is_empty_run_dir(plain)
+    assert not run_lock.holds(plain) and list(plain.iterdir()) == []
