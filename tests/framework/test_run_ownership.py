@@ -20,7 +20,7 @@ import pytest
 from cli_harness import cli_env, run_cli
 
 from splat_framework import run_lock
-from splat_framework.checkpoint import list_checkpoints, load_checkpoint
+from splat_framework.checkpoint import checkpoint_step, list_checkpoints, load_checkpoint, save_checkpoint
 from splat_framework.config import read_config_json
 from splat_framework.errors import DataError
 from splat_framework.io import CHECKSUM_KEY, atomic_write_json, read_json
@@ -170,6 +170,18 @@ def test_trusted_resume_is_checked_against_the_checkpoints_own_record(seed0_run,
     run = edited_copy(seed0_run, tmp_path, "seed")
     run_cli("train", *train_args(run, 10, "--resume", "--seed", 5, "--trust-edited-config"), code=2,
             match=("step-0000010.ckpt", "cannot change the experiment", "seed (0 -> 5)"), watch=[tmp_path])
+
+
+def test_a_checkpoint_without_a_record_needs_a_verified_config(seed0_run, tmp_path):
+    """Checkpoints written before they recorded their experiment resume on the word of a signed
+    config.json only: with config.json missing, even --trust-edited-config is refused."""
+    run = edited_copy(seed0_run, tmp_path, "delete")
+    newest = list_checkpoints(run / "checkpoints")[-1]  # the one a resume reads
+    payload = load_checkpoint(newest)
+    del payload["experiment"]
+    save_checkpoint(run / "checkpoints", checkpoint_step(newest), payload)
+    run_cli("train", *train_args(run, 10, "--resume", "--trust-edited-config"), code=2,
+            match=("step-0000010.ckpt", "records no experiment"), watch=[tmp_path])
 
 
 def test_trusted_resume_of_the_same_experiment_writes_the_true_config(seed0_run, tmp_path):
