@@ -282,6 +282,8 @@ class TrainConfig(SplatConfig):
     """Continue the run in --output from its last good checkpoint."""
     overwrite: Annotated[bool, RUN_OPTION] = False
     """Allow writing into an existing non-empty --output folder."""
+    trust_edited_config: Annotated[bool, RUN_OPTION] = False
+    """With --resume: continue even though the run's config.json is missing, unsigned or edited by hand; the experiment recorded in the checkpoints themselves (covered by their checksum) must then match the command line."""
     eval_every: Annotated[Steps, RUN_OPTION] = 0
     """Evaluate the test views every this many iterations (0 = only at the end)."""
     checkpoint_every: Steps = 1000
@@ -440,14 +442,19 @@ def read_config_json(path: Path, trust_edits: bool = False) -> tuple[str, dict]:
     ``trust_edits`` (the CLIs' ``--trust-edited-config``): a config edited by hand,
     or stripped of its checksum, is refused by default."""
     from .errors import DataError
-    from .io import CHECKSUM_KEY, read_json
+    from .io import CHECKSUM_KEY, json_checksum, read_json
 
-    payload = read_json(path, verify=not trust_edits)
+    payload = read_json(path, verify=False)
+    signed = payload.get(CHECKSUM_KEY)
+    if not trust_edits and signed is not None and signed != json_checksum(payload):
+        raise DataError(
+            f"{path}: checksum mismatch (truncated, corrupt or edited file); pass --trust-edited-config to use it anyway"
+        )
     if payload.get("schema_version") != SCHEMA_VERSION:
         raise DataError(
             f"{path}: config schema version {payload.get('schema_version')} is not {SCHEMA_VERSION}"
         )
-    if not trust_edits and CHECKSUM_KEY not in payload:
+    if not trust_edits and signed is None:
         raise DataError(f"{path}: no checksum (edited by hand?); pass --trust-edited-config to use it anyway")
     cfg = payload.get("config")
     if not isinstance(cfg, dict) or "method" not in cfg:

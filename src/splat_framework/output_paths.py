@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Callable, Iterable
 
 from .errors import DataError
+from .run_lock import LOCK_NAME
 
 __all__ = [
     "MARKER", "PLY_COMMENT", "OutputKind", "OutputNotWritable", "RUN_FOLDER", "SCENE_FOLDER", "PROCESSED_SCENE",
@@ -130,6 +131,8 @@ class OutputKind:
     """Recognises an output of ours without (or besides) the marker file."""
     exists_hint: str = "pass --overwrite to replace it"
     """How to go on when an output of ours is there (the message's last words)."""
+    ignored: tuple[str, ...] = ()
+    """Names that do not make a folder non-empty (a run folder's lock file)."""
 
     def is_ours(self, path: Path) -> bool:
         if self.folder and _read_marker(path).get("kind") == self.key:
@@ -147,6 +150,7 @@ RUN_FOLDER = OutputKind(
              "sweep.json", "sweep-spec.json", "sweep.log", MARKER),
     recognise=is_run_folder,
     exists_hint="use --resume to continue it or --overwrite to replace it",
+    ignored=(LOCK_NAME,),
 )
 SCENE_FOLDER = OutputKind(
     "synthetic-scene", "scene folder", "splat-scene", True,
@@ -260,7 +264,7 @@ def check_output(path: Path, kind: OutputKind, *, overwrite: bool = False, keep:
     """
     path = Path(path)
     check_path(path, kind, inputs=inputs, flag=flag)
-    if not os.path.lexists(path) or (kind.folder and not any(path.iterdir())):
+    if not os.path.lexists(path) or (kind.folder and all(p.name in kind.ignored for p in path.iterdir())):
         return False
     if not kind.is_ours(path):
         what = "is not empty and is not" if kind.folder else "exists and is not"

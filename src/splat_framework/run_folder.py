@@ -5,10 +5,12 @@ from __future__ import annotations
 from datetime import datetime
 from pathlib import Path
 
+from . import run_lock
 from .checkpoint import remove_stale_temporaries
 from .config import TrainConfig
 from .data import DataError
 from .output_paths import RUN_FOLDER, check_output, check_path, clear_output
+from .run_lock import is_empty_run_dir
 
 
 def default_run_dir(config: TrainConfig) -> Path:
@@ -27,31 +29,68 @@ def default_run_dir(config: TrainConfig) -> Path:
 
 
 def prepare_run_dir(config: TrainConfig) -> Path:
-    """The run folder; never silently overwrite an existing run.
+    """The run folder, created and locked by this process; never silently overwrite an existing run.
 
     Raises DataError (one line, exit code 2 in the CLIs) when ``--output``
     exists and is not empty and neither ``--resume`` nor ``--overwrite`` is
     given, when it is not a run folder (see :mod:`splat_framework.output_paths`),
-    or when it is, holds, or lies inside the ``--data`` folder. With ``--overwrite``
-    what the previous run wrote (config, checkpoints, metrics, renders) is removed,
+    or when it is, holds, or lies inside the ``--data`` folder; and
+    :class:`~splat_framework.run_lock.RunFolderBusy` when another process holds the
+    folder (see :func:`claim_run_dir`). With ``--overwrite`` what the previous run
+    wrote (config, checkpoints, metrics, renders) is removed under the lock,
     symlinks unlinked and never followed, so that nothing of it can be mistaken for
     this one's; files of the user's in the folder are kept.
     """
     if config.resume and config.overwrite:
         raise DataError("--resume and --overwrite exclude each other (continue the run, or start it again)")
     inputs = [Path(config.data)] if Path(config.data).exists() else []
+    replace = False
     if config.output is None:
         if config.resume:
             raise DataError("--resume needs --output RUN_FOLDER (the run to continue)")
-        run_dir = default_run_dir(config)
-        check_path(run_dir, RUN_FOLDER, inputs=inputs, flag="--output")
+        while True:
+            run_dir = default_run_dir(config)
+            check_path(run_dir, RUN_FOLDER, inputs=inputs, flag="--output")
+            try:
+                run_dir.mkdir(parents=True)
+                break
+            except FileExistsError:  # another run took this name since default_run_dir looked
+                continue
     else:
         run_dir = Path(config.output)
+        who = run_lock.holder(run_dir) if run_dir.is_dir() else None  # a run in progress: name it
+        if who is not None:
+            raise run_lock.busy(run_dir, who)
         if config.resume:  # what is there is checked by the trainer (config.json, checkpoints)
             check_path(run_dir, RUN_FOLDER, inputs=inputs, flag="--output")
-        elif check_output(run_dir, RUN_FOLDER, overwrite=config.overwrite, inputs=inputs, flag="--output"):
-            clear_output(run_dir, RUN_FOLDER)
-    run_dir.mkdir(parents=True, exist_ok=True)
+        else:
+            replace = check_output(run_dir, RUN_FOLDER, overwrite=config.overwrite, inputs=inputs, flag="--output")
+        run_dir.mkdir(parents=True, exist_ok=True)
+    claim_run_dir(run_dir, fresh=not (config.resume or replace))
+    if replace:
+        clear_output(run_dir, RUN_FOLDER)
     for folder in (run_dir, run_dir / "checkpoints", run_dir / "renders"):  # partial files of a killed run
         remove_stale_temporaries(folder)
     return run_dir
+
+
+def claim_run_dir(run_dir: Path, fresh: bool) -> None:
+    """Take the run folder's lock for this process (:mod:`splat_framework.run_lock`), before any data
+    is loaded; a ``fresh`` run checks again under the lock that the folder is still empty, so of two
+    runs started together on one ``--output`` the second is refused even if both saw it empty."""
+    before = run_lock.holds(run_dir)
+    lock = run_lock.acquire(run_dir)
+    if fresh and not is_empty_run_dir(run_dir):
+        if not before:
+            lock.release()
+        raise _not_empty(run_dir)
+
+
+def _not_empty(run_dir: Path) -> DataError:
+    """The refusal of a non-empty folder: it names the process writing it, if one is."""
+    who = run_lock.holder(run_dir)
+    if who is not None:
+        return run_lock.busy(run_dir, who)
+    return DataError(
+        f"{run_dir}: run folder exists and is not empty (use --resume to continue it or --overwrite to replace it)"
+    )

@@ -13,6 +13,16 @@ Reliability contract:
   timestamped folder is made; an existing non-empty ``--output`` needs
   ``--resume`` (continue it) or ``--overwrite`` (start again; its old
   checkpoints and metrics are removed first).
+- **One owner**: the run folder is locked by this process before the data
+  is loaded (:mod:`splat_framework.run_lock`); a second ``splat-train`` on the
+  same ``--output``, fresh or ``--resume``, or a ``splat-eval`` of it, is
+  refused in one line naming the holder; the lock is released when
+  :meth:`Trainer.train` ends, however it ends.
+- **Provenance**: ``--resume`` needs the run's own config.json (present,
+  checksum intact) unless ``--trust-edited-config``, and refuses any change of
+  an experiment field (all but the ``RUN_OPTION`` ones) against config.json
+  and against the experiment every checkpoint records under its own checksum;
+  config.json is rewritten only after that check, with this run's config.
 - **Checkpoints** hold everything the next step depends on (parameters, Adam
   states, densification state, model extra state, all RNG states, the
   learning-rate factor); the view order is a pure function of (seed, step).
@@ -44,14 +54,17 @@ from typing import Callable, Sequence
 import torch
 from torch import Tensor
 
+from . import run_lock
 from .checkpoint import CheckpointError, check_structure, list_checkpoints, load_checkpoint, load_latest, save_checkpoint
-from .config import TrainConfig, config_payload, experiment_fields, resolve_steps, save_config, upgrade_saved_config
+from .config import (
+    TrainConfig, config_payload, experiment_fields, read_config_json, resolve_steps, save_config, upgrade_saved_config,
+)
 from .console import console, print_summary, say, training_progress
 from .data import DataError, DataManager, load_config_scene
 from .data.cache_dir import user_cache_dir
 from .devices import resolve_device
 from .evaluation import evaluate
-from .io import atomic_write_json, read_json
+from .io import atomic_write_json
 from .memory_plan import image_memory_budget, plan_memory
 from .metrics import psnr
 from .model.strategy import Strategy
@@ -61,6 +74,7 @@ from .render._threads import apply_process_threads
 from .registry import get_method
 from .rng import restore_rng_state, rng_state, seed_everything
 from .run_folder import prepare_run_dir
+from .run_lock import is_empty_run_dir
 
 MAX_NONFINITE = 20
 """Consecutive non-finite steps tolerated before restoring the last checkpoint."""
@@ -169,14 +183,18 @@ class Trainer:
         self.callbacks = list(callbacks)
         self.device = resolve_device(self.config.device)  # before anything is written
         out = self.config.output
-        fresh = out is None or not Path(out).exists() or (Path(out).is_dir() and not any(Path(out).iterdir()))
-        self.run_dir = prepare_run_dir(self.config)
-        if self.config.resume:
-            self._check_saved_config()  # before any data or model work
+        fresh = out is None or not Path(out).exists() or (Path(out).is_dir() and is_empty_run_dir(Path(out)))
+        self.run_dir = prepare_run_dir(self.config)  # owned by this process from here on (run_lock)
         try:
-            self._setup()
-        except KeyboardInterrupt:
-            raise TrainingInterrupted(self._setup_interrupted(fresh)) from None
+            # before any data or model work; whether config.json vouches for the checkpoints
+            self._config_verified = self._check_saved_config() if self.config.resume else True
+            try:
+                self._setup()
+            except KeyboardInterrupt:
+                raise TrainingInterrupted(self._setup_interrupted(fresh)) from None
+        except BaseException:
+            self.release()
+            raise
 
     def _setup(self) -> None:
         """Data, model (SCGaussian: matching, warm-up), optimizers and strategy."""
@@ -217,11 +235,13 @@ class Trainer:
         self.stop_reason: str | None = None
         self._train_prior_s = 0.0
         self._train_t0: float | None = None
-        self.write_config()
+        if not self.config.resume:  # a resumed run's is written once its checkpoint's record is checked
+            self.write_config()
 
     def _setup_interrupted(self, fresh: bool) -> str:
         """The one-line message of a stop during setup; a run folder this run created (still empty) is removed."""
         what = "interrupted during setup (data, matching, warm-up), before any training step"
+        self.release()  # deletes the lock file: an empty folder is then truly empty
         if fresh and self.run_dir.is_dir() and not any(self.run_dir.iterdir()):
             self.run_dir.rmdir()
             return f"{what}: nothing was trained, {self.run_dir} removed (start the run again)"
@@ -235,16 +255,58 @@ class Trainer:
         """``config.json``: the resolved config with its schema version and a checksum (atomic)."""
         save_config(self.config, self.run_dir / "config.json")
 
-    def _check_saved_config(self) -> None:
+    def release(self) -> None:
+        """Give up the run folder (its lock; see :mod:`splat_framework.run_lock`): done writing."""
+        run_lock.release(self.run_dir)
+
+    def experiment_record(self) -> dict:
+        """The experiment fields of this run's resolved config (what a resume may not change), as
+        JSON values; every checkpoint carries it, covered by the checkpoint's checksum."""
+        experiment = experiment_fields(type(self.config))
+        return {k: v for k, v in self.config_payload()["config"].items() if k in experiment}
+
+    def _check_saved_config(self) -> bool:
+        """``--resume`` continues the run's own experiment; returns whether config.json verified.
+
+        config.json must carry its checksum, unedited, unless ``--trust-edited-config``; its
+        experiment fields must equal the command line's. Without config.json a folder holding
+        checkpoints is refused (unless trusted: the checkpoints' own records are then checked,
+        :meth:`_check_checkpoint_record`); with nothing to continue the run simply starts."""
         path = self.run_dir / "config.json"
+        trust = self.config.trust_edited_config
         if not path.is_file():
-            return
+            if list_checkpoints(self.checkpoint_dir) and not trust:
+                raise DataError(
+                    f"{path}: missing, so --resume cannot check that the checkpoints are this experiment's; "
+                    "pass --trust-edited-config to check against the checkpoints' own record"
+                )
+            return False
         try:
-            saved = read_json(path)
-        except DataError as e:
-            say(f"warning: {e}; it will be rewritten", "yellow")
-            return
-        old = upgrade_saved_config(dict(saved.get("config", {})), get_method(self.config.method).default_config())
+            saved, verified = read_config_json(path)[1], True
+        except DataError:
+            if not trust:
+                raise
+            saved, verified = read_config_json(path, trust_edits=True)[1], False
+        self._check_same_experiment(path, saved)
+        return verified
+
+    def _check_checkpoint_record(self, path: Path, ck: dict) -> None:
+        """A checkpoint continues only the experiment it recorded (DataError otherwise, never a
+        fallback to an older file). A checkpoint written before checkpoints recorded their
+        experiment is accepted only on the word of a verified config.json."""
+        record = ck.get("experiment")
+        if isinstance(record, dict):
+            self._check_same_experiment(path, record)
+        elif not self._config_verified:
+            raise DataError(
+                f"{path}: records no experiment (written by an older version) and config.json is missing or "
+                "edited, so nothing shows that --resume continues the same experiment"
+            )
+
+    def _check_same_experiment(self, path: Path, saved: dict) -> None:
+        """DataError naming the fields (up to 4) in which ``saved`` (a config dict as written by this
+        or an older version) is another experiment than this run's config."""
+        old = upgrade_saved_config(dict(saved), get_method(self.config.method).default_config())
         new = self.config_payload()["config"]
         if old.get("method") not in (None, new["method"]):
             raise DataError(f"{path}: the run was trained with method {old['method']!r}, not {new['method']!r}")
@@ -274,6 +336,7 @@ class Trainer:
         return {
             "step": step,
             "method": self.config.method,
+            "experiment": self.experiment_record(),
             "total_steps": self.config.total_steps,
             "params": {k: v.detach().cpu() for k, v in self.model.params.items()},
             "networks": {k: v.detach().cpu() for k, v in self.model.networks.state_dict().items()},
@@ -358,7 +421,9 @@ class Trainer:
 
     def _restore_from(self, path: Path, ck: dict) -> dict:
         """Load a verified payload into the trainer after checking its structure against the model
-        (parameter names and per-row shapes, float32, optimizer moments); CheckpointError otherwise."""
+        (parameter names and per-row shapes, float32, optimizer moments); CheckpointError otherwise,
+        and DataError for a checkpoint of another experiment (:meth:`_check_checkpoint_record`)."""
+        self._check_checkpoint_record(path, ck)
         check_structure(path, ck, self.model.params)
         try:
             self._load_state(path, ck)
@@ -472,9 +537,18 @@ class Trainer:
 
     # ------------------------------------------------------------------- run
     def train(self) -> dict:
+        """Train to the end, evaluate, write metrics.json; the run folder is released however it ends."""
+        try:
+            return self._train()
+        finally:
+            self.release()
+
+    def _train(self) -> dict:
         cfg = self.config
-        if cfg.resume and not self.restore():
-            say(f"warning: {self.checkpoint_dir}: no checkpoint to resume from; training from the start", "yellow")
+        if cfg.resume:
+            if not self.restore():
+                say(f"warning: {self.checkpoint_dir}: no checkpoint to resume from; training from the start", "yellow")
+            self.write_config()  # this run's config, now that the checkpoint's record agrees with it
         total = cfg.total_steps
         last = {"loss": float("nan")}
         tpsnr = float("nan")

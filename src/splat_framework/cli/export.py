@@ -32,9 +32,11 @@ def main(args: ExportArgs) -> Path:
 
     from ..export import export_ply
     from ..run import load_trained_model
+    from ..run_lock import owned, writes_inside
 
-    _, model = load_trained_model(args.run_dir, args.device, trust_edits=args.trust_edited_config)
-    export_ply(model, out)
+    with owned(args.run_dir, writes=writes_inside(args.run_dir, out)):  # a PLY elsewhere only reads the run
+        _, model = load_trained_model(args.run_dir, args.device, trust_edits=args.trust_edited_config)
+        export_ply(model, out)
     print(f"wrote {model.num_gaussians} Gaussians to {out}")
     return out
 

@@ -46,7 +46,8 @@ def camera_path(kind: str, dm, frames: int) -> tuple[str, list]:
 
 def main(args: RenderArgs) -> Path:
     from ..errors import DataError
-    from ..output_paths import RENDER_FOLDER, VIDEO_FILE, check_output, claim_output
+    from ..output_paths import RENDER_FOLDER, VIDEO_FILE, check_output
+    from ..run_lock import owned, writes_inside
 
     if args.frames < 1:
         raise DataError(f"--frames must be >= 1, got {args.frames}")
@@ -64,15 +65,25 @@ def main(args: RenderArgs) -> Path:
     elif args.out is not None:  # checked before anything loads; the default name waits for --path auto
         check_video(args.out)
 
+    # the default outputs lie in the run folder (own it meanwhile); an --out elsewhere only reads the run
+    with owned(args.run_dir, writes=args.out is None or writes_inside(args.run_dir, args.out)):
+        return render_run(args, replace, check_video)
+
+
+def render_run(args: RenderArgs, replace: bool, check_video) -> Path:
+    """Load the run and write what ``args`` asks for (its targets already checked, or checked by
+    ``check_video`` once ``--path auto`` names the video)."""
     import torch
     from rich.progress import track
 
     from ..evaluation import colorize_depth, expected_depth, model_depth_mode, to_uint8, write_png
+    from ..output_paths import RENDER_FOLDER, claim_output
     from ..run import background_for, load_run
 
     config, dm, model = load_run(args.run_dir, args.device, args.trust_edited_config)
     bg = background_for(dm.scene, config.device)
     if args.path == "test":
+        out = args.out or args.run_dir / "renders"
         claim_output(out, RENDER_FOLDER, overwrite=replace)
         views = dm.eval_views()
         mode = model_depth_mode(model)
