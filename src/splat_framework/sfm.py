@@ -41,7 +41,7 @@ from .cameras import camera_centers, pose_differences
 from .data.images import read_photo
 from .errors import DataError
 from .output_paths import PROCESSED_SCENE, check_output, install_output
-from .work_folder import make_work_folder, remove_stale_work_folders
+from .work_folder import make_work_folder, remove_stale_work_folders, remove_work_folder
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
 MAPPERS = ("incremental", "global")
@@ -226,7 +226,7 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
         install_output(scene, out, PROCESSED_SCENE)
         return summary
     finally:
-        shutil.rmtree(work, ignore_errors=True)
+        remove_work_folder(work)
 
 
 def pick_video_frames(video: Path, n: int, dest: Path) -> list[Path]:

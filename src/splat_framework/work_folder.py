@@ -1,29 +1,27 @@
 """Hidden work folders next to an output (``.<out name>.work-XXXXXXXX``), owned by one process.
 
-A command that builds its output in a work folder beside it and renames it into place
-at the end (splat-process) leaves that folder behind when it is killed (``kill -9``, a
-power cut: no ``finally`` runs). Each work folder therefore holds an owner file with
-its process id and host; the next run for the same output removes every work folder of
-that output whose owner, on this host, is no longer running. A folder whose owner is
-alive (a run in progress), on another host, or that has no readable owner file, or is
-a symlink, is left alone. :func:`building` wraps the whole cycle for a command that
-writes a folder (splat-scene). Torch-free.
+A command that builds its output in a work folder beside it and moves it into place at
+the end (splat-process, splat-scene) leaves that folder behind when it is killed
+(``kill -9``, a power cut: no ``finally`` runs). Each work folder is therefore locked by
+its process with the run-folder lock (:mod:`splat_framework.run_lock`: an exclusive
+``flock`` on ``.splat.lock`` inside it, which the kernel drops when the process dies);
+the next run for the same output removes every work folder of that output whose lock
+nobody holds. A folder that is locked (a run in progress), has no lock file (not ours,
+or not yet locked), or is a symlink is left alone. :func:`building` wraps the whole
+cycle. Torch-free.
 """
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
-import socket
 import stat
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterator
 
-OWNER_FILE = "splat-owner.json"
-"""The file in a work folder naming its owner: ``{"pid": int, "host": str}``."""
+from . import run_lock
 
 
 def _prefix(out: Path) -> str:
@@ -31,55 +29,40 @@ def _prefix(out: Path) -> str:
 
 
 def make_work_folder(out: Path) -> Path:
-    """Create a fresh hidden work folder beside ``out`` (its parent must exist), owned by this process."""
+    """Create a fresh hidden work folder beside ``out`` (its parent must exist), locked by this process
+    until :func:`run_lock.release` or its exit."""
     work = Path(tempfile.mkdtemp(prefix=_prefix(out), dir=Path(out).parent))
-    (work / OWNER_FILE).write_text(json.dumps({"pid": os.getpid(), "host": socket.gethostname()}))
+    run_lock.acquire(work)
     return work
 
 
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # exists, another user's
-        return True
-    return True
-
-
-def _owner_gone(work: Path) -> bool:
-    """True when ``work``'s owner file names a process of this host that no longer runs."""
-    try:
-        owner = json.loads((work / OWNER_FILE).read_text())
-        pid, host = int(owner["pid"]), str(owner["host"])
-    except (OSError, ValueError, KeyError, TypeError):
-        return False
-    return host == socket.gethostname() and pid > 0 and pid != os.getpid() and not _alive(pid)
-
-
 def remove_stale_work_folders(out: Path) -> list[Path]:
-    """Remove the work folders of ``out`` whose owner process is gone; return them.
+    """Remove the work folders of ``out`` that hold a lock file nobody holds (their process died); return them.
 
-    Only real folders (never a symlink) named ``.<out name>.work-*`` in ``out``'s parent with an
-    owner file are candidates; ``shutil.rmtree`` unlinks symlinks inside, never follows them."""
+    Only real folders (never a symlink) named ``.<out name>.work-*`` in ``out``'s parent are
+    candidates; ``shutil.rmtree`` unlinks symlinks inside, never follows them."""
     parent, prefix = Path(out).parent, _prefix(out)
     removed = []
     try:
-        entries = list(os.scandir(parent))
+        entries = [e for e in os.scandir(parent) if e.name.startswith(prefix)]
     except OSError:
         return removed
     for entry in entries:
-        if not entry.name.startswith(prefix):
-            continue
         work = Path(entry.path)
         try:
-            if not stat.S_ISDIR(os.lstat(work).st_mode) or not _owner_gone(work):
-                continue
+            ours = stat.S_ISDIR(os.lstat(work).st_mode) and stat.S_ISREG(os.lstat(work / run_lock.LOCK_NAME).st_mode)
         except OSError:
             continue
-        shutil.rmtree(work, ignore_errors=True)
-        removed.append(work)
+        if ours and run_lock.holder(work) is None and not run_lock.holds(work):
+            shutil.rmtree(work, ignore_errors=True)
+            removed.append(work)
     return removed
+
+
+def remove_work_folder(work: Path) -> None:
+    """Release this process's lock on ``work`` and remove it (the end of a run, successful or not)."""
+    run_lock.release(work)
+    shutil.rmtree(work, ignore_errors=True)
 
 
 @contextmanager
@@ -88,7 +71,7 @@ def building(out: Path, install: Callable[[Path, Path], object]) -> Iterator[Pat
 
     ``install`` moves the finished folder into place (e.g. :func:`splat_framework.output_paths.install_output`,
     which renames it when ``out`` does not exist); the work folder then has the mode a new
-    folder gets and no owner file. On any failure or interruption (Ctrl-C) the work folder is
+    folder gets and no lock file. On any failure or interruption (Ctrl-C) the work folder is
     removed and ``out`` is untouched; after a crash (``kill -9``) the next :func:`building` of
     the same output removes it."""
     out = Path(out)
@@ -97,10 +80,10 @@ def building(out: Path, install: Callable[[Path, Path], object]) -> Iterator[Pat
     work = make_work_folder(out)
     try:
         yield work
-        (work / OWNER_FILE).unlink()
+        run_lock.release(work)  # deletes the lock file: it is not part of the output
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(work, 0o777 & ~umask)  # a folder as mkdir makes it, not mkdtemp's private 0700
         install(work, out)
     finally:
-        shutil.rmtree(work, ignore_errors=True)
+        remove_work_folder(work)

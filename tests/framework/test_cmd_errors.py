@@ -216,14 +216,15 @@ def test_scene_ctrl_c_exits_130_and_leaves_nothing(tmp_path):
 def test_building_installs_a_finished_folder_and_nothing_of_an_interrupted_one(tmp_path):
     import stat
 
-    from splat_framework.work_folder import OWNER_FILE, building
+    from splat_framework.run_lock import LOCK_NAME
+    from splat_framework.work_folder import building
 
     out = tmp_path / "out"
     with building(out, os.rename) as work:
         (work / "images").mkdir()
         (work / "images" / "a.png").write_text("new")
         assert work.parent == tmp_path and work.name.startswith(".out.work-")
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"] and not (out / OWNER_FILE).exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"] and not (out / LOCK_NAME).exists()
     assert stat.S_IMODE(out.stat().st_mode) == 0o777 & ~_umask()
     with pytest.raises(KeyboardInterrupt), building(tmp_path / "other", os.rename) as work:
         (work / "half.png").write_text("half")

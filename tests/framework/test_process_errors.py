@@ -3,7 +3,6 @@ hidden work folder a killed run leaves beside --out is removed by the next run."
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import subprocess
@@ -17,7 +16,8 @@ import pytest
 from cli_harness import cli_env, run_cli
 
 from splat_framework.errors import DataError
-from splat_framework.work_folder import OWNER_FILE, make_work_folder, remove_stale_work_folders
+from splat_framework.run_lock import LOCK_NAME
+from splat_framework.work_folder import make_work_folder, remove_stale_work_folders, remove_work_folder
 
 
 def noise_photos(folder: Path, n: int, w: int, h: int, ext: str = ".jpg") -> list[Path]:
@@ -45,35 +45,41 @@ def test_read_photo_refuses_a_truncated_jpeg_that_opencv_decodes_half_grey(tmp_p
         read_photo(p)
 
 
-def _dead_pid() -> int:
-    p = subprocess.Popen([sys.executable, "-c", "pass"])
-    p.wait()
-    return p.pid
+def _work_folder_of_another_process(out: Path, stay: bool) -> tuple[Path, subprocess.Popen]:
+    """A work folder of ``out`` made by a child process, which then exits without cleaning up
+    (``stay``: keeps running, holding its lock)."""
+    code = ("import os, sys, time; from pathlib import Path; from splat_framework.work_folder import make_work_folder; "
+            f"print(make_work_folder(Path({str(out)!r})), flush=True); time.sleep(60 if {stay} else 0); os._exit(0)")
+    child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=cli_env())
+    work = Path(child.stdout.readline().strip())
+    if not stay:
+        child.wait()
+    return work, child
 
 
 def test_stale_work_folders_are_removed_and_live_or_foreign_ones_kept(tmp_path):
     out = tmp_path / "scene"
-    stale, live, foreign, ownerless = (make_work_folder(out) for _ in range(4))
-    (stale / "input").mkdir()
-    (stale / "input" / "link").symlink_to(tmp_path / "keep")  # unlinked, never followed
-    (tmp_path / "keep").mkdir()
-    (tmp_path / "keep" / "file").write_text("mine")
-    sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    stale, _ = _work_folder_of_another_process(out, stay=False)
+    live, sleeper = _work_folder_of_another_process(out, stay=True)
     try:
-        owner = json.loads((stale / OWNER_FILE).read_text())
-        (stale / OWNER_FILE).write_text(json.dumps(owner | {"pid": _dead_pid()}))
-        (live / OWNER_FILE).write_text(json.dumps(owner | {"pid": sleeper.pid}))
-        (foreign / OWNER_FILE).write_text(json.dumps(owner | {"pid": _dead_pid(), "host": "another-host"}))
-        (ownerless / OWNER_FILE).unlink()
-        other = make_work_folder(tmp_path / "other")  # another output's work folder
-        (other / OWNER_FILE).write_text(json.dumps(owner | {"pid": _dead_pid()}))
-        os.symlink(tmp_path / "keep", tmp_path / f".{out.name}.work-link")
+        mine = make_work_folder(out)  # this process's own, in use
+        unlocked = tmp_path / ".scene.work-nolock"  # no lock file: not ours, or not yet locked
+        unlocked.mkdir()
+        other, _ = _work_folder_of_another_process(tmp_path / "other", stay=False)  # another output's
+        (tmp_path / "keep").mkdir()
+        (tmp_path / "keep" / "file").write_text("mine")
+        (stale / "input").mkdir()
+        (stale / "input" / "link").symlink_to(tmp_path / "keep")  # unlinked, never followed
+        os.symlink(tmp_path / "keep", tmp_path / ".scene.work-link")
         assert remove_stale_work_folders(out) == [stale]
     finally:
         sleeper.kill()
         sleeper.wait()
-    assert not stale.exists() and live.is_dir() and foreign.is_dir() and ownerless.is_dir() and other.is_dir()
-    assert (tmp_path / "keep" / "file").read_text() == "mine"
+    assert not stale.exists() and all(p.is_dir() for p in (live, mine, unlocked, other))
+    assert (tmp_path / "keep" / "file").read_text() == "mine" and (tmp_path / ".scene.work-link").is_symlink()
+    assert remove_stale_work_folders(out) == [live]  # its process is gone now
+    remove_work_folder(mine)
+    assert not mine.exists()
 
 
 def test_a_killed_process_leaves_a_work_folder_that_the_next_run_removes_then_a_truncated_jpeg_is_refused(tmp_path):
@@ -88,7 +94,7 @@ def test_a_killed_process_leaves_a_work_folder_that_the_next_run_removes_then_a_
     deadline = time.monotonic() + 120
     work = []
     while not work and proc.poll() is None and time.monotonic() < deadline:
-        work = [p for p in tmp_path.glob(".scene.work-*") if (p / OWNER_FILE).is_file()]
+        work = [p for p in tmp_path.glob(".scene.work-*") if (p / LOCK_NAME).is_file()]
         time.sleep(0.01)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
