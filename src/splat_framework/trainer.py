@@ -49,7 +49,7 @@ from .config import TrainConfig, config_payload, experiment_fields, resolve_step
 from .console import console, print_summary, say, training_progress
 from .data import DataError, DataManager, load_config_scene
 from .data.cache_dir import user_cache_dir
-from .devices import resolve_device
+from .devices import resolve_config_devices
 from .evaluation import evaluate
 from .io import atomic_write_json, read_json
 from .memory_plan import image_memory_budget, plan_memory
@@ -167,7 +167,7 @@ class Trainer:
     def __init__(self, config: TrainConfig, callbacks: Sequence[Callable[["Trainer", int], None]] = ()):
         self.config = resolve_steps(config)
         self.callbacks = list(callbacks)
-        self.device = resolve_device(self.config.device)  # before anything is written
+        self.device = resolve_config_devices(self.config)["device"]  # every device field, before anything is written
         out = self.config.output
         fresh = out is None or not Path(out).exists() or (Path(out).is_dir() and not any(Path(out).iterdir()))
         self.run_dir = prepare_run_dir(self.config)
