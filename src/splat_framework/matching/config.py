@@ -37,8 +37,8 @@ class MatchConfig(SplatConfig):
     ratio: float = Field(0.8, gt=0.0, le=1.0)
     """SIFT: Lowe ratio test threshold (best / second-best descriptor distance)."""
 
-    sift_upscale: float = Field(2.0, gt=0.0)
-    """SIFT: image upsampling before detection (more keypoints on small images)."""
+    sift_upscale: float = Field(2.0, gt=0.0, le=8.0)
+    """SIFT: image upsampling before detection (more keypoints on small images; at most 8, the image's memory grows with its square)."""
 
     dense_preset: Literal["ultrafast", "fast", "medium"] = "medium"
     """Dense: OpenCV DIS optical flow preset."""
