@@ -69,6 +69,11 @@ class ScaffoldModelConfig(GaussianModelConfig, TriangInitConfig):
     mlp_color_lr: LearningRate = 0.008
     """Colour MLP learning rate (decays to 0.625 % over the run)."""
 
+    def memory_per_point(self, bytes_per_gaussian: int) -> int:
+        """An anchor: its n_offsets neural Gaussians, and its feature, offsets and scaling with their
+        gradients and two Adam moments (4 copies of float32)."""
+        return self.n_offsets * bytes_per_gaussian + 16 * (self.feat_dim + 3 * self.n_offsets + 6)
+
 
 class AnchorUpdateConfig(StrategyConfig):
     """What Scaffold-GS's and Octree-GS's anchor updates share: statistics, schedule, pruning."""

@@ -127,7 +127,7 @@ class SplatConfig(BaseModel):
     a weight of ``inf`` would skip every step, a threshold of ``inf`` reach OpenCV).
 
     Every int field has an upper bound (``Field(le=...)``, one of the ``MAX_*`` constants
-    below or a bound its docstring states): tests/framework/test_config_bounds.py walks
+    below or a bound its docstring states): tests/framework/test_edge_validation.py walks
     every config and checks both rules."""
 
     model_config = ConfigDict(
@@ -276,6 +276,12 @@ class GaussianModelConfig(SplatConfig):
     """The scale ratio above which anisotropy_weight penalises a Gaussian."""
     drop_rate: Annotated[float, Field(ge=0, lt=1, allow_inf_nan=False)] = 0.0
     """DropGaussian (Park et al., CVPR 2025): each training step renders with every Gaussian dropped with this probability times the fraction of the run done (a ramp from 0), the kept ones' opacity divided by (1 - probability); evaluation renders all Gaussians; 0 = off."""
+
+    def memory_per_point(self, bytes_per_gaussian: int) -> int:
+        """Training memory of one initial point, in bytes (the memory plan's estimate, see
+        ``memory_plan.plan_memory``): one Gaussian here; a model that decodes several Gaussians per
+        point (anchors) says so."""
+        return bytes_per_gaussian
 
 
 class TrainConfig(SplatConfig):

@@ -287,3 +287,22 @@ def test_max_steps_bounds_steps_and_checkpoints():
     with pytest.raises(ValidationError, match="steps"):
         apply_overrides(DEFAULTS["3dgs"], {"steps": MAX_STEPS + 1})
     assert apply_overrides(DEFAULTS["3dgs"], {"steps": MAX_STEPS}).steps == MAX_STEPS
+
+
+def test_the_memory_plan_counts_what_an_anchor_costs(monkeypatch, tmp_path):
+    """Counts at their bounds reach the memory plan, which counts each anchor's neural Gaussians and feature:
+    scaffold-gs with n_offsets 256 and feat_dim 1024 is refused before any allocation on a 16 GiB machine,
+    where its defaults (and 3dgs with as many points) fit."""
+    import splat_framework.memory_plan as plan
+    from splat_framework.data import load_scene
+    from splat_framework.data.synthetic import ensure_scene
+
+    scene = load_scene(ensure_scene("forward-tiny"), views=3)
+    monkeypatch.setattr(plan, "physical_memory_bytes", lambda: 16 * 2**30)
+    monkeypatch.setattr(plan, "available_memory_bytes", lambda: None)
+    points = {"init_num_points": 100_000}
+    for method in ("3dgs", "scaffold-gs"):
+        plan.plan_memory(scene, apply_overrides(DEFAULTS[method], {"model": points}), None)
+    huge = apply_overrides(DEFAULTS["scaffold-gs"], {"model": {**points, "n_offsets": 256, "feat_dim": 1024}})
+    with pytest.raises(DataError, match="needs about .* of memory"):
+        plan.plan_memory(scene, huge, None)
