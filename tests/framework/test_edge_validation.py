@@ -250,17 +250,12 @@ def test_asking_for_a_broken_variant_is_one_line_naming_its_file(tmp_path, case)
             env=cli_env(SPLAT_CONFIG_PATH=str(tmp_path)), timeout=60, watch=[tmp_path])
 
 
-BAD_ARGUMENTS = {  # issue 40's cases and tyro's other error kinds -> what the one line says
+BAD_ARGUMENTS = {  # issue 40's cases, in a subprocess -> what the one line says
     "infinite loss weight": (["scgaussian", "--model.lambda-rg", "inf"], "model.lambda_rg: Input should be a finite number"),
-    "nan threshold": (["scgaussian", "--model.matching.magsac-threshold", "nan"], "model.matching.magsac_threshold"),
     "huge count": (["scaffold-gs", "--model.feat-dim", "1000000000"], "model.feat_dim: Input should be less than or equal to 1024"),
     "views abc": (["3dgs", "--views", "abc"], "--views: expected INT|{all}, got ['abc']"),
     "unknown method": (["3dgx", "--steps", "1"], "unknown method '3dgx' (did you mean '3dgs'?)"),
     "bad choice": (["3dgs", "--format", "llf"], "--format: 'llf' is not one of auto, llff, blender, dtu, colmap (did you mean 'llff'?)"),
-    "unknown flag": (["3dgs", "--bogus", "3"], "unrecognized arguments: --bogus 3"),
-    "missing value": (["3dgs", "--steps"], "--steps"),
-    "no method": ([], "missing a command"),
-    "fractional count": (["3dgs", "--model.init-num-points", "1.5"], "--model.init-num-points: invalid literal for int()"),
     "unavailable matching device": (["scgaussian", "--model.matching.device", "nosuchdevice", "--data", "synthetic/forward-tiny"],
                                     "--model.matching.device: 'nosuchdevice' is not a torch device"),
 }
@@ -269,9 +264,31 @@ BAD_ARGUMENTS = {  # issue 40's cases and tyro's other error kinds -> what the o
 @pytest.mark.parametrize("case", sorted(BAD_ARGUMENTS))
 def test_bad_train_arguments_are_one_line(tmp_path, case):
     args, needle = BAD_ARGUMENTS[case]
-    output = ["--output", tmp_path / "run"] if args else []  # (with no method, --output is itself unrecognized)
-    r = run_cli("train", *args, *output, code=2, match=needle, watch=[tmp_path])
+    r = run_cli("train", *args, "--output", tmp_path / "run", code=2, match=needle, watch=[tmp_path])
     assert not (tmp_path / "run").exists() and r.message.startswith("error: ")
+
+
+OTHER_BAD_ARGUMENTS = {  # tyro's other error kinds, in-process (the same main as the subprocess runs)
+    "nan threshold": (["scgaussian", "--model.matching.magsac-threshold", "nan"], "magsac_threshold"),
+    "unknown flag": (["3dgs", "--bogus", "3"], "unrecognized arguments: --bogus 3; see splat-train --help"),
+    "missing value": (["3dgs", "--steps"], "--steps"),
+    "no method": ([], "missing a command: expected one of {3dgs"),
+    "fractional count": (["3dgs", "--model.init-num-points", "1.5"], "--model.init-num-points: invalid literal for int()"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(OTHER_BAD_ARGUMENTS))
+def test_other_parse_errors_are_one_line(case, capsys):
+    from splat_framework.cli.common import ArgumentsError
+    from splat_framework.cli.train import main
+    from splat_framework.config import InvalidArguments
+
+    args, needle = OTHER_BAD_ARGUMENTS[case]
+    with pytest.raises((ArgumentsError, InvalidArguments)) as e:
+        main(args)
+    assert needle in str(e.value) and "\n" not in str(e.value if isinstance(e.value, ArgumentsError) else
+                                                       format_validation_error(e.value.error))
+    assert capsys.readouterr().err == ""  # tyro's box was not printed
 
 
 def test_tyro_error_boxes_become_one_line():
@@ -280,6 +297,9 @@ def test_tyro_error_boxes_become_one_line():
            "│ instantiated from ['abc'].                                   │\n│                │\n│ Got errors: │\n"
            "│ - int: invalid literal │\n│ ────────────── │\n│ Argument helptext: │\n╰──────────╯\n")
     assert tyro_error_line(box, "splat-train") == "--views: expected INT|{all}, got ['abc']; see splat-train --help"
+    ascii_box = (" Unrecognized options \n ------------------- \n  Unrecognized options: --bogus, 3 \n  ---------\n"
+                 "  For full helptext, run splat-train --help\n")
+    assert tyro_error_line(ascii_box, "splat-train") == "unrecognized arguments: --bogus 3; see splat-train --help"
     assert tyro_error_line("", "splat-x") == "invalid arguments; see splat-x --help"
 
 

@@ -139,21 +139,23 @@ def did_you_mean(word: str, choices) -> str:
 
 
 _BOX = re.compile(r"[\u2500-\u257f]")
-_RULE = re.compile(r"^[\s\u2500-\u257f]*$")
+_RULE = re.compile(r"^[\s\u2500-\u257f-]*$")
 
 
 def tyro_error_line(box: str, prog: str, subcommands=()) -> str:
     """One line for the error box tyro prints on stderr (title, then its first section up to the
-    first rule, lines rejoined): ``--views: expected INT|{all}, got ['abc']; see splat-train --help``.
+    next rule, lines rejoined; UTF-8 or ASCII boxes): ``--views: expected INT|{all}, got ['abc']; see splat-train --help``.
 
     ``subcommands``: the names the first positional argument may take (methods), so that an unknown
     one reads ``unknown method 'x' (did you mean 'y'?)``."""
     lines = [ln for ln in box.splitlines() if ln.strip()]
     title = _BOX.sub("", lines[0]).strip() if lines else ""
-    body = []
+    body: list[str] = []
     for ln in lines[1:]:
         if _RULE.match(ln):
-            break
+            if body:
+                break
+            continue  # the rule under the title (ASCII boxes, when stdout is not UTF-8)
         body.append(_BOX.sub("", ln).strip())
     text = " ".join(" ".join(body).split())
     see = f"see {prog} --help"
