@@ -38,7 +38,7 @@ def load_trained_model(run_dir: Path, device: str | None = None, scene_scale: fl
     resolve_config_devices(config, None if device is not None else str(cfg_path))
 
     def rebuild(path: Path, ck: dict):
-        check_structure(path, ck)
+        check_structure(path, ck, max_step=config.total_steps)
         try:
             model = spec.model_class().from_checkpoint(config, scene_scale, ck)
             _renders(model)

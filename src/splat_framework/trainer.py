@@ -359,7 +359,7 @@ class Trainer:
     def _restore_from(self, path: Path, ck: dict) -> dict:
         """Load a verified payload into the trainer after checking its structure against the model
         (parameter names and per-row shapes, float32, optimizer moments); CheckpointError otherwise."""
-        check_structure(path, ck, self.model.params)
+        check_structure(path, ck, self.model.params, max_step=self.config.total_steps)
         try:
             self._load_state(path, ck)
         except (KeyError, ValueError, TypeError, IndexError, RuntimeError) as e:  # e.g. a crafted model_state

@@ -118,17 +118,25 @@ def _nan(params: dict) -> dict:
 
 @pytest.fixture
 def run_copy(run_dir, tmp_path):
-    """A copy of the shared tiny run (its newest checkpoint: step 30)."""
+    """A copy of the shared tiny 30-iteration run whose only checkpoint is step 20's (its final state,
+    relabelled), so that a newer file of the run's range (30) can be damaged."""
     out = tmp_path / "run"
     shutil.copytree(run_dir, out)
+    folder = out / "checkpoints"
+    last = list_checkpoints(folder)[-1]
+    ck = load_checkpoint(last)
+    for p in list_checkpoints(folder):
+        p.unlink()
+    _write_raw(checkpoint_path(folder, 20), {**ck, "step": 20})
     return out
 
 
 BAD_CHECKPOINTS = {  # name -> (file step, payload edit)
-    "step -7": (31, lambda ck: {**ck, "step": -7}),
+    "step -7": (30, lambda ck: {**ck, "step": -7}),
     "step 10^12": (10**12, lambda ck: {**ck, "step": 10**12}),
-    "step not its name's": (31, lambda ck: {**ck, "step": 30}),
-    "NaN parameters": (31, lambda ck: {**ck, "step": 31, "params": _nan(ck["params"])}),
+    "step not its name's": (30, lambda ck: {**ck, "step": 25}),
+    "step past the run's end": (31, lambda ck: {**ck, "step": 31}),  # the run has 30 iterations
+    "NaN parameters": (30, lambda ck: {**ck, "step": 30, "params": _nan(ck["params"])}),
 }
 
 
@@ -143,10 +151,10 @@ def test_a_checkpoint_with_a_bad_step_or_nan_values_falls_back_to_the_previous(r
     step, edit = BAD_CHECKPOINTS[case]
     bad = _write_raw(checkpoint_path(folder, step), edit(load_checkpoint(good)))
     with pytest.raises(CheckpointError) as e:
-        check_structure(bad, load_checkpoint(bad))
+        check_structure(bad, load_checkpoint(bad), max_step=30)
     assert str(bad) in str(e.value) and "\n" not in str(e.value)
     msgs = []
-    assert load_latest(folder, report=msgs.append)[0] == good
+    assert load_latest(folder, report=msgs.append, accept=lambda p, ck: check_structure(p, ck, max_step=30))[0] == good
     assert len(msgs) == 1 and bad.name in msgs[0] and "previous checkpoint" in msgs[0]
     with pytest.warns(UserWarning, match=f"{bad.name}.*previous checkpoint"):  # eval, render, export, view
         load_trained_model(run_copy)
@@ -159,21 +167,21 @@ def test_resume_skips_a_nan_checkpoint(run_copy, capsys):
     folder = run_copy / "checkpoints"
     good = list_checkpoints(folder)[-1]
     ck = load_checkpoint(good)
-    _write_raw(checkpoint_path(folder, 31), {**ck, "step": 31, "params": _nan(ck["params"])})
+    _write_raw(checkpoint_path(folder, 30), {**ck, "step": 30, "params": _nan(ck["params"])})
     method, raw = read_config_json(run_copy / "config.json")
     cfg = type(DEFAULTS[method]).model_validate({**raw, "resume": True, "overwrite": False, "output": str(run_copy),
                                                  "progress": False})
     capsys.readouterr()
     trainer = Trainer(cfg)
-    assert trainer.restore() and trainer.start_step == 30
-    lines = [ln for ln in capsys.readouterr().err.splitlines() if "step-0000031.ckpt" in ln]
+    assert trainer.restore() and trainer.start_step == 20
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if "step-0000030.ckpt" in ln]
     assert len(lines) == 1 and "non-finite" in lines[0], lines
 
 
 def test_cli_export_falls_back_from_a_nan_checkpoint_with_one_warning_line(run_copy, tmp_path):
     folder = run_copy / "checkpoints"
     ck = load_checkpoint(list_checkpoints(folder)[-1])
-    bad = _write_raw(checkpoint_path(folder, 31), {**ck, "step": 31, "params": _nan(ck["params"])})
+    bad = _write_raw(checkpoint_path(folder, 30), {**ck, "step": 30, "params": _nan(ck["params"])})
     out = tmp_path / "g.ply"
     r = run_cli("export", run_copy, "--ply", out, code=0, watch=[tmp_path], allowed=[out])
     warned = [ln for ln in r.stderr.splitlines() if ln.strip()]
