@@ -7,7 +7,8 @@ interrupted (after a checkpoint was written when training).
 Invalid config values (pydantic validation, e.g. ``--model.sh-degree 9``) are
 reported as one line naming the dotted field (``model.sh_degree``) before any
 work starts, and so is anything else tyro rejects (``--views abc``, an unknown
-method, a bad choice): wrap ``tyro.cli`` in :func:`one_line_parse_errors`. SIGTERM outside the training loop is treated like Ctrl-C.
+method, a bad choice): wrap ``tyro.cli`` in :func:`one_line_parse_errors`.
+SIGTERM outside the training loop is treated like Ctrl-C.
 """
 
 from __future__ import annotations
@@ -144,7 +145,8 @@ _RULE = re.compile(r"^[\s\u2500-\u257f-]*$")
 
 def tyro_error_line(box: str, prog: str, subcommands=()) -> str:
     """One line for the error box tyro prints on stderr (title, then its first section up to the
-    next rule, lines rejoined; UTF-8 or ASCII boxes): ``--views: expected INT|{all}, got ['abc']; see splat-train --help``.
+    next rule, lines rejoined; UTF-8 or ASCII boxes), e.g.
+    ``--views: expected INT|{all}, got ['abc']; see splat-train --help``.
 
     ``subcommands``: the names the first positional argument may take (methods), so that an unknown
     one reads ``unknown method 'x' (did you mean 'y'?)``."""
