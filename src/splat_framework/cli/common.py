@@ -6,16 +6,20 @@ interrupted (after a checkpoint was written when training).
 
 Invalid config values (pydantic validation, e.g. ``--model.sh-degree 9``) are
 reported as one line naming the dotted field (``model.sh_degree``) before any
-work starts. SIGTERM outside the training loop is treated like Ctrl-C.
+work starts, and so is anything else tyro rejects (``--views abc``, an unknown
+method, a bad choice): wrap ``tyro.cli`` in :func:`one_line_parse_errors`.
+SIGTERM outside the training loop is treated like Ctrl-C.
 """
 
 from __future__ import annotations
 
 import errno
+import re
 import signal
 import sys
 import warnings
-from typing import Callable
+from contextlib import contextmanager
+from typing import Callable, Iterator
 
 _ENV_ERRNOS = {
     errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG, errno.EMFILE,
@@ -119,3 +123,82 @@ def run_cli(main: Callable[[], object]) -> None:
             raise
         print(f"{getattr(type(e), 'cli_prefix', 'error')}: {e}", file=sys.stderr)
         sys.exit(code)
+
+
+class ArgumentsError(Exception):
+    """The command line could not be parsed (tyro's error, as one line): exit code 2."""
+
+    cli_exit_code = 2
+
+
+def did_you_mean(word: str, choices) -> str:
+    """`` (did you mean 'x'?)`` for the closest of ``choices`` to ``word`` (difflib), or ""."""
+    import difflib
+
+    close = difflib.get_close_matches(word, [str(c) for c in choices], n=1, cutoff=0.6)
+    return f" (did you mean '{close[0]}'?)" if close else ""
+
+
+_BOX = re.compile(r"[\u2500-\u257f]")
+_RULE = re.compile(r"^[\s\u2500-\u257f-]*$")
+
+
+def tyro_error_line(box: str, prog: str, subcommands=()) -> str:
+    """One line for the error box tyro prints on stderr (title, then its first section up to the
+    next rule, lines rejoined; UTF-8 or ASCII boxes), e.g.
+    ``--views: expected INT|{all}, got ['abc']; see splat-train --help``.
+
+    ``subcommands``: the names the first positional argument may take (methods), so that an unknown
+    one reads ``unknown method 'x' (did you mean 'y'?)``."""
+    lines = [ln for ln in box.splitlines() if ln.strip()]
+    title = _BOX.sub("", lines[0]).strip() if lines else ""
+    body: list[str] = []
+    for ln in lines[1:]:
+        if _RULE.match(ln):
+            if body:
+                break
+            continue  # the rule under the title (ASCII boxes, when stdout is not UTF-8)
+        body.append(_BOX.sub("", ln).strip())
+    text = " ".join(" ".join(body).split())
+    see = f"see {prog} --help"
+    if text.startswith(("Unrecognized or misplaced options:", "Unrecognized options:")):
+        tokens = re.findall(r"(\S+) \(applied to [^)]*\)", text) or text.split(":", 1)[1].strip().split(", ")
+        if subcommands and tokens and not tokens[0].startswith("-") and tokens[0] not in subcommands:
+            return f"unknown method '{tokens[0]}'{did_you_mean(tokens[0], subcommands)}; {prog} --help lists them"
+        text = "unrecognized arguments: " + " ".join(tokens)
+    elif text.startswith("Error parsing "):  # "Value error": the flag, tyro's message, then every union member's
+        text = text[len("Error parsing "):].split(" Got errors:")[0].rstrip(".")
+        text = re.sub(r"no type matching (.*) could be instantiated from (.*)", r"expected \1, got \2", text)
+    elif m := re.match(r"invalid choice '(.*)' for argument '(.*)'\. Expected one of \((.*)\)", text):
+        choices = re.findall(r"'([^']*)'", m.group(3))
+        return f"{m.group(2)}: {m.group(1)!r} is not one of {', '.join(choices)}{did_you_mean(m.group(1), choices)}"
+    elif title and not text:
+        text = title
+    elif title == "Missing subcommand":
+        text = f"missing a command: {text[0].lower()}{text[1:]}".rstrip(".")
+    return f"{text.rstrip('.')}; {see}" if text else f"invalid arguments; {see}"
+
+
+@contextmanager
+def one_line_parse_errors(prog: str, subcommands=()) -> Iterator[None]:
+    """Around ``tyro.cli(...)``: a command line tyro rejects raises :class:`ArgumentsError` with one
+    line (``run_cli`` prints it and exits 2) instead of tyro's box (:func:`tyro_error_line`), and an
+    invalid config value raises ``config.InvalidArguments`` naming its field (``config.cli_parsing``).
+    ``--help`` (stdout, exit 0) is untouched; what else reaches stderr meanwhile is passed on.
+    ``subcommands``: the names of the command's subcommands (methods), for an unknown one's message."""
+    import io
+
+    from ..config import cli_parsing
+
+    captured, real = io.StringIO(), sys.stderr
+    sys.stderr = captured
+    try:
+        with cli_parsing():
+            yield
+    except SystemExit as e:
+        if e.code not in (0, None):
+            raise ArgumentsError(tyro_error_line(captured.getvalue(), prog, subcommands)) from None
+        raise
+    finally:
+        sys.stderr = real
+    real.write(captured.getvalue())
