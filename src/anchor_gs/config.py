@@ -22,6 +22,7 @@ import tyro
 from splat_framework.config import (
     Fraction,
     GaussianModelConfig,
+    Interval,
     LearningRate,
     NonNegative,
     Positive,
@@ -32,6 +33,13 @@ from splat_framework.config import (
 )
 from splat_framework.methods.triangulated import TriangInitConfig
 
+MAX_OFFSETS = 256
+"""Most neural Gaussians per anchor (n_offsets)."""
+MAX_FEAT_DIM = 1024
+"""Largest anchor feature size (feat_dim): anchors x feat_dim floats, and MLPs feat_dim wide."""
+MAX_LEVELS = 32
+"""Most levels of detail or growing levels (a voxel size divided by fork^levels)."""
+
 
 class ScaffoldModelConfig(GaussianModelConfig, TriangInitConfig):
     """Anchors (voxelised initial points) decoded per view into neural Gaussians."""
@@ -40,10 +48,10 @@ class ScaffoldModelConfig(GaussianModelConfig, TriangInitConfig):
     """Initial points: random as 3dgs (init, init_num_points), or the matching prior triangulated with the known poses as 3dgs-triang (matching, max_reprojection_px)."""
     voxel_size: NonNegative = 0.0
     """Anchor grid size in world units; 0 = the median distance of the initial points to their 3 nearest neighbours."""
-    n_offsets: int = Field(10, ge=1)
-    """k: neural Gaussians per anchor."""
-    feat_dim: int = Field(32, ge=1)
-    """Anchor feature size (the MLPs' width)."""
+    n_offsets: int = Field(10, ge=1, le=MAX_OFFSETS)
+    """k: neural Gaussians per anchor (at most 256: each anchor's Gaussians are decoded every step)."""
+    feat_dim: int = Field(32, ge=1, le=MAX_FEAT_DIM)
+    """Anchor feature size (the MLPs' width; at most 1024: the public code uses 32, and the memory plan counts it per anchor)."""
     lambda_scaling: NonNegative = 0.01
     """Weight of the volume regulariser: mean product of the neural Gaussians' scales."""
     offset_lr: LearningRate = 0.01
@@ -61,6 +69,11 @@ class ScaffoldModelConfig(GaussianModelConfig, TriangInitConfig):
     mlp_color_lr: LearningRate = 0.008
     """Colour MLP learning rate (decays to 0.625 % over the run)."""
 
+    def memory_per_point(self, bytes_per_gaussian: int) -> int:
+        """An anchor: its n_offsets neural Gaussians, and its feature, offsets and scaling with their
+        gradients and two Adam moments (4 copies of float32)."""
+        return self.n_offsets * bytes_per_gaussian + 16 * (self.feat_dim + 3 * self.n_offsets + 6)
+
 
 class AnchorUpdateConfig(StrategyConfig):
     """What Scaffold-GS's and Octree-GS's anchor updates share: statistics, schedule, pruning."""
@@ -71,7 +84,7 @@ class AnchorUpdateConfig(StrategyConfig):
     """First iteration at which anchors grow and are pruned (public code: 1500 of 30,000)."""
     update_until: Steps = 500
     """Last iteration of the anchor updates (public code: 15,000 of 30,000)."""
-    update_interval: int = Field(100, ge=1)
+    update_interval: Interval = 100
     """Iterations between anchor updates (not rescaled: the success criteria count visits within it)."""
     grad_threshold: NonNegative = 0.0002
     """Grow where a neural Gaussian's mean screen-space gradient (NDC units) exceeds this (scaled per level)."""
@@ -86,11 +99,11 @@ class AnchorStrategyConfig(AnchorUpdateConfig):
 
     kind: tyro.conf.Suppress[Literal["anchor"]] = "anchor"
     """The strategy's tag."""
-    update_depth: int = Field(3, ge=1)
+    update_depth: int = Field(3, ge=1, le=MAX_LEVELS)
     """Growing levels: voxel size init_factor / hierarchy_factor^i times the base size."""
-    init_factor: int = Field(16, ge=1)
+    init_factor: int = Field(16, ge=1, le=2**16)
     """Coarsest growing level's voxel size in base voxels."""
-    hierarchy_factor: int = Field(4, ge=2)
+    hierarchy_factor: int = Field(4, ge=2, le=64)
     """Voxel size ratio between growing levels."""
 
     def setup(self):
@@ -113,11 +126,11 @@ class OctreeModelConfig(ScaffoldModelConfig):
 
     voxel_size: NonNegative = 0.0
     """Anchor grid size at the initial level (init_level) in world units; 0 = the median distance of the initial points to their 3 nearest neighbours (Scaffold-GS's rule). Level l has voxel_size * fork^(init_level - l)."""
-    fork: int = Field(2, ge=2)
+    fork: int = Field(2, ge=2, le=64)
     """Voxel size ratio between consecutive levels."""
-    levels: int = Field(0, ge=0)
+    levels: int = Field(0, ge=0, le=MAX_LEVELS)
     """Levels of detail; 0 = round(log_fork(d_max / d_min)) + 1 from the training cameras' distances to the initial points (quantiles dist_ratio and 1 - dist_ratio)."""
-    init_level: int = Field(-1, ge=-1)
+    init_level: int = Field(-1, ge=-1, le=MAX_LEVELS)
     """Level at which progressive training starts; -1 = levels // 2."""
     dist_ratio: Fraction = 0.999
     """Quantile of the camera-point distances taken as d_max (and 1 - it as d_min)."""

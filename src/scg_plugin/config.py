@@ -11,7 +11,11 @@ import tyro
 from splat_framework.config import (
     DensifyConfig,
     GaussianModelConfig,
+    MAX_GAUSSIANS,
+    MAX_MATCHES,
     LearningRate,
+    NonNegative,
+    Positive,
     Period,
     Steps,
     TrainConfig,
@@ -26,7 +30,7 @@ class SCGModelConfig(GaussianModelConfig):
 
     init: Literal["random", "frustum"] = "random"
     """Placement of random ordinary Gaussians (the init_num_points extra ones, the sparse-prior fill, or all of them when matches are too few); ray-based Gaussians always start on the matched rays."""
-    init_num_points: int = Field(10_000, ge=0)
+    init_num_points: int = Field(10_000, ge=0, le=MAX_GAUSSIANS)
     """Random ordinary Gaussians at start beside the ray-based ones, placed as 3DGS's reference init (0 = ordinary ones come only from densification). Matched rays cover only textured surfaces; without these, densification alone does not fill the rest in 1000 iterations (lego 19.76 -> 20.80, fern 20.70 -> 20.92 with the dense matcher)."""
     matching: MatchConfig = Field(default_factory=MatchConfig)
     """Matching prior."""
@@ -40,9 +44,9 @@ class SCGModelConfig(GaussianModelConfig):
     """Warm-up step size of z as a fraction of each view's depth range (Adam lr), halved every warmup_lr_halve_every."""
     warmup_lr_halve_every: Period = 500
     """Halve the warm-up learning rate every this many warm-up iterations."""
-    lambda_gp: float = Field(0.0, ge=0)
+    lambda_gp: NonNegative = 0.0
     """beta: weight of the Gaussian-position loss during main training."""
-    lambda_rg: float = Field(0.3, ge=0)
+    lambda_rg: NonNegative = 0.3
     """delta: weight of the rendering-geometry loss."""
     rg_start: Steps = 0
     """Main-training iteration from which the rendering-geometry loss is on."""
@@ -50,13 +54,13 @@ class SCGModelConfig(GaussianModelConfig):
     """Cache per match the z with the lowest position error and drop matches whose best error stays above filter_eta_px."""
     cache_until: Steps = 0
     """Single-stage: cache during main iterations [0, cache_until), then apply (two-stage caches during the warm-up)."""
-    filter_eta_px: float = Field(2.0, gt=0)
+    filter_eta_px: Positive = 2.0
     """eta: drop matches whose best reprojection error (pixels, worse of both directions) exceeds this."""
     z_lr: LearningRate = 1.6e-4
     """Learning rate of ray depths during main training, times the scene scale (decays like the position lr)."""
-    min_matches: int = Field(50, ge=0)
+    min_matches: int = Field(50, ge=0, le=MAX_MATCHES)
     """Below this many verified matches the run warns and falls back to random ordinary Gaussians."""
-    sparse_matches: int = Field(1000, ge=0)
+    sparse_matches: int = Field(1000, ge=0, le=MAX_MATCHES)
     """Below this many verified matches the prior is too sparse to grow a model from: the run warns and adds max(init_num_points, 10000) random ordinary Gaussians alongside the ray-based ones (0 = never)."""
     thin_prior_baseline: bool = True
     """When the prior is missing or sparse (fewer than sparse_matches matches), also train as the 3dgs baseline does at the same budget: its densification schedule and SH schedule, the ray-based Gaussians still kept (scg_plugin.startup.baseline_schedule). A model made mostly of random Gaussians then grows like one, so a thin prior does not leave SCGaussian below its baseline (seed 0: lego 8 views, 136 SIFT matches, 22.03 -> 22.33, 3dgs 21.92; fern with no matches 17.72, 3dgs 17.48, while without it every random Gaussian was pruned)."""

@@ -51,10 +51,35 @@ class CheckpointWriteError(CheckpointError):
     cli_exit_code = 1
 
 
+def _nonfinite(payload: dict) -> str | None:
+    """The name of the first parameter or network weight of ``payload`` holding NaN/inf, or None."""
+    for group in ("params", "networks"):
+        tensors = payload.get(group)
+        for name, t in (tensors.items() if isinstance(tensors, dict) else ()):
+            if torch.is_tensor(t) and t.is_floating_point() and not torch.isfinite(t).all():
+                return f"{group}[{name!r}]"
+    return None
+
+
 def _check_finite(step: int, payload: dict) -> None:
-    for name, t in [*payload.get("params", {}).items(), *payload.get("networks", {}).items()]:
-        if torch.is_tensor(t) and t.is_floating_point() and not torch.isfinite(t).all():
-            raise CheckpointError(f"refusing to save step {step}: parameter '{name}' has non-finite values")
+    bad = _nonfinite(payload)
+    if bad is not None:
+        raise CheckpointError(f"refusing to save step {step}: {bad} has non-finite values")
+
+
+def _check_step(path: Path, ck: dict, max_step: int | None = None) -> int:
+    """The payload's step, an int in [0, max_step] (default: config.MAX_STEPS) equal to the step in the
+    file's name (when it has one)."""
+    from .config import MAX_STEPS
+
+    top = MAX_STEPS if max_step is None else min(max_step, MAX_STEPS)
+    step = ck.get("step")
+    if isinstance(step, bool) or not isinstance(step, int) or not 0 <= step <= top:
+        raise CheckpointError(f"{path}: step {step!r} is not an iteration of this run (0 to {top})")
+    named = _NAME.match(Path(path).name)
+    if named is not None and int(named.group(1)) != step:
+        raise CheckpointError(f"{path}: holds step {step}, its name says {int(named.group(1))}")
+    return step
 
 
 def save_checkpoint(folder: Path, step: int, payload: dict, keep: int = KEEP) -> Path:
@@ -135,13 +160,18 @@ def _warn(message: str) -> None:
     warnings.warn(message, stacklevel=3)
 
 
-def check_structure(path: Path, ck: dict, like: Mapping[str, Tensor] | None = None) -> None:
+def check_structure(path: Path, ck: dict, like: Mapping[str, Tensor] | None = None,
+                    max_step: int | None = None) -> None:
     """Raise CheckpointError (one line naming ``path``) unless the payload has the layout
-    training and rendering rely on: ``params`` a non-empty dict of float32 tensors with one
+    training and rendering rely on: ``step`` an iteration in [0, max_step] (the run's total
+    iterations; at most config.MAX_STEPS) matching the file name, ``params`` a non-empty dict of finite float32 tensors with one
     common row count (one row per Gaussian), ``networks`` (model-wide modules' weights) a
     dict of tensors, each optimizer named after a parameter or a network, a parameter's
     optimizer's moments shaped like it, and, given ``like`` (a model's parameters), the same names and per-row shapes.
-    A checksum proves the bytes are what was written, not that the writer was this code."""
+    A checksum proves the bytes are what was written, not that the writer was this code
+    (nor that the values are usable: NaN parameters with a valid checksum are refused here,
+    so :func:`load_latest` falls back to the previous checkpoint)."""
+    _check_step(path, ck, max_step)
     params = ck.get("params")
     if not isinstance(params, dict) or not params or not all(torch.is_tensor(v) for v in params.values()):
         raise CheckpointError(f"{path}: 'params' is not a dict of tensors")
@@ -162,6 +192,9 @@ def check_structure(path: Path, ck: dict, like: Mapping[str, Tensor] | None = No
     networks = ck.get("networks") or {}
     if not isinstance(networks, dict) or not all(isinstance(k, str) and torch.is_tensor(v) for k, v in networks.items()):
         raise CheckpointError(f"{path}: 'networks' is not a dict of tensors")
+    bad = _nonfinite(ck)
+    if bad is not None:
+        raise CheckpointError(f"{path}: {bad} has non-finite values")
     modules = {k.split(".")[0] for k in networks}
     optimizers = ck.get("optimizers", {})
     if not isinstance(optimizers, dict):

@@ -50,18 +50,40 @@ SHORTEN_ONLY = _Marker(
     "This Steps field (a start after a warm-up, a period after which something steps up) follows a "
     "shorter run in proportion and keeps its value in a longer one (see :func:`scale_schedule`).",
 )
-Steps = Annotated[int, STEPS_MARKER, Field(ge=0)]
+MAX_STEPS = 10_000_000
+"""Most optimisation iterations a run may have (``--steps``; a checkpoint's step is checked against it)."""
+MAX_SCHEDULE = 1_000_000_000
+"""Most a schedule field (:data:`Steps`) may hold: a schedule is written for the method's own length and
+rescaled by ``--steps`` (up to :data:`MAX_STEPS`), so its fields may grow past the total."""
+MAX_GAUSSIANS = 50_000_000
+"""Most initial Gaussians or points a config may ask for (about 100 GiB at memory_plan.BYTES_PER_GAUSSIAN;
+the memory plan then checks the run against the machine's RAM before any work)."""
+MAX_MATCHES = 10_000_000
+"""Most matches a matching count may name (per pair or in total)."""
+MAX_VIEWS = 100_000
+"""Most views a view count may name."""
+Steps = Annotated[int, STEPS_MARKER, Field(ge=0, le=MAX_SCHEDULE)]
 """An iteration count (>= 0) that ``--steps`` rescales with the schedule."""
-StartSteps = Annotated[int, STEPS_MARKER, SHORTEN_ONLY, Field(ge=0)]
+StartSteps = Annotated[int, STEPS_MARKER, SHORTEN_ONLY, Field(ge=0, le=MAX_SCHEDULE)]
 """The iteration at which something starts once a warm-up is done (>= 0): a schedule compressed
 to fewer iterations compresses it, a longer one keeps it (the warm-up does not need to grow)."""
-Period = Annotated[int, STEPS_MARKER, Field(ge=1)]
+Period = Annotated[int, STEPS_MARKER, Field(ge=1, le=MAX_SCHEDULE)]
 """An interval in iterations (>= 1: it divides the step number) that ``--steps`` rescales."""
-OptionalPeriod = Annotated[Annotated[int, Field(ge=1)] | None, STEPS_MARKER]
+OptionalPeriod = Annotated[Annotated[int, Field(ge=1, le=MAX_SCHEDULE)] | None, STEPS_MARKER]
 """A :data:`Period`, or None for never."""
-RampPeriod = Annotated[int, STEPS_MARKER, SHORTEN_ONLY, Field(ge=1)]
+RampPeriod = Annotated[int, STEPS_MARKER, SHORTEN_ONLY, Field(ge=1, le=MAX_SCHEDULE)]
 """An interval (>= 1) after which something steps up once more (the SH degree): as a start, a
 compressed schedule compresses it and a longer one keeps it."""
+Interval = Annotated[int, Field(ge=1, le=MAX_SCHEDULE)]
+"""An interval in iterations (>= 1) that ``--steps`` does not rescale."""
+DEVICE_MARKER = _Marker(
+    "Device",
+    "This str field names a torch device: before it is used, splat_framework.devices.resolve_config_devices "
+    "checks it with the resolver of ``--device``, naming the field.",
+)
+Device = Annotated[str, DEVICE_MARKER, Field(pattern=r"^[a-z_]+(:[0-9]+)?$", max_length=32)]
+"""A torch device name (cpu, cuda, cuda:N, mps, ...): its spelling is checked when the config is
+built (torch-free), its availability by the resolver of ``--device`` before a run starts."""
 LearningRate = Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)]
 """An Adam learning rate, in (0, 1]."""
 Fraction = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
@@ -70,6 +92,9 @@ Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 """A finite number > 0."""
 NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 """A finite number >= 0."""
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+"""A finite number (no inf, no nan). Every float field of a :class:`SplatConfig` is finite anyway
+(its ``allow_inf_nan=False``); this is for argument classes that are not configs."""
 
 
 _CLI_PARSING: ContextVar[bool] = ContextVar("splat_cli_parsing", default=False)
@@ -99,10 +124,16 @@ def cli_parsing() -> Iterator[None]:
 
 
 class SplatConfig(BaseModel):
-    """Base for every config: strict (unknown fields are errors), documented fields."""
+    """Base for every config: strict (unknown fields are errors), documented fields, and every
+    float finite (``inf``/``nan`` are refused, naming the field, for every subclass's fields:
+    a weight of ``inf`` would skip every step, a threshold of ``inf`` reach OpenCV).
+
+    Every int field has an upper bound (``Field(le=...)``, one of the ``MAX_*`` constants
+    below or a bound its docstring states): tests/framework/test_edge_validation.py walks
+    every config and checks both rules."""
 
     model_config = ConfigDict(
-        use_attribute_docstrings=True, extra="forbid", validate_assignment=True
+        use_attribute_docstrings=True, extra="forbid", validate_assignment=True, allow_inf_nan=False
     )
 
     def __init__(self, /, **data: Any) -> None:
@@ -172,7 +203,7 @@ class DensifyConfig(StrategyConfig):
     """Reset opacities to 2*prune_opa every this many iterations (None: never; the 3D-size pruning, which starts after the first reset, then never runs either)."""
     opacity_decay: Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)] = 1.0
     """Multiply every opacity by this after each step from refine_start_iter on (Binocular3DGS, Han et al. NeurIPS 2024: 0.995, with no reset), so only Gaussians the views keep asking for stay opaque (1 = off)."""
-    refine_every: int = Field(100, ge=1)
+    refine_every: Interval = 100
     """Densify every this many iterations (not rescaled by --steps, so short runs do not densify more often)."""
     pause_refine_after_reset: Steps = 0
     """Skip densification for this many iterations after an opacity reset."""
@@ -215,7 +246,7 @@ class GaussianModelConfig(SplatConfig):
 
     init: Literal["random", "frustum"] = "random"
     """Initialisation: "random" = the 3DGS reference's (uniform in the scene's content box, or the box of the training frusta when the dataset defines none; grey); "frustum" = random points inside the training frusta (uniform in inverse depth) coloured by the pixel they lie on."""
-    init_num_points: int = Field(10_000, ge=1)
+    init_num_points: int = Field(10_000, ge=1, le=MAX_GAUSSIANS)
     """Number of random initial Gaussians."""
     init_opacity: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = 0.1
     """Initial opacity of every Gaussian."""
@@ -248,6 +279,12 @@ class GaussianModelConfig(SplatConfig):
     drop_rate: Annotated[float, Field(ge=0, lt=1, allow_inf_nan=False)] = 0.0
     """DropGaussian (Park et al., CVPR 2025): each training step renders with every Gaussian dropped with this probability times the fraction of the run done (a ramp from 0), the kept ones' opacity divided by (1 - probability); evaluation renders all Gaussians; 0 = off."""
 
+    def memory_per_point(self, bytes_per_gaussian: int) -> int:
+        """Training memory of one initial point, in bytes (the memory plan's estimate, see
+        ``memory_plan.plan_memory``): one Gaussian here; a model that decodes several Gaussians per
+        point (anchors) says so."""
+        return bytes_per_gaussian
+
 
 class TrainConfig(SplatConfig):
     """Options every training command accepts (the command-line contract)."""
@@ -258,25 +295,25 @@ class TrainConfig(SplatConfig):
     """Dataset folder; a relative path that does not exist is looked up under $SPLAT_DATA; synthetic/forward and synthetic/object are generated on first use."""
     format: Literal["auto", "llff", "blender", "dtu", "colmap"] = "auto"
     """Dataset format; auto detects it from the folder's contents."""
-    views: Annotated[int, Field(ge=1)] | Literal["all"] = 3
+    views: Annotated[int, Field(ge=1, le=MAX_VIEWS)] | Literal["all"] = 3
     """Number of training views (few-shot split rules of the dataset), or all."""
     downscale: Positive | None = None
     """Image downscale factor (default: the dataset's protocol, e.g. 8 for LLFF, 2 for Blender)."""
     train_poses: Path | None = None
     """Pose file (JSON) whose cameras replace the training views' poses and intrinsics; test views keep the dataset's (the benchmarks' --poses estimated protocol: poses from SfM on the training photos alone, aligned to the dataset's frame; see splat_framework.data.pose_file)."""
-    test_pose_steps: int = Field(0, ge=0)
+    test_pose_steps: int = Field(0, ge=0, le=MAX_STEPS)
     """Fit each test camera's pose to its photo by this many Adam steps, the model frozen, before the final scores (pose-free methods' protocol, as splat-eval --test-pose-steps); 0 = score the test poses as given."""
-    steps: Annotated[int, Field(ge=1)] | None = None
+    steps: Annotated[int, Field(ge=1, le=MAX_STEPS)] | None = None
     """Total optimisation iterations; rescales the method's whole schedule proportionally (default: the method's)."""
-    default_steps: tyro.conf.Suppress[int] = 3000
+    default_steps: tyro.conf.Suppress[Annotated[int, Field(ge=1, le=MAX_STEPS)]] = 3000
     """The method's own total iterations, which its schedule fields are written for."""
-    schedule_views: tyro.conf.Suppress[int] = 0
+    schedule_views: tyro.conf.Suppress[Annotated[int, Field(ge=0, le=MAX_VIEWS)]] = 0
     """The number of training views the method's default schedule is written for: without --steps, a run of N > this views (an integer --views) trains default_steps x N / this iterations, its whole schedule rescaled as --steps would (0 = default_steps whatever N)."""
     output: Annotated[Path | None, RUN_OPTION] = None
     """Run folder (default outputs/<scene>/<method>/<timestamp>)."""
     seed: int = Field(0, ge=0, lt=2**32)
     """Random seed for everything (initialisation, view order, matching)."""
-    device: Annotated[str, RUN_OPTION] = "cpu"
+    device: Annotated[Device, RUN_OPTION] = "cpu"
     """Torch device: cpu, cuda, cuda:N, mps, ... (checked against what torch has before a run starts)."""
     resume: Annotated[bool, RUN_OPTION] = False
     """Continue the run in --output from its last good checkpoint."""
@@ -298,7 +335,7 @@ class TrainConfig(SplatConfig):
     """TCP port of the training viewer, 0..65535 (0 = any free port; a port in use: the next free one, said in one line)."""
     viewer_host: Annotated[str, RUN_OPTION] = LOOPBACK
     """Interface the training viewer listens on: 127.0.0.1, this machine only (default); any other address, e.g. 0.0.0.0 for every interface, lets other machines see the model, the photos' thumbnails and "Render with splat" (a warning says so)."""
-    viewer_every: Annotated[int, RUN_OPTION, Field(ge=1)] = 100
+    viewer_every: Annotated[Interval, RUN_OPTION] = 100
     """Send the model to the training viewer every this many iterations."""
     compile: Annotated[bool, RUN_OPTION] = True
     """Fuse the rasterizer's compositing kernels with torch.compile, for training and for rendering this run later (eager fallback on any failure; compiled kernels cached under $SPLAT_CACHE/inductor: about 40 s the first time on a 2-core CPU, seconds after; SPLAT_COMPILE=0/1 overrides). On real fern training steps on a 2-core CPU: 1.85-3.0x faster than eager (benchmarks/train_step.py)."""

@@ -1,12 +1,15 @@
-"""Check a device name against what this torch build and machine have (one-line errors)."""
+"""Check a device name against what this torch build and machine have (one-line errors): ``--device``
+and every other device field of a config (:func:`resolve_config_devices`)."""
 
 from __future__ import annotations
+
+from typing import Iterator
 
 import torch
 
 from .errors import DataError
 
-__all__ = ["resolve_device"]
+__all__ = ["resolve_device", "resolve_config_devices"]
 
 
 def resolve_device(name: str, source: str = "--device") -> torch.device:
@@ -35,3 +38,28 @@ def resolve_device(name: str, source: str = "--device") -> torch.device:
     if dev.index is not None and dev.index >= count:
         raise DataError(f"{source}: device {name!r} does not exist ({count} {dev.type} device(s): indices 0-{count - 1})")
     return dev
+
+
+def device_fields(config, prefix: str = "") -> Iterator[tuple[str, str]]:
+    """(dotted field path, device name) of every field of ``config`` (a SplatConfig, nested configs
+    included) annotated with :data:`splat_framework.config.Device`."""
+    from .config import DEVICE_MARKER, SplatConfig
+
+    for name, info in type(config).model_fields.items():
+        value = getattr(config, name)
+        path = f"{prefix}{name}"
+        if isinstance(value, SplatConfig):
+            yield from device_fields(value, f"{path}.")
+        elif isinstance(value, str) and any(m is DEVICE_MARKER for m in info.metadata):
+            yield path, value
+
+
+def resolve_config_devices(config, source: str | None = None) -> dict[str, torch.device]:
+    """Every device field of ``config`` checked by :func:`resolve_device`: dotted path -> device.
+
+    A field is named in the error as ``--field.path`` (or ``source: field.path`` when the config
+    came from a file), so ``--model.matching.device cuda:7`` fails like ``--device cuda:7``."""
+    return {
+        path: resolve_device(name, f"{source}: {path}" if source else f"--{path.replace('_', '-')}")
+        for path, name in device_fields(config)
+    }

@@ -45,8 +45,11 @@ def _gb(n: float) -> str:
 def plan_memory(scene, config: TrainConfig, budget: int | None) -> int | None:
     """Check that a run fits in memory before any decoding; return the image-cache budget to use.
 
-    Estimate: decoded images (those the budget lets us cache) + Gaussians
-    (``BYTES_PER_GAUSSIAN`` each, times ``DENSIFY_GROWTH`` when densifying).
+    Estimate: decoded images (those the budget lets us cache) + initial points
+    (``config.model.memory_per_point``: ``BYTES_PER_GAUSSIAN`` for a Gaussian, more for an anchor
+    with its neural Gaussians and feature), times ``DENSIFY_GROWTH`` when densifying. With the
+    config's bounds (``config.MAX_GAUSSIANS`` points, anchor_gs's ``MAX_OFFSETS`` and
+    ``MAX_FEAT_DIM``) every count reaches this check instead of an allocation.
     Raises DataError when that exceeds the machine's RAM; warns (one line)
     when it exceeds the currently free RAM. Without a budget, images that
     would take more than half the RAM are decoded on demand instead.
@@ -63,7 +66,7 @@ def plan_memory(scene, config: TrainConfig, budget: int | None) -> int | None:
     cached = img if budget is None else min(img, budget)
     n = max(int(getattr(config.model, "init_num_points", 0) or 0), 10_000)
     growth = DENSIFY_GROWTH if config.strategy.enabled else 1
-    gauss = n * BYTES_PER_GAUSSIAN * growth
+    gauss = n * config.model.memory_per_point(BYTES_PER_GAUSSIAN) * growth
     need = cached + gauss
     if total is not None and need > total:
         raise DataError(

@@ -30,6 +30,7 @@ from __future__ import annotations
 import importlib
 import importlib.resources
 import os
+import stat
 import sys
 import tomllib
 import warnings
@@ -116,8 +117,9 @@ def _load_variants(base: dict[str, MethodSpec], dirs: list[Path]) -> dict[str, M
     variants: dict[str, MethodSpec] = {}
     pending: dict[str, Path] = {}
     _BROKEN.clear()
+    docs: dict[str, dict] = {}
     for d in dirs:  # the first folder with a name wins
-        for f in sorted(d.glob("*.toml")):
+        for f in sorted(_toml_files(d)):
             first = pending.setdefault(f.stem, f)
             if first != f:
                 warnings.warn(f"{f}: variant '{f.stem}' is also defined by {first}, which wins; ignored",
@@ -127,23 +129,24 @@ def _load_variants(base: dict[str, MethodSpec], dirs: list[Path]) -> dict[str, M
     while pending and progress:  # variants may build on other variants
         progress = False
         for name, f in list(pending.items()):
-            try:
-                doc = tomllib.loads(f.read_text())
-            except (OSError, tomllib.TOMLDecodeError) as e:
-                warnings.warn(f"{f}: unreadable config variant ({e}); ignored", VariantWarning, stacklevel=2)
-                del pending[name]
-                continue
+            if name not in docs:
+                doc = _read_variant(f)
+                if isinstance(doc, str):
+                    _skip(name, f"{f}: {doc}")
+                    del pending[name]
+                    continue
+                docs[name] = doc
+            doc = docs[name]
             parent = doc.get("base")
             overrides = doc.get("overrides", {})
             if not isinstance(parent, str) or not isinstance(overrides, dict):
-                warnings.warn(f"{f}: a variant needs base = \"METHOD\" and an [overrides] table; ignored",
-                              VariantWarning, stacklevel=2)
+                _skip(name, f"{f}: a variant needs base = \"METHOD\" and an [overrides] table")
                 del pending[name]
                 continue
             if parent not in resolved:
                 if parent in pending:
                     continue
-                warnings.warn(f"{f}: base method '{parent}' is not registered; ignored", VariantWarning, stacklevel=2)
+                _skip(name, f"{f}: base method '{parent}' is not registered")
                 del pending[name]
                 continue
             p = resolved[parent]
@@ -158,22 +161,83 @@ def _load_variants(base: dict[str, MethodSpec], dirs: list[Path]) -> dict[str, M
             del pending[name]
             problem = _invalid_config(spec)
             if problem:
-                _BROKEN[name] = f"{f}: config variant '{name}' is invalid: {problem}"
-                warnings.warn(f"{_BROKEN[name]}; ignored", VariantWarning, stacklevel=2)
+                _skip(name, f"{f}: config variant '{name}' is invalid: {problem}")
                 continue
             resolved[name] = variants[name] = spec
             progress = True
     for name, f in pending.items():
-        warnings.warn(f"{f}: variant '{name}' has a base that does not resolve (missing or circular); ignored",
-                      VariantWarning, stacklevel=2)
+        _skip(name, f"{f}: variant '{name}' has a circular base ({_cycle(name, docs)})")
     return variants
 
 
+MAX_VARIANT_BYTES = 1 << 20
+"""Largest TOML variant read (a variant is a few lines; anything bigger is not one)."""
+
+
+def _toml_files(folder: Path) -> list[Path]:
+    """The ``*.toml`` entries of ``folder`` ([] for a folder that cannot be listed, with one warning line)."""
+    try:
+        return list(Path(folder).glob("*.toml"))
+    except OSError as e:
+        warnings.warn(f"{folder}: cannot list config variants ({e.strerror or e}); ignored", VariantWarning, stacklevel=3)
+        return []
+
+
+def _read_variant(f: Path) -> dict | str:
+    """The parsed TOML of variant file ``f``, or a one-line reason why it is unusable: not a regular
+    file (a FIFO, device or folder is never opened; a symlink counts as what it points at),
+    unreadable, too big, not UTF-8 text, or a TOML syntax error."""
+    try:
+        if not stat.S_ISREG(f.stat().st_mode):
+            return "not a regular file"
+        fd = os.open(f, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # never blocks, even if swapped for a FIFO
+        with os.fdopen(fd, "rb") as fh:
+            if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
+                return "not a regular file"
+            raw = fh.read(MAX_VARIANT_BYTES + 1)
+    except OSError as e:
+        return f"unreadable config variant ({e.strerror or e})"
+    if len(raw) > MAX_VARIANT_BYTES:
+        return f"not a config variant (larger than {MAX_VARIANT_BYTES} bytes)"
+    try:
+        return tomllib.loads(raw.decode("utf-8-sig"))
+    except UnicodeDecodeError as e:
+        return f"not UTF-8 text (byte {e.start}); save it as UTF-8"
+    except tomllib.TOMLDecodeError as e:
+        return f"TOML syntax error: {_first_line(str(e))}"
+    except (ValueError, RecursionError) as e:  # e.g. absurd nesting
+        return f"not a TOML file ({_first_line(str(e)) or type(e).__name__})"
+
+
+def _first_line(text: str) -> str:
+    return (text.strip().splitlines() or [""])[0]
+
+
+def _cycle(name: str, docs: dict[str, dict]) -> str:
+    """``a -> b -> a``: the chain of bases from variant ``name`` until a name repeats (or leaves ``docs``)."""
+    chain = [name]
+    while True:
+        parent = docs.get(chain[-1], {}).get("base")
+        if not isinstance(parent, str):
+            break
+        chain.append(parent)
+        if parent in chain[:-1] or parent not in docs:
+            break
+    return " -> ".join(chain)
+
+
+def _skip(name: str, reason: str) -> None:
+    """Record why variant ``name`` is skipped (see :func:`invalid_variant`) and warn in one line."""
+    _BROKEN.setdefault(name, reason)
+    warnings.warn(f"{reason}; ignored", VariantWarning, stacklevel=3)
+
+
 class VariantWarning(UserWarning):
-    """A config variant was skipped (unreadable, invalid, or its base does not resolve)."""
+    """A config variant was skipped (unreadable, not a regular file, not UTF-8 TOML, invalid, or its
+    base does not resolve): always one line naming the file."""
 
 
-#: name -> one-line reason, for variants found but skipped because their config is invalid
+#: name -> one-line reason naming the file, for every variant found but skipped
 _BROKEN: dict[str, str] = {}
 
 

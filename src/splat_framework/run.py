@@ -9,7 +9,7 @@ import torch
 from .checkpoint import check_structure, load_latest
 from .config import read_config_json, upgrade_saved_config
 from .data.cache_dir import user_cache_dir
-from .devices import resolve_device
+from .devices import resolve_config_devices
 from .errors import CheckpointError, DataError
 from .registry import get_method
 from .render import set_compile
@@ -35,10 +35,10 @@ def load_trained_model(run_dir: Path, device: str | None = None, scene_scale: fl
     config = type(defaults).model_validate(upgrade_saved_config(raw, defaults))
     if device is not None:
         config = config.model_copy(update={"device": device})
-    resolve_device(config.device, "--device" if device is not None else str(cfg_path))
+    resolve_config_devices(config, None if device is not None else str(cfg_path))
 
     def rebuild(path: Path, ck: dict):
-        check_structure(path, ck)
+        check_structure(path, ck, max_step=config.total_steps)
         try:
             model = spec.model_class().from_checkpoint(config, scene_scale, ck)
             _renders(model)

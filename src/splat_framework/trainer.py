@@ -62,7 +62,7 @@ from .config import (
 from .console import console, print_summary, say, training_progress
 from .data import DataError, DataManager, load_config_scene
 from .data.cache_dir import user_cache_dir
-from .devices import resolve_device
+from .devices import resolve_config_devices
 from .evaluation import evaluate
 from .io import atomic_write_json
 from .memory_plan import image_memory_budget, plan_memory
@@ -181,7 +181,7 @@ class Trainer:
     def __init__(self, config: TrainConfig, callbacks: Sequence[Callable[["Trainer", int], None]] = ()):
         self.config = resolve_steps(config)
         self.callbacks = list(callbacks)
-        self.device = resolve_device(self.config.device)  # before anything is written
+        self.device = resolve_config_devices(self.config)["device"]  # every device field, before anything is written
         out = self.config.output
         fresh = out is None or not Path(out).exists() or (Path(out).is_dir() and is_empty_run_dir(Path(out)))
         self.run_dir = prepare_run_dir(self.config)  # owned by this process from here on (run_lock)
@@ -424,7 +424,7 @@ class Trainer:
         (parameter names and per-row shapes, float32, optimizer moments); CheckpointError otherwise,
         and DataError for a checkpoint of another experiment (:meth:`_check_checkpoint_record`)."""
         self._check_checkpoint_record(path, ck)
-        check_structure(path, ck, self.model.params)
+        check_structure(path, ck, self.model.params, max_step=self.config.total_steps)
         try:
             self._load_state(path, ck)
         except (KeyError, ValueError, TypeError, IndexError, RuntimeError) as e:  # e.g. a crafted model_state

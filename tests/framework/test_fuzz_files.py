@@ -148,6 +148,42 @@ def test_fuzzed_toml_variants_never_break_discovery(pieces):
             methods["fuzzed"].default_config()  # a variant that was accepted builds its config
 
 
+TOML_TEXT = st.one_of(
+    st.text(max_size=200),  # any Unicode, NULs and surrogates' neighbours included
+    st.lists(st.sampled_from(TOML_PIECES + ['base = "scgaussian"', "lambda_rg = inf", "lambda_rg = nan",
+                                            "feat_dim = 1000000000", 'device = "cuda:x"', "[overrides.model.matching]",
+                                            "magsac_threshold = inf", "max_matches = -1"]), max_size=8).map("\n".join),
+)
+TOML_BYTES = st.one_of(
+    st.binary(max_size=300),
+    TOML_TEXT.map(lambda t: t.encode("utf-16")),
+    TOML_TEXT.map(lambda t: t.encode("utf-8", "surrogatepass")),
+)
+
+
+@FUZZ
+@given(st.lists(TOML_BYTES, min_size=1, max_size=3))
+def test_random_bytes_as_toml_variants_never_break_discovery(blobs):
+    """Random bytes, UTF-16 or any text in $SPLAT_CONFIG_PATH: discovery never raises, at most one warning
+    line per file, and an accepted variant builds a config whose floats are finite (issue 40)."""
+    with tempfile.TemporaryDirectory() as d:
+        for i, blob in enumerate(blobs):
+            (Path(d) / f"v{i}.toml").write_bytes(blob)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            methods = registry.discover_methods([Path(d)])
+        assert "3dgs" in methods and "scgaussian" in methods
+        per_file = [str(w.message).split(":")[0] for w in caught]
+        assert all("\n" not in str(w.message) for w in caught), [str(w.message) for w in caught]
+        assert len(per_file) == len(set(per_file)) <= len(blobs), per_file
+        for i in range(len(blobs)):
+            name = f"v{i}"
+            assert (name in methods) != (registry.invalid_variant(name) is not None), name
+            if name in methods:
+                cfg = methods[name].default_config()
+                assert "inf" not in cfg.model_dump_json() and "NaN" not in cfg.model_dump_json()
+
+
 # ------------------------------------------------------------------ config.json
 def _valid_config_json() -> bytes:
     cfg = registry.get_method("3dgs").default_config()
@@ -221,3 +257,43 @@ def test_fuzzed_checkpoint_files_load_or_raise_checkpoint_error(data):
                 blob[data.draw(st.integers(0, len(blob) - 1))] = data.draw(st.integers(0, 255))
         good.write_bytes(bytes(blob))
         _one_line_error(lambda: check_structure(good, load_checkpoint(good)), CheckpointError)
+
+
+# ------------------------------------------------------------------ checkpoint headers
+TENSORS = st.builds(
+    lambda dtype, rows, value: torch.full((rows, 3), value).to(dtype),
+    st.sampled_from([torch.float32, torch.float32, torch.float64, torch.float16, torch.int64, torch.bool]),
+    st.integers(0, 3),
+    st.sampled_from([0.0, 1.5, float("nan"), float("inf"), -1e30]),
+)
+STEPS = st.one_of(st.integers(-(10**13), 10**13), st.sampled_from([0, 1, 7, -7, 10**12]), st.floats(), st.text(max_size=3),
+                  st.none(), st.booleans())
+
+
+@FUZZ
+@given(st.data())
+def test_fuzzed_checkpoint_headers_are_checked(data):
+    """Any step, keys and dtypes under a valid checksum: check_structure accepts only a step in [0, MAX_STEPS]
+    equal to the file name's, finite float32 parameters with one row count; else one line naming the file."""
+    from splat_framework.config import MAX_STEPS
+
+    step = data.draw(STEPS, label="step")
+    name_step = data.draw(st.one_of(st.just(step if isinstance(step, int) and not isinstance(step, bool) and step >= 0 else 5),
+                                    st.integers(0, 10**13)), label="name step")
+    payload = {"step": step, "params": data.draw(st.dictionaries(st.sampled_from(["means", "x", ""]), TENSORS, max_size=3))}
+    for key in data.draw(st.lists(st.sampled_from(["networks", "optimizers", "rng", "junk"]), max_size=2, unique=True)):
+        payload[key] = data.draw(st.one_of(st.none(), st.integers(), st.dictionaries(st.text(max_size=3), TENSORS, max_size=2)))
+    if data.draw(st.booleans()):
+        del payload["step"]
+    with tempfile.TemporaryDirectory() as d:
+        buf = io.BytesIO()
+        torch.save(payload, buf)
+        path = Path(d) / f"step-{name_step:07d}.ckpt"
+        path.write_bytes(MAGIC + hashlib.sha256(buf.getvalue()).hexdigest().encode() + b"\n" + buf.getvalue())
+        msg = _one_line_error(lambda: check_structure(path, load_checkpoint(path)), CheckpointError)
+    if msg is None:  # accepted: the header is one training can use
+        assert isinstance(payload["step"], int) and 0 <= payload["step"] <= MAX_STEPS and payload["step"] == name_step
+        params = payload["params"]
+        assert params and all(t.dtype == torch.float32 and torch.isfinite(t).all() for t in params.values())
+    else:
+        assert str(path) in msg, msg

@@ -8,17 +8,21 @@ input: one line naming it, exit 2.
 
 Invalid config values (pydantic validation, e.g. ``--model.sh-degree 9``) are
 reported as one line naming the dotted field (``model.sh_degree``) before any
-work starts. SIGTERM outside the training loop is treated like Ctrl-C.
+work starts, and so is anything else tyro rejects (``--views abc``, an unknown
+method, a bad choice): wrap ``tyro.cli`` in :func:`one_line_parse_errors`.
+SIGTERM outside the training loop is treated like Ctrl-C.
 """
 
 from __future__ import annotations
 
 import argparse
 import errno
+import re
 import signal
 import sys
 import warnings
-from typing import Callable
+from contextlib import contextmanager
+from typing import Callable, Iterator
 
 _ENV_ERRNOS = {
     errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG, errno.EMFILE,
@@ -73,60 +77,20 @@ def config_path(config_cls: type) -> str:
     return ""
 
 
-def tyro_error_line(box: str) -> str:
-    """tyro's error box (stderr of a failed parse) as one line: its first paragraph.
-
-    The box's borders go, the text before its first rule or blank line stays (after the
-    box's title when the text does not say it), with indented detail lines (argument
-    help) dropped and wrapped lines joined:
-    ``Error parsing --max-lines: invalid literal for int() with base 10: 'abc'``."""
-    rows, title = [], ""
-    for raw in box.splitlines():
-        line = raw.strip()
-        if line.startswith(("╭", "╰")):
-            title = title or line.strip("╭╮╰╯─ ")
-            continue
-        line = line.strip("│").rstrip()
-        text = line.strip()
-        if set(text) <= {"─", " "} and text or (not text and rows):
-            if rows:
-                break
-            continue
-        if text and len(line) - len(line.lstrip()) <= 5:
-            rows.append(text)
-    text = " ".join(rows) or "invalid arguments (see --help)"
-    if title and title.lower() not in text.lower() and not text.startswith("Error parsing"):
-        text = f"{title.lower()}: {text}"  # "missing subcommand: Expected one of {images, video}."
-    return text
-
-
 def parse_cli(f, *, prog: str, args: list[str] | None = None, field_prefix: str | None = None, **kwargs):
-    """``tyro.cli(f)`` whose failures are one line for :func:`run_cli` (exit 2), not a box.
+    """``tyro.cli(f)`` under :func:`one_line_parse_errors`: whatever tyro rejects is one line (exit 2).
 
-    A value tyro cannot parse (``--max-lines abc``), an unknown flag or a missing one
-    raises :class:`DataError` with tyro's message; a config value pydantic rejects
-    raises :class:`~splat_framework.config.InvalidArguments` naming the field, with
-    ``field_prefix`` (when given) in place of the path the field has in a training
-    config. ``--help`` prints as usual."""
-    import contextlib
-    import io
-
+    ``field_prefix``: for a command whose config is not a training config (splat-match,
+    splat-scene), the dotted path its fields' errors are named under ("" = the flag's own
+    name: ``seed``, not ``model.matching.seed``); None leaves :func:`run_cli`'s naming."""
     import tyro
 
-    from ..config import InvalidArguments, cli_parsing
+    from ..config import InvalidArguments
     from ..errors import DataError
 
-    captured = io.StringIO()
     try:
-        with contextlib.redirect_stderr(captured), cli_parsing():
-            parsed = tyro.cli(f, prog=prog, args=sys.argv[1:] if args is None else args, **kwargs)
-        sys.stderr.write(captured.getvalue())  # warnings while parsing
-        return parsed
-    except SystemExit as e:
-        if e.code in (0, None):
-            sys.stderr.write(captured.getvalue())
-            raise
-        raise DataError(tyro_error_line(captured.getvalue())) from None
+        with one_line_parse_errors(prog):
+            return tyro.cli(f, prog=prog, args=sys.argv[1:] if args is None else args, **kwargs)
     except InvalidArguments as e:
         if field_prefix is None:
             raise
@@ -195,3 +159,82 @@ def run_cli(main: Callable[[], object]) -> None:
             raise
         print(f"{getattr(type(e), 'cli_prefix', 'error')}: {e}", file=sys.stderr)
         sys.exit(code)
+
+
+class ArgumentsError(Exception):
+    """The command line could not be parsed (tyro's error, as one line): exit code 2."""
+
+    cli_exit_code = 2
+
+
+def did_you_mean(word: str, choices) -> str:
+    """`` (did you mean 'x'?)`` for the closest of ``choices`` to ``word`` (difflib), or ""."""
+    import difflib
+
+    close = difflib.get_close_matches(word, [str(c) for c in choices], n=1, cutoff=0.6)
+    return f" (did you mean '{close[0]}'?)" if close else ""
+
+
+_BOX = re.compile(r"[\u2500-\u257f]")
+_RULE = re.compile(r"^[\s\u2500-\u257f-]*$")
+
+
+def tyro_error_line(box: str, prog: str, subcommands=()) -> str:
+    """One line for the error box tyro prints on stderr (title, then its first section up to the
+    next rule, lines rejoined; UTF-8 or ASCII boxes), e.g.
+    ``--views: expected INT|{all}, got ['abc']; see splat-train --help``.
+
+    ``subcommands``: the names the first positional argument may take (methods), so that an unknown
+    one reads ``unknown method 'x' (did you mean 'y'?)``."""
+    lines = [ln for ln in box.splitlines() if ln.strip()]
+    title = _BOX.sub("", lines[0]).strip() if lines else ""
+    body: list[str] = []
+    for ln in lines[1:]:
+        if _RULE.match(ln):
+            if body:
+                break
+            continue  # the rule under the title (ASCII boxes, when stdout is not UTF-8)
+        body.append(_BOX.sub("", ln).strip())
+    text = " ".join(" ".join(body).split())
+    see = f"see {prog} --help"
+    if text.startswith(("Unrecognized or misplaced options:", "Unrecognized options:")):
+        tokens = re.findall(r"(\S+) \(applied to [^)]*\)", text) or text.split(":", 1)[1].strip().split(", ")
+        if subcommands and tokens and not tokens[0].startswith("-") and tokens[0] not in subcommands:
+            return f"unknown method '{tokens[0]}'{did_you_mean(tokens[0], subcommands)}; {prog} --help lists them"
+        text = "unrecognized arguments: " + " ".join(tokens)
+    elif text.startswith("Error parsing "):  # "Value error": the flag, tyro's message, then every union member's
+        text = text[len("Error parsing "):].split(" Got errors:")[0].rstrip(".")
+        text = re.sub(r"no type matching (.*) could be instantiated from (.*)", r"expected \1, got \2", text)
+    elif m := re.match(r"invalid choice '(.*)' for argument '(.*)'\. Expected one of \((.*)\)", text):
+        choices = re.findall(r"'([^']*)'", m.group(3))
+        return f"{m.group(2)}: {m.group(1)!r} is not one of {', '.join(choices)}{did_you_mean(m.group(1), choices)}"
+    elif title and not text:
+        text = title
+    elif title == "Missing subcommand":
+        text = f"missing a command: {text[0].lower()}{text[1:]}".rstrip(".")
+    return f"{text.rstrip('.')}; {see}" if text else f"invalid arguments; {see}"
+
+
+@contextmanager
+def one_line_parse_errors(prog: str, subcommands=()) -> Iterator[None]:
+    """Around ``tyro.cli(...)``: a command line tyro rejects raises :class:`ArgumentsError` with one
+    line (``run_cli`` prints it and exits 2) instead of tyro's box (:func:`tyro_error_line`), and an
+    invalid config value raises ``config.InvalidArguments`` naming its field (``config.cli_parsing``).
+    ``--help`` (stdout, exit 0) is untouched; what else reaches stderr meanwhile is passed on.
+    ``subcommands``: the names of the command's subcommands (methods), for an unknown one's message."""
+    import io
+
+    from ..config import cli_parsing
+
+    captured, real = io.StringIO(), sys.stderr
+    sys.stderr = captured
+    try:
+        with cli_parsing():
+            yield
+    except SystemExit as e:
+        if e.code not in (0, None):
+            raise ArgumentsError(tyro_error_line(captured.getvalue(), prog, subcommands)) from None
+        raise
+    finally:
+        sys.stderr = real
+    real.write(captured.getvalue())

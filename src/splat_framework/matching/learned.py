@@ -16,6 +16,13 @@ from .base import Pts, no_matches, to_uint8_rgb
 if TYPE_CHECKING:  # pragma: no cover
     from .config import MatchConfig
 
+
+def _device(config: MatchConfig):
+    """The matching config's device, checked by the resolver of ``--device`` (one-line DataError)."""
+    from ..devices import resolve_device
+
+    return resolve_device(config.device, "matching.device")
+
 class MissingWeightsError(FileNotFoundError):
     """Weights of a learned matcher are not on disk. The message is one line (the CLIs exit 2 with it)."""
 
@@ -146,7 +153,7 @@ class LoFTRMatcher:
 
     @classmethod
     def from_config(cls, config: MatchConfig) -> "LoFTRMatcher":
-        return cls(weights=config.weights, min_confidence=config.min_confidence, device=config.device)
+        return cls(weights=config.weights, min_confidence=config.min_confidence, device=_device(config))
 
     def match(self, img_a: np.ndarray, img_b: np.ndarray) -> tuple[Pts, Pts]:
         ta, tb = _to_tensor(img_a, True, self.device), _to_tensor(img_b, True, self.device)
@@ -219,7 +226,7 @@ class _LightGlueMatcher:
     @classmethod
     def from_config(cls, config: MatchConfig) -> "_LightGlueMatcher":
         return cls(weights=config.weights, max_keypoints=config.max_keypoints, resize=config.learned_resize,
-                   min_confidence=config.min_confidence, device=config.device)
+                   min_confidence=config.min_confidence, device=_device(config))
 
     def _build_extractor(self, KF: Any, state_dict: dict, path: Path, max_keypoints: int) -> Any:
         raise NotImplementedError

@@ -22,7 +22,7 @@ class PruneOnlyConfig(StrategyConfig):
     """The strategy's tag."""
     min_opacity: float = Field(0.005, ge=0, lt=1)
     """Remove Gaussians whose opacity is below this."""
-    every: int = Field(100, ge=1)
+    every: int = Field(100, ge=1, le=10**9)
     """Prune every this many iterations."""
 
     def setup(self):
