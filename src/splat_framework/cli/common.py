@@ -99,12 +99,10 @@ def parse_cli(f, *, prog: str, args: list[str] | None = None, field_prefix: str 
 
 class OneLineArgumentParser(argparse.ArgumentParser):
     """An argparse parser whose errors (``--workers`` without a value, an unknown flag, a bad
-    choice) are one line for :func:`run_cli` (a :class:`DataError`, exit 2), not usage + error."""
+    choice) are one line for :func:`run_cli` (an :class:`ArgumentsError`, exit 2), not usage + error."""
 
     def error(self, message: str):  # noqa: D102 - argparse's hook
-        from ..errors import DataError
-
-        raise DataError(f"{self.prog}: {message} (see --help)")
+        raise ArgumentsError(f"{message}; see {self.prog} --help")  # the form of tyro_error_line's
 
 
 def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
