@@ -526,7 +526,8 @@ def test_splat_process_without_pycolmap_names_the_extra(monkeypatch, tmp_path):
     monkeypatch.setitem(sys.modules, "pycolmap", None)  # import pycolmap -> ImportError
     photos = []
     for k in range(2):
-        photos.append(tmp_path / f"p{k}.png")
+        photos.append(tmp_path / "photos" / f"p{k}.png")
+        photos[-1].parent.mkdir(exist_ok=True)
         photos[-1].write_bytes(b"")
     with pytest.raises(DataError, match=r'pip install "splat\[process\]"'):
         estimate_scene(photos, tmp_path / "out")

@@ -40,6 +40,7 @@ def llff(tmp_path_factory) -> Path:
         (["--views", "abc"], ("--views", "abc")),
     ],
 )
+@pytest.mark.bad_input("bad arguments of splat-match, splat-scene, splat-process, splat-sweep (`--max-lines -5`, `--seed -1`, an unknown matcher, `--width -5`, `--views 0`, `--mapper nosuch`, ...)", "exit 2 at parse time, one line naming the field; nothing written")
 def test_match_bad_arguments_exit_2_in_one_line_writing_nothing(llff, tmp_path, args, words):
     run_cli("match", "--data", llff, "--out", tmp_path / "m", *args, code=2, match=words, watch=[tmp_path, llff])
 
@@ -55,6 +56,7 @@ def test_match_bad_arguments_exit_2_in_one_line_writing_nothing(llff, tmp_path, 
         ([], ("missing", "--out")),
     ],
 )
+@pytest.mark.bad_input("bad arguments of splat-match, splat-scene, splat-process, splat-sweep (`--max-lines -5`, `--seed -1`, an unknown matcher, `--width -5`, `--views 0`, `--mapper nosuch`, ...)", "exit 2 at parse time, one line naming the field; nothing written")
 def test_match_arguments_are_parsed_to_one_line(tmp_path, args, words):
     """The same parser in-process (cli.common.parse_cli): every refusal is one line (DataError or ArgumentsError)."""
     from splat_framework.cli.common import parse_cli
@@ -66,6 +68,7 @@ def test_match_arguments_are_parsed_to_one_line(tmp_path, args, words):
     assert "\n" not in message and all(w.lower() in message.lower() for w in words), message
 
 
+@pytest.mark.bad_input("an output path that is a FIFO or a device node, lies below a file, or is in a folder that cannot be written", "exit 2 (1 when not writable), one line; nothing opened or renamed over it")
 def test_match_out_through_a_file_is_one_line_exit_2(llff, tmp_path):
     """A path the user gave that cannot be a folder (--out a file, or a folder under one): exit 2
     naming it (the output guard, and behind it cli.common.run_cli's path errors), the file untouched."""
@@ -75,6 +78,7 @@ def test_match_out_through_a_file_is_one_line_exit_2(llff, tmp_path):
                 match=str(tmp_path / "file"), watch=[tmp_path, llff])
 
 
+@pytest.mark.bad_input("an output path that is a FIFO or a device node, lies below a file, or is in a folder that cannot be written", "exit 2 (1 when not writable), one line; nothing opened or renamed over it")
 def test_a_path_through_a_file_is_one_line_exit_2_wherever_it_is_met(tmp_path, capsys):
     """run_cli: an OSError that a path the user gave causes (ENOTDIR, EISDIR, ...) is one line
     naming it and exit 2, whichever command meets it and wherever."""
@@ -91,6 +95,7 @@ def test_a_path_through_a_file_is_one_line_exit_2_wherever_it_is_met(tmp_path, c
     assert e.value.code == 2 and err == f"error: {tmp_path / 'file' / 'sub'}: Not a directory", err
 
 
+@pytest.mark.bad_input("Ctrl-C during `splat-match` or `splat-scene`", "exit 130, `interrupted`; nothing half-written (`matches.npz` written last and atomically; a scene built aside and moved in at the end)")
 def test_match_ctrl_c_exits_130_and_leaves_nothing_half_written(tmp_path):
     """SIGINT while pairs are being matched: exit 130, one line "interrupted", no result written
 (the output folder claimed before the work holds its marker only)."""
@@ -112,6 +117,7 @@ def test_match_ctrl_c_exits_130_and_leaves_nothing_half_written(tmp_path):
     assert changed <= {"m", os.path.join("m", ".splat-output.json")}, changed  # at most the claimed folder, no result
 
 
+@pytest.mark.bad_input("Ctrl-C during `splat-match` or `splat-scene`", "exit 130, `interrupted`; nothing half-written (`matches.npz` written last and atomically; a scene built aside and moved in at the end)")
 def test_match_writes_matches_npz_last(tmp_path, monkeypatch):
     """Interrupted while drawing the pictures: each written picture is whole and there is no matches.npz."""
     import splat_framework.matching as matching
@@ -138,6 +144,7 @@ def test_match_writes_matches_npz_last(tmp_path, monkeypatch):
     assert cv2.imread(str(drawn[0])).shape == (48, 128, 3)
 
 
+@pytest.mark.bad_input("Ctrl-C during `splat-match` or `splat-scene`", "exit 130, `interrupted`; nothing half-written (`matches.npz` written last and atomically; a scene built aside and moved in at the end)")
 def test_match_pictures_and_cache_are_written_atomically(tmp_path, monkeypatch):
     """A write that fails (disk full at fsync) leaves no file at the target and no temp file,
     for the pictures (drawing) and the match set / cache (MatchSet.save) alike."""
@@ -174,6 +181,7 @@ def test_match_pictures_and_cache_are_written_atomically(tmp_path, monkeypatch):
         (["--views", "0"], ("views", "greater than or equal to 1")),
     ],
 )
+@pytest.mark.bad_input("bad arguments of splat-match, splat-scene, splat-process, splat-sweep (`--max-lines -5`, `--seed -1`, an unknown matcher, `--width -5`, `--views 0`, `--mapper nosuch`, ...)", "exit 2 at parse time, one line naming the field; nothing written")
 def test_scene_bad_values_exit_2_at_parse_time(tmp_path, args, words):
     run_cli("scene", "forward", "--out", tmp_path / "s", *args, code=2, match=words, watch=[tmp_path])
 
@@ -188,6 +196,7 @@ def test_scene_bad_values_exit_2_at_parse_time(tmp_path, args, words):
         (["forwar"], ("forwar", "not one of", "forward")),
     ],
 )
+@pytest.mark.bad_input("bad arguments of splat-match, splat-scene, splat-process, splat-sweep (`--max-lines -5`, `--seed -1`, an unknown matcher, `--width -5`, `--views 0`, `--mapper nosuch`, ...)", "exit 2 at parse time, one line naming the field; nothing written")
 def test_scene_arguments_are_parsed_to_one_line(args, words):
     from splat_framework.cli.common import parse_cli
     from splat_framework.cli.scene import SceneArgs
@@ -198,6 +207,7 @@ def test_scene_arguments_are_parsed_to_one_line(args, words):
     assert "\n" not in message and all(w.lower() in message.lower() for w in words), message
 
 
+@pytest.mark.bad_input("Ctrl-C during `splat-match` or `splat-scene`", "exit 130, `interrupted`; nothing half-written (`matches.npz` written last and atomically; a scene built aside and moved in at the end)")
 def test_scene_ctrl_c_exits_130_and_leaves_nothing(tmp_path):
     """SIGINT while the scene renders (in its work folder beside --out): exit 130, one line,
     no --out and no work folder left."""
@@ -216,6 +226,7 @@ def test_scene_ctrl_c_exits_130_and_leaves_nothing(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.bad_input("Ctrl-C during `splat-match` or `splat-scene`", "exit 130, `interrupted`; nothing half-written (`matches.npz` written last and atomically; a scene built aside and moved in at the end)")
 def test_building_installs_a_finished_folder_and_nothing_of_an_interrupted_one(tmp_path):
     import stat
 
@@ -254,6 +265,7 @@ GRID = 'methods = ["3dgs"]\ndata = ["synthetic/forward-tiny"]\nout = "o"\n'
         ("mem.toml", (GRID + 'mem_per_run_gb = "abc"\n').encode(), ("mem.toml", "mem_per_run_gb", "not a number")),
     ],
 )
+@pytest.mark.bad_input("a binary, UTF-16, FIFO or wrongly typed sweep grid file", "exit 2, one line naming the file and field; a FIFO is never waited on")
 def test_sweep_bad_grid_file_exits_2_naming_file_and_field(tmp_path, name, content, words):
     grid = tmp_path / name
     grid.write_bytes(content)
@@ -273,6 +285,7 @@ def test_sweep_bad_grid_file_exits_2_naming_file_and_field(tmp_path, name, conte
         ("views.toml", GRID + "views = [2.5]\n", ("views",)),
     ],
 )
+@pytest.mark.bad_input("a binary, UTF-16, FIFO or wrongly typed sweep grid file", "exit 2, one line naming the file and field; a FIFO is never waited on")
 def test_sweep_grid_values_of_the_wrong_type_name_file_and_field(tmp_path, name, content, words):
     from splat_framework.sweep import SweepError, load_grid_file
 
@@ -284,18 +297,21 @@ def test_sweep_grid_values_of_the_wrong_type_name_file_and_field(tmp_path, name,
     assert message.startswith(f"{grid}: ") and all(w in message for w in words), message
 
 
+@pytest.mark.bad_input("a binary, UTF-16, FIFO or wrongly typed sweep grid file", "exit 2, one line naming the file and field; a FIFO is never waited on")
 def test_sweep_grid_fifo_is_refused_without_blocking(tmp_path):
     fifo = tmp_path / "grid.toml"
     os.mkfifo(fifo)
     run_cli("sweep", fifo, code=2, match=("grid.toml", "not a regular file"), watch=[tmp_path], timeout=60)
 
 
+@pytest.mark.bad_input("bad arguments of splat-match, splat-scene, splat-process, splat-sweep (`--max-lines -5`, `--seed -1`, an unknown matcher, `--width -5`, `--views 0`, `--mapper nosuch`, ...)", "exit 2 at parse time, one line naming the field; nothing written")
 def test_sweep_argument_errors_are_one_line(tmp_path):
     run_cli("sweep", "--workers", code=2, match="--workers", watch=[tmp_path], cwd=tmp_path)
     run_cli("sweep", "--methods", "3dgs", "--data", "x", "--out", "o", "--backend", "nosuch", code=2,
             match=("--backend", "nosuch"), watch=[tmp_path], cwd=tmp_path)
 
 
+@pytest.mark.bad_input("a sweep in which some runs fail", "exit 1, one line naming the failed runs and their logs; exit 0 only when every run succeeded")
 def test_sweep_exits_1_naming_the_failed_runs_and_0_only_when_all_succeeded(tmp_path):
     """One run finished earlier (its metrics.json), one has a dataset whose photo is truncated
     (fails while it runs: it has a log), one names a missing dataset (fails before it starts):

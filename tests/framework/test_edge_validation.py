@@ -64,6 +64,7 @@ def _rejected(method: str, path: tuple, value) -> str:
 
 # ------------------------------------------------------------------ floats, counts
 @pytest.mark.parametrize("method", sorted(METHODS))
+@pytest.mark.bad_input("`inf` or `nan` in any float of any config (`--model.lambda-rg inf`, matching thresholds)", "exit 2, one line naming the field")
 def test_every_float_field_of_every_method_refuses_inf_and_nan(method):
     paths = [p for m, p in FLOAT_FIELDS if m == method]
     assert paths, method
@@ -73,6 +74,7 @@ def test_every_float_field_of_every_method_refuses_inf_and_nan(method):
 
 
 @pytest.mark.parametrize("method", sorted(METHODS))
+@pytest.mark.bad_input("huge counts (`--model.feat-dim 1000000000`, 10^18 in any int field)", "exit 2, one line naming the field and its bound; what RAM cannot hold is refused by the memory plan before any allocation")
 def test_every_count_of_every_method_has_an_upper_bound(method):
     """feat_dim 10^9 (anchor_gs) tried to allocate 33 TB: every int field now has a documented bound."""
     paths = [p for m, p in INT_FIELDS if m == method]
@@ -82,6 +84,7 @@ def test_every_count_of_every_method_has_an_upper_bound(method):
 
 
 @pytest.mark.parametrize("cls", OUR_CONFIG_CLASSES, ids=lambda c: c.__qualname__)
+@pytest.mark.bad_input("`inf` or `nan` in any float of any config (`--model.lambda-rg inf`, matching thresholds)", "exit 2, one line naming the field")
 def test_every_config_class_refuses_non_finite_floats_and_unbounded_counts(cls):
     """Classes no registered method uses by default (other strategy kinds...) follow the same rules."""
     for name, info in cls.model_fields.items():
@@ -93,6 +96,7 @@ def test_every_config_class_refuses_non_finite_floats_and_unbounded_counts(cls):
 
 
 # ------------------------------------------------------------------ devices
+@pytest.mark.bad_input("an unknown device in any device field (`--model.matching.device nosuch`)", "exit 2, one line, no run folder")
 def test_every_device_field_goes_through_the_device_resolver():
     cfg = DEFAULTS["scgaussian"]
     assert dict(device_fields(cfg)) == {"device": "cpu", "model.matching.device": "cpu"}
@@ -147,6 +151,7 @@ BAD_CHECKPOINTS = {  # name -> (file step, payload edit)
 
 
 @pytest.mark.parametrize("case", sorted(BAD_CHECKPOINTS))
+@pytest.mark.bad_input("a checkpoint with step -7 or 10^12, a step past the run's end, or NaN parameters under a valid checksum", "one warning line, the previous good checkpoint is used")
 def test_a_checkpoint_with_a_bad_step_or_nan_values_falls_back_to_the_previous(run_copy, case):
     """A valid checksum proves the bytes, not the values: step -7 or 10^12 and NaN parameters are refused
     in one line naming the file, and the previous good checkpoint is used."""
@@ -166,6 +171,7 @@ def test_a_checkpoint_with_a_bad_step_or_nan_values_falls_back_to_the_previous(r
         load_trained_model(run_copy)
 
 
+@pytest.mark.bad_input("a checkpoint with step -7 or 10^12, a step past the run's end, or NaN parameters under a valid checksum", "one warning line, the previous good checkpoint is used")
 def test_resume_skips_a_nan_checkpoint(run_copy, capsys):
     from splat_framework.config import read_config_json
     from splat_framework.trainer import Trainer
@@ -184,6 +190,7 @@ def test_resume_skips_a_nan_checkpoint(run_copy, capsys):
     assert len(lines) == 1 and "non-finite" in lines[0], lines
 
 
+@pytest.mark.bad_input("a checkpoint with step -7 or 10^12, a step past the run's end, or NaN parameters under a valid checksum", "one warning line, the previous good checkpoint is used")
 def test_cli_export_falls_back_from_a_nan_checkpoint_with_one_warning_line(run_copy, tmp_path):
     folder = run_copy / "checkpoints"
     ck = load_checkpoint(list_checkpoints(folder)[-1])
@@ -212,6 +219,7 @@ VARIANT_FILES = {
 
 
 @pytest.mark.parametrize("case", sorted(VARIANT_FILES))
+@pytest.mark.bad_input("a binary, UTF-16 or oversized `.toml`, or a FIFO or folder named `*.toml`, in `$SPLAT_CONFIG_PATH`", "`--help` and every command work; one warning line per file; special files are never opened")
 def test_a_bad_variant_file_is_one_warning_line(tmp_path, case):
     blob, needle = VARIANT_FILES[case]
     (tmp_path / "bad.toml").write_bytes(blob)
@@ -221,6 +229,7 @@ def test_a_bad_variant_file_is_one_warning_line(tmp_path, case):
     assert registry.invalid_variant("bad") == msgs[0].removesuffix("; ignored")
 
 
+@pytest.mark.bad_input("a binary, UTF-16 or oversized `.toml`, or a FIFO or folder named `*.toml`, in `$SPLAT_CONFIG_PATH`", "`--help` and every command work; one warning line per file; special files are never opened")
 def test_special_files_named_toml_are_never_opened(tmp_path):
     os.mkfifo(tmp_path / "fifo.toml")  # opening it for reading would block forever
     (tmp_path / "folder.toml").mkdir()
@@ -231,6 +240,7 @@ def test_special_files_named_toml_are_never_opened(tmp_path):
     assert all("not a regular file" in m for m in msgs), msgs
 
 
+@pytest.mark.bad_input("a TOML variant with a wrong type, a syntax error, a circular `base`", "one warning line naming the file and field; other methods unaffected; exit 2 only when that variant is asked for")
 def test_circular_bases_are_one_line_per_file_naming_the_cycle(tmp_path):
     (tmp_path / "a.toml").write_text('base = "b"\n[overrides]\n')
     (tmp_path / "b.toml").write_text('base = "a"\n[overrides]\n')
@@ -242,6 +252,7 @@ def test_circular_bases_are_one_line_per_file_naming_the_cycle(tmp_path):
 
 
 # ------------------------------------------------------------------ the command line
+@pytest.mark.bad_input("a binary, UTF-16 or oversized `.toml`, or a FIFO or folder named `*.toml`, in `$SPLAT_CONFIG_PATH`", "`--help` and every command work; one warning line per file; special files are never opened")
 def test_splat_train_help_survives_binary_utf16_and_fifo_variants(tmp_path):
     (tmp_path / "binary.toml").write_bytes(VARIANT_FILES["binary"][0])
     (tmp_path / "utf16.toml").write_bytes(VARIANT_FILES["utf-16"][0])
@@ -253,6 +264,7 @@ def test_splat_train_help_survives_binary_utf16_and_fifo_variants(tmp_path):
 
 
 @pytest.mark.parametrize("case", ["syntax error", "circular"])
+@pytest.mark.bad_input("a TOML variant with a wrong type, a syntax error, a circular `base`", "one warning line naming the file and field; other methods unaffected; exit 2 only when that variant is asked for")
 def test_asking_for_a_broken_variant_is_one_line_naming_its_file(tmp_path, case):
     if case == "circular":
         (tmp_path / "bad.toml").write_text('base = "other"\n[overrides]\n')
@@ -276,6 +288,8 @@ BAD_ARGUMENTS = {  # issue 40's cases, in a subprocess -> what the one line says
 
 
 @pytest.mark.parametrize("case", sorted(BAD_ARGUMENTS))
+@pytest.mark.bad_input("`inf` or `nan` in any float of any config (`--model.lambda-rg inf`, matching thresholds)", "exit 2, one line naming the field")
+@pytest.mark.bad_input("`--views abc`, an unknown method (`3dgx`), a bad choice (`--format llf`), an unknown flag", "exit 2, one line (with \"did you mean\" where one is close)")
 def test_bad_train_arguments_are_one_line(tmp_path, case):
     args, needle = BAD_ARGUMENTS[case]
     r = run_cli("train", *args, "--output", tmp_path / "run", code=2, match=needle, watch=[tmp_path])
@@ -292,6 +306,7 @@ OTHER_BAD_ARGUMENTS = {  # tyro's other error kinds, in-process (the same main a
 
 
 @pytest.mark.parametrize("case", sorted(OTHER_BAD_ARGUMENTS))
+@pytest.mark.bad_input("`--views abc`, an unknown method (`3dgx`), a bad choice (`--format llf`), an unknown flag", "exit 2, one line (with \"did you mean\" where one is close)")
 def test_other_parse_errors_are_one_line(case, capsys):
     from splat_framework.cli.common import ArgumentsError
     from splat_framework.cli.train import main
@@ -305,6 +320,7 @@ def test_other_parse_errors_are_one_line(case, capsys):
     assert capsys.readouterr().err == ""  # tyro's box was not printed
 
 
+@pytest.mark.bad_input("`--views abc`, an unknown method (`3dgx`), a bad choice (`--format llf`), an unknown flag", "exit 2, one line (with \"did you mean\" where one is close)")
 def test_tyro_error_boxes_become_one_line():
     """The box parser on tyro's own layout (wrapped lines, rules), independent of the terminal width."""
     box = ("╭─ Value error ──────────╮\n│ Error parsing --views: no type matching INT|{all} could be │\n"
@@ -317,12 +333,14 @@ def test_tyro_error_boxes_become_one_line():
     assert tyro_error_line("", "splat-x") == "invalid arguments; see splat-x --help"
 
 
+@pytest.mark.bad_input("huge counts (`--model.feat-dim 1000000000`, 10^18 in any int field)", "exit 2, one line naming the field and its bound; what RAM cannot hold is refused by the memory plan before any allocation")
 def test_max_steps_bounds_steps_and_checkpoints():
     with pytest.raises(ValidationError, match="steps"):
         apply_overrides(DEFAULTS["3dgs"], {"steps": MAX_STEPS + 1})
     assert apply_overrides(DEFAULTS["3dgs"], {"steps": MAX_STEPS}).steps == MAX_STEPS
 
 
+@pytest.mark.bad_input("huge counts (`--model.feat-dim 1000000000`, 10^18 in any int field)", "exit 2, one line naming the field and its bound; what RAM cannot hold is refused by the memory plan before any allocation")
 def test_the_memory_plan_counts_what_an_anchor_costs(monkeypatch, tmp_path):
     """Counts at their bounds reach the memory plan, which counts each anchor's neural Gaussians and feature:
     scaffold-gs with n_offsets 256 and feat_dim 1024 is refused before any allocation on a 16 GiB machine,

@@ -45,6 +45,7 @@ def _assert_usable(config) -> None:
 
 @FUZZ
 @given(st.data())
+@pytest.mark.bad_input("fuzzed config values (overrides and command line) and checkpoint headers", "a usable config or one line naming the field; a header is accepted only when usable")
 def test_fuzzed_override_values_build_a_usable_config_or_name_the_field(data):
     method, path, _ = data.draw(st.sampled_from(FIELDS), label="field")
     value = data.draw(VALUES, label="value")
@@ -71,6 +72,7 @@ CLI_VALUES = st.one_of(
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.sampled_from(FLAG_FIELDS), CLI_VALUES)
+@pytest.mark.bad_input("fuzzed config values (overrides and command line) and checkpoint headers", "a usable config or one line naming the field; a header is accepted only when usable")
 def test_fuzzed_command_line_values_parse_or_give_one_line(field, value):
     """The same through tyro, as splat-train METHOD parses it (the method's config class alone, 2x faster than
     the union of every method): a config, or one line (ArgumentsError for what tyro rejects, InvalidArguments
@@ -97,6 +99,7 @@ def test_fuzzed_command_line_values_parse_or_give_one_line(field, value):
 
 
 @pytest.mark.parametrize("value", ["inf", "nan", "-inf"])
+@pytest.mark.bad_input("`inf` or `nan` in any float of any config (`--model.lambda-rg inf`, matching thresholds)", "exit 2, one line naming the field")
 def test_a_non_finite_loss_weight_on_the_command_line_names_the_field(value):
     with pytest.raises(InvalidArguments) as e:
         with one_line_parse_errors("splat-train", METHODS):

@@ -163,6 +163,7 @@ TOML_BYTES = st.one_of(
 
 @FUZZ
 @given(st.lists(TOML_BYTES, min_size=1, max_size=3))
+@pytest.mark.bad_input("fuzzed config values (overrides and command line) and checkpoint headers", "a usable config or one line naming the field; a header is accepted only when usable")
 def test_random_bytes_as_toml_variants_never_break_discovery(blobs):
     """Random bytes, UTF-16 or any text in $SPLAT_CONFIG_PATH: discovery never raises, at most one warning
     line per file, and an accepted variant builds a config whose floats are finite (issue 40)."""
@@ -272,6 +273,7 @@ STEPS = st.one_of(st.integers(-(10**13), 10**13), st.sampled_from([0, 1, 7, -7, 
 
 @FUZZ
 @given(st.data())
+@pytest.mark.bad_input("fuzzed config values (overrides and command line) and checkpoint headers", "a usable config or one line naming the field; a header is accepted only when usable")
 def test_fuzzed_checkpoint_headers_are_checked(data):
     """Any step, keys and dtypes under a valid checksum: check_structure accepts only a step in [0, MAX_STEPS]
     equal to the file name's, finite float32 parameters with one row count; else one line naming the file."""

@@ -41,6 +41,7 @@ def dataset(tmp_path) -> Path:
 # ------------------------------------------------------------------ splat-process
 
 
+@pytest.mark.bad_input("an output that is, holds or lies inside the input (`splat-process images DIR --out DIR`, `splat-train --output DATA/run`, `splat-match --out DATA`)", "exit 2, one line; the input is untouched, with or without `--overwrite`")
 def test_process_refuses_the_photo_folder_as_its_output(tmp_path):
     from support import write_png
 
@@ -53,6 +54,7 @@ def test_process_refuses_the_photo_folder_as_its_output(tmp_path):
             code=2, match="inside the input", watch=[tmp_path])
 
 
+@pytest.mark.bad_input("an existing folder or file that the command did not write (a dataset for `splat-scene --out`, a user's folder for `--output`/`--out`, someone's PLY or video)", "exit 2, one line; never replaced, `--overwrite` or not")
 def test_process_overwrite_refuses_a_folder_it_did_not_write(tmp_path):
     from support import write_png
 
@@ -67,11 +69,13 @@ def test_process_overwrite_refuses_a_folder_it_did_not_write(tmp_path):
 # ------------------------------------------------------------------ splat-scene
 
 
+@pytest.mark.bad_input("an existing folder or file that the command did not write (a dataset for `splat-scene --out`, a user's folder for `--output`/`--out`, someone's PLY or video)", "exit 2, one line; never replaced, `--overwrite` or not")
 def test_scene_refuses_an_existing_dataset(dataset, tmp_path):
     run_cli("scene", "forward", "--out", dataset, *TINY_SCENE,
             code=2, match="not a scene folder written by splat-scene", watch=[tmp_path])
 
 
+@pytest.mark.bad_input("an output that the same command wrote before", "exit 2 asking for `--overwrite`; with it, only what the command wrote is removed (the user's other files stay; symlinks are unlinked, never followed)")
 def test_scene_replaces_its_own_folder_only_with_overwrite_and_keeps_the_rest(tmp_path):
     out = tmp_path / "scene"
     run_cli("scene", "forward", "--out", out, *TINY_SCENE, code=0, watch=[tmp_path], allowed=[out])
@@ -100,6 +104,7 @@ def _fake_run(folder: Path) -> Path:
     return folder
 
 
+@pytest.mark.bad_input("an output that the same command wrote before", "exit 2 asking for `--overwrite`; with it, only what the command wrote is removed (the user's other files stay; symlinks are unlinked, never followed)")
 def test_train_overwrite_unlinks_a_checkpoints_symlink_and_never_follows_it(tmp_path):
     other = _fake_run(tmp_path / "other-run")
     run = _fake_run(tmp_path / "run")
@@ -111,12 +116,14 @@ def test_train_overwrite_unlinks_a_checkpoints_symlink_and_never_follows_it(tmp_
     assert (other / "checkpoints" / "step-0000010.ckpt").read_bytes() == b"old run"
 
 
+@pytest.mark.bad_input("an existing folder or file that the command did not write (a dataset for `splat-scene --out`, a user's folder for `--output`/`--out`, someone's PLY or video)", "exit 2, one line; never replaced, `--overwrite` or not")
 def test_train_overwrite_refuses_a_folder_that_is_not_a_run(tmp_path):
     folder = user_folder(tmp_path / "results", **{"config.json": '{"mine": 1}', "metrics.json": '{"psnr": 30}'})
     run_cli("train", "3dgs", "--data", tmp_path / "no-such-data", "--output", folder, "--overwrite",
             code=2, match="not a run folder written by splat-train", watch=[tmp_path])
 
 
+@pytest.mark.bad_input("an output that is, holds or lies inside the input (`splat-process images DIR --out DIR`, `splat-train --output DATA/run`, `splat-match --out DATA`)", "exit 2, one line; the input is untouched, with or without `--overwrite`")
 def test_train_refuses_an_output_inside_its_data(dataset, tmp_path):
     run_cli("train", "3dgs", "--data", dataset, "--output", dataset / "run", "--steps", 1,
             code=2, match="inside the input", watch=[tmp_path])
@@ -125,6 +132,7 @@ def test_train_refuses_an_output_inside_its_data(dataset, tmp_path):
 # ------------------------------------------------------------------ splat-export
 
 
+@pytest.mark.bad_input("an output path that is a FIFO or a device node, lies below a file, or is in a folder that cannot be written", "exit 2 (1 when not writable), one line; nothing opened or renamed over it")
 def test_export_refuses_a_fifo_and_a_device_node(run_dir, tmp_path):
     fifo = tmp_path / "pipe.ply"
     os.mkfifo(fifo)
@@ -134,6 +142,7 @@ def test_export_refuses_a_fifo_and_a_device_node(run_dir, tmp_path):
     run_cli("export", run_dir, "--ply", device, "--overwrite", code=2, match="device node", watch=[tmp_path])
 
 
+@pytest.mark.bad_input("an existing folder or file that the command did not write (a dataset for `splat-scene --out`, a user's folder for `--output`/`--out`, someone's PLY or video)", "exit 2, one line; never replaced, `--overwrite` or not")
 def test_export_never_replaces_a_file_it_did_not_write(run_dir, tmp_path):
     theirs = tmp_path / "scan.ply"
     theirs.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 0\nend_header\n")
@@ -141,6 +150,7 @@ def test_export_never_replaces_a_file_it_did_not_write(run_dir, tmp_path):
             watch=[tmp_path])
 
 
+@pytest.mark.bad_input("an output that the same command wrote before", "exit 2 asking for `--overwrite`; with it, only what the command wrote is removed (the user's other files stay; symlinks are unlinked, never followed)")
 def test_export_replaces_its_own_ply_only_with_overwrite(run_dir, tmp_path):
     ply = tmp_path / "out.ply"
     run_cli("export", run_dir, "--ply", ply, code=0, watch=[tmp_path], allowed=[ply])
@@ -149,6 +159,7 @@ def test_export_replaces_its_own_ply_only_with_overwrite(run_dir, tmp_path):
     run_cli("export", run_dir, "--ply", ply, "--overwrite", code=0, watch=[tmp_path], allowed=[ply])
 
 
+@pytest.mark.bad_input("an output path that is a FIFO or a device node, lies below a file, or is in a folder that cannot be written", "exit 2 (1 when not writable), one line; nothing opened or renamed over it")
 def test_export_path_below_a_file_and_an_unwritable_folder(run_dir, tmp_path):
     (tmp_path / "notes.txt").write_text("mine")
     run_cli("export", run_dir, "--ply", tmp_path / "notes.txt" / "out.ply", code=2, match="is not a folder",
@@ -162,6 +173,7 @@ def test_export_path_below_a_file_and_an_unwritable_folder(run_dir, tmp_path):
 # ------------------------------------------------------------------ splat-render
 
 
+@pytest.mark.bad_input("an existing folder or file that the command did not write (a dataset for `splat-scene --out`, a user's folder for `--output`/`--out`, someone's PLY or video)", "exit 2, one line; never replaced, `--overwrite` or not")
 def test_render_refuses_a_folder_or_video_of_the_user(run_dir, tmp_path):
     photos = user_folder(tmp_path / "holiday", **{"IMG_0001_render.png": "not a render"})
     run_cli("render", run_dir, "--out", photos, "--overwrite", code=2,
@@ -172,6 +184,7 @@ def test_render_refuses_a_folder_or_video_of_the_user(run_dir, tmp_path):
             code=2, match="not a video written by splat-render", watch=[tmp_path])
 
 
+@pytest.mark.bad_input("an output that the same command wrote before", "exit 2 asking for `--overwrite`; with it, only what the command wrote is removed (the user's other files stay; symlinks are unlinked, never followed)")
 def test_render_refreshes_its_own_folder_with_overwrite_keeping_other_files(run_dir, tmp_path):
     out = tmp_path / "renders"
     run_cli("render", run_dir, "--out", out, code=0, watch=[tmp_path], allowed=[out])
@@ -187,6 +200,7 @@ def test_render_refreshes_its_own_folder_with_overwrite_keeping_other_files(run_
 # ------------------------------------------------------------------ splat-match and splat-sweep
 
 
+@pytest.mark.bad_input("an output that is, holds or lies inside the input (`splat-process images DIR --out DIR`, `splat-train --output DATA/run`, `splat-match --out DATA`)", "exit 2, one line; the input is untouched, with or without `--overwrite`")
 def test_match_output_is_a_file_or_the_data(dataset, tmp_path):
     target = tmp_path / "matches.txt"
     target.write_text("mine")
@@ -195,12 +209,14 @@ def test_match_output_is_a_file_or_the_data(dataset, tmp_path):
         assert says in r.stdout + r.stderr and len((r.stdout + r.stderr).strip().splitlines()) == 1
 
 
+@pytest.mark.bad_input("an existing folder or file that the command did not write (a dataset for `splat-scene --out`, a user's folder for `--output`/`--out`, someone's PLY or video)", "exit 2, one line; never replaced, `--overwrite` or not")
 def test_sweep_refuses_a_folder_that_is_not_a_sweep(tmp_path):
     folder = user_folder(tmp_path / "paper", **{"results.md": "my table"})
     run_cli("sweep", "--methods", "3dgs", "--data", tmp_path / "no-such-data", "--steps", 1, "--no-live",
             "--out", folder, code=2, match="not a sweep folder written by splat-sweep", watch=[tmp_path])
 
 
+@pytest.mark.bad_input("an output that the same command wrote before", "exit 2 asking for `--overwrite`; with it, only what the command wrote is removed (the user's other files stay; symlinks are unlinked, never followed)")
 def test_clearing_an_output_unlinks_links_inside_and_keeps_the_users_files(tmp_path):
     """--overwrite's removal (the same function for every command) never descends into a symlink."""
     from splat_framework.output_paths import RUN_FOLDER, clear_output

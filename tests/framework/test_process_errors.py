@@ -35,6 +35,7 @@ def truncate(path: Path, fraction: float = 0.5) -> None:
     path.write_bytes(data[: int(len(data) * fraction)])
 
 
+@pytest.mark.bad_input("a truncated JPEG given to `splat-process`", "exit 2, one line naming the photo (not a half-grey photo in the scene)")
 def test_read_photo_refuses_a_truncated_jpeg_that_opencv_decodes_half_grey(tmp_path):
     from splat_framework.data.images import read_photo
 
@@ -58,6 +59,7 @@ def _work_folder_of_another_process(out: Path, stay: bool) -> tuple[Path, subpro
     return work, child
 
 
+@pytest.mark.bad_input("`splat-process` killed with kill -9", "its hidden work folder is removed by the next run (folders in use are kept)")
 def test_stale_work_folders_are_removed_and_live_or_foreign_ones_kept(tmp_path):
     out = tmp_path / "scene"
     stale, _ = _work_folder_of_another_process(out, stay=False)
@@ -83,6 +85,8 @@ def test_stale_work_folders_are_removed_and_live_or_foreign_ones_kept(tmp_path):
     assert not mine.exists()
 
 
+@pytest.mark.bad_input("a truncated JPEG given to `splat-process`", "exit 2, one line naming the photo (not a half-grey photo in the scene)")
+@pytest.mark.bad_input("`splat-process` killed with kill -9", "its hidden work folder is removed by the next run (folders in use are kept)")
 def test_a_killed_process_leaves_a_work_folder_that_the_next_run_removes_then_a_truncated_jpeg_is_refused(tmp_path):
     pytest.importorskip("pycolmap", reason='splat-process needs pycolmap (pip install "splat[process]")')
     noise_photos(tmp_path / "photos", 4, 640, 480)  # SIFT on noise: seconds of work to be killed in
@@ -116,6 +120,7 @@ def test_a_killed_process_leaves_a_work_folder_that_the_next_run_removes_then_a_
         ([], ("missing a command", "images", "video")),
     ],
 )
+@pytest.mark.bad_input("bad arguments of splat-match, splat-scene, splat-process, splat-sweep (`--max-lines -5`, `--seed -1`, an unknown matcher, `--width -5`, `--views 0`, `--mapper nosuch`, ...)", "exit 2 at parse time, one line naming the field; nothing written")
 def test_process_arguments_are_parsed_to_one_line(args, words):
     """tyro's refusals (an unknown mapper, a count that is not a number, an unknown subcommand)
     are one DataError line (cli.common.parse_cli), not a usage box."""

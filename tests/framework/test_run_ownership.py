@@ -68,6 +68,7 @@ def seed0_run(tmp_path_factory):
 
 
 # -------------------------------------------------------------- one owner
+@pytest.mark.bad_input("two `splat-train --output SAME` started together; `--resume`, `--overwrite`, `splat-eval`, `splat-render` or `splat-export` into a run another process is writing", "the second exits 2, one line naming the holder (pid, host, command); the first finishes intact")
 def test_a_second_training_on_the_same_output_is_refused_while_the_first_finishes(tmp_path):
     """Two splat-train on one --output: before, both exited 0 and only the second run survived. Now the
     second (fresh or --resume) and a splat-eval of the folder exit 2 naming the first, whose run then
@@ -96,6 +97,8 @@ def test_a_second_training_on_the_same_output_is_refused_while_the_first_finishe
     assert not (out / LOCK_NAME).exists(), "the lock file is removed when the run ends"
 
 
+@pytest.mark.bad_input("two `splat-train --output SAME` started together; `--resume`, `--overwrite`, `splat-eval`, `splat-render` or `splat-export` into a run another process is writing", "the second exits 2, one line naming the holder (pid, host, command); the first finishes intact")
+@pytest.mark.bad_input("a run-folder lock left by a killed process; a symlink or FIFO planted as the lock file", "the stale lock blocks nothing; a planted file is refused in one line, never followed or waited on")
 def test_writers_into_a_held_run_are_refused_readers_are_not_and_a_dead_holder_blocks_nothing(seed0_run, tmp_path):
     """train --overwrite, eval, render and export into the run folder exit 2 naming the holder and change
     nothing (--overwrite deleted the holder's checkpoints before); an export to a PLY elsewhere only
@@ -118,6 +121,7 @@ def test_writers_into_a_held_run_are_refused_readers_are_not_and_a_dead_holder_b
     assert not (run / LOCK_NAME).exists()
 
 
+@pytest.mark.bad_input("a run-folder lock left by a killed process; a symlink or FIFO planted as the lock file", "the stale lock blocks nothing; a planted file is refused in one line, never followed or waited on")
 def test_a_stale_lock_file_leaves_a_folder_empty_for_a_new_run(tmp_path):
     """A folder holding only the lock file of a run killed before it wrote anything is still empty: a
     new run starts there without --overwrite, and owns it."""
@@ -157,6 +161,7 @@ def edited_copy(seed0_run: Path, tmp_path: Path, edit: str) -> Path:
     ("delete", ("config.json: missing", "--trust-edited-config")),
     ("seed", ("config.json: no checksum", "--trust-edited-config")),
 ])
+@pytest.mark.bad_input("`--resume` with `config.json` deleted, unsigned or edited (its seed, say)", "exit 2 unless `--trust-edited-config`; then the checkpoints' own signed record of the experiment must match; `config.json` is never re-signed as another experiment")
 def test_resume_refuses_a_missing_or_unsigned_config(seed0_run, tmp_path, edit, match):
     """Before: --resume --seed 5 on a seed-0 run whose config.json was deleted (or stripped of its
     checksum and its seed edited) trained and signed config.json as seed 5."""
@@ -164,6 +169,7 @@ def test_resume_refuses_a_missing_or_unsigned_config(seed0_run, tmp_path, edit, 
     run_cli("train", *train_args(run, 10, "--resume", "--seed", 5), code=2, match=match, watch=[tmp_path])
 
 
+@pytest.mark.bad_input("`--resume` with `config.json` deleted, unsigned or edited (its seed, say)", "exit 2 unless `--trust-edited-config`; then the checkpoints' own signed record of the experiment must match; `config.json` is never re-signed as another experiment")
 def test_trusted_resume_is_checked_against_the_checkpoints_own_record(seed0_run, tmp_path):
     """--trust-edited-config does not let an edited config.json change the experiment (nor re-sign it):
     the newest checkpoint records seed 0 under its own checksum, and nothing is rewritten."""
@@ -172,6 +178,7 @@ def test_trusted_resume_is_checked_against_the_checkpoints_own_record(seed0_run,
             match=("step-0000010.ckpt", "cannot change the experiment", "seed (0 -> 5)"), watch=[tmp_path])
 
 
+@pytest.mark.bad_input("`--resume` with `config.json` deleted, unsigned or edited (its seed, say)", "exit 2 unless `--trust-edited-config`; then the checkpoints' own signed record of the experiment must match; `config.json` is never re-signed as another experiment")
 def test_a_checkpoint_without_a_record_needs_a_verified_config(seed0_run, tmp_path):
     """Checkpoints written before they recorded their experiment resume on the word of a signed
     config.json only: with config.json missing, even --trust-edited-config is refused."""
@@ -184,6 +191,7 @@ def test_a_checkpoint_without_a_record_needs_a_verified_config(seed0_run, tmp_pa
             match=("step-0000010.ckpt", "records no experiment"), watch=[tmp_path])
 
 
+@pytest.mark.bad_input("`--resume` with `config.json` deleted, unsigned or edited (its seed, say)", "exit 2 unless `--trust-edited-config`; then the checkpoints' own signed record of the experiment must match; `config.json` is never re-signed as another experiment")
 def test_trusted_resume_of_the_same_experiment_writes_the_true_config(seed0_run, tmp_path):
     """With config.json deleted, --trust-edited-config resumes the same experiment (seed 0, as the
     checkpoints record) and writes this run's config, signed."""
@@ -193,6 +201,7 @@ def test_trusted_resume_of_the_same_experiment_writes_the_true_config(seed0_run,
     assert method == "3dgs" and saved["seed"] == 0 and saved["trust_edited_config"] is True
 
 
+@pytest.mark.bad_input("`--resume` with `config.json` deleted, unsigned or edited (its seed, say)", "exit 2 unless `--trust-edited-config`; then the checkpoints' own signed record of the experiment must match; `config.json` is never re-signed as another experiment")
 def test_an_edited_config_names_the_flag_that_accepts_it(seed0_run, tmp_path):
     """A config.json whose checksum no longer matches (seed edited, checksum kept) is refused by every
     reader of a run (splat-eval, splat-train --resume) with the flag that accepts it."""
@@ -206,6 +215,7 @@ def test_an_edited_config_names_the_flag_that_accepts_it(seed0_run, tmp_path):
     assert read_config_json(path, trust_edits=True)[1]["seed"] == 5
 
 
+@pytest.mark.bad_input("a run-folder lock left by a killed process; a symlink or FIFO planted as the lock file", "the stale lock blocks nothing; a planted file is refused in one line, never followed or waited on")
 def test_the_lock_file_is_never_a_planted_symlink_or_fifo(tmp_path):
     """A symlink or a FIFO at the lock file's name is refused in one line (never followed: the symlink's
     target is untouched; never waited on); a plain lock is released with its file."""

@@ -44,6 +44,7 @@ def answers(address: str, port: int) -> bool:
 
 @pytest.mark.parametrize("command, flag", [("view", "--port"), ("train", "--viewer-port")])
 @pytest.mark.parametrize("port", ["-1", "70000", "abc"])
+@pytest.mark.bad_input("`--port -1`, `70000`, `abc` (splat-view, splat-train --viewer-port)", "exit 2 at parse time, one line; never a hang")
 def test_invalid_port_is_one_line_at_parse_time(command, flag, port, tmp_path):
     """Before: a traceback from viser's server thread, then the command hung (the thread died
     before releasing the semaphore ViserServer waits on); ``abc``: tyro's box."""
@@ -53,6 +54,8 @@ def test_invalid_port_is_one_line_at_parse_time(command, flag, port, tmp_path):
 
 
 @needs_other
+@pytest.mark.bad_input("`splat-view RUN`, `splat-train --viewer` with no host given", "listen on 127.0.0.1 only (the machine's other addresses are refused); the URL printed is the one served")
+@pytest.mark.bad_input("`splat-view --host 0.0.0.0`, `splat-train --viewer-host 0.0.0.0`", "serves every interface, with one warning line naming what becomes reachable (the model, the photos' thumbnails, \"Render with splat\")")
 def test_viewer_listens_on_loopback_unless_a_host_is_given():
     from splat_framework.serving import ServingWarning
     from splat_framework.viewer import Viewer
@@ -93,6 +96,8 @@ def _stop(proc: subprocess.Popen) -> str:
 
 @pytest.mark.slow
 @needs_other
+@pytest.mark.bad_input("`splat-view RUN`, `splat-train --viewer` with no host given", "listen on 127.0.0.1 only (the machine's other addresses are refused); the URL printed is the one served")
+@pytest.mark.bad_input("a port already in use", "one line, then the next free port, which the URL shows")
 def test_splat_view_listens_on_loopback_and_a_taken_port_moves_on(run_dir):
     """Before: ``splat-view RUN --port P`` listened on 0.0.0.0 (HTTP 200 on the machine's other
     address) while the URL said localhost; a taken port was skipped silently by viser."""
@@ -113,6 +118,7 @@ def test_splat_view_listens_on_loopback_and_a_taken_port_moves_on(run_dir):
 
 @pytest.mark.slow
 @needs_other
+@pytest.mark.bad_input("`splat-view --host 0.0.0.0`, `splat-train --viewer-host 0.0.0.0`", "serves every interface, with one warning line naming what becomes reachable (the model, the photos' thumbnails, \"Render with splat\")")
 def test_splat_train_viewer_host_opens_it_with_a_warning(tmp_path):
     """Before: splat-train --viewer listened on 0.0.0.0 with no option to choose the address."""
     from splat_framework.registry import get_method
@@ -134,6 +140,7 @@ def test_splat_train_viewer_host_opens_it_with_a_warning(tmp_path):
 
 
 @pytest.mark.parametrize("host", ["nosuch.invalid", "192.0.2.1"])  # 192.0.2.1: TEST-NET-1, no machine's address
+@pytest.mark.bad_input("a host this machine cannot listen on; a viewer server thread that dies", "exit 2, one line, before training writes anything; never a hang")
 def test_a_host_that_cannot_be_listened_on_is_one_error(host):
     """Before: viser tried 1000 ports on it, then the command waited forever for a server that never started."""
     from splat_framework.serving import InvalidAddress
@@ -143,6 +150,7 @@ def test_a_host_that_cannot_be_listened_on_is_one_error(host):
         Viewer(port=0, host=host)
 
 
+@pytest.mark.bad_input("a host this machine cannot listen on; a viewer server thread that dies", "exit 2, one line, before training writes anything; never a hang")
 def test_a_server_thread_that_dies_ends_the_wait(monkeypatch):
     """viser's constructor waits without a timeout for its server thread; one that dies (as on
     ``--port -1`` before) made the command hang. Now: an error after the startup timeout."""
@@ -160,6 +168,7 @@ def test_a_server_thread_that_dies_ends_the_wait(monkeypatch):
         _start_server("127.0.0.1", 0, timeout=1)
 
 
+@pytest.mark.bad_input("a host this machine cannot listen on; a viewer server thread that dies", "exit 2, one line, before training writes anything; never a hang")
 def test_splat_train_checks_the_viewer_host_before_training(tmp_path):
     """Before: the viewer opened at step 1, after the run folder was written; on a bad host, viser hung."""
     run_cli("train", "3dgs", "--data", "synthetic/forward-tiny", "--output", tmp_path / "run", "--viewer",
@@ -193,6 +202,7 @@ def _send_malformed(port: int, gui_uuids: list[str]) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.bad_input("malformed websocket messages; a page of another web site (or a DNS-rebinding page) opening the viewer's websocket", "nothing printed and the viewer keeps serving; the foreign page's socket is closed before anything is sent")
 def test_malformed_websocket_messages_print_no_traceback(run_dir, capfd, recwarn):
     """Before: "connection handler failed" and a traceback on the viewer's stderr for each."""
     from splat_framework.cli.view import ViewArgs, main
@@ -212,6 +222,7 @@ def test_malformed_websocket_messages_print_no_traceback(run_dir, capfd, recwarn
         viewer.close()
 
 
+@pytest.mark.bad_input("malformed websocket messages; a page of another web site (or a DNS-rebinding page) opening the viewer's websocket", "nothing printed and the viewer keeps serving; the foreign page's socket is closed before anything is sent")
 def test_pages_of_other_sites_cannot_use_the_viewer():
     """Loopback stops other machines, not other web sites: a page the user opens elsewhere (its
     Origin), or one that rebinds its domain to 127.0.0.1 (its Host), is closed before any message."""

@@ -58,12 +58,9 @@ def evaluate_run(args: EvalArgs) -> dict:
 
 
 def entrypoint() -> None:
-    import tyro
+    from .common import parse_cli, run_cli
 
-    from .common import run_cli
-
-    args = tyro.cli(EvalArgs, args=sys.argv[1:], prog="splat-eval")
-    run_cli(lambda: main(args))
+    run_cli(lambda: main(parse_cli(EvalArgs, prog="splat-eval")))
 
 
 if __name__ == "__main__":

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
@@ -42,15 +41,12 @@ def main(args: ExportArgs) -> Path:
 
 
 def entrypoint() -> None:
-    import tyro
+    from .common import parse_cli, run_cli
 
-    from .common import run_cli
-
-    args = tyro.cli(
-        ExportArgs, args=sys.argv[1:], prog="splat-export",
+    run_cli(lambda: main(parse_cli(
+        ExportArgs, prog="splat-export",
         description="Export a trained run as a 3DGS-layout PLY (opens in common Gaussian-splat viewers).",
-    )
-    run_cli(lambda: main(args))
+    )))
 
 
 if __name__ == "__main__":

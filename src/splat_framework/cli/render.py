@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Literal
@@ -154,12 +153,9 @@ def write_video(model, cams, bg, out: Path, fps: int, depth: bool) -> Path:
 
 
 def entrypoint() -> None:
-    import tyro
+    from .common import parse_cli, run_cli
 
-    from .common import run_cli
-
-    args = tyro.cli(RenderArgs, args=sys.argv[1:], prog="splat-render")
-    run_cli(lambda: main(args))
+    run_cli(lambda: main(parse_cli(RenderArgs, prog="splat-render")))
 
 
 if __name__ == "__main__":

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
@@ -38,16 +37,12 @@ def main(args: ViewArgs, serve: bool = True):
 
 
 def entrypoint() -> None:
-    import tyro
+    from .common import parse_cli, run_cli
 
-    from .common import run_cli
-
-    def parse_and_view():  # parsing inside run_cli: an invalid port is one line and exit 2
-        args = tyro.cli(ViewArgs, args=sys.argv[1:], prog="splat-view",
-                        description="Open a trained run in a web viewer: the Gaussians, the cameras, and splat's own renders.")
-        return main(args)
-
-    run_cli(parse_and_view)
+    run_cli(lambda: main(parse_cli(  # parsing inside run_cli: an invalid port is one line and exit 2
+        ViewArgs, prog="splat-view",
+        description="Open a trained run in a web viewer: the Gaussians, the cameras, and splat's own renders.",
+    )))
 
 
 if __name__ == "__main__":
