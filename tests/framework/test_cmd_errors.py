@@ -3,6 +3,8 @@ bad grid files and failed runs end in one line and an exit code (0/1/2/130), not
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import signal
 import subprocess
@@ -15,8 +17,12 @@ import pytest
 from cli_harness import changed_paths, cli_env, run_cli, snapshot
 from support import make_llff
 
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
 from splat_framework.cli.common import ArgumentsError
 from splat_framework.errors import DataError
+from splat_framework.sweep.grid import GRID_KEYS
 
 REFUSED = (DataError, ArgumentsError)
 """What cli.common.parse_cli raises for a command line it refuses (run_cli: one line, exit 2)."""
@@ -334,3 +340,37 @@ def test_sweep_exits_1_naming_the_failed_runs_and_0_only_when_all_succeeded(tmp_
     failed_log = next((out / "runs").glob("*broken*/3dgs/v3-s0/sweep.log"))
     assert str(failed_log) in r.message and "img001.png" in failed_log.read_text()
     run_cli("sweep", "--data", "good/scene", *common, code=0, watch=[tmp_path], allowed=[out])
+
+
+_GRID_VALUES = st.recursive(
+    st.none() | st.booleans() | st.integers(-2**40, 2**40) | st.floats(allow_nan=True, allow_infinity=True)
+    | st.text(max_size=8),
+    lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=5), inner, max_size=3),
+    max_leaves=6,
+)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(doc=st.dictionaries(st.sampled_from(sorted(GRID_KEYS) + ["nosuch"]), _GRID_VALUES, max_size=6),
+       blob=st.binary(max_size=64), as_json=st.booleans())
+@pytest.mark.bad_input("fuzzed sweep grid files (random bytes, random values of every key)",
+                       "normalised settings or one `SweepError` line naming the file, never another exception")
+def test_fuzzed_grid_files_load_or_name_the_file(tmp_path, doc, blob, as_json):
+    """Any grid document, well-formed or not, loads into settings of the documented types or raises one
+    line naming the file: never another exception."""
+    from splat_framework.sweep import SweepError, load_grid_file
+
+    grid = tmp_path / ("grid.json" if as_json else "grid.toml")
+    for content in (json.dumps(doc).encode(), blob + json.dumps(doc).encode()):
+        grid.write_bytes(content)
+        try:
+            settings_ = load_grid_file(grid)
+        except SweepError as e:
+            assert str(e).startswith(f"{grid}: ") and "\n" not in str(e), str(e)
+            continue
+        for key in ("methods", "data"):
+            assert all(isinstance(x, str) for x in settings_.get(key, []))
+        assert all(isinstance(x, int) and 0 <= x < 2**32 for x in settings_.get("seeds", []))
+        assert all(isinstance(settings_[k], int) and settings_[k] >= 1 for k in ("steps", "workers", "threads") if k in settings_)
+        if "mem_per_run_gb" in settings_:
+            assert math.isfinite(settings_["mem_per_run_gb"]) and settings_["mem_per_run_gb"] > 0
