@@ -24,7 +24,7 @@ def _tiny_run(tmp_path_factory) -> Path:
         cfg = cfg.model_copy(
             update=dict(
                 data="synthetic/forward-tiny", steps=30, output=run, progress=False, overwrite=True,
-                model=cfg.model.model_copy(update=dict(init_num_points=2000)),
+                model=cfg.model.model_copy(update=dict(init=cfg.model.init.model_copy(update=dict(num_points=2000)))),
             )
         )
         train(cfg)

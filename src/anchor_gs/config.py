@@ -31,7 +31,6 @@ from splat_framework.config import (
     TrainConfig,
     strategy_field,
 )
-from splat_framework.methods.triangulated import TriangInitConfig
 
 MAX_OFFSETS = 256
 """Most neural Gaussians per anchor (n_offsets)."""
@@ -41,11 +40,9 @@ MAX_LEVELS = 32
 """Most levels of detail or growing levels (a voxel size divided by fork^levels)."""
 
 
-class ScaffoldModelConfig(GaussianModelConfig, TriangInitConfig):
+class ScaffoldModelConfig(GaussianModelConfig):
     """Anchors (voxelised initial points) decoded per view into neural Gaussians."""
 
-    start_from: Literal["random", "triangulated"] = "random"
-    """Initial points: random as 3dgs (init, init_num_points), or the matching prior triangulated with the known poses as 3dgs-triang (matching, max_reprojection_px)."""
     voxel_size: NonNegative = 0.0
     """Anchor grid size in world units; 0 = the median distance of the initial points to their 3 nearest neighbours."""
     n_offsets: int = Field(10, ge=1, le=MAX_OFFSETS)

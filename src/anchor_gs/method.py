@@ -5,7 +5,7 @@ Kept torch-free: the CLI reads it to build ``--help``.
 
 from splat_framework.registry import MethodSpec
 
-from .config import OctreeModelConfig, OctreeTrainConfig, ScaffoldModelConfig, ScaffoldTrainConfig
+from .config import OctreeTrainConfig, ScaffoldTrainConfig
 
 
 def config_scaffold_gs() -> ScaffoldTrainConfig:
@@ -13,21 +13,9 @@ def config_scaffold_gs() -> ScaffoldTrainConfig:
     return ScaffoldTrainConfig(method="scaffold-gs", default_steps=1000, schedule_views=4)
 
 
-def config_scaffold_gs_triang() -> ScaffoldTrainConfig:
-    """Scaffold-GS from the matching prior triangulated with the known poses (the paper's Tab. comp_tria row)."""
-    return ScaffoldTrainConfig(method="scaffold-gs-triang", default_steps=1000, schedule_views=4,
-                               model=ScaffoldModelConfig(start_from="triangulated"))
-
-
 def config_octree_gs() -> OctreeTrainConfig:
     """Octree-GS from random points placed as 3dgs's (see ``anchor_gs.config`` for the schedule rule)."""
     return OctreeTrainConfig(method="octree-gs", default_steps=1000, schedule_views=4)
-
-
-def config_octree_gs_triang() -> OctreeTrainConfig:
-    """Octree-GS from the matching prior triangulated with the known poses (the paper's Tab. comp_tria row)."""
-    return OctreeTrainConfig(method="octree-gs-triang", default_steps=1000, schedule_views=4,
-                             model=OctreeModelConfig(start_from="triangulated"))
 
 
 spec_scaffold_gs = MethodSpec(
@@ -37,23 +25,9 @@ spec_scaffold_gs = MethodSpec(
     model="anchor_gs.model:ScaffoldModel",
 )
 
-spec_scaffold_gs_triang = MethodSpec(
-    name="scaffold-gs-triang",
-    description="Scaffold-GS whose anchors start from the matches triangulated with the known poses",
-    config_factory=config_scaffold_gs_triang,
-    model="anchor_gs.model:ScaffoldModel",
-)
-
 spec_octree_gs = MethodSpec(
     name="octree-gs",
     description="Octree-GS: Scaffold-GS anchors on octree levels of detail chosen per view by distance, trained coarse to fine, random init",
     config_factory=config_octree_gs,
-    model="anchor_gs.octree:OctreeModel",
-)
-
-spec_octree_gs_triang = MethodSpec(
-    name="octree-gs-triang",
-    description="Octree-GS whose anchors start from the matches triangulated with the known poses",
-    config_factory=config_octree_gs_triang,
     model="anchor_gs.octree:OctreeModel",
 )

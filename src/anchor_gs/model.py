@@ -31,8 +31,8 @@ from torch import Tensor, nn
 
 from splat_framework.cameras import Camera
 from splat_framework.losses import photometric_loss
-from splat_framework.model.gaussians import GaussianModel, knn_scale, random_init
-from splat_framework.model.triangulated import triangulated_init
+from splat_framework.model.gaussians import GaussianModel, knn_scale
+from splat_framework.model.init import initial_points
 from splat_framework.render import RenderOutput, rasterize, rgb_to_sh
 
 VIEW_MARGIN = 0.5
@@ -63,18 +63,13 @@ class ScaffoldModel(GaussianModel):
 
     @classmethod
     def from_data(cls, config, datamanager, generator):
-        cfg = config.model
-        if cfg.start_from == "triangulated":
-            points, colors, timing = triangulated_init(cfg, datamanager, generator)
-        else:
-            views = datamanager.train_views()
-            points, colors = random_init(cfg.init, datamanager.scene, [c for c, _ in views],
-                                         [b["image"] for _, b in views], cfg.init_num_points, generator)
-            timing = {}
+        """Anchors voxelised from the start ``config.model.init`` describes (as every method's)."""
+        start = initial_points(config.model.init, datamanager, generator)
+        points, colors = start.points, start.colors
         centers = torch.stack([c.center.detach().float() for c in datamanager.train_cameras]).to(points.device)
         model = cls(config, datamanager.scene.scene_radius, points, colors, centers)
         model.reference_center = centers[0].cpu()
-        model.init_timing = timing
+        model.init_timing = start.timing
         model.init_stats = {"num_points": int(points.shape[0]), "num_anchors": model.num_anchors,
                             "voxel_size": model.voxel_size}
         return model

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import Field
 
@@ -22,16 +22,37 @@ from splat_framework.config import (
     strategy_field,
 )
 
+from splat_framework.init_config import KIND, FrustumInitConfig, RandomInitConfig, init_field
 from splat_framework.matching import MatchConfig
+
+
+class OrdinaryRandomInit(RandomInitConfig):
+    """Random start of the ordinary Gaussians (the 3DGS reference's): uniform in the scene box, grey."""
+
+    kind: Annotated[Literal["random"], KIND] = "random"
+    """The start's kind."""
+    num_points: int = Field(10_000, ge=0, le=MAX_GAUSSIANS)
+    """Random ordinary Gaussians at start beside the ray-based ones (0 = ordinary ones come only from densification). Matched rays cover only textured surfaces; without these, densification alone does not fill the rest in 1000 iterations (lego 19.76 -> 20.80, fern 20.70 -> 20.92 with the dense matcher)."""
+
+
+class OrdinaryFrustumInit(FrustumInitConfig):
+    """Frustum start of the ordinary Gaussians: random points inside the training frusta, coloured by their pixels."""
+
+    kind: Annotated[Literal["frustum"], KIND] = "frustum"
+    """The start's kind."""
+    num_points: int = Field(10_000, ge=0, le=MAX_GAUSSIANS)
+    """Random ordinary Gaussians at start beside the ray-based ones (0 = ordinary ones come only from densification)."""
+
+
+OrdinaryKinds = init_field(OrdinaryRandomInit, OrdinaryFrustumInit)
+"""SCGaussian's starts for its ordinary Gaussians: the random kinds, which may be empty."""
 
 
 class SCGModelConfig(GaussianModelConfig):
     """SCGaussian: hybrid ray-based + ordinary Gaussians with matching-prior losses."""
 
-    init: Literal["random", "frustum"] = "random"
-    """Placement of random ordinary Gaussians (the init_num_points extra ones, the sparse-prior fill, or all of them when matches are too few); ray-based Gaussians always start on the matched rays."""
-    init_num_points: int = Field(10_000, ge=0, le=MAX_GAUSSIANS)
-    """Random ordinary Gaussians at start beside the ray-based ones, placed as 3DGS's reference init (0 = ordinary ones come only from densification). Matched rays cover only textured surfaces; without these, densification alone does not fill the rest in 1000 iterations (lego 19.76 -> 20.80, fern 20.70 -> 20.92 with the dense matcher)."""
+    init: OrdinaryKinds = Field(default_factory=OrdinaryRandomInit)
+    """Random ordinary Gaussians at start beside the ray-based ones (the sparse-prior fill and the no-prior fallback are placed by the same kind); ray-based Gaussians always start on the matched rays."""
     matching: MatchConfig = Field(default_factory=MatchConfig)
     """Matching prior."""
     ray_binding: bool = True
@@ -61,7 +82,7 @@ class SCGModelConfig(GaussianModelConfig):
     min_matches: int = Field(50, ge=0, le=MAX_MATCHES)
     """Below this many verified matches the run warns and falls back to random ordinary Gaussians."""
     sparse_matches: int = Field(1000, ge=0, le=MAX_MATCHES)
-    """Below this many verified matches the prior is too sparse to grow a model from: the run warns and adds max(init_num_points, 10000) random ordinary Gaussians alongside the ray-based ones (0 = never)."""
+    """Below this many verified matches the prior is too sparse to grow a model from: the run warns and adds max(init.num_points, 10000) random ordinary Gaussians alongside the ray-based ones (0 = never)."""
     thin_prior_baseline: bool = True
     """When the prior is missing or sparse (fewer than sparse_matches matches), also train as the 3dgs baseline does at the same budget: its densification schedule and SH schedule, the ray-based Gaussians still kept (scg_plugin.startup.baseline_schedule). A model made mostly of random Gaussians then grows like one, so a thin prior does not leave SCGaussian below its baseline (seed 0: lego 8 views, 136 SIFT matches, 22.03 -> 22.33, 3dgs 21.92; fern with no matches 17.72, 3dgs 17.48, while without it every random Gaussian was pruned)."""
 

@@ -8,7 +8,7 @@
    depths ``z`` alone with L_gp, keep each match's best depths and drop the
    matches whose reprojection error stays above ``filter_eta_px`` (cache and filter).
 3. :func:`ordinary_points`: the ordinary (free) Gaussians to start with:
-   ``init_num_points`` random ones, or at least ``FALLBACK_POINTS`` when the
+   ``init.num_points`` random ones, or at least ``FALLBACK_POINTS`` when the
    prior is missing or sparse (one warning).
 4. :func:`baseline_schedule`: with a missing or sparse prior, the run trains with
    the 3dgs baseline's densification and SH schedules (``thin_prior_baseline``).
@@ -26,7 +26,8 @@ from torch import Tensor
 
 from splat_framework.cameras import Camera
 from splat_framework.matching.prior import compute_match_set, match_pairs
-from splat_framework.model.gaussians import FALLBACK_POINTS, random_init
+from splat_framework.init_config import FALLBACK_POINTS
+from splat_framework.model.init import initial_points
 
 from .ray_gaussians import MatchCache, RayBundle, build_ray_bundle, warm_up
 
@@ -47,7 +48,7 @@ def ray_prior(config, datamanager, generator: torch.Generator, timing: dict) -> 
         warnings.warn(
             f"only {n_matches} verified matches between the {len(ids)} training views "
             f"(fewer than min_matches={cfg.min_matches}): falling back to "
-            f"{max(cfg.init_num_points, FALLBACK_POINTS)} random ordinary Gaussians",
+            f"{max(cfg.init.num_points, FALLBACK_POINTS)} random ordinary Gaussians",
             stacklevel=3,
         )
         return None, n_matches
@@ -99,13 +100,11 @@ def ordinary_points(
 ) -> tuple[Tensor, Tensor]:
     """Step 3: (points [N, 3], colours [N, 3]) of the ordinary Gaussians to start with, on the images' device.
 
-    ``init_num_points`` random ones (none for the only-ray variant), or
-    ``max(init_num_points, FALLBACK_POINTS)`` when there is no prior or fewer
+    ``init.num_points`` random ones placed by ``init.kind`` (none for the only-ray variant), or
+    ``max(init.num_points, FALLBACK_POINTS)`` when there is no prior or fewer
     than ``sparse_matches`` matches (one warning)."""
     views = datamanager.train_views()
-    cameras = [c for c, _ in views]
-    images = [b["image"] for _, b in views]
-    n_fill = max(cfg.init_num_points, FALLBACK_POINTS)
+    n_fill = max(cfg.init.num_points, FALLBACK_POINTS)
     sparse = bundle is not None and thin_prior(cfg, bundle, n_matches)
     if sparse:
         warnings.warn(
@@ -113,8 +112,9 @@ def ordinary_points(
             f"(fewer than sparse_matches={cfg.sparse_matches}): adding {n_fill} random ordinary Gaussians",
             stacklevel=3,
         )
-    n_rand = n_fill if bundle is None or sparse else cfg.init_num_points
+    n_rand = n_fill if bundle is None or sparse else cfg.init.num_points
     if n_rand > 0:
-        return random_init(cfg.init, datamanager.scene, cameras, images, n_rand, generator)
-    empty = torch.zeros(0, 3, device=images[0].device)
+        start = initial_points(cfg.init.model_copy(update={"num_points": n_rand}), datamanager, generator)
+        return start.points, start.colors
+    empty = torch.zeros(0, 3, device=views[0][1]["image"].device)
     return empty, empty.clone()

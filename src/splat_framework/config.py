@@ -14,135 +14,45 @@ can rescale the whole schedule proportionally.
 from __future__ import annotations
 
 import json
-from contextlib import contextmanager
-from contextvars import ContextVar
 from pathlib import Path
-from typing import Annotated, Any, Iterator, Literal, Union
+from typing import Annotated, Any, Literal, Union
 
 import tyro
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import Field, ValidationError
 
+from .config_base import (  # noqa: F401  (re-exported: the config machinery's home is config_base)
+    DEVICE_MARKER,
+    MAX_GAUSSIANS,
+    MAX_MATCHES,
+    MAX_SCHEDULE,
+    MAX_STEPS,
+    MAX_VIEWS,
+    RUN_OPTION,
+    SHORTEN_ONLY,
+    STEPS_MARKER,
+    Device,
+    Finite,
+    Fraction,
+    Interval,
+    InvalidArguments,
+    LearningRate,
+    Marker,
+    NonNegative,
+    OptionalPeriod,
+    Period,
+    Positive,
+    RampPeriod,
+    SplatConfig,
+    StartSteps,
+    Steps,
+    cli_parsing,
+)
+from .init_config import InitKinds, RandomInitConfig, upgrade_init_layout
 from .serving import LOOPBACK, Port
 
 SCHEMA_VERSION = 1
 """Version of the saved ``config.json`` layout; bump on incompatible change."""
 
-
-class _Marker:
-    """An annotation marker (``Annotated[int, STEPS_MARKER]``): a fact about a field that code reads."""
-
-    def __init__(self, name: str, doc: str) -> None:
-        self.name, self.__doc__ = name, doc
-
-    def __repr__(self) -> str:  # pragma: no cover - cosmetic
-        return self.name
-
-
-STEPS_MARKER = _Marker("Steps", "This int field counts optimisation iterations (``--steps`` rescales it).")
-RUN_OPTION = _Marker(
-    "RunOption",
-    "This field says how a run is carried out, not what is trained: run options (output folder, "
-    "device, progress bar, resume, ...) may differ between a run and its ``--resume``; every other "
-    "field is the experiment and must not (see :func:`experiment_fields`).",
-)
-SHORTEN_ONLY = _Marker(
-    "ShortenOnly",
-    "This Steps field (a start after a warm-up, a period after which something steps up) follows a "
-    "shorter run in proportion and keeps its value in a longer one (see :func:`scale_schedule`).",
-)
-MAX_STEPS = 10_000_000
-"""Most optimisation iterations a run may have (``--steps``; a checkpoint's step is checked against it)."""
-MAX_SCHEDULE = 1_000_000_000
-"""Most a schedule field (:data:`Steps`) may hold: a schedule is written for the method's own length and
-rescaled by ``--steps`` (up to :data:`MAX_STEPS`), so its fields may grow past the total."""
-MAX_GAUSSIANS = 50_000_000
-"""Most initial Gaussians or points a config may ask for (about 100 GiB at memory_plan.BYTES_PER_GAUSSIAN;
-the memory plan then checks the run against the machine's RAM before any work)."""
-MAX_MATCHES = 10_000_000
-"""Most matches a matching count may name (per pair or in total)."""
-MAX_VIEWS = 100_000
-"""Most views a view count may name."""
-Steps = Annotated[int, STEPS_MARKER, Field(ge=0, le=MAX_SCHEDULE)]
-"""An iteration count (>= 0) that ``--steps`` rescales with the schedule."""
-StartSteps = Annotated[int, STEPS_MARKER, SHORTEN_ONLY, Field(ge=0, le=MAX_SCHEDULE)]
-"""The iteration at which something starts once a warm-up is done (>= 0): a schedule compressed
-to fewer iterations compresses it, a longer one keeps it (the warm-up does not need to grow)."""
-Period = Annotated[int, STEPS_MARKER, Field(ge=1, le=MAX_SCHEDULE)]
-"""An interval in iterations (>= 1: it divides the step number) that ``--steps`` rescales."""
-OptionalPeriod = Annotated[Annotated[int, Field(ge=1, le=MAX_SCHEDULE)] | None, STEPS_MARKER]
-"""A :data:`Period`, or None for never."""
-RampPeriod = Annotated[int, STEPS_MARKER, SHORTEN_ONLY, Field(ge=1, le=MAX_SCHEDULE)]
-"""An interval (>= 1) after which something steps up once more (the SH degree): as a start, a
-compressed schedule compresses it and a longer one keeps it."""
-Interval = Annotated[int, Field(ge=1, le=MAX_SCHEDULE)]
-"""An interval in iterations (>= 1) that ``--steps`` does not rescale."""
-DEVICE_MARKER = _Marker(
-    "Device",
-    "This str field names a torch device: before it is used, splat_framework.devices.resolve_config_devices "
-    "checks it with the resolver of ``--device``, naming the field.",
-)
-Device = Annotated[str, DEVICE_MARKER, Field(pattern=r"^[a-z_]+(:[0-9]+)?$", max_length=32)]
-"""A torch device name (cpu, cuda, cuda:N, mps, ...): its spelling is checked when the config is
-built (torch-free), its availability by the resolver of ``--device`` before a run starts."""
-LearningRate = Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)]
-"""An Adam learning rate, in (0, 1]."""
-Fraction = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
-"""A number in [0, 1]."""
-Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-"""A finite number > 0."""
-NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-"""A finite number >= 0."""
-Finite = Annotated[float, Field(allow_inf_nan=False)]
-"""A finite number (no inf, no nan). Every float field of a :class:`SplatConfig` is finite anyway
-(its ``allow_inf_nan=False``); this is for argument classes that are not configs."""
-
-
-_CLI_PARSING: ContextVar[bool] = ContextVar("splat_cli_parsing", default=False)
-
-
-class InvalidArguments(Exception):
-    """A config built from command-line arguments failed validation (see :func:`cli_parsing`).
-
-    Deliberately not a ValueError: the argument parser (tyro) catches ValueErrors
-    raised while it builds nested configs and prints its own multi-line box; this
-    passes through to ``cli.common.run_cli``, which prints one line."""
-
-    def __init__(self, error: ValidationError, config_cls: type) -> None:
-        super().__init__(str(error))
-        self.error, self.config_cls = error, config_cls
-
-
-@contextmanager
-def cli_parsing() -> Iterator[None]:
-    """While active (around the argument parser only), a config constructed or validated with
-    invalid values raises :class:`InvalidArguments`."""
-    token = _CLI_PARSING.set(True)
-    try:
-        yield
-    finally:
-        _CLI_PARSING.reset(token)
-
-
-class SplatConfig(BaseModel):
-    """Base for every config: strict (unknown fields are errors), documented fields, and every
-    float finite (``inf``/``nan`` are refused, naming the field, for every subclass's fields:
-    a weight of ``inf`` would skip every step, a threshold of ``inf`` reach OpenCV).
-
-    Every int field has an upper bound (``Field(le=...)``, one of the ``MAX_*`` constants
-    below or a bound its docstring states): tests/framework/test_edge_validation.py walks
-    every config and checks both rules."""
-
-    model_config = ConfigDict(
-        use_attribute_docstrings=True, extra="forbid", validate_assignment=True, allow_inf_nan=False
-    )
-
-    def __init__(self, /, **data: Any) -> None:
-        try:
-            super().__init__(**data)
-        except ValidationError as e:
-            if _CLI_PARSING.get():
-                raise InvalidArguments(e, type(self)) from None
-            raise
 
 
 class StrategyConfig(SplatConfig):
@@ -244,10 +154,8 @@ class OptimConfig(SplatConfig):
 class GaussianModelConfig(SplatConfig):
     """The 3DGS Gaussian model."""
 
-    init: Literal["random", "frustum"] = "random"
-    """Initialisation: "random" = the 3DGS reference's (uniform in the scene's content box, or the box of the training frusta when the dataset defines none; grey); "frustum" = random points inside the training frusta (uniform in inverse depth) coloured by the pixel they lie on."""
-    init_num_points: int = Field(10_000, ge=1, le=MAX_GAUSSIANS)
-    """Number of random initial Gaussians."""
+    init: InitKinds = Field(default_factory=RandomInitConfig)
+    """Where the initial points come from (--model.init.kind: random, frustum, triangulated, sfm, ply)."""
     init_opacity: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = 0.1
     """Initial opacity of every Gaussian."""
     init_scale: Positive = 1.0
@@ -352,7 +260,7 @@ class TrainConfig(SplatConfig):
 
 
 # ----------------------------------------------------------------- helpers
-def _has_marker(info, marker: _Marker) -> bool:
+def _has_marker(info, marker: Marker) -> bool:
     return any(m is marker for m in info.metadata)
 
 
@@ -447,7 +355,8 @@ MOVED_FIELDS = ("strategy.never_prune_key", "strategy.child_defaults", "steps_pe
 
 
 def upgrade_saved_config(cfg: dict, defaults: TrainConfig | None = None) -> dict:
-    """A copy of a saved config dict without the :data:`MOVED_FIELDS` (runs written before they moved).
+    """A copy of a saved config dict without the :data:`MOVED_FIELDS` (runs written before they moved),
+    its ``model.init`` in today's layout (:func:`~splat_framework.init_config.upgrade_init_layout`).
 
     With ``defaults`` (the method's default config), fields added since the file
     was written take the method's default value (as ``config.json`` would hold
@@ -463,6 +372,8 @@ def upgrade_saved_config(cfg: dict, defaults: TrainConfig | None = None) -> dict
             section[p] = section = dict(section[p])
         else:
             section.pop(name, None)
+    if isinstance(out.get("model"), dict):
+        out["model"] = upgrade_init_layout(out["model"])
     if defaults is not None:
         filled = deep_merge(json.loads(defaults.model_dump_json()), out)
         try:

@@ -64,7 +64,7 @@ def plan_memory(scene, config: TrainConfig, budget: int | None) -> int | None:
             "yellow",
         )
     cached = img if budget is None else min(img, budget)
-    n = max(int(getattr(config.model, "init_num_points", 0) or 0), 10_000)
+    n = max(config.model.init.planned_points, 10_000)
     growth = DENSIFY_GROWTH if config.strategy.enabled else 1
     gauss = n * config.model.memory_per_point(BYTES_PER_GAUSSIAN) * growth
     need = cached + gauss
@@ -72,7 +72,7 @@ def plan_memory(scene, config: TrainConfig, budget: int | None) -> int | None:
         raise DataError(
             f"{scene.root}: the run needs about {_gb(need)} of memory (images {_gb(cached)}, "
             f"Gaussians {_gb(gauss)}) but the machine has {_gb(total)}; lower {MEMORY_ENV}, "
-            "--downscale or --model.init-num-points"
+            "--downscale or --model.init.num-points"
         )
     free = available_memory_bytes()
     if free is not None and need > free:

@@ -27,7 +27,7 @@ METHODS = {"scaffold-gs": (config_scaffold_gs, config_scaffold_gs_triang, Scaffo
 def build(dm, overrides: dict | None = None, triang: bool = False, method: str = "scaffold-gs") -> tuple:
     random, triangulated, model_class = METHODS[method]
     base = triangulated() if triang else random()
-    cfg = apply_overrides(base, {"data": "synthetic/forward-tiny", "model": {"init_num_points": 500}} | (overrides or {}))
+    cfg = apply_overrides(base, {"data": "synthetic/forward-tiny", "model": {"init": {"num_points": 500}}} | (overrides or {}))
     torch.manual_seed(0)
     return cfg, model_class.from_data(cfg, dm, torch.Generator().manual_seed(0))
 
@@ -123,7 +123,7 @@ def test_a_tiny_run_improves_and_resumes_with_its_networks(tmp_path, method):
 
     cfg = apply_overrides(METHODS[method][0](), {
         "data": "synthetic/forward-tiny", "steps": 60, "output": str(tmp_path / "run"), "progress": False,
-        "save_renders": False, "compile": False, "checkpoint_every": 30, "model": {"init_num_points": 1000}})
+        "save_renders": False, "compile": False, "checkpoint_every": 30, "model": {"init": {"num_points": 1000}}})
     trainer = Trainer(cfg)
     before = evaluate(trainer.model, trainer.datamanager, trainer.background)["mean"]["psnr"]
     metrics = trainer.train()

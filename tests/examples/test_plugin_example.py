@@ -38,7 +38,7 @@ def test_example_plugin_is_listed_and_trains(plugin_site, tmp_path):
         [sys.executable, "-m", "splat_framework.cli.train", "flat-3dgs", "--data", "synthetic/forward-tiny",
          "--steps", "20", "--output", str(out), "--no-progress",
          # the plugin's PruneOnlyStrategy: at step 10, drop Gaussians whose opacity sank below the start's 0.1
-         "--strategy.every", "10", "--strategy.min-opacity", "0.1", "--model.init-num-points", "2000"],
+         "--strategy.every", "10", "--strategy.min-opacity", "0.1", "--model.init.num-points", "2000"],
         capture_output=True, text=True, env=env, timeout=600,
     )
     assert r.returncode == 0, r.stderr[-3000:]

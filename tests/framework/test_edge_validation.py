@@ -301,7 +301,7 @@ OTHER_BAD_ARGUMENTS = {  # tyro's other error kinds, in-process (the same main a
     "unknown flag": (["3dgs", "--bogus", "3"], "unrecognized arguments: --bogus 3; see splat-train --help"),
     "missing value": (["3dgs", "--steps"], "--steps"),
     "no method": ([], "missing a command: expected one of {3dgs"),
-    "fractional count": (["3dgs", "--model.init-num-points", "1.5"], "--model.init-num-points: invalid literal for int()"),
+    "fractional count": (["3dgs", "--model.init.num-points", "1.5"], "--model.init.num-points: invalid literal for int()"),
 }
 
 
@@ -352,7 +352,7 @@ def test_the_memory_plan_counts_what_an_anchor_costs(monkeypatch, tmp_path):
     scene = load_scene(ensure_scene("forward-tiny"), views=3)
     monkeypatch.setattr(plan, "physical_memory_bytes", lambda: 16 * 2**30)
     monkeypatch.setattr(plan, "available_memory_bytes", lambda: None)
-    points = {"init_num_points": 100_000}
+    points = {"init": {"num_points": 100_000}}
     for method in ("3dgs", "scaffold-gs"):
         plan.plan_memory(scene, apply_overrides(DEFAULTS[method], {"model": points}), None)
     huge = apply_overrides(DEFAULTS["scaffold-gs"], {"model": {**points, "n_offsets": 256, "feat_dim": 1024}})

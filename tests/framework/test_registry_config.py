@@ -176,17 +176,19 @@ def test_a_section_naming_another_kind_replaces_instead_of_merging():
 
 
 def test_every_config_field_has_a_docstring():
+    from anchor_gs.config import ScaffoldTrainConfig
     from scg_plugin.config import SCGTrainConfig
-    from splat_framework.methods.triangulated import TriangTrainConfig
+    from splat_framework.cli.kinds import union_kinds
 
     def check(cls):
         for name, f in cls.model_fields.items():
             assert f.description, f"{cls.__name__}.{name} has no docstring"
             ann = f.annotation
-            if isinstance(ann, type) and issubclass(ann, SplatConfig):
-                check(ann)
+            for member in [ann, *union_kinds(ann).values()]:  # a tagged union's kinds too (model.init)
+                if isinstance(member, type) and issubclass(member, SplatConfig):
+                    check(member)
 
-    for cls in (TrainConfig, SCGTrainConfig, TriangTrainConfig):
+    for cls in (TrainConfig, SCGTrainConfig, ScaffoldTrainConfig):
         check(cls)
 
 
@@ -292,8 +294,8 @@ def test_bad_cli_values_exit_2_with_one_line(tmp_path):
 @pytest.mark.parametrize("args, field", [
     (["--steps", "0"], "steps"),
     (["--steps", "-5"], "steps"),
-    (["--model.init-num-points", "-5"], "init_num_points"),
-    (["--model.init-num-points", "0"], "init_num_points"),
+    (["--model.init.num-points", "-5"], "model.init.num_points"),
+    (["--model.init.num-points", "0"], "model.init.num_points"),
     (["--checkpoint-every", "-1"], "checkpoint_every"),
     (["--optim.sh0-lr", "nan"], "sh0_lr"),
     (["--optim.sh0-lr", "-1"], "sh0_lr"),
@@ -302,7 +304,7 @@ def test_bad_cli_values_exit_2_with_one_line(tmp_path):
     (["--device", "bogus"], "device"),
     (["--device", "cuda:7"], "cuda:7"),
 ])
-@pytest.mark.bad_input("numbers out of range (`--steps 0`, `--model.init-num-points -5`, a NaN learning rate, ...), unknown devices", "exit 2, one line naming the field and its range")
+@pytest.mark.bad_input("numbers out of range (`--steps 0`, `--model.init.num-points -5`, a NaN learning rate, ...), unknown devices", "exit 2, one line naming the field and its range")
 def test_out_of_range_numbers_and_devices_exit_2_naming_the_field(tmp_path, args, field):
     r = subprocess.run(
         [sys.executable, "-m", "splat_framework.cli.train", "3dgs", "--data", "synthetic/forward-tiny",
@@ -345,9 +347,9 @@ def test_invalid_values_of_nested_configs_name_their_dotted_path(tmp_path):
 def test_scgaussian_may_start_from_rays_only_and_ranges_hold_in_toml_overrides():
     from scg_plugin.method import config_scgaussian
 
-    assert apply_overrides(config_scgaussian(), {"model": {"init_num_points": 0}}).model.init_num_points == 0
-    with pytest.raises(ValidationError, match="init_num_points"):
-        apply_overrides(config_scgaussian(), {"model": {"init_num_points": -5}})
+    assert apply_overrides(config_scgaussian(), {"model": {"init": {"num_points": 0}}}).model.init.num_points == 0
+    with pytest.raises(ValidationError, match="num_points"):
+        apply_overrides(config_scgaussian(), {"model": {"init": {"num_points": -5}}})
     with pytest.raises(ValidationError, match="z_lr"):
         apply_overrides(config_scgaussian(), {"model": {"z_lr": float("nan")}})
 

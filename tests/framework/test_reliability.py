@@ -55,7 +55,7 @@ def fixed_config(method: str, output: Path, **over):
         "checkpoint_every": 20,
         "progress": False,
         "save_renders": False,
-        "model": {"init_num_points": 300, "sh_degree_interval": 10},
+        "model": {"init": {"num_points": 300}, "sh_degree_interval": 10},
         "strategy": {"refine_start_iter": 5, "refine_stop_iter": 35, "refine_every": 10, "reset_every": 30},
     }
     cfg = apply_overrides(cfg, base)
@@ -128,7 +128,7 @@ def test_resume_reproduces_uninterrupted_run_scgaussian(tmp_path):
     def cfg_fn(out, **kw):
         # single stage with the match cache alive across the interruption (cache until 30)
         over = {"model": {"schedule": "single-stage", "cache_until": 30, "lambda_gp": 1.0, "warmup_steps": 0,
-                          "init_num_points": 0, "sparse_matches": 0, "matching": {"matcher": "dense", "max_matches": 100, "dense_preset": "ultrafast"}}}
+                          "init": {"num_points": 0}, "sparse_matches": 0, "matching": {"matcher": "dense", "max_matches": 100, "dense_preset": "ultrafast"}}}
         return apply_overrides(fixed_config("scgaussian", out, **kw), over)
 
     straight = Trainer(cfg_fn(tmp_path / "a"))
@@ -433,7 +433,7 @@ def test_sigterm_writes_checkpoint_exits_130_and_resume_finishes(tmp_path):
     # --steps 60 rather than 2000 so that the resumed run finishes quickly; the
     # checkpoint interval (rescaled) becomes 1, so a checkpoint exists within the first steps
     args = ["3dgs", "--data", "synthetic/forward-tiny", "--steps", "60", "--output", str(out), "--no-progress",
-            "--checkpoint-every", "50", "--model.init-num-points", "300", "--no-save-renders"]
+            "--checkpoint-every", "50", "--model.init.num-points", "300", "--no-save-renders"]
     proc = subprocess.Popen([PY, "-m", "splat_framework.cli.train", *args], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 300

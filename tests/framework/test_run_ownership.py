@@ -29,7 +29,7 @@ from splat_framework.run_folder import prepare_run_dir
 from splat_framework.run_lock import LOCK_NAME
 
 TINY = ("3dgs", "--data", "synthetic/forward-tiny", "--no-progress", "--no-save-renders",
-        "--model.init-num-points", "300")
+        "--model.init.num-points", "300")
 
 
 def train_args(out: Path, steps: int, *extra) -> list[str]:

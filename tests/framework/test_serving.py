@@ -128,7 +128,7 @@ def test_splat_train_viewer_host_opens_it_with_a_warning(tmp_path):
     try:
         proc, line = _serve(["splat_framework.cli.train", "3dgs", "--data", "synthetic/forward-tiny", "--steps", "2",
                              "--output", str(tmp_path / "run"), "--no-progress", "--viewer", "--viewer-port", "0",
-                             "--viewer-host", "0.0.0.0", "--model.init-num-points", "300"], "viewer at")
+                             "--viewer-host", "0.0.0.0", "--model.init.num-points", "300"], "viewer at")
         url = line.split("viewer at", 1)[1].strip()
         port = int(url.rsplit(":", 1)[1])
         assert url == f"http://{socket.gethostname()}:{port}" and answers(OTHER, port)

@@ -29,7 +29,7 @@ def private_cache(tmp_path, monkeypatch):
 
 def tiny_config(output, **top):
     cfg = get_method("3dgs").default_config()
-    over = {"data": "synthetic/forward-tiny", "output": str(output), "model": {"init_num_points": 500}}
+    over = {"data": "synthetic/forward-tiny", "output": str(output), "model": {"init": {"num_points": 500}}}
     over.update(top)
     return apply_overrides(cfg, over)
 
@@ -322,7 +322,7 @@ def test_a_model_hook_that_resizes_the_model_is_said_and_counted(tmp_path, monke
 def test_backdrop_loss_makes_the_backdrop_empty_and_black(tmp_path):
     """With a ``backdrop`` mask in the batch: its mean rendered alpha is a loss term whose
     gradient lowers opacities, and the photometric target is black there; weight 0 (the default) turns it off."""
-    model_options = {"init_num_points": 500, "backdrop_weight": 1.0}
+    model_options = {"init": {"num_points": 500}, "backdrop_weight": 1.0}
     trainer = Trainer(tiny_config(tmp_path / "run", steps=1, progress=False, model=model_options))
     model = trainer.model
     cam, batch = trainer.datamanager.next_train(0)
@@ -349,7 +349,7 @@ def test_the_training_step_renders_with_drop_gaussian_and_evaluation_without(tmp
     drawn = []
 
     def run(name):
-        trainer = Trainer(tiny_config(tmp_path / name, steps=4, progress=False, model={"init_num_points": 500, "drop_rate": 0.9}))
+        trainer = Trainer(tiny_config(tmp_path / name, steps=4, progress=False, model={"init": {"num_points": 500}, "drop_rate": 0.9}))
         model = trainer.model
         render = model.get_outputs
 

@@ -88,7 +88,7 @@ def test_training_viewer_follows_the_model(tmp_path):
 
     cfg = get_method("3dgs").default_config()
     cfg = cfg.model_copy(update=dict(data="synthetic/forward-tiny", steps=12, output=tmp_path / "run", progress=False,
-                                     model=cfg.model.model_copy(update=dict(init_num_points=500))))
+                                     model=cfg.model.model_copy(update=dict(init=cfg.model.init.model_copy(update=dict(num_points=500))))))
     live = ViewerCallback(port=0, every=5, host="127.0.0.1")
     seen = []
     trainer = Trainer(cfg, callbacks=[live, lambda t, step: seen.append((step, live.viewer.num_splats))])

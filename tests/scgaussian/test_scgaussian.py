@@ -265,15 +265,15 @@ def test_sparse_prior_warns_and_adds_random_ordinary_gaussians(scene, monkeypatc
     with pytest.warns(UserWarning, match="only 100 verified matches"):
         model = SCGaussianModel.from_data(no_baseline, dm, torch.Generator().manual_seed(0))
     assert model.strategy_config() == no_baseline.strategy and not model.init_stats["baseline_schedule"]
-    # without the warning, the default still starts with init_num_points (10,000) random ordinary Gaussians
+    # without the warning, the default still starts with init.num_points (10,000) random ordinary Gaussians
     cfg = apply_overrides(cfg, {"model": {"sparse_matches": 0}})
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         model = SCGaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
     assert model.num_gaussians == model.num_match_gaussians + 10000
     assert model.strategy_config() == cfg.strategy and not model.init_stats["baseline_schedule"]
-    # sparse_matches = 0 and init_num_points = 0: ray-based Gaussians only (the only-ray variant)
-    cfg = apply_overrides(cfg, {"model": {"sparse_matches": 0, "init_num_points": 0}})
+    # sparse_matches = 0 and init.num_points = 0: ray-based Gaussians only (the only-ray variant)
+    cfg = apply_overrides(cfg, {"model": {"sparse_matches": 0, "init": {"num_points": 0}}})
     model = SCGaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
     assert model.num_gaussians == model.num_match_gaussians
 
@@ -281,9 +281,10 @@ def test_sparse_prior_warns_and_adds_random_ordinary_gaussians(scene, monkeypatc
 def test_triangulation_without_matches_falls_back_to_the_reference_random_init(scene, monkeypatch):
     import splat_framework.matching.prior as prior
     from splat_framework.matching import MatchSet
-    from splat_framework.methods.triangulated import config_3dgs_triang
-    from splat_framework.model.gaussians import FALLBACK_POINTS, frustum_box
-    from splat_framework.model.triangulated import TriangulatedGaussianModel
+    from splat_framework.init_config import FALLBACK_POINTS
+    from splat_framework.model.gaussians import GaussianModel
+    from splat_framework.model.init import frustum_box
+    from splat_framework.registry import get_method
 
     sc, dm, _ = scene
     monkeypatch.setattr(
@@ -291,7 +292,7 @@ def test_triangulation_without_matches_falls_back_to_the_reference_random_init(s
         lambda matching, dm: MatchSet(view_ids=[int(i) for i in sc.train_indices], matches={}),
     )
     with pytest.warns(UserWarning, match="too few triangulated matches"):
-        model = TriangulatedGaussianModel.from_data(config_3dgs_triang(), dm, torch.Generator().manual_seed(0))
+        model = GaussianModel.from_data(get_method("3dgs-triang").default_config(), dm, torch.Generator().manual_seed(0))
     assert model.num_gaussians == FALLBACK_POINTS
     box = frustum_box(dm.train_cameras)
     means = model.params["means"].detach()

@@ -34,13 +34,34 @@ a name too long, a symlink loop): reported in one line naming it, exit 2."""
 
 
 def format_validation_error(e, prefix: str = "") -> str:
-    """One line: ``field.path: message; other.field: message``."""
+    """One line: ``field.path: message; other.field: message`` (the dotted path of the flag: the tag
+    pydantic puts after a tagged union's field, ``model.init.triangulated.matching``, is left out)."""
+    tags = _kind_tags()
     parts = []
     for err in e.errors():
-        loc = ".".join(str(p) for p in err["loc"])
+        loc = ".".join(str(p) for i, p in enumerate(err["loc"]) if not (i and p in tags))
         loc = ".".join(x for x in (prefix, loc) if x) or "config"
         parts.append(f"{loc}: {err['msg']}")
     return "; ".join(parts)
+
+
+def _kind_tags() -> set[str]:
+    """The ``kind`` tags of every config class defined so far (members of tagged unions)."""
+    import typing
+
+    from ..config import SplatConfig
+
+    tags, todo = set(), [SplatConfig]
+    while todo:
+        cls = todo.pop()
+        todo.extend(cls.__subclasses__())
+        field = cls.model_fields.get("kind")
+        if field is not None:
+            annotation = field.annotation
+            while typing.get_origin(annotation) is typing.Annotated:
+                annotation = typing.get_args(annotation)[0]
+            tags.update(a for a in typing.get_args(annotation) if isinstance(a, str))
+    return tags
 
 
 def config_path(config_cls: type) -> str:

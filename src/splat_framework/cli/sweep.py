@@ -21,8 +21,8 @@ A grid file (TOML; JSON with the same keys works too)::
     seeds = [0, 1, 2]
     steps = 500
     out = "sweeps/x"
-    [overrides.model]            # applied to every run
-    init_num_points = 5000
+    [overrides.model.init]       # applied to every run
+    num_points = 5000
 """
 
 from __future__ import annotations
@@ -61,7 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="DIR", help="sweep folder (runs/ and results.{md,csv,json})")
     p.add_argument(
         "--override", action="append", default=[], metavar="KEY=VALUE",
-        help="config override for every run, e.g. model.init_num_points=5000 (value parsed as JSON); repeatable",
+        help="config override for every run, e.g. model.init.num_points=5000 (value parsed as JSON); repeatable",
     )
     p.add_argument("--backend", choices=["local", "ray", "serial"], help="local worker processes (default), a Ray cluster, or in-process one by one")
     p.add_argument("--address", help="Ray address: auto (a running cluster), ray://HOST:10001, or omit for a local instance")

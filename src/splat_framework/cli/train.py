@@ -11,13 +11,18 @@ from __future__ import annotations
 import sys
 
 
-def build_parser_type(methods=None):
+def build_parser_type(methods=None, argv: list[str] = (), asked: str | None = None):
+    """The subcommand type of every method's default config; the ``asked`` method's with the
+    kinds that ``argv``'s ``--PATH.kind K`` flags choose (``cli.kinds.choose_kinds``)."""
     import tyro
 
     from ..registry import discover_methods
+    from .kinds import choose_kinds
 
     methods = discover_methods() if methods is None else methods
     defaults = {name: spec.default_config() for name, spec in methods.items()}
+    if asked in defaults:
+        defaults[asked] = choose_kinds(defaults[asked], list(argv))
     descriptions = {name: spec.description for name, spec in methods.items()}
     return tyro.extras.subcommand_type_from_defaults(defaults, descriptions)
 
@@ -48,9 +53,9 @@ def main(args: list[str] | None = None) -> dict:
     argv = sys.argv[1:] if args is None else args
     asked = next((a for a in argv if not a.startswith("-")), None)
     methods = _discover(asked)
-    parser_type = build_parser_type(methods)
     # tyro's errors and invalid values: one line (cli.common.run_cli), not tyro's box
     with one_line_parse_errors("splat-train", subcommands=methods):
+        parser_type = build_parser_type(methods, argv, asked)
         config = tyro.cli(
             parser_type,
             args=argv,

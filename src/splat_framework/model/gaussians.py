@@ -30,16 +30,12 @@ from torch import Tensor, nn
 
 from ..cameras import Camera
 from ..config import TrainConfig
-from ..data.scene import SceneData
 from ..evaluation import expected_depth
 from ..losses import depth_smoothness, photometric_loss, scale_anisotropy, stereo_consistency
 from ..profiling import section
 from ..render import RenderOutput, rasterize, rgb_to_sh
 from ..rng import keyed_generator
-
-FALLBACK_POINTS = 10_000
-"""Random ordinary Gaussians a model starts from when its prior (matches, triangulated points) is missing or sparse."""
-
+from .init import initial_points
 
 def knn_scale(points: Tensor, k: int = 3) -> Tensor:
     """[N] root-mean-square distance of each point to its ``k`` nearest neighbours (3DGS init scale).
@@ -60,81 +56,13 @@ def knn_scale(points: Tensor, k: int = 3) -> Tensor:
     return torch.from_numpy(rms).to(device=points.device, dtype=points.dtype).clamp_min(1e-7)
 
 
-def sample_frustum_points(
-    cameras: list[Camera], images: list[Tensor], n: int, generator: torch.Generator
-) -> tuple[Tensor, Tensor]:
-    """Random points inside the training frusta, with the colour of the pixel they lie on.
-
-    A camera is picked uniformly, then a pixel, then a depth uniform in inverse
-    depth between the camera's near and far (so that near content is not starved).
-
-    Returns:
-        points [n, 3], colors [n, 3].
-    """
-    device = images[0].device
-    cam_ids = torch.randint(len(cameras), (n,), generator=generator)
-    pts, cols = [], []
-    for ci, (cam, img) in enumerate(zip(cameras, images)):
-        m = int((cam_ids == ci).sum())
-        if m == 0:
-            continue
-        u = torch.rand(m, generator=generator) * cam.width
-        v = torch.rand(m, generator=generator) * cam.height
-        t = torch.rand(m, generator=generator)
-        inv = 1.0 / cam.near + t * (1.0 / cam.far - 1.0 / cam.near)
-        z = 1.0 / inv
-        uv = torch.stack([u, v], -1).to(device)
-        pts.append(cam.unproject_depth(uv, z.to(device)))
-        cols.append(img[v.long().clamp_max(cam.height - 1), u.long().clamp_max(cam.width - 1)])
-    return torch.cat(pts), torch.cat(cols)
-
-
-def frustum_box(cameras: list[Camera]) -> Tensor:
-    """[2, 3] min and max corner of the axis-aligned box around the cameras' frusta cut at near and far."""
-    corners = []
-    for cam in (c.to("cpu") for c in cameras):
-        uv = torch.tensor([[0.0, 0.0], [cam.width, 0.0], [0.0, cam.height], [cam.width, cam.height]]).repeat(2, 1)
-        z = torch.tensor([cam.near] * 4 + [cam.far] * 4)
-        corners.append(cam.unproject_depth(uv, z))
-    pts = torch.cat(corners)
-    return torch.stack([pts.amin(0), pts.amax(0)])
-
-
-def sample_box_points(box: Tensor, n: int, generator: torch.Generator) -> tuple[Tensor, Tensor]:
-    """The 3DGS reference's random initialisation: points uniform in a box, grey colours.
-
-    Args:
-        box: [2, 3] min and max corner.
-
-    Returns:
-        points [n, 3], colors [n, 3] (0.5: the reference's SH values are U(0, 1) / 255, i.e. grey).
-    """
-    lo, hi = box[0].float().cpu(), box[1].float().cpu()
-    points = lo + torch.rand(n, 3, generator=generator) * (hi - lo)
-    return points, torch.full((n, 3), 0.5)
-
-
-def random_init(
-    init: str, scene: SceneData, cameras: list[Camera], images: list[Tensor], n: int, generator: torch.Generator
-) -> tuple[Tensor, Tensor]:
-    """Initial points and colours for ``init`` = "random" (uniform in the scene's content box, else
-    the box of the training frusta) or "frustum" (``sample_frustum_points``), on the images' device."""
-    if init == "frustum":
-        return sample_frustum_points(cameras, images, n, generator)
-    if init != "random":
-        raise ValueError(f"unknown random initialisation {init!r} (expected 'random' or 'frustum')")
-    box = torch.tensor(scene.content_box) if scene.content_box is not None else frustum_box(cameras)
-    points, colors = sample_box_points(box, n, generator)
-    return points.to(images[0].device), colors.to(images[0].device)
-
-
 class GaussianModel(nn.Module):
     """Vanilla 3D Gaussian Splatting.
 
     Args:
         config: the run config (``config.model`` is a GaussianModelConfig).
         scene_scale: spatial scale of the scene (position lr and size thresholds).
-        points: [M, 3] initial positions, or None for random initialisation.
+        points: [M, 3] initial positions (see :meth:`from_data`).
         colors: [M, 3] initial colours in [0, 1].
     """
 
@@ -157,12 +85,13 @@ class GaussianModel(nn.Module):
     # ------------------------------------------------------------------ build
     @classmethod
     def from_data(cls, config: TrainConfig, datamanager, generator: torch.Generator) -> "GaussianModel":
-        """Build the model for a dataset (``config.model.init``: "random" or "frustum")."""
-        cams, imgs = zip(*[(c, b["image"]) for c, b in datamanager.train_views()])
-        points, colors = random_init(
-            config.model.init, datamanager.scene, list(cams), list(imgs), config.model.init_num_points, generator
-        )
-        return cls(config, datamanager.scene.scene_radius, points, colors)
+        """Build the model for a dataset, from the start ``config.model.init`` describes
+        (:func:`~splat_framework.model.init.initial_points`)."""
+        start = initial_points(config.model.init, datamanager, generator)
+        model = cls(config, datamanager.scene.scene_radius, start.points, start.colors)
+        model.init_timing = start.timing
+        model.init_stats = {"num_points": int(start.points.shape[0])}
+        return model
 
     def build_networks(self) -> nn.ModuleDict:
         """The model-wide (not per-row) modules, freshly initialised (3DGS: none). Called when the

@@ -267,7 +267,7 @@ def normalise_settings(doc: dict) -> dict:
 
 
 def parse_override(text: str) -> dict:
-    """``model.init_num_points=300`` -> ``{"model": {"init_num_points": 300}}`` (value JSON, else string)."""
+    """``model.init.num_points=300`` -> ``{"model": {"init": {"num_points": 300}}}`` (value JSON, else string)."""
     key, sep, raw = text.partition("=")
     if not sep or not key.strip():
         raise SweepError(f"--override {text!r}: expected KEY=VALUE, e.g. model.lambda_rg=0.0")

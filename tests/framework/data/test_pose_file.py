@@ -106,7 +106,7 @@ def test_a_run_on_a_pose_file_scores_test_views_before_and_after_the_pose_fit(sc
     config = get_method("3dgs").default_config().model_copy(update=dict(
         data=str(ensure_scene("forward")), views=3, steps=5, output=tmp_path / "run", progress=False,
         save_renders=False, compile=False, train_poses=path, test_pose_steps=3))
-    config.model.init_num_points = 300
+    config.model.init.num_points = 300
     assert isinstance(config, TrainConfig)
     metrics = train(config)
     assert metrics["test_pose_steps"] == 3 and metrics["mean"]["psnr_before_pose_fit"] is not None

@@ -1,4 +1,5 @@
-"""Random initialisation of 3DGS: the reference's grey box and our frustum sampling."""
+"""Initialisation kinds (model.init): the reference's grey box, frustum sampling, triangulated
+matches, a dataset's SfM points and a PLY file, for every method."""
 
 from __future__ import annotations
 
@@ -9,14 +10,9 @@ from splat_framework.cameras import Camera
 from splat_framework.config import apply_overrides
 from splat_framework.data import DataManager, load_scene
 from splat_framework.data.synthetic import generate_scene
-from splat_framework.model.gaussians import (
-    GaussianModel,
-    frustum_box,
-    knn_scale,
-    random_init,
-    sample_box_points,
-    sample_frustum_points,
-)
+from splat_framework.init_config import RandomInitConfig
+from splat_framework.model.gaussians import GaussianModel, knn_scale
+from splat_framework.model.init import frustum_box, initial_points, sample_box_points, sample_frustum_points
 from splat_framework.registry import get_method
 
 
@@ -50,25 +46,23 @@ def forward_dm(tmp_path_factory):
 
 
 def test_random_init_uses_the_content_box_when_the_dataset_has_one(forward_dm):
-    cams, imgs = zip(*[(c, b["image"]) for c, b in forward_dm.train_views()])
+    cams = [c for c, _ in forward_dm.train_views()]
     g = torch.Generator().manual_seed(0)
     scene = forward_dm.scene
     assert scene.content_box is None
-    pts, _ = random_init("random", scene, list(cams), list(imgs), 5000, g)
-    box = frustum_box(list(cams))
+    pts = initial_points(RandomInitConfig(num_points=5000), forward_dm, g).points
+    box = frustum_box(cams)
     assert (pts >= box[0] - 1e-5).all() and (pts <= box[1] + 1e-5).all()
     assert (pts.amax(0) - pts.amin(0) > 0.9 * (box[1] - box[0])).all()  # fills the box
     boxed = type(scene)(**{**scene.__dict__, "content_box": ((0.0, 0.0, 0.0), (0.1, 0.2, 0.3))})
-    pts, _ = random_init("random", boxed, list(cams), list(imgs), 5000, g)
+    pts = initial_points(RandomInitConfig(num_points=5000), DataManager(boxed, device="cpu", seed=0), g).points
     assert (pts >= 0).all() and (pts <= torch.tensor([0.1, 0.2, 0.3])).all()
-    with pytest.raises(ValueError, match="unknown random initialisation"):
-        random_init("sphere", scene, list(cams), list(imgs), 10, g)
 
 
 def test_3dgs_starts_from_the_reference_random_init_and_frustum_is_a_variant(forward_dm):
     cams, imgs = zip(*[(c, b["image"]) for c, b in forward_dm.train_views()])
     cfg = get_method("3dgs").default_config()
-    assert cfg.model.init == "random"
+    assert cfg.model.init.kind == "random"
     model = GaussianModel.from_data(cfg, forward_dm, torch.Generator().manual_seed(0))
     box = frustum_box(list(cams))
     means = model.params["means"].detach()
@@ -77,10 +71,10 @@ def test_3dgs_starts_from_the_reference_random_init_and_frustum_is_a_variant(for
     assert torch.all(sh0 == sh0[0])  # one grey for all
 
     frustum = get_method("3dgs-frustum").default_config()
-    assert frustum.model.init == "frustum"
-    assert apply_overrides(cfg, {"model": {"init": "frustum"}}).model.init == "frustum"
+    assert frustum.model.init.kind == "frustum"
+    assert apply_overrides(cfg, {"model": {"init": {"kind": "frustum"}}}).model.init == frustum.model.init
     model = GaussianModel.from_data(frustum, forward_dm, torch.Generator().manual_seed(0))
-    expected, _ = sample_frustum_points(list(cams), list(imgs), frustum.model.init_num_points, torch.Generator().manual_seed(0))
+    expected, _ = sample_frustum_points(list(cams), list(imgs), frustum.model.init.num_points, torch.Generator().manual_seed(0))
     assert torch.allclose(model.params["means"].detach(), expected)
     assert model.params["sh0"].detach().std(0).max() > 0.1  # pixel colours, not one grey
 
@@ -101,3 +95,63 @@ def test_knn_scale_matches_brute_force_with_duplicates_and_tiny_sets():
     assert torch.allclose(knn_scale(two), torch.tensor([5.0, 5.0]))  # k shrinks to the one other point
     assert knn_scale(two[:1]).tolist() == pytest.approx([0.01])
     assert knn_scale(pts.double()).dtype == torch.float64
+
+
+@pytest.mark.bad_input("`--model.init.kind sfm` on a dataset without SfM points; `ply` with a missing or non-splat PLY", "exit 2, one line naming the dataset or file")
+def test_sfm_kind_starts_from_a_colmap_datasets_points_and_refuses_a_dataset_without(tmp_path, forward_dm):
+    from splat_framework.errors import DataError
+    from splat_framework.init_config import SfMInitConfig
+    from tests.support import make_colmap
+
+    dm = DataManager(load_scene(make_colmap(tmp_path / "c", binary=True), views=3), device="cpu", seed=0)
+    start = initial_points(SfMInitConfig(), dm, torch.Generator().manual_seed(0))
+    assert torch.equal(start.points, torch.as_tensor(dm.scene.extras["points3d"]))
+    assert torch.allclose(start.colors[0], torch.tensor([10.0, 20.0, 30.0]) / 255)
+    with pytest.raises(DataError, match="no structure-from-motion points"):
+        initial_points(SfMInitConfig(), forward_dm, torch.Generator())
+
+
+def test_ply_kind_starts_3dgs_from_an_exported_model(tmp_path, forward_dm):
+    """Export a model to PLY, start 3dgs from it: its initial means are the PLY's, its colours the
+    PLY's base colours; a missing file is one DataError naming it."""
+    from splat_framework.errors import DataError
+    from splat_framework.export import export_ply, load_ply
+
+    cfg = get_method("3dgs-frustum").default_config()
+    source = GaussianModel.from_data(cfg, forward_dm, torch.Generator().manual_seed(0))
+    path = export_ply(source, tmp_path / "start.ply")
+    ply = load_ply(path)
+    cfg = apply_overrides(get_method("3dgs").default_config(), {"model": {"init": {"kind": "ply", "path": str(path)}}})
+    model = GaussianModel.from_data(cfg, forward_dm, torch.Generator().manual_seed(1))
+    assert torch.equal(model.params["means"].detach(), ply["means"])
+    assert torch.allclose(model.params["sh0"].detach(), ply["sh0"], atol=1e-5)
+    assert model.init_stats == {"num_points": ply["means"].shape[0]}
+    with pytest.raises(DataError, match="missing.ply"):
+        GaussianModel.from_data(cfg.model_copy(update={"model": cfg.model.model_copy(
+            update={"init": cfg.model.init.model_copy(update={"path": tmp_path / "missing.ply"})})}),
+            forward_dm, torch.Generator())
+
+
+@pytest.mark.bad_input("`--model.init.kind` naming a kind the method does not take", "exit 2, one line naming the kinds it takes")
+def test_any_method_starts_from_a_ply_on_the_command_line(tmp_path):
+    """``--model.init.kind ply --model.init.path x.ply`` on 3dgs and on scaffold-gs; --help shows the
+    chosen kind's flags; an unknown kind, or one the method does not take (scgaussian's ordinary
+    Gaussians are random), is one line naming the choices."""
+    import tyro
+
+    from splat_framework.cli.common import ArgumentsError
+    from splat_framework.cli.train import build_parser_type
+    from splat_framework.registry import discover_methods
+
+    methods = discover_methods()
+    for method in ("3dgs", "scaffold-gs"):
+        argv = [method, "--model.init.kind", "ply", "--model.init.path", str(tmp_path / "x.ply")]
+        config = tyro.cli(build_parser_type(methods, argv, method), args=argv)
+        assert config.model.init.kind == "ply" and config.model.init.path == tmp_path / "x.ply"
+    argv = ["3dgs-triang", "--model.init.kind=triangulated", "--model.init.max-reprojection-px", "3"]
+    config = tyro.cli(build_parser_type(methods, argv, "3dgs-triang"), args=argv)
+    assert config.model.init.max_reprojection_px == 3 and config.model.init.matching == methods["3dgs-triang"].default_config().model.init.matching
+    with pytest.raises(ArgumentsError, match="'sphere' is not one of random, frustum, triangulated, sfm, ply"):
+        build_parser_type(methods, ["3dgs", "--model.init.kind", "sphere"], "3dgs")
+    with pytest.raises(ArgumentsError, match="'ply' is not one of random, frustum"):
+        build_parser_type(methods, ["scgaussian", "--model.init.kind", "ply"], "scgaussian")

@@ -18,7 +18,7 @@ from splat_framework.cli import sweep as cli_sweep
 from splat_framework.sweep import Grid, SweepError, run_sweep
 from support import REPO
 
-TINY = {"model": {"init_num_points": 300}, "save_renders": False, "compile": False}
+TINY = {"model": {"init": {"num_points": 300}}, "save_renders": False, "compile": False}
 """Keeps the end-to-end runs to about a second of training each (eager kernels: Ray's workers do not
 see the test environment's SPLAT_COMPILE=0, and compiling there took minutes)."""
 
@@ -48,12 +48,12 @@ def test_grid_toml_and_json(tmp_path):
     toml = tmp_path / "grid.toml"
     toml.write_text(
         'methods = ["3dgs", "scgaussian"]\ndata = "synthetic/forward"\nviews = [3, "all"]\n'
-        'seeds = [0, 1]\nsteps = 500\nout = "sweeps/x"\nworkers = 2\n[overrides.model]\ninit_num_points = 100\n'
+        'seeds = [0, 1]\nsteps = 500\nout = "sweeps/x"\nworkers = 2\n[overrides.model.init]\nnum_points = 100\n'
     )
     s = sweep.load_grid_file(toml)
     assert s == {"methods": ["3dgs", "scgaussian"], "data": ["synthetic/forward"], "views": [3, "all"],
                  "seeds": [0, 1], "steps": 500, "out": "sweeps/x", "workers": 2,
-                 "overrides": {"model": {"init_num_points": 100}}}
+                 "overrides": {"model": {"init": {"num_points": 100}}}}
     js = tmp_path / "grid.json"
     js.write_text(json.dumps({"methods": "3dgs", "data": ["llff/fern"], "seeds": 3, "views": "6"}))
     assert sweep.load_grid_file(js) == {"methods": ["3dgs"], "data": ["llff/fern"], "seeds": [3], "views": [6]}
@@ -74,11 +74,11 @@ def test_cli_lists_override_the_file(tmp_path):
     toml.write_text('methods = ["3dgs"]\ndata = ["a/b"]\nseeds = [0]\nsteps = 100\nout = "o"\n[overrides.model]\nsh_degree = 1\n')
     p = cli_sweep.build_parser()
     args = p.parse_args([str(toml), "--seeds", "0", "1", "--steps", "50", "--views", "3", "all",
-                         "--override", "model.init_num_points=300", "--override", "save_renders=false"])
+                         "--override", "model.init.num_points=300", "--override", "save_renders=false"])
     s = cli_sweep.settings_from_args(args)
     assert s["methods"] == ["3dgs"] and s["data"] == ["a/b"] and s["seeds"] == [0, 1]
     assert s["steps"] == 50 and s["views"] == [3, "all"] and s["out"] == "o"
-    assert s["overrides"] == {"model": {"sh_degree": 1, "init_num_points": 300}, "save_renders": False}
+    assert s["overrides"] == {"model": {"sh_degree": 1, "init": {"num_points": 300}}, "save_renders": False}
     args = p.parse_args(["--methods", "3dgs", "scgaussian", "--data", "synthetic/forward", "llff/fern",
                          "--views", "3", "--seeds", "0", "1", "--steps", "500", "--out", "sweeps/x"])
     s = cli_sweep.settings_from_args(args)
@@ -201,7 +201,7 @@ def test_live_table_renders(tmp_path):
 def test_local_backend_end_to_end_and_resume(tmp_path, monkeypatch, capsys):
     out = tmp_path / "sw"
     argv = ["--methods", "3dgs", "--data", "synthetic/forward-tiny", "--seeds", "0", "1", "--steps", "10",
-            "--out", str(out), "--workers", "2", "--override", "model.init_num_points=300",
+            "--out", str(out), "--workers", "2", "--override", "model.init.num_points=300",
             "--override", "save_renders=false", "--no-live"]
     res = cli_sweep.main(argv)
     assert (res.ran, res.skipped, res.failed) == (2, 0, 0), [r["error"] for r in res.records]
@@ -254,7 +254,7 @@ def test_ablation_script_two_methods_writes_table_figure_and_readme(tmp_path):
     md = ablation.main(["--data", "synthetic/forward-tiny", "--views", "3", "--steps", "10", "--seeds", "0",
                         "--methods", "3dgs", "scgaussian", "--out", str(out), "--workers", "2",
                         "--md", str(tmp_path / "results" / "abl.md"), "--readme", str(readme),
-                        "--override", "model.init_num_points=300", "--no-live"])
+                        "--override", "model.init.num_points=300", "--no-live"])
     text = md.read_text()
     assert "### Ablation on `synthetic/forward-tiny`, 3 training views" in text
     lines = [ln for ln in text.splitlines() if ln.startswith("| ")]
@@ -270,7 +270,7 @@ def test_ablation_script_two_methods_writes_table_figure_and_readme(tmp_path):
     shutil.rmtree(out / "figures")
     md2 = ablation.main(["--data", "synthetic/forward-tiny", "--views", "3", "--steps", "10", "--seeds", "0", "1",
                          "--methods", "3dgs", "--out", str(out), "--md", str(tmp_path / "abl2.md"),
-                         "--override", "model.init_num_points=300", "--no-live", "--no-train"])
+                         "--override", "model.init.num_points=300", "--no-live", "--no-train"])
     assert "| 3DGS (reference random init) (1 of 2 seeds run) | `3dgs` |" in md2.read_text()
     assert not (out / "runs/synthetic-forward-tiny/3dgs/v3-s1/config.json").exists()
     assert (out / "figures" / "synthetic-forward-tiny-v3.png").is_file()
@@ -300,7 +300,7 @@ def test_ablation_poses_estimated_trains_on_both_poses_and_writes_one_table(tmp_
     readme.write_text(f"<!-- ablation:{key} -->\nold\n<!-- /ablation:{key} -->\n")
     args = ["--data", "synthetic/forward", "--views", "3", "--steps", "5", "--seeds", "0", "--methods", "3dgs",
             "--poses", "estimated", "--test-pose-steps", "2", "--sfm-matcher", "sift", "--out", str(out),
-            "--backend", "serial", "--md", str(tmp_path / "est.md"), "--override", "model.init_num_points=300",
+            "--backend", "serial", "--md", str(tmp_path / "est.md"), "--override", "model.init.num_points=300",
             "--override", "compile=false", "--no-live"]
     text = ablation.main(args + ["--readme", str(readme)]).read_text()
     assert "3 of 3 training views registered from their photos alone (sift matches" in text

@@ -1,0 +1,72 @@
+"""``--PATH.kind K`` on the command line: switch a tagged-union field of a config to kind ``K``
+before the argument parser is built, so that tyro shows and parses that kind's own flags
+(``splat-train 3dgs --model.init.kind ply --model.init.path x.ply``). Torch-free."""
+
+from __future__ import annotations
+
+import typing
+
+from pydantic import BaseModel
+
+
+def union_kinds(annotation) -> dict[str, type[BaseModel]]:
+    """{kind: config class} of a field annotated as a union of configs tagged by ``kind``
+    (:func:`~splat_framework.init_config.init_field`), else {}."""
+    while typing.get_origin(annotation) is typing.Annotated:
+        annotation = typing.get_args(annotation)[0]
+    members = typing.get_args(annotation) if typing.get_origin(annotation) is typing.Union else ()
+    kinds = {}
+    for m in members:
+        field = getattr(m, "model_fields", {}).get("kind")
+        tags = typing.get_args(_unannotated(field.annotation)) if field is not None else ()
+        for tag in tags:
+            kinds[tag] = m
+    return kinds
+
+
+def _unannotated(annotation):
+    while typing.get_origin(annotation) is typing.Annotated:
+        annotation = typing.get_args(annotation)[0]
+    return annotation
+
+
+def flag_value(argv: list[str], flag: str) -> str | None:
+    """The last value given to ``flag`` in ``argv`` (``--a.b-c V`` or ``--a.b-c=V``; ``_`` and ``-``
+    alike), or None."""
+    found = None
+    norm = flag.replace("_", "-")
+    for i, arg in enumerate(argv):
+        name, eq, value = arg.partition("=")
+        if name.replace("_", "-") != norm:
+            continue
+        if eq:
+            found = value
+        elif i + 1 < len(argv):
+            found = argv[i + 1]
+    return found
+
+
+def choose_kinds(config: BaseModel, argv: list[str], prefix: str = "") -> BaseModel:
+    """``config`` with every tagged-union field named by a ``--PATH.kind K`` flag of ``argv`` holding
+    kind ``K``: its current value when already of that kind, else the kind's defaults (a field
+    without a default stays unset, so the parser asks for it). An unknown kind raises
+    :class:`~splat_framework.cli.common.ArgumentsError` (one line naming the choices)."""
+    from .common import ArgumentsError, did_you_mean
+
+    updates = {}
+    for name, info in type(config).model_fields.items():
+        value = getattr(config, name, None)
+        kinds = union_kinds(info.annotation)
+        chosen = flag_value(argv, f"--{prefix}{name}.kind") if kinds else None
+        if chosen is not None and getattr(value, "kind", None) != chosen:
+            if chosen not in kinds:
+                raise ArgumentsError(
+                    f"--{prefix}{name}.kind: {chosen!r} is not one of {', '.join(kinds)}"
+                    f"{did_you_mean(chosen, kinds)}"
+                )
+            value = kinds[chosen].model_construct()
+        if isinstance(value, BaseModel):
+            value = choose_kinds(value, argv, f"{prefix}{name}.")
+        if value is not getattr(config, name, None):
+            updates[name] = value
+    return config.model_copy(update=updates) if updates else config

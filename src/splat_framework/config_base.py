@@ -1,0 +1,133 @@
+"""The machinery under every config: :class:`SplatConfig` (strict, documented, finite), the
+annotation markers code reads (:data:`Steps`, :data:`RUN_OPTION`, ...), the bounded field types
+and the command-line validation context (:func:`cli_parsing`).
+
+Torch-free and importing nothing of the project, so that every module holding a config (the
+run's, the matcher's, the initialisations') can build on it without an import circle;
+``splat_framework.config`` re-exports all of it.
+"""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from contextvars import ContextVar
+from typing import Annotated, Any, Iterator
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+
+class Marker:
+    """An annotation marker (``Annotated[int, STEPS_MARKER]``): a fact about a field that code reads."""
+
+    def __init__(self, name: str, doc: str) -> None:
+        self.name, self.__doc__ = name, doc
+
+    def __repr__(self) -> str:  # pragma: no cover - cosmetic
+        return self.name
+
+
+STEPS_MARKER = Marker("Steps", "This int field counts optimisation iterations (``--steps`` rescales it).")
+RUN_OPTION = Marker(
+    "RunOption",
+    "This field says how a run is carried out, not what is trained: run options (output folder, "
+    "device, progress bar, resume, ...) may differ between a run and its ``--resume``; every other "
+    "field is the experiment and must not (see :func:`experiment_fields`).",
+)
+SHORTEN_ONLY = Marker(
+    "ShortenOnly",
+    "This Steps field (a start after a warm-up, a period after which something steps up) follows a "
+    "shorter run in proportion and keeps its value in a longer one (see :func:`scale_schedule`).",
+)
+MAX_STEPS = 10_000_000
+"""Most optimisation iterations a run may have (``--steps``; a checkpoint's step is checked against it)."""
+MAX_SCHEDULE = 1_000_000_000
+"""Most a schedule field (:data:`Steps`) may hold: a schedule is written for the method's own length and
+rescaled by ``--steps`` (up to :data:`MAX_STEPS`), so its fields may grow past the total."""
+MAX_GAUSSIANS = 50_000_000
+"""Most initial Gaussians or points a config may ask for (about 100 GiB at memory_plan.BYTES_PER_GAUSSIAN;
+the memory plan then checks the run against the machine's RAM before any work)."""
+MAX_MATCHES = 10_000_000
+"""Most matches a matching count may name (per pair or in total)."""
+MAX_VIEWS = 100_000
+"""Most views a view count may name."""
+Steps = Annotated[int, STEPS_MARKER, Field(ge=0, le=MAX_SCHEDULE)]
+"""An iteration count (>= 0) that ``--steps`` rescales with the schedule."""
+StartSteps = Annotated[int, STEPS_MARKER, SHORTEN_ONLY, Field(ge=0, le=MAX_SCHEDULE)]
+"""The iteration at which something starts once a warm-up is done (>= 0): a schedule compressed
+to fewer iterations compresses it, a longer one keeps it (the warm-up does not need to grow)."""
+Period = Annotated[int, STEPS_MARKER, Field(ge=1, le=MAX_SCHEDULE)]
+"""An interval in iterations (>= 1: it divides the step number) that ``--steps`` rescales."""
+OptionalPeriod = Annotated[Annotated[int, Field(ge=1, le=MAX_SCHEDULE)] | None, STEPS_MARKER]
+"""A :data:`Period`, or None for never."""
+RampPeriod = Annotated[int, STEPS_MARKER, SHORTEN_ONLY, Field(ge=1, le=MAX_SCHEDULE)]
+"""An interval (>= 1) after which something steps up once more (the SH degree): as a start, a
+compressed schedule compresses it and a longer one keeps it."""
+Interval = Annotated[int, Field(ge=1, le=MAX_SCHEDULE)]
+"""An interval in iterations (>= 1) that ``--steps`` does not rescale."""
+DEVICE_MARKER = Marker(
+    "Device",
+    "This str field names a torch device: before it is used, splat_framework.devices.resolve_config_devices "
+    "checks it with the resolver of ``--device``, naming the field.",
+)
+Device = Annotated[str, DEVICE_MARKER, Field(pattern=r"^[a-z_]+(:[0-9]+)?$", max_length=32)]
+"""A torch device name (cpu, cuda, cuda:N, mps, ...): its spelling is checked when the config is
+built (torch-free), its availability by the resolver of ``--device`` before a run starts."""
+LearningRate = Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)]
+"""An Adam learning rate, in (0, 1]."""
+Fraction = Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)]
+"""A number in [0, 1]."""
+Positive = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+"""A finite number > 0."""
+NonNegative = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+"""A finite number >= 0."""
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+"""A finite number (no inf, no nan). Every float field of a :class:`SplatConfig` is finite anyway
+(its ``allow_inf_nan=False``); this is for argument classes that are not configs."""
+
+
+_CLI_PARSING: ContextVar[bool] = ContextVar("splat_cli_parsing", default=False)
+
+
+class InvalidArguments(Exception):
+    """A config built from command-line arguments failed validation (see :func:`cli_parsing`).
+
+    Deliberately not a ValueError: the argument parser (tyro) catches ValueErrors
+    raised while it builds nested configs and prints its own multi-line box; this
+    passes through to ``cli.common.run_cli``, which prints one line."""
+
+    def __init__(self, error: ValidationError, config_cls: type) -> None:
+        super().__init__(str(error))
+        self.error, self.config_cls = error, config_cls
+
+
+@contextmanager
+def cli_parsing() -> Iterator[None]:
+    """While active (around the argument parser only), a config constructed or validated with
+    invalid values raises :class:`InvalidArguments`."""
+    token = _CLI_PARSING.set(True)
+    try:
+        yield
+    finally:
+        _CLI_PARSING.reset(token)
+
+
+class SplatConfig(BaseModel):
+    """Base for every config: strict (unknown fields are errors), documented fields, and every
+    float finite (``inf``/``nan`` are refused, naming the field, for every subclass's fields:
+    a weight of ``inf`` would skip every step, a threshold of ``inf`` reach OpenCV).
+
+    Every int field has an upper bound (``Field(le=...)``, one of the ``MAX_*`` constants
+    above or a bound its docstring states): tests/framework/test_edge_validation.py walks
+    every config and checks both rules."""
+
+    model_config = ConfigDict(
+        use_attribute_docstrings=True, extra="forbid", validate_assignment=True, allow_inf_nan=False
+    )
+
+    def __init__(self, /, **data: Any) -> None:
+        try:
+            super().__init__(**data)
+        except ValidationError as e:
+            if _CLI_PARSING.get():
+                raise InvalidArguments(e, type(self)) from None
+            raise

@@ -1,0 +1,149 @@
+"""Where a model's initial points come from: the kinds of ``model.init`` (torch-free: read for ``--help``).
+
+Each kind is a config tagged by ``kind`` (a member of a discriminated union, as the strategies
+are) that names the function building its points as ``points_fn = "module:function"``;
+:func:`splat_framework.model.init.initial_points` calls it, the one place that builds start
+points for every method (3dgs's Gaussians, Scaffold-GS's and Octree-GS's anchors, SCGaussian's
+ordinary Gaussians). A function takes ``(config, datamanager, generator)`` and returns
+``(points [N, 3], colours [N, 3] in [0, 1], stats)``.
+
+A method's model config lists the kinds it accepts with :func:`init_field`; on the command line
+``--model.init.kind K`` picks one and shows its flags (``splat-train 3dgs --model.init.kind ply
+--help``), a TOML variant writes ``[overrides.model.init] kind = "K"``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, ClassVar, Literal, Union
+
+import tyro
+from pydantic import Field
+
+from .config_base import MAX_GAUSSIANS, Positive, SplatConfig
+from .matching.config import MatchConfig
+
+FALLBACK_POINTS = 10_000
+"""Random points a model starts from when its prior (matches, triangulated points) is missing or sparse."""
+
+KIND = tyro.conf.arg(
+    metavar="KIND",
+    help="The start's kind, described above: random, frustum, triangulated, sfm or ply (a fallback, and "
+    "SCGaussian's ordinary Gaussians: random or frustum); each kind has its own flags, which --help "
+    "shows after --model.init.kind K.",
+)
+"""The ``kind`` flag of every initialisation: a placeholder and one help text (the field takes any
+kind of its union, each with its own flags; see :mod:`splat_framework.cli.kinds`)."""
+
+
+class InitConfig(SplatConfig):
+    """Base of the initialisations' configs: a discriminated-union member tagged by ``kind``."""
+
+    kind: str
+    """The initialisation's tag."""
+    points_fn: ClassVar[str]
+    """``module:function`` building this kind's points (see the module docstring)."""
+
+    @property
+    def planned_points(self) -> int:
+        """Points this start is expected to give, for the memory plan before any data is read (0: unknown)."""
+        return 0
+
+
+class RandomInitConfig(InitConfig):
+    """Random start (the 3DGS reference's): points uniform in the scene's content box (else the box of the training frusta), grey."""
+
+    kind: Annotated[Literal["random"], KIND] = "random"
+    """The start's kind."""
+    num_points: int = Field(10_000, ge=1, le=MAX_GAUSSIANS)
+    """Number of random initial points."""
+    points_fn = "splat_framework.model.init:box_points"
+
+    @property
+    def planned_points(self) -> int:
+        return self.num_points
+
+
+class FrustumInitConfig(RandomInitConfig):
+    """Frustum start: random points inside the training frusta (uniform in inverse depth), coloured by their pixels."""
+
+    kind: Annotated[Literal["frustum"], KIND] = "frustum"
+    """The start's kind."""
+    points_fn = "splat_framework.model.init:frustum_points"
+
+
+def init_field(*configs: type[InitConfig]):
+    """The annotation of an ``init`` field accepting these :class:`InitConfig` kinds, e.g.
+    ``init: init_field(RandomInitConfig, MyInitConfig) = Field(default_factory=RandomInitConfig)``.
+    The CLI shows the flags of the field's current kind (``--model.init.kind`` switches it)."""
+    if len(configs) == 1:
+        return Annotated[configs[0], tyro.conf.AvoidSubcommands]
+    return Annotated[Union[configs], Field(discriminator="kind"), tyro.conf.AvoidSubcommands]
+
+
+RandomKinds = init_field(RandomInitConfig, FrustumInitConfig)
+"""The random starts, which need nothing but the training views."""
+
+
+class TriangulatedInitConfig(InitConfig):
+    """Triangulated start (the paper's "Triang. init" rows): the training views' matches triangulated with the known poses."""
+
+    kind: Annotated[Literal["triangulated"], KIND] = "triangulated"
+    """The start's kind."""
+    matching: MatchConfig = Field(default_factory=MatchConfig)
+    """Matching prior used for triangulation."""
+    max_reprojection_px: Positive = 2.0
+    """Drop triangulated points whose reprojection error exceeds this (pixels)."""
+    fallback: RandomKinds = Field(default_factory=RandomInitConfig)
+    """The random start used instead when fewer than 50 matches triangulate (texture-less views; one warning)."""
+    points_fn = "splat_framework.model.init:triangulated_points"
+
+    @property
+    def planned_points(self) -> int:
+        return self.fallback.planned_points
+
+
+class SfMInitConfig(InitConfig):
+    """SfM start: a COLMAP dataset's points3D with their colours (computed from all its photos, test views included)."""
+
+    kind: Annotated[Literal["sfm"], KIND] = "sfm"
+    """The start's kind."""
+    points_fn = "splat_framework.model.init:sfm_points"
+
+
+class PlyInitConfig(InitConfig):
+    """PLY start: the centres and base colours of a 3DGS-layout PLY's Gaussians (splat-export's, the 3DGS reference's)."""
+
+    kind: Annotated[Literal["ply"], KIND] = "ply"
+    """The start's kind."""
+    path: Path
+    """PLY file to start from."""
+    points_fn = "splat_framework.model.init:ply_points"
+
+
+InitKinds = init_field(RandomInitConfig, FrustumInitConfig, TriangulatedInitConfig, SfMInitConfig, PlyInitConfig)
+"""The initialisation kinds every model accepts unless its config narrows or widens them."""
+
+
+def upgrade_init_layout(model: dict) -> dict:
+    """A saved model config (dict) written before ``model.init`` was a tagged union, in today's layout.
+
+    Then ``init`` was "random" or "frustum" and ``init_num_points`` its count; a ``-triang`` method
+    (``max_reprojection_px`` and ``matching`` beside them, and for Scaffold/Octree-GS
+    ``start_from = "triangulated"``) started from triangulated matches and fell back to
+    ``max(init_num_points, FALLBACK_POINTS)`` points placed by ``init``. A model config without
+    a string ``init`` is returned as it is."""
+    if not isinstance(model.get("init"), str):
+        return model
+    out = dict(model)
+    placed = {"kind": out.pop("init")}
+    if "init_num_points" in out:
+        placed["num_points"] = out.pop("init_num_points")
+    start = out.pop("start_from", "triangulated")  # Scaffold/Octree-GS named their start; 3dgs-triang had none
+    if "max_reprojection_px" in out:  # the triangulation's fields (Scaffold/Octree-GS carried them whatever their start)
+        prior = {"matching": out.pop("matching", {}), "max_reprojection_px": out.pop("max_reprojection_px")}
+        if start == "triangulated":
+            count = max(int(placed.get("num_points", FALLBACK_POINTS)), FALLBACK_POINTS)
+            placed = {"kind": "triangulated", **prior, "fallback": placed | {"num_points": count}}
+    out["init"] = placed
+    return out

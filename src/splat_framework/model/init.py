@@ -1,0 +1,165 @@
+"""The initial points of every method, one function per kind of ``model.init``
+(:mod:`splat_framework.init_config`), called through :func:`initial_points`.
+
+Each function takes ``(config, datamanager, generator)`` and returns a :class:`StartPoints`
+on the training images' device. The generator is the run's (seeded), so a start is a pure
+function of the config, the data and the seed.
+"""
+
+from __future__ import annotations
+
+import importlib
+import warnings
+from dataclasses import dataclass, field
+
+import torch
+from torch import Tensor
+
+from ..cameras import Camera
+from ..data.scene import SceneData
+from ..errors import DataError
+from ..export import load_ply
+from ..matching import prior
+from ..render import sh_to_rgb
+
+MIN_TRIANGULATED = 50
+"""Fewer triangulated points than this: the run warns and starts from the kind's fallback instead."""
+
+
+@dataclass
+class StartPoints:
+    """Where a model starts: points [N, 3] and colours [N, 3] in [0, 1] (on the training images'
+    device), and seconds per named set-up phase (metrics.json's timing, e.g. ``matching_s``)."""
+
+    points: Tensor
+    colors: Tensor
+    timing: dict[str, float] = field(default_factory=dict)
+
+
+def initial_points(init, datamanager, generator: torch.Generator) -> StartPoints:
+    """The start that ``init`` (an :class:`~splat_framework.init_config.InitConfig`) describes, built
+    by the function its ``points_fn`` names."""
+    module, _, name = init.points_fn.partition(":")
+    return getattr(importlib.import_module(module), name)(init, datamanager, generator)
+
+
+def _train_views(datamanager) -> tuple[list[Camera], list[Tensor]]:
+    views = datamanager.train_views()
+    return [c for c, _ in views], [b["image"] for _, b in views]
+
+
+# ------------------------------------------------------------------ random
+def box_points(init, datamanager, generator: torch.Generator) -> StartPoints:
+    """Kind "random": ``init.num_points`` points uniform in the scene's content box, else the box of
+    the training frusta (:func:`frustum_box`), grey."""
+    scene: SceneData = datamanager.scene
+    cameras, images = _train_views(datamanager)
+    box = torch.tensor(scene.content_box) if scene.content_box is not None else frustum_box(cameras)
+    points, colors = sample_box_points(box, init.num_points, generator)
+    return StartPoints(points.to(images[0].device), colors.to(images[0].device))
+
+
+def frustum_points(init, datamanager, generator: torch.Generator) -> StartPoints:
+    """Kind "frustum": ``init.num_points`` points of :func:`sample_frustum_points`."""
+    cameras, images = _train_views(datamanager)
+    return StartPoints(*sample_frustum_points(cameras, images, init.num_points, generator))
+
+
+def sample_frustum_points(
+    cameras: list[Camera], images: list[Tensor], n: int, generator: torch.Generator
+) -> tuple[Tensor, Tensor]:
+    """Random points inside the training frusta, with the colour of the pixel they lie on.
+
+    A camera is picked uniformly, then a pixel, then a depth uniform in inverse
+    depth between the camera's near and far (so that near content is not starved).
+
+    Returns:
+        points [n, 3], colors [n, 3].
+    """
+    device = images[0].device
+    cam_ids = torch.randint(len(cameras), (n,), generator=generator)
+    pts, cols = [], []
+    for ci, (cam, img) in enumerate(zip(cameras, images)):
+        m = int((cam_ids == ci).sum())
+        if m == 0:
+            continue
+        u = torch.rand(m, generator=generator) * cam.width
+        v = torch.rand(m, generator=generator) * cam.height
+        t = torch.rand(m, generator=generator)
+        inv = 1.0 / cam.near + t * (1.0 / cam.far - 1.0 / cam.near)
+        z = 1.0 / inv
+        uv = torch.stack([u, v], -1).to(device)
+        pts.append(cam.unproject_depth(uv, z.to(device)))
+        cols.append(img[v.long().clamp_max(cam.height - 1), u.long().clamp_max(cam.width - 1)])
+    return torch.cat(pts), torch.cat(cols)
+
+
+def frustum_box(cameras: list[Camera]) -> Tensor:
+    """[2, 3] min and max corner of the axis-aligned box around the cameras' frusta cut at near and far."""
+    corners = []
+    for cam in (c.to("cpu") for c in cameras):
+        uv = torch.tensor([[0.0, 0.0], [cam.width, 0.0], [0.0, cam.height], [cam.width, cam.height]]).repeat(2, 1)
+        z = torch.tensor([cam.near] * 4 + [cam.far] * 4)
+        corners.append(cam.unproject_depth(uv, z))
+    pts = torch.cat(corners)
+    return torch.stack([pts.amin(0), pts.amax(0)])
+
+
+def sample_box_points(box: Tensor, n: int, generator: torch.Generator) -> tuple[Tensor, Tensor]:
+    """The 3DGS reference's random initialisation: points uniform in a box, grey colours.
+
+    Args:
+        box: [2, 3] min and max corner.
+
+    Returns:
+        points [n, 3], colors [n, 3] (0.5: the reference's SH values are U(0, 1) / 255, i.e. grey).
+    """
+    lo, hi = box[0].float().cpu(), box[1].float().cpu()
+    points = lo + torch.rand(n, 3, generator=generator) * (hi - lo)
+    return points, torch.full((n, 3), 0.5)
+
+
+# ------------------------------------------------------------- from data
+def triangulated_points(init, datamanager, generator: torch.Generator) -> StartPoints:
+    """Kind "triangulated": the training views' matches (``init.matching``) triangulated with their
+    poses, points whose reprojection error exceeds ``init.max_reprojection_px`` dropped; with fewer
+    than ``MIN_TRIANGULATED`` of them (texture-less views), the ``init.fallback`` start (one warning).
+    Timing: ``matching_s``."""
+    points, colors, timing = prior.triangulated_points(init.matching, init.max_reprojection_px, datamanager)
+    if points.shape[0] < MIN_TRIANGULATED:
+        warnings.warn("too few triangulated matches: falling back to random initialisation", stacklevel=3)
+        fallback = initial_points(init.fallback, datamanager, generator)
+        points, colors = fallback.points, fallback.colors
+    return StartPoints(points, colors, timing)
+
+
+def sfm_points(init, datamanager, generator: torch.Generator) -> StartPoints:
+    """Kind "sfm": the dataset's structure-from-motion points and colours (a COLMAP dataset's
+    points3D, kept by its parser in ``scene.extras``); DataError when it has none."""
+    scene: SceneData = datamanager.scene
+    xyz = scene.extras.get("points3d")
+    if xyz is None or len(xyz) == 0:
+        raise DataError(
+            f"{scene.root}: no structure-from-motion points to start from (model.init.kind sfm needs a COLMAP "
+            "dataset with sparse/0/points3D); choose another --model.init.kind"
+        )
+    _, images = _train_views(datamanager)
+    device = images[0].device
+    points = torch.as_tensor(xyz, dtype=torch.float32)
+    colors = torch.as_tensor(scene.extras["points3d_rgb"], dtype=torch.float32) / 255.0
+    return StartPoints(points.to(device), colors.to(device))
+
+
+def ply_points(init, datamanager, generator: torch.Generator) -> StartPoints:
+    """Kind "ply": the means and degree-0 colours of the Gaussians of ``init.path`` (a 3DGS-layout
+    PLY, :func:`splat_framework.export.load_ply`); DataError for a file without a Gaussian or with
+    a non-finite position."""
+    _, images = _train_views(datamanager)
+    gaussians = load_ply(init.path)
+    points = gaussians["means"]
+    if points.shape[0] == 0:
+        raise DataError(f"{init.path}: the PLY holds no Gaussian to start from")
+    if not bool(torch.isfinite(points).all()):
+        raise DataError(f"{init.path}: the PLY holds non-finite positions")
+    colors = sh_to_rgb(gaussians["sh0"][:, 0]).clamp(0.0, 1.0)
+    return StartPoints(points.to(images[0].device), colors.to(images[0].device))
