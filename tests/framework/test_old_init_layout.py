@@ -25,8 +25,9 @@ OLD = Path(__file__).parent / "old_init_configs"
 def test_old_config_json_is_todays_experiment(name):
     """Read as --resume and splat-eval read it, an old config.json is the experiment that today's
     command line gives (the -triang methods now TOML variants, starting from triangulated matches)."""
+    saved = json.loads((OLD / f"{name}.json").read_text())["config"]["model"]
+    assert isinstance(saved["init"], str) and "init_num_points" in saved
     method, raw = read_config_json(OLD / f"{name}.json")
-    assert isinstance(raw["model"]["init"], str) and "init_num_points" in raw["model"]
     spec = get_method(method)
     defaults = spec.default_config()
     old = type(defaults).model_validate(upgrade_saved_config(raw, defaults))
