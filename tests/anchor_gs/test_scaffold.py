@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from anchor_gs.method import config_octree_gs, config_octree_gs_triang, config_scaffold_gs, config_scaffold_gs_triang
+from anchor_gs.method import config_octree_gs, config_scaffold_gs
 from anchor_gs.model import ScaffoldModel, voxelize
 from anchor_gs.octree import OctreeModel
 from splat_framework.config import apply_overrides
@@ -20,14 +20,13 @@ def dm():
     return DataManager(load_scene(ensure_scene("forward-tiny"), views=3), device="cpu", seed=0)
 
 
-METHODS = {"scaffold-gs": (config_scaffold_gs, config_scaffold_gs_triang, ScaffoldModel),
-           "octree-gs": (config_octree_gs, config_octree_gs_triang, OctreeModel)}
+METHODS = {"scaffold-gs": (config_scaffold_gs, ScaffoldModel), "octree-gs": (config_octree_gs, OctreeModel)}
 
 
 def build(dm, overrides: dict | None = None, triang: bool = False, method: str = "scaffold-gs") -> tuple:
-    random, triangulated, model_class = METHODS[method]
-    base = triangulated() if triang else random()
-    cfg = apply_overrides(base, {"data": "synthetic/forward-tiny", "model": {"init": {"num_points": 500}}} | (overrides or {}))
+    make, model_class = METHODS[method]
+    init = {"kind": "triangulated"} if triang else {"num_points": 500}  # as the -triang variants
+    cfg = apply_overrides(make(), {"data": "synthetic/forward-tiny", "model": {"init": init}} | (overrides or {}))
     torch.manual_seed(0)
     return cfg, model_class.from_data(cfg, dm, torch.Generator().manual_seed(0))
 
