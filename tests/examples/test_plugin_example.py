@@ -134,6 +134,9 @@ def test_plugin_strategy_trains_3dgs(plugin_site, tmp_path):
     assert metrics["num_gaussians"] == 1000 + changed["added"]
     cfg = json.loads((out / "config.json").read_text())["config"]
     assert cfg["method"] == "3dgs" and cfg["strategy"]["kind"] == "mcmc" and cfg["strategy"]["refine_every"] == 5
+    r = subprocess.run([sys.executable, "-m", "splat_framework.cli.train", *args, "--resume"], capture_output=True,
+                       text=True, env=_env(plugin_site, tmp_path), cwd=tmp_path, timeout=600)
+    assert r.returncode == 0 and "resumed from" in r.stdout + r.stderr, r.stderr[-3000:]  # the same experiment, read back
 
 
 @pytest.mark.bad_input("a strategy kind the method does not accept (scgaussian --strategy.kind mcmc) or no registered one",
