@@ -148,7 +148,7 @@ class SplatConfig(BaseModel):
 
 
 class StrategyConfig(SplatConfig):
-    """Base of the densification strategies' configs: a discriminated union member.
+    """Base of the densification strategies' configs, each tagged by its ``kind``.
 
     Each subclass names its ``kind`` (a one-value Literal: the tag by which a saved
     config, a TOML variant, a sweep or ``--strategy.kind`` picks it) and its strategy
