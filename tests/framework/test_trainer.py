@@ -290,6 +290,11 @@ def test_the_config_picks_the_strategy_and_the_trainer_runs_any_strategy(tmp_pat
     s = trainer.strategy
     assert isinstance(s, Counting) and s.calls == {"sanity": 1, "loss": 12, "pre": 12, "post": 12}
     assert trainer.strategy_state["seen"] == 12 and trainer.model.num_gaussians == n0  # never densified
+    clash = Counting()
+    clash.loss = lambda params, step: {"photometric": params["opacities"].sum()}
+    monkeypatch.setattr(DensifyConfig, "setup", lambda self: clash)
+    with pytest.raises(ValueError, match=r"loss\(\) names \['photometric'\], which the model's loss already has"):
+        Trainer(tiny_config(tmp_path / "clash", steps=4, progress=False)).train_step(0)
     monkeypatch.setattr(DensifyConfig, "setup", lambda self: object())
     with pytest.raises(TypeError, match=r"DensifyConfig.setup\(\) returned object, not a Strategy"):
         Trainer(tiny_config(tmp_path / "run2", steps=4, progress=False))
