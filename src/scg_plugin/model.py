@@ -13,9 +13,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from splat_framework.cameras import Camera
-from splat_framework.model.gaussians import GaussianModel
-from splat_framework.model.ops import remove
+from splat_framework.plugin import Camera, GaussianModel, ops
 from splat_framework.profiling import section
 
 from .losses import rendering_geometry_loss
@@ -164,7 +162,7 @@ class SCGaussianModel(GaussianModel):
         total, count = outputs.depth.sum() * 0.0, 0
         if view is None:
             return total
-        depth = self.rendered_depth(outputs)
+        depth = outputs.expected_depth
         sel_view = b.view == view
         for partner in torch.unique(b.partner_view[sel_view]).tolist():
             sel = sel_view & (b.partner_view == partner)
@@ -202,7 +200,7 @@ class SCGaussianModel(GaussianModel):
         drop = torch.zeros(self.num_gaussians, dtype=torch.bool, device=dev)
         drop[:g] = ~keep
         if drop.any():
-            remove(self.params, optimizers or {}, strategy_state if strategy_state is not None else {}, drop)
+            ops.remove(self.params, optimizers or {}, strategy_state if strategy_state is not None else {}, drop)
         self.bundle = self.bundle.select(keep)
         self.bundle.z = self.params["z"].data[: len(self.bundle)].clone()
         self.cache = None

@@ -24,7 +24,7 @@ import warnings
 import torch
 from torch import Tensor
 
-from splat_framework.cameras import Camera
+from splat_framework.plugin import Camera
 from splat_framework.matching.prior import compute_match_set, match_pairs
 from splat_framework.model.gaussians import FALLBACK_POINTS, random_init
 

@@ -70,7 +70,7 @@ from .metrics import psnr
 from .model.strategy import Strategy
 from .profiling import section
 from .render import set_compile
-from .render._threads import apply_process_threads
+from .render import apply_process_threads
 from .registry import get_method
 from .rng import restore_rng_state, rng_state, seed_everything
 from .run_folder import prepare_run_dir

@@ -31,7 +31,6 @@ from torch import Tensor, nn
 from ..cameras import Camera
 from ..config import TrainConfig
 from ..data.scene import SceneData
-from ..evaluation import expected_depth
 from ..losses import depth_smoothness, photometric_loss, scale_anisotropy, stereo_consistency
 from ..profiling import section
 from ..render import RenderOutput, rasterize, rgb_to_sh
@@ -338,23 +337,15 @@ class GaussianModel(nn.Module):
             losses["backdrop"] = cfg.backdrop_weight * (outputs.alpha * backdrop).sum() / backdrop.sum().clamp_min(1.0)
         if cfg.depth_smoothness > 0:
             losses["depth_smooth"] = cfg.depth_smoothness * depth_smoothness(
-                self.rendered_depth(outputs), batch["image"], outputs.alpha, gamma=cfg.depth_smoothness_gamma)
+                outputs.expected_depth, batch["image"], outputs.alpha, gamma=cfg.depth_smoothness_gamma)
         if cfg.anisotropy_weight > 0:
             losses["anisotropy"] = cfg.anisotropy_weight * scale_anisotropy(self.params["scales"], cfg.max_anisotropy)
         if cfg.stereo_weight > 0 and step >= cfg.stereo_start * self.config.total_steps:
             with section("stereo"):
                 losses["stereo"] = cfg.stereo_weight * self._stereo_loss(
-                    outputs, self.rendered_depth(outputs), batch["image"], camera, step)
+                    outputs, outputs.expected_depth, batch["image"], camera, step)
         with section("photometric"):
             return {"photometric": photometric_loss(outputs.rgb, gt, lambda_dssim=cfg.lambda_dssim)} | losses
-
-    def rendered_depth(self, outputs: RenderOutput) -> Tensor:
-        """[H, W, 1] the expected depth of ``outputs`` in the model's ``depth_mode``, computed once per
-        render (kept in ``outputs.meta["expected_depth"]``) for every loss term that needs it."""
-        depth = outputs.meta.get("expected_depth")
-        if depth is None:
-            depth = outputs.meta["expected_depth"] = expected_depth(outputs.depth, outputs.alpha, self.config.model.depth_mode)
-        return depth
 
     def _stereo_loss(self, outputs: RenderOutput, depth: Tensor, image: Tensor, camera: Camera, step: int) -> Tensor:
         """losses.stereo_consistency against a partner shifted by a keyed draw of (seed, step), up to

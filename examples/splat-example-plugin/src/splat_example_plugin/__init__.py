@@ -11,8 +11,9 @@ from typing import Literal
 import tyro
 from pydantic import Field
 
-from splat_framework.config import DensifyConfig, GaussianModelConfig, StrategyConfig, TrainConfig, strategy_field
-from splat_framework.registry import MethodSpec
+from splat_framework.plugin import (
+    DensifyConfig, GaussianModelConfig, MethodSpec, StrategyConfig, TrainConfig, strategy_field,
+)
 
 
 class PruneOnlyConfig(StrategyConfig):
