@@ -26,14 +26,19 @@ RAY_KEYS = ("z", "ray_o", "ray_d", "is_ray", "is_match")
 class SCGaussianModel(GaussianModel):
     """SCGaussian (NeurIPS 2024): structure-consistent Gaussians from a matching prior."""
 
+    FIXED = ("ray_o", "ray_d", "is_ray", "is_match")
+
     def __init__(
-        self, config, scene_scale, points, colors, bundle: RayBundle | None, cameras: list[Camera], images: list[Tensor]
+        self, config, scene_scale, points, colors, bundle: RayBundle | None = None, cameras: list[Camera] = (),
+        images: list[Tensor] = (), *, rows=None,
     ):
+        """``bundle``: the rays of the matches; ``cameras``, ``images``: the training views (the
+        position loss and the match cache use them; a model rebuilt from a checkpoint has none)."""
         self.bundle = bundle if bundle is not None and len(bundle) > 0 else None
-        self.train_cameras = cameras
-        self.train_images = images
+        self.train_cameras = list(cameras)
+        self.train_images = list(images)
         self.cache: MatchCache | None = None
-        super().__init__(config, scene_scale, points, colors)
+        super().__init__(config, scene_scale, points, colors, rows=rows)
         cfg = config.model
         if self.bundle is not None and config.model.schedule == "single-stage" and cfg.cache_filter and cfg.cache_until > 0:
             self.cache = MatchCache(self.bundle)
@@ -107,25 +112,21 @@ class SCGaussianModel(GaussianModel):
         return 0 if self.bundle is None else len(self.bundle)
 
     # --------------------------------------------------------------- optimise
-    def learning_rates(self) -> dict[str, float]:
-        lrs = super().learning_rates()
-        lrs["z"] = self.config.model.z_lr * self.scene_scale
-        return lrs
-
-    def update_learning_rates(self, optimizers: dict, step: int, total_steps: int) -> None:
-        super().update_learning_rates(optimizers, step, total_steps)
-        if "z" not in optimizers or self.bundle is None:
-            return
+    def learning_rates(self, step: int) -> dict[str, float]:
+        """3DGS's rates, and ``z``'s: while the single stage caches, the warm-up step size halving
+        every ``warmup_lr_halve_every`` steps; else ``z_lr`` following the position rate's decay."""
+        lrs = super().learning_rates(step)
         cfg = self.config.model
-        if cfg.schedule == "single-stage" and step < max(cfg.cache_until, 1):
+        if self.bundle is None:
+            lrs["z"] = cfg.z_lr * self.scene_scale
+        elif cfg.schedule == "single-stage" and step < max(cfg.cache_until, 1):
             # the paper's single stage: z moves with the warm-up step size while caching
             depth_range = float((self.bundle.far - self.bundle.near).median())
-            lr = cfg.warmup_lr * depth_range * 0.5 ** (step // max(cfg.warmup_lr_halve_every, 1))
+            lrs["z"] = cfg.warmup_lr * depth_range * 0.5 ** (step // max(cfg.warmup_lr_halve_every, 1))
         else:
-            ratio = optimizers["means"].param_groups[0]["lr"] / max(self.config.optim.means_lr * self.scene_scale, 1e-30)
-            lr = cfg.z_lr * self.scene_scale * ratio
-        for g in optimizers["z"].param_groups:
-            g["lr"] = lr
+            ratio = lrs["means"] / max(self.config.optim.means_lr * self.scene_scale, 1e-30)
+            lrs["z"] = cfg.z_lr * self.scene_scale * ratio
+        return lrs
 
     def prepare_for_strategy(self) -> None:
         p = self.params
@@ -152,13 +153,13 @@ class SCGaussianModel(GaussianModel):
                 losses["gp"] = cfg.lambda_gp * gaussian_position_loss(pos, self.bundle, self.train_cameras)
         if cfg.lambda_rg > 0 and step >= cfg.rg_start:
             with section("rendering geometry"):
-                losses["rg"] = cfg.lambda_rg * self._rg_loss(outputs, camera)
+                losses["rg"] = cfg.lambda_rg * self._rg_loss(outputs, camera, batch.get("train_position"))
         return losses
 
-    def _rg_loss(self, outputs, camera: Camera) -> Tensor:
-        """L_rg for the matches seen from the rendered training view."""
+    def _rg_loss(self, outputs, camera: Camera, view: int | None) -> Tensor:
+        """L_rg for the matches seen from the rendered training view, at ``view`` in the training
+        split (the batch's ``train_position``; None: not a training view, no term)."""
         b = self.bundle
-        view = self._view_position(camera)
         total, count = outputs.depth.sum() * 0.0, 0
         if view is None:
             return total
@@ -171,12 +172,6 @@ class SCGaussianModel(GaussianModel):
             )
             count += 1
         return total / max(count, 1)
-
-    def _view_position(self, camera: Camera) -> int | None:
-        for k, c in enumerate(self.train_cameras):
-            if c.name == camera.name and torch.equal(c.world_to_cam, camera.world_to_cam):
-                return k
-        return None
 
     def after_optimizer_step(self, step: int, losses, optimizers=None, strategy_state=None) -> None:
         cfg = self.config.model
@@ -213,7 +208,6 @@ class SCGaussianModel(GaussianModel):
         return state
 
     def load_extra_state(self, state: dict) -> None:
-        self.train_cameras = getattr(self, "train_cameras", [])
         dev = self.params["means"].device
         b = state.get("bundle")
         self.bundle = RayBundle(**{k: v.to(dev) for k, v in b.items()}) if b is not None else None

@@ -365,14 +365,7 @@ class Trainer:
 
     def _load_state(self, path: Path, ck: dict) -> None:
         dev = self.device
-        old = self.model.params
-        self.model.params = torch.nn.ParameterDict(
-            {k: torch.nn.Parameter(v.to(dev), requires_grad=old[k].requires_grad) for k, v in ck["params"].items()}
-        )
-        if ck.get("networks"):
-            self.model.networks.load_state_dict(ck["networks"])
-        if ck.get("model_state"):
-            self.model.load_extra_state(ck["model_state"])
+        self.model.restore(ck, dev)
         self.optimizers = self.model.make_optimizers()
         for k, o in self.optimizers.items():
             o.load_state_dict(ck["optimizers"][k])
@@ -438,17 +431,12 @@ class Trainer:
 
     # ------------------------------------------------------------------ step
     def _set_learning_rates(self, step: int) -> None:
-        """Schedule from the base rates every step, then the fault factor (never compounded)."""
-        base = self.model.learning_rates()
+        """Every optimizer's rate from the model's schedule (:meth:`GaussianModel.learning_rates`,
+        a pure function of the step), times the fault factor (never compounded)."""
+        rates = self.model.learning_rates(step)
         for k, o in self.optimizers.items():
-            if k in base:
-                for g in o.param_groups:
-                    g["lr"] = base[k]
-        self.model.update_learning_rates(self.optimizers, step, self.config.total_steps)
-        if self.lr_factor != 1.0:
-            for o in self.optimizers.values():
-                for g in o.param_groups:
-                    g["lr"] *= self.lr_factor
+            for g in o.param_groups:
+                g["lr"] = rates[k] * self.lr_factor
 
     def train_step(self, step: int) -> tuple[dict, float] | None:
         """One optimisation step; None when it was skipped (non-finite loss or gradients)."""
