@@ -18,7 +18,7 @@ from splat_framework.profiling import section
 
 from .losses import rendering_geometry_loss
 from .ray_gaussians import MatchCache, RayBundle, gaussian_position_loss, pixel_errors
-from .startup import baseline_schedule, ordinary_points, ray_prior, thin_prior, warm_up_prior
+from .startup import BaselineSchedule, baseline_schedule, ordinary_points, ray_prior, thin_prior, warm_up_prior
 
 RAY_KEYS = ("z", "ray_o", "ray_d", "is_ray", "is_match")
 
@@ -38,6 +38,8 @@ class SCGaussianModel(GaussianModel):
         self.train_cameras = list(cameras)
         self.train_images = list(images)
         self.cache: MatchCache | None = None
+        self.baseline: BaselineSchedule | None = None
+        """The 3dgs baseline's schedules this model trains with instead of its config's (a thin prior)."""
         super().__init__(config, scene_scale, points, colors, rows=rows)
         cfg = config.model
         if self.bundle is not None and config.model.schedule == "single-stage" and cfg.cache_filter and cfg.cache_until > 0:
@@ -47,7 +49,7 @@ class SCGaussianModel(GaussianModel):
     @classmethod
     def from_data(cls, config, datamanager, generator):
         """The start-up steps of :mod:`scg_plugin.startup` (prior, warm-up, ordinary Gaussians, the
-        baseline's schedule for a thin prior), then the model (whose ``config`` is the revised one)."""
+        baseline's schedule for a thin prior), then the model (with the run's ``config``)."""
         views = datamanager.train_views()
         cameras = [c for c, _ in views]
         images = [b["image"] for _, b in views]
@@ -56,9 +58,8 @@ class SCGaussianModel(GaussianModel):
         bundle = warm_up_prior(bundle, [c.to("cpu") for c in cameras], config.model, timing, stats)
         pts, cols = ordinary_points(config.model, datamanager, bundle, n_matches, generator)
         baseline = config.model.thin_prior_baseline and thin_prior(config.model, bundle, n_matches)
-        if baseline:
-            config = baseline_schedule(config)
         model = cls(config, datamanager.scene.scene_radius, pts, cols, bundle, cameras, images)
+        model.baseline = baseline_schedule(config) if baseline else None
         model.init_timing = timing
         model.init_stats = stats | {"num_matches": len(bundle) // 2 if bundle is not None else 0,
                                     "baseline_schedule": baseline}
@@ -127,6 +128,15 @@ class SCGaussianModel(GaussianModel):
             ratio = lrs["means"] / max(self.config.optim.means_lr * self.scene_scale, 1e-30)
             lrs["z"] = cfg.z_lr * self.scene_scale * ratio
         return lrs
+
+    def strategy_config(self):
+        """The run's strategy, or the baseline's schedule of it after a thin prior."""
+        return self.config.strategy if self.baseline is None else self.baseline.strategy
+
+    def on_step_start(self, step: int) -> None:
+        super().on_step_start(step)
+        if self.baseline is not None:  # the baseline's SH schedule
+            self.active_sh_degree = min(step // max(self.baseline.sh_degree_interval, 1), self.config.model.sh_degree)
 
     def prepare_for_strategy(self) -> None:
         p = self.params
