@@ -249,8 +249,8 @@ def test_render_fps_leaves_out_the_first_renders_warm_up():
         def get_outputs(self, camera, background):
             SlowFirst.calls += 1
             time.sleep(0.4 if SlowFirst.calls == 1 else 0.01)
-            return SimpleNamespace(rgb=torch.full((64, 64, 3), 0.5), depth=torch.ones(64, 64, 1),
-                                   alpha=torch.ones(64, 64, 1))
+            return RenderOutput(rgb=torch.full((64, 64, 3), 0.5), depth=torch.ones(64, 64, 1),
+                                alpha=torch.ones(64, 64, 1))
 
     class Views:
         scene = SimpleNamespace(masked_metrics=False)

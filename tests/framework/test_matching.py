@@ -629,3 +629,13 @@ def test_cli_help_is_fast_and_flat():
     for flag in ("--data", "--views", "--matcher", "--out", "--weights", "--no-epipolar-check"):
         assert flag in out.stdout
     assert time.perf_counter() - t0 < 15
+
+
+def test_matcher_names_are_the_registered_matchers_and_validate_configs():
+    from splat_framework.matching.names import AUTO, MATCHER_NAMES
+    from splat_framework.matching.registry import MATCHERS
+
+    assert MATCHER_NAMES == tuple(MATCHERS)
+    with pytest.raises(ValueError, match="unknown matcher 'nope'"):
+        MatchConfig(matcher="nope")
+    assert MatchConfig(matcher=AUTO).matcher == AUTO
