@@ -13,7 +13,7 @@ refine_every), whose length the success criteria count visits in.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pydantic import Field
 
@@ -105,11 +105,7 @@ class AnchorStrategyConfig(AnchorUpdateConfig):
     """Coarsest growing level's voxel size in base voxels."""
     hierarchy_factor: int = Field(4, ge=2, le=64)
     """Voxel size ratio between growing levels."""
-
-    def setup(self):
-        from .strategy import AnchorStrategy
-
-        return AnchorStrategy(self)
+    strategy_class: ClassVar[str] = "anchor_gs.strategy:AnchorStrategy"
 
 
 class ScaffoldTrainConfig(TrainConfig):
@@ -162,11 +158,7 @@ class OctreeStrategyConfig(AnchorUpdateConfig):
     """An anchor whose mean gradient exceeds the level's threshold x this is drawn at a finer level from then on ..."""
     extra_up: NonNegative = 0.01
     """... by this much per level per update (its extra_level)."""
-
-    def setup(self):
-        from .strategy import OctreeStrategy
-
-        return OctreeStrategy(self)
+    strategy_class: ClassVar[str] = "anchor_gs.strategy:OctreeStrategy"
 
 
 class OctreeTrainConfig(TrainConfig):

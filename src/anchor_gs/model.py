@@ -30,8 +30,7 @@ from torch import Tensor, nn
 from splat_framework.losses import photometric_loss
 from splat_framework.model.gaussians import knn_scale, log_lerp, random_init, run_fraction
 from splat_framework.model.triangulated import triangulated_init
-from splat_framework.plugin import Camera, GaussianModel, RenderOutput, rasterize
-from splat_framework.render import rgb_to_sh
+from splat_framework.plugin import Camera, GaussianModel, RenderOutput, rasterize, rgb_to_sh
 
 VIEW_MARGIN = 0.5
 """Anchors are decoded when they project within the image widened by this fraction on every side."""

@@ -27,8 +27,7 @@ from typing import Any, Mapping
 import torch
 from torch import Tensor
 
-from splat_framework.model.strategy import check_rows
-from splat_framework.plugin import Strategy, ops
+from splat_framework.plugin import Strategy, check_rows, ops
 
 REQUIRED_KEYS = ("anchors", "offsets", "anchor_feat", "scaling")
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pydantic import Field
 
@@ -72,15 +72,12 @@ class RayStrategyConfig(DensifyConfig):
 
     kind: tyro.conf.Suppress[Literal["ray-gaussian"]] = "ray-gaussian"
     """The strategy's tag."""
-
-    def setup(self):
-        from .strategy import RayGaussianStrategy
-
-        return RayGaussianStrategy(self)
+    strategy_class: ClassVar[str] = "scg_plugin.strategy:RayGaussianStrategy"
 
 
 RayStrategies = strategy_field(RayStrategyConfig)
-"""SCGaussian's strategy kinds: only those that keep the Gaussians of matches and their flags."""
+"""SCGaussian's strategy kinds: only those that keep the Gaussians of matches and their flags (no registered
+kind, e.g. an MCMC relocation, which would move or prune them)."""
 
 
 class SCGTrainConfig(TrainConfig):

@@ -14,13 +14,15 @@ can rescale the whole schedule proportionally.
 from __future__ import annotations
 
 import json
+import warnings
 from contextlib import contextmanager
 from contextvars import ContextVar
+from functools import cache
 from pathlib import Path
-from typing import Annotated, Any, Iterator, Literal, Union
+from typing import Annotated, Any, ClassVar, Iterator, Literal, Union
 
 import tyro
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, SerializeAsAny, ValidationError
 
 from .serving import LOOPBACK, Port
 
@@ -146,34 +148,70 @@ class SplatConfig(BaseModel):
 
 
 class StrategyConfig(SplatConfig):
-    """Base of the densification strategies' configs: a discriminated union member.
+    """Base of the densification strategies' configs, each tagged by its ``kind``.
 
     Each subclass names its ``kind`` (a one-value Literal: the tag by which a saved
-    config, a TOML variant or a sweep picks it) and builds its strategy in
-    :meth:`setup`, importing torch only there. A method's config lists the kinds it
-    accepts with :func:`strategy_field`; its default instance decides which one a
-    run uses, and ``--strategy.*`` flags edit that one (a variant switches kind
-    with ``[overrides.strategy] kind = ...``)."""
+    config, a TOML variant, a sweep or ``--strategy.kind`` picks it) and its strategy
+    class as ``"module:Class"`` in :attr:`strategy_class` (imported, with torch, only
+    by :meth:`setup`). A kind registered in the entry-point group
+    ``splat_framework.strategies`` (see :mod:`splat_framework.plugins`) is accepted by
+    every method whose config keeps :data:`RegisteredStrategies`; a method that
+    accepts fewer kinds lists them with :func:`strategy_field`."""
 
+    strategy_class: ClassVar[str] = ""
+    """``"module:Class"`` of the :class:`~splat_framework.model.strategy.Strategy` built from this config."""
     kind: str
     """The strategy's tag."""
     enabled: bool = True
     """Run densification at all (False keeps the initial Gaussians only)."""
 
     def setup(self):
-        """The :class:`~splat_framework.model.strategy.Strategy` this config describes."""
-        raise NotImplementedError(f"{type(self).__name__}.setup()")
+        """The :class:`~splat_framework.model.strategy.Strategy` this config describes: ``strategy_class(self)``."""
+        if not self.strategy_class:
+            raise NotImplementedError(f"{type(self).__name__}.strategy_class is not set")
+        from .plugins import load_object
+
+        return load_object(self.strategy_class)(self)
 
 
 def strategy_field(*configs: type[StrategyConfig]):
-    """The annotation of a ``strategy`` field accepting these :class:`StrategyConfig` kinds.
+    """The annotation of a ``strategy`` field accepting only these :class:`StrategyConfig` kinds.
 
-    A plugin widens the union in its own :class:`TrainConfig` subclass, e.g.
+    A method whose strategy must not be swapped for any registered one (SCGaussian keeps the
+    Gaussians of its matches) narrows its field, e.g.
     ``strategy: strategy_field(MyStrategyConfig, DensifyConfig) = Field(default_factory=MyStrategyConfig)``.
     The CLI shows the flags of the default's kind (no subcommand to type)."""
     if len(configs) == 1:
         return Annotated[configs[0], tyro.conf.AvoidSubcommands]
     return Annotated[Union[configs], Field(discriminator="kind"), tyro.conf.AvoidSubcommands]
+
+
+@cache
+def strategy_kinds() -> dict[str, type[StrategyConfig]]:
+    """Every strategy kind a method accepts unless it narrows its field: ``default``
+    (:class:`DensifyConfig`), then the ``splat_framework.strategies`` entry points (an entry that is
+    not a :class:`StrategyConfig` of its own name's kind is left out with one warning)."""
+    from .plugins import STRATEGY_ENTRY_POINT_GROUP, load_entry_points
+
+    kinds: dict[str, type[StrategyConfig]] = {"default": DensifyConfig}
+    for name, cls in load_entry_points(STRATEGY_ENTRY_POINT_GROUP, "strategy").items():
+        if not (isinstance(cls, type) and issubclass(cls, StrategyConfig)) or cls.model_fields["kind"].default != name:
+            warnings.warn(f"strategy plugin '{name}' is not a StrategyConfig of kind '{name}'; ignored", stacklevel=2)
+        elif name in kinds:
+            warnings.warn(f"strategy kind '{name}' registered twice; keeping the first", stacklevel=2)
+        else:
+            kinds[name] = cls
+    return kinds
+
+
+def _registered_strategy(value: Any) -> Any:
+    """``value`` (a dict or a config) as the :class:`StrategyConfig` of its registered kind."""
+    kinds = strategy_kinds()
+    kind = value.get("kind", "default") if isinstance(value, dict) else getattr(value, "kind", None)
+    if kind not in kinds:
+        raise ValueError(f"unknown strategy kind {kind!r} (registered: {', '.join(repr(k) for k in kinds)})")
+    cls = kinds[kind]
+    return value if type(value) is cls else cls.model_validate(value if isinstance(value, dict) else value.model_dump())
 
 
 class DensifyConfig(StrategyConfig):
@@ -212,14 +250,14 @@ class DensifyConfig(StrategyConfig):
     revised_opacity: bool = False
     """Use the revised opacity for cloned/split Gaussians (Rota Bulo et al. 2024)."""
 
-    def setup(self):
-        from .model.strategy import DefaultStrategy
-
-        return DefaultStrategy(self)
+    strategy_class: ClassVar[str] = "splat_framework.model.strategy:DefaultStrategy"
 
 
-DefaultStrategies = strategy_field(DensifyConfig)
-"""The strategy kinds every method accepts unless its config widens them."""
+RegisteredStrategies = Annotated[
+    SerializeAsAny[StrategyConfig], BeforeValidator(_registered_strategy), tyro.conf.AvoidSubcommands
+]
+"""The strategy kinds every method accepts unless it narrows them with :func:`strategy_field`:
+``default`` (:class:`DensifyConfig`) and every kind of the ``splat_framework.strategies`` entry points."""
 
 
 class OptimConfig(SplatConfig):
@@ -341,8 +379,8 @@ class TrainConfig(SplatConfig):
     """Fuse the rasterizer's compositing kernels with torch.compile, for training and for rendering this run later (eager fallback on any failure; compiled kernels cached under $SPLAT_CACHE/inductor: about 40 s the first time on a 2-core CPU, seconds after; SPLAT_COMPILE=0/1 overrides). On real fern training steps on a 2-core CPU: 1.85-3.0x faster than eager (benchmarks/train_step.py)."""
     model: GaussianModelConfig = Field(default_factory=GaussianModelConfig)
     """Model options."""
-    strategy: DefaultStrategies = Field(default_factory=DensifyConfig)
-    """Densification options (the strategy's kind is the method's or the variant's)."""
+    strategy: RegisteredStrategies = Field(default_factory=DensifyConfig)
+    """Densification options (the strategy's kind is the method's or the variant's; --strategy.kind KIND picks another registered one, with its defaults)."""
     optim: OptimConfig = Field(default_factory=OptimConfig)
     """Learning rates."""
 

@@ -41,9 +41,12 @@ _EXPORTS: dict[str, str] = {
     "GaussianModel": "splat_framework.model.gaussians",
     "Strategy": "splat_framework.model.strategy",
     "DefaultStrategy": "splat_framework.model.strategy",
+    "check_rows": "splat_framework.model.strategy",
     "Camera": "splat_framework.cameras",
     "RenderOutput": "splat_framework.render",
     "rasterize": "splat_framework.render",
+    "rgb_to_sh": "splat_framework.render",
+    "quat_to_rotmat": "splat_framework.render",
 }
 _MODULES: dict[str, str] = {"ops": "splat_framework.model.ops"}
 """Whole modules re-exported (``plugin.ops.remove``: the row-editing ops of strategies and hooks)."""
@@ -59,9 +62,9 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     )
     from .model import ops
     from .model.gaussians import GaussianModel
-    from .model.strategy import DefaultStrategy, Strategy
+    from .model.strategy import DefaultStrategy, Strategy, check_rows
     from .registry import MethodSpec
-    from .render import RenderOutput, rasterize
+    from .render import RenderOutput, quat_to_rotmat, rasterize, rgb_to_sh
 
 
 def __getattr__(name: str) -> Any:

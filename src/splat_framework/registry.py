@@ -27,7 +27,6 @@ Importing this module and listing methods never imports torch.
 
 from __future__ import annotations
 
-import importlib
 import importlib.resources
 import os
 import stat
@@ -71,8 +70,9 @@ class MethodSpec:
         return cfg.model_copy(update={"method": self.name})
 
     def model_class(self) -> type:
-        module, _, attr = self.model.partition(":")
-        return getattr(importlib.import_module(module), attr)
+        from .plugins import load_object
+
+        return load_object(self.model)
 
 
 def default_config_dirs() -> list[Path]:
@@ -94,15 +94,12 @@ def default_config_dirs() -> list[Path]:
 
 
 def _load_entry_points(group: str) -> dict[str, MethodSpec]:
+    from .plugins import load_entry_points
+
     specs: dict[str, MethodSpec] = {}
-    for ep in entry_points(group=group):
-        try:
-            spec = ep.load()
-        except Exception as e:  # a broken plugin must not kill the CLI
-            warnings.warn(f"method plugin '{ep.name}' ({ep.value}) failed to import: {e}", stacklevel=2)
-            continue
+    for name, spec in load_entry_points(group, "method").items():
         if not isinstance(spec, MethodSpec):
-            warnings.warn(f"method plugin '{ep.name}' ({ep.value}) is not a MethodSpec; ignored", stacklevel=2)
+            warnings.warn(f"method plugin '{name}' is not a MethodSpec; ignored", stacklevel=2)
             continue
         if spec.name in specs:
             warnings.warn(f"method '{spec.name}' registered twice; keeping the first", stacklevel=2)

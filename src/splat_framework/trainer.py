@@ -457,6 +457,11 @@ class Trainer:
             outputs = model.get_outputs(camera, self.background)
         with section("loss"):
             losses = model.get_loss_dict(outputs, batch, camera, step)
+            extra = self.strategy.loss(model.params, step)  # e.g. MCMC's regularisers; none by default
+            if extra.keys() & losses.keys():
+                raise ValueError(f"{type(self.strategy).__name__}.loss() names {sorted(extra.keys() & losses.keys())}, "
+                                 "which the model's loss already has")
+            losses |= extra
             loss = sum(losses.values())
         if not torch.isfinite(loss):
             return self._fault(step, "loss")

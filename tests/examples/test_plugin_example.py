@@ -5,6 +5,7 @@ import subprocess
 import sys
 
 import pytest
+from cli_harness import run_cli
 from support import REPO
 
 EXAMPLE = REPO / "examples" / "splat-example-plugin"
@@ -66,6 +67,7 @@ from splat_example_plugin.model import PruneOnlyStrategy
 
 base = get_method("flat-3dgs").default_config()
 assert isinstance(base.strategy, PruneOnlyConfig) and isinstance(base.strategy.setup(), PruneOnlyStrategy)
+assert base.strategy.setup().every == base.strategy.every  # built from its strategy_class, "module:Class"
 switched = apply_overrides(base, {"strategy": {"kind": "default", "reset_every": 7}})
 assert isinstance(switched.strategy, DensifyConfig) and switched.strategy.reset_every == 7
 assert type(switched.strategy.setup()) is DefaultStrategy
@@ -76,6 +78,93 @@ except pydantic.ValidationError as e:
     assert "'prune-only', 'default'" in str(e), str(e)
 else:
     raise AssertionError("a kind the method does not list must be refused")
+print("ok")
+"""
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=_env(plugin_site, tmp_path), timeout=120)
+    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr[-3000:]
+
+
+MCMC_RUN = """
+import json, sys
+from splat_framework.cli.train import entrypoint, main
+
+try:  # the plugin kind's flags in --help, without torch
+    main(["3dgs", "--strategy.kind", "mcmc", "--help"])
+except SystemExit:
+    pass
+assert "torch" not in sys.modules, "--help imported torch"
+from splat_framework import trainer
+from splat_example_plugin.mcmc import MCMCStrategy
+
+seen, counts = [], []
+train_step, post = trainer.Trainer.train_step, MCMCStrategy.step_post_backward
+trainer.Trainer.train_step = lambda self, step: seen.append(train_step(self, step)) or seen[-1]
+MCMCStrategy.step_post_backward = lambda self, *a: counts.append(post(self, *a)) or counts[-1]
+sys.argv = ["splat-train", *sys.argv[1:]]
+try:
+    entrypoint()
+except SystemExit as e:
+    assert not e.code, e.code
+losses = seen[-1][0]
+assert {"mcmc_opacity", "mcmc_scale"} <= set(losses), losses  # the strategy's loss terms, summed by the trainer
+assert abs(losses["loss"] - sum(v for k, v in losses.items() if k != "loss")) < 1e-6 * max(1.0, losses["loss"])
+print(json.dumps({"relocated": sum(c.get("n_relocate", 0) for c in counts), "added": sum(c.get("n_add", 0) for c in counts)}))
+"""
+
+
+def test_plugin_strategy_trains_3dgs(plugin_site, tmp_path):
+    """``splat-train 3dgs --strategy.kind mcmc``, from outside the repository: the plugin's MCMC strategy
+    (entry-point group splat_framework.strategies) relocates dead Gaussians, adds more and adds its
+    regularisers to 3dgs's loss; the run's config.json names the kind and reads back."""
+    out = tmp_path / "run"
+    args = ["3dgs", "--strategy.kind", "mcmc", "--data", "synthetic/forward-tiny", "--steps", "20",
+            "--output", str(out), "--no-progress", "--model.init-num-points", "1000",
+            # refine at steps 5, 10, 15; the start's opacity is 0.1, so what the regulariser pushes below it is dead
+            "--strategy.refine-every", "5", "--strategy.min-opacity", "0.0999"]
+    r = subprocess.run([sys.executable, "-c", MCMC_RUN, *args], capture_output=True, text=True,
+                       env=_env(plugin_site, tmp_path), cwd=tmp_path, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    import json
+
+    assert "--strategy.noise-lr" in r.stdout and "--strategy.grow-grad2d" not in r.stdout  # --help: mcmc's flags
+    changed = json.loads(r.stdout.strip().splitlines()[-1])
+    assert changed["relocated"] > 0 and changed["added"] > 0, changed
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["strategy"] == "splat_example_plugin.mcmc.MCMCStrategy"
+    assert metrics["num_gaussians"] == 1000 + changed["added"]
+    cfg = json.loads((out / "config.json").read_text())["config"]
+    assert cfg["method"] == "3dgs" and cfg["strategy"]["kind"] == "mcmc" and cfg["strategy"]["refine_every"] == 5
+    r = subprocess.run([sys.executable, "-m", "splat_framework.cli.train", *args, "--resume"], capture_output=True,
+                       text=True, env=_env(plugin_site, tmp_path), cwd=tmp_path, timeout=600)
+    assert r.returncode == 0 and "resumed from" in r.stdout + r.stderr, r.stderr[-3000:]  # the same experiment, read back
+
+
+@pytest.mark.bad_input("a strategy kind the method does not accept (scgaussian --strategy.kind mcmc) or no registered one",
+                       "exit 2, one line naming strategy.kind and what the method accepts")
+def test_narrowed_method_refuses_a_plugin_strategy(plugin_site, tmp_path):
+    """SCGaussian accepts only its ray-keeping strategy, even with a plugin kind registered; a kind
+    nobody registered is named with the registered ones."""
+    env = _env(plugin_site, tmp_path)
+    run_cli("train", "scgaussian", "--strategy.kind", "mcmc", "--data", "synthetic/forward-tiny",
+            "--output", str(tmp_path / "scg"), env=env, match=("strategy.kind", "'ray-gaussian'"), watch=[tmp_path],
+            allowed=[tmp_path / "cache"])
+    run_cli("train", "3dgs", "--strategy.kind", "nope", "--data", "synthetic/forward-tiny",
+            "--output", str(tmp_path / "3dgs"), env=env, match="unknown strategy kind 'nope' (registered: 'default', 'mcmc')")
+
+
+def test_mcmc_split_keeps_what_a_gaussian_renders(plugin_site, tmp_path):
+    """The relocation rule (eq. 9 of Kheradmand et al.): one copy changes nothing; c copies composite to
+    the old opacity and are smaller."""
+    code = """
+import torch
+from splat_example_plugin.mcmc import split_opacity_scale
+o = torch.tensor([0.3, 0.9, 0.5, 0.05])
+s = torch.log(torch.full((4, 3), 0.2))
+c = torch.tensor([1, 2, 5, 51])
+o_new, s_new = split_opacity_scale(o, s, c)
+assert torch.allclose(o_new[0], o[0]) and torch.allclose(s_new[0], s[0])
+assert torch.allclose(1 - (1 - o_new) ** c.float(), o, atol=1e-6)
+assert (s_new[1:] < s[1:]).all() and torch.isfinite(s_new).all()
 print("ok")
 """
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=_env(plugin_site, tmp_path), timeout=120)

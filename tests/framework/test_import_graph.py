@@ -104,14 +104,9 @@ def test_cycles_are_found():
     assert cycles({"a": {"b"}, "b": set()}) == []
 
 
-OPEN_CYCLES = [["splat_framework.config", "splat_framework.model.strategy"]]
-"""Circles another change of issue 41 closes (a strategy config naming its class as ``module:Class``);
-once merged with it this list is empty, and the test below then insists on that."""
-
-
 def test_no_import_cycle_in_src():
     graph, _ = import_graph()
-    assert cycles(graph) == OPEN_CYCLES
+    assert cycles(graph) == []
 
 
 def test_no_module_imports_another_modules_private_names():

@@ -27,7 +27,10 @@ from support import REPO
 
 
 def _fake_eps(monkeypatch, eps):
-    monkeypatch.setattr(registry, "entry_points", lambda group: [e for e in eps if e.group == group])
+    from splat_framework import plugins
+
+    for module in (registry, plugins):
+        monkeypatch.setattr(module, "entry_points", lambda group: [e for e in eps if e.group == group])
 
 
 def test_builtins_and_plugin_registered_through_entry_points():
@@ -51,6 +54,35 @@ def test_broken_plugin_warns_instead_of_killing_the_cli(monkeypatch):
         methods = registry.discover_methods(config_dirs=[])
     assert list(methods) == ["3dgs"]
     assert any("broken" in str(x.message) and "failed to import" in str(x.message) for x in w)
+
+
+def test_registered_strategy_kinds_are_every_unnarrowed_methods(monkeypatch):
+    """A StrategyConfig in group splat_framework.strategies under its kind's name is accepted by 3dgs
+    (whose field is not narrowed) and written back in full; a broken or misnamed entry warns and is left out."""
+    from splat_framework.config import strategy_kinds
+    from splat_framework.plugins import STRATEGY_ENTRY_POINT_GROUP
+
+    from scg_plugin.config import RayStrategyConfig
+    from splat_framework.methods.gaussian_splatting import spec_3dgs
+
+    _fake_eps(monkeypatch, [
+        EntryPoint("ray-gaussian", "scg_plugin.config:RayStrategyConfig", STRATEGY_ENTRY_POINT_GROUP),
+        EntryPoint("misnamed", "scg_plugin.config:RayStrategyConfig", STRATEGY_ENTRY_POINT_GROUP),
+        EntryPoint("broken", "no_such_module_xyz:Config", STRATEGY_ENTRY_POINT_GROUP),
+    ])
+    strategy_kinds.cache_clear()
+    try:
+        with warnings.catch_warnings(record=True) as w:
+            warnings.simplefilter("always")
+            assert strategy_kinds() == {"default": DensifyConfig, "ray-gaussian": RayStrategyConfig}
+        assert sorted(m for m in ("misnamed", "broken") if any(m in str(x.message) for x in w)) == ["broken", "misnamed"]
+        base = spec_3dgs.default_config()
+        cfg = apply_overrides(base, {"strategy": {"kind": "ray-gaussian", "prune_opa": 0.01}})
+        assert type(cfg.strategy) is RayStrategyConfig and type(base).model_validate_json(cfg.model_dump_json()) == cfg
+        with pytest.raises(ValidationError, match="unknown strategy kind 'mcmc'"):
+            apply_overrides(base, {"strategy": {"kind": "mcmc"}})
+    finally:
+        strategy_kinds.cache_clear()
 
 
 def test_variant_files_override_base(tmp_path, monkeypatch):

@@ -296,13 +296,17 @@ def test_the_config_picks_the_strategy_and_the_trainer_runs_any_strategy(tmp_pat
 
     class Counting(Strategy):
         def __init__(self):
-            self.calls = {"sanity": 0, "pre": 0, "post": 0}
+            self.calls = {"sanity": 0, "loss": 0, "pre": 0, "post": 0}
 
         def initialize_state(self, scene_scale=1.0):
             return {"scene_scale": scene_scale, "seen": 0}
 
         def check_sanity(self, params, optimizers):
             self.calls["sanity"] += 1
+
+        def loss(self, params, step):  # a term the trainer adds to the model's loss
+            self.calls["loss"] += 1
+            return {"counting": 0.0 * params["opacities"].sum()}
 
         def step_pre_backward(self, params, optimizers, state, step, info):
             self.calls["pre"] += 1
@@ -318,8 +322,13 @@ def test_the_config_picks_the_strategy_and_the_trainer_runs_any_strategy(tmp_pat
     n0 = trainer.model.num_gaussians
     trainer.train()
     s = trainer.strategy
-    assert isinstance(s, Counting) and s.calls == {"sanity": 1, "pre": 12, "post": 12}
+    assert isinstance(s, Counting) and s.calls == {"sanity": 1, "loss": 12, "pre": 12, "post": 12}
     assert trainer.strategy_state["seen"] == 12 and trainer.model.num_gaussians == n0  # never densified
+    clash = Counting()
+    clash.loss = lambda params, step: {"photometric": params["opacities"].sum()}
+    monkeypatch.setattr(DensifyConfig, "setup", lambda self: clash)
+    with pytest.raises(ValueError, match=r"loss\(\) names \['photometric'\], which the model's loss already has"):
+        Trainer(tiny_config(tmp_path / "clash", steps=4, progress=False)).train_step(0)
     monkeypatch.setattr(DensifyConfig, "setup", lambda self: object())
     with pytest.raises(TypeError, match=r"DensifyConfig.setup\(\) returned object, not a Strategy"):
         Trainer(tiny_config(tmp_path / "run2", steps=4, progress=False))

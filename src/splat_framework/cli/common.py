@@ -57,11 +57,7 @@ def config_path(config_cls: type) -> str:
             return members(args[0])
         return tuple(a for m in args for a in members(m)) if args else (annotation,)
 
-    todo, subclasses = [], [TrainConfig]
-    while subclasses:
-        cls = subclasses.pop()
-        todo.append(("", cls))
-        subclasses.extend(cls.__subclasses__())
+    todo = [("", c) for c in (TrainConfig, *_subclasses(TrainConfig))]
     seen = set()
     while todo:
         prefix, cls = todo.pop(0)
@@ -73,8 +69,14 @@ def config_path(config_cls: type) -> str:
         for name, field in cls.model_fields.items():
             for member in members(field.annotation):
                 if isinstance(member, type) and issubclass(member, SplatConfig):
-                    todo.append((f"{prefix}.{name}".lstrip("."), member))
+                    # a field of a base class (the registered strategies) holds its subclasses
+                    todo += [(f"{prefix}.{name}".lstrip("."), c) for c in (member, *_subclasses(member))]
     return ""
+
+
+def _subclasses(cls: type) -> list[type]:
+    """Every subclass of ``cls``, at any depth."""
+    return [c for sub in cls.__subclasses__() for c in (sub, *_subclasses(sub))]
 
 
 def parse_cli(f, *, prog: str, args: list[str] | None = None, field_prefix: str | None = None, **kwargs):

@@ -40,14 +40,48 @@ def _discover(asked: str | None):
     return methods
 
 
+STRATEGY_KIND_FLAG = "--strategy.kind"
+
+
+def _strategy_kind(argv: list[str]) -> tuple[list[str], str | None]:
+    """``argv`` without ``--strategy.kind KIND`` (or ``=KIND``), and KIND (None when not given)."""
+    rest, kind, it = [], None, iter(argv)
+    for a in it:
+        if a == STRATEGY_KIND_FLAG:
+            kind = next(it, None)
+            if kind is None:
+                from .common import ArgumentsError
+
+                raise ArgumentsError(f"{STRATEGY_KIND_FLAG} needs a strategy kind; see splat-train METHOD --help")
+        elif a.startswith(STRATEGY_KIND_FLAG + "="):
+            kind = a.partition("=")[2]
+        else:
+            rest.append(a)
+    return rest, kind
+
+
+def _with_strategy_kind(spec, kind: str):
+    """``spec`` whose default strategy is ``kind``'s, with that kind's defaults (the ``--strategy.*``
+    flags then edit it); a kind the method does not accept is a ValidationError naming the field."""
+    from dataclasses import replace
+
+    from ..config import deep_merge
+
+    spec = replace(spec, overrides=deep_merge(spec.overrides, {"strategy": {"kind": kind}}))
+    spec.default_config()  # refuses a kind the method does not accept, before tyro builds its parser
+    return spec
+
+
 def main(args: list[str] | None = None) -> dict:
     import tyro
 
     from .common import one_line_parse_errors
 
-    argv = sys.argv[1:] if args is None else args
+    argv, strategy_kind = _strategy_kind(sys.argv[1:] if args is None else args)
     asked = next((a for a in argv if not a.startswith("-")), None)
     methods = _discover(asked)
+    if strategy_kind is not None and asked in methods:
+        methods[asked] = _with_strategy_kind(methods[asked], strategy_kind)
     parser_type = build_parser_type(methods)
     # tyro's errors and invalid values: one line (cli.common.run_cli), not tyro's box
     with one_line_parse_errors("splat-train", subcommands=methods):

@@ -10,6 +10,9 @@ per-row operations are:
 - ``remove``: drop the masked rows.
 - ``append``: add new rows with given values (a strategy that grows something other
   than copies of existing rows, e.g. Scaffold-GS's anchors on a voxel grid).
+- ``rewrite``: overwrite rows in place with given values and restart their optimizer
+  state, as for a new Gaussian (gsplat's ``relocate``: MCMC moves dead Gaussians onto
+  live ones; with ``append``, its ``sample_add`` too).
 - ``reset_opa``: clamp opacities to at most ``value`` and zero their moments.
 - ``decay_opa``: multiply every opacity by a factor, moments kept (no surgery).
 
@@ -196,6 +199,45 @@ def append(params: Params, optimizers: Optimizers, state: MutableMapping, rows: 
 
     _update_param_with_optimizer(param_fn, optimizer_fn, params, optimizers)
     _resize_state(state, n, lambda v: torch.cat([v, v.new_zeros((m, *v.shape[1:]))]))
+
+
+@torch.no_grad()
+def rewrite(
+    params: Params, optimizers: Optimizers, state: MutableMapping, rows: Tensor, values: Mapping[str, Tensor]
+) -> None:
+    """Overwrite rows ``rows`` [M] (int64, distinct) as new Gaussians, the row count kept.
+
+    ``values[key]`` [M, ...] replaces ``params[key][rows]`` for each key it names (any
+    subset of ``params``; the other keys keep their rows). For every key of ``params``
+    the Adam moments of these rows are zeroed, and so are the rows of every per-row
+    tensor of ``state`` (e.g. accumulated gradients): what was learnt about the old
+    Gaussian does not carry over to the one written in its place.
+    """
+    unknown = set(values) - set(params)
+    if unknown:
+        raise ValueError(f"rewrite: {sorted(unknown)} not in params")
+    rows = rows.to(device=next(iter(params.values())).device, dtype=torch.long)
+    if rows.unique().numel() != rows.numel():
+        raise ValueError("rewrite: rows must be distinct")
+    for key, v in values.items():
+        if v.shape[0] != rows.numel():
+            raise ValueError(f"rewrite: values[{key!r}] has {v.shape[0]} rows for {rows.numel()} rows")
+    n = _num_rows(params)
+
+    def param_fn(name: str, p: Tensor) -> Tensor:
+        if name not in values:
+            return p
+        out = p.clone()
+        out[rows] = values[name].to(p.device, p.dtype)
+        return out
+
+    def zero_rows(v: Tensor) -> Tensor:
+        out = v.clone()
+        out[rows] = 0
+        return out
+
+    _update_param_with_optimizer(param_fn, lambda _, v: zero_rows(v), params, optimizers)
+    _resize_state(state, n, zero_rows)
 
 
 @torch.no_grad()

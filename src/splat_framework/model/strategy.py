@@ -57,17 +57,20 @@ def check_rows(params: Mapping[str, Tensor], optimizers: Mapping[str, torch.opti
 class Strategy:
     """What the trainer calls to grow and prune Gaussians: the seam a plugin overrides.
 
-    The run's config chooses it: ``config.strategy`` is a member of a discriminated
-    union of :class:`~splat_framework.config.StrategyConfig` kinds whose
-    ``setup()`` builds the strategy (default: :class:`DefaultStrategy` from
-    :class:`DensifyConfig`). A plugin adds its own kind (an MCMC-style relocation,
-    anchor growing, ...) by widening the union in its config with
-    :func:`~splat_framework.config.strategy_field`, without touching the trainer. A
+    The run's config chooses it: ``config.strategy`` is a
+    :class:`~splat_framework.config.StrategyConfig` whose ``setup()`` builds the
+    strategy its ``strategy_class`` names (default: :class:`DefaultStrategy` from
+    :class:`DensifyConfig`). A plugin adds its own kind (an MCMC-style relocation, ...)
+    for every method by registering its config in the entry-point group
+    ``splat_framework.strategies``, without touching the trainer. A
     strategy sees plain dicts only, never the model: ``params`` (name -> [N, ...]
     tensors, one row per Gaussian), ``optimizers`` (name -> optimizer of that one
     tensor), its own ``state`` (checkpointed by the trainer; tensors with one row
     per Gaussian must be resized by whoever adds or removes rows) and ``info``
-    (the rasterizer's meta dict). Every method has a do-nothing default, so a
+    (the rasterizer's meta dict). The trainer calls, each step: :meth:`loss` (added to
+    the model's loss), :meth:`step_pre_backward` and, after the optimizers stepped,
+    :meth:`step_post_backward` (or :meth:`rows_changed`) on the steps the model
+    densifies. Every method has a do-nothing default, so a
     subclass overrides only what it needs; this base used as is never densifies.
     """
 
@@ -77,6 +80,12 @@ class Strategy:
 
     def check_sanity(self, params: Mapping[str, Tensor], optimizers: Mapping[str, torch.optim.Optimizer]) -> None:
         """Raise ValueError when ``params`` / ``optimizers`` break this strategy's conventions."""
+
+    def loss(self, params: Mapping[str, Tensor], step: int) -> dict[str, Tensor]:
+        """Loss terms this strategy adds to the model's at ``step`` (name -> scalar tensor, e.g.
+        MCMC's opacity and scale regularisers), named unlike the model's terms; the trainer sums them
+        with the model's and logs them alike. Default: none."""
+        return {}
 
     def step_pre_backward(
         self,

@@ -128,6 +128,37 @@ def test_remove_drops_rows_and_moments():
     assert params["is_ray"].shape == (3,) and not params["is_ray"].requires_grad
 
 
+def test_rewrite_overwrites_rows_and_restarts_their_moments():
+    """``ops.rewrite`` (gsplat's relocate): the named keys of rows [1, 3] take the new values, the
+    other keys and rows are kept; every key's moments and every per-row state tensor restart at those rows."""
+    params, opts = make_params(5)
+    prime_adam(params, opts)
+    state = {"grad2d": torch.arange(1.0, 6.0), "scene_scale": 1.0}
+    before = {k: p.detach().clone() for k, p in params.items()}
+    new_means = torch.full((2, 3), 7.0)
+    ops.rewrite(params, opts, state, torch.tensor([3, 1]), {"means": new_means, "opacities": torch.zeros(2)})
+    assert_aligned(params, opts)
+    torch.testing.assert_close(params["means"][[3, 1]], new_means)
+    assert params["opacities"].tolist() == [before["opacities"][0].item(), 0.0] * 2 + [before["opacities"][4].item()]
+    torch.testing.assert_close(params["scales"], before["scales"])
+    torch.testing.assert_close(params["means"][[0, 2, 4]], before["means"][[0, 2, 4]])
+    for k in TRAINABLE:
+        assert row_ids(params, opts, k).tolist() == [1, 0, 3, 0, 5], k
+    assert state["grad2d"].tolist() == [1, 0, 3, 0, 5]
+    with pytest.raises(ValueError, match="distinct"):
+        ops.rewrite(params, opts, state, torch.tensor([1, 1]), {})
+    with pytest.raises(ValueError, match="not in params"):
+        ops.rewrite(params, opts, state, torch.tensor([1]), {"colour": torch.zeros(1)})
+
+
+def test_strategy_loss_defaults_to_none():
+    """A strategy adds no loss term unless it overrides ``Strategy.loss`` (the built-in ones do not)."""
+    from splat_framework.model.strategy import Strategy
+
+    params, _ = make_params(4)
+    assert Strategy().loss(params, 0) == {} and DefaultStrategy().loss(params, 0) == {}
+
+
 def test_split_parent_in_place_child_appended():
     params, opts = make_params(4, is_ray=[1.0, 0.0, 1.0, 0.0])
     with torch.no_grad():

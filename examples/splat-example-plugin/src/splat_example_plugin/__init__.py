@@ -1,9 +1,11 @@
-"""A minimal splat plugin: 3DGS with view-independent (SH degree 0) colour and a prune-only densification strategy.
+"""A minimal splat plugin: 3DGS with view-independent (SH degree 0) colour and a prune-only densification
+strategy, plus an MCMC-style strategy that every method accepting registered strategies can train with.
 
 A plugin is a package that names a ``MethodSpec`` in the entry-point group
-``splat_framework.methods``. Its config factory must stay torch-free (it is read
-to build ``splat-train --help``); the model and the strategy are imported only
-when training starts.
+``splat_framework.methods`` and a strategy config in ``splat_framework.strategies``
+(``splat-train 3dgs --strategy.kind mcmc``). Configs must stay torch-free (they are
+read to build ``splat-train --help``); the model and the strategies are imported
+only when training starts (a strategy config names its class as ``module:Class``).
 """
 
 from typing import Literal
@@ -11,8 +13,19 @@ from typing import Literal
 import tyro
 from pydantic import Field
 
+from typing import ClassVar
+
 from splat_framework.plugin import (
-    DensifyConfig, GaussianModelConfig, MethodSpec, StrategyConfig, TrainConfig, strategy_field,
+    DensifyConfig,
+    GaussianModelConfig,
+    Interval,
+    MethodSpec,
+    NonNegative,
+    StartSteps,
+    Steps,
+    StrategyConfig,
+    TrainConfig,
+    strategy_field,
 )
 
 
@@ -25,11 +38,34 @@ class PruneOnlyConfig(StrategyConfig):
     """Remove Gaussians whose opacity is below this."""
     every: int = Field(100, ge=1, le=10**9)
     """Prune every this many iterations."""
+    strategy_class: ClassVar[str] = "splat_example_plugin.model:PruneOnlyStrategy"
 
-    def setup(self):
-        from .model import PruneOnlyStrategy
 
-        return PruneOnlyStrategy(self.min_opacity, self.every)
+class MCMCConfig(StrategyConfig):
+    """3DGS as Markov chain Monte Carlo (Kheradmand et al. 2024): dead Gaussians are relocated onto live
+    ones drawn by opacity, the model grows by drawing more, and opacity and scale are regularised."""
+
+    kind: tyro.conf.Suppress[Literal["mcmc"]] = "mcmc"
+    """The strategy's tag."""
+    cap_max: int = Field(1_000_000, ge=1, le=50_000_000)
+    """Most Gaussians the model grows to."""
+    growth_rate: NonNegative = 0.05
+    """Each refinement adds this fraction of the Gaussians (until cap_max)."""
+    min_opacity: float = Field(0.005, ge=0, lt=1)
+    """A Gaussian whose opacity is at most this is dead and relocated."""
+    refine_start_iter: StartSteps = 500
+    """First iteration at which Gaussians are relocated and added."""
+    refine_stop_iter: Steps = 2500
+    """Last iteration at which Gaussians are relocated and added."""
+    refine_every: Interval = 100
+    """Relocate and add every this many iterations."""
+    noise_lr: NonNegative = 5e5
+    """Position noise of nearly transparent Gaussians, times the position learning rate (0 = none)."""
+    opacity_reg: NonNegative = 0.01
+    """Weight of the mean opacity in the loss."""
+    scale_reg: NonNegative = 0.01
+    """Weight of the mean scale in the loss."""
+    strategy_class: ClassVar[str] = "splat_example_plugin.mcmc:MCMCStrategy"
 
 
 class FlatTrainConfig(TrainConfig):

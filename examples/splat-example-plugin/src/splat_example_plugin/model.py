@@ -14,9 +14,9 @@ class PruneOnlyStrategy(Strategy):
     """Never grows the model: every ``every`` iterations removes the Gaussians whose opacity is below
     ``min_opacity`` (the toy counterpart of gsplat's strategies, on the same interface)."""
 
-    def __init__(self, min_opacity: float, every: int) -> None:
-        self.min_opacity = float(min_opacity)
-        self.every = int(every)
+    def __init__(self, config) -> None:
+        self.min_opacity = float(config.min_opacity)
+        self.every = int(config.every)
 
     def check_sanity(self, params, optimizers):
         if "opacities" not in params:
