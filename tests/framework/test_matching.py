@@ -632,10 +632,10 @@ def test_cli_help_is_fast_and_flat():
 
 
 def test_matcher_names_are_the_registered_matchers_and_validate_configs():
-    from splat_framework.matching.names import AUTO, MATCHER_NAMES
-    from splat_framework.matching.registry import MATCHERS
+    from splat_framework.matching import names, registry
 
-    assert MATCHER_NAMES == tuple(MATCHERS)
+    assert registry.MATCHERS is names.MATCHERS and all(registry.MATCHERS.values())  # one registry, classes filled in
+    AUTO = names.AUTO
     with pytest.raises(ValueError, match="unknown matcher 'nope'"):
         MatchConfig(matcher="nope")
     assert MatchConfig(matcher=AUTO).matcher == AUTO

@@ -3,8 +3,9 @@ importing nothing else of :mod:`splat_framework.matching`: configs validate a na
 
 from __future__ import annotations
 
-MATCHER_NAMES = ("dense", "sift", "loftr", "disk-lightglue", "aliked-lightglue")
-"""The registered matchers (:data:`splat_framework.matching.registry.MATCHERS` maps each to its class)."""
+MATCHERS: dict[str, type | None] = dict.fromkeys(("dense", "sift", "loftr", "disk-lightglue", "aliked-lightglue"))
+"""The matchers by name, the one registry: :mod:`splat_framework.matching.registry` fills in each
+class; a matcher registered there later (a plugin's, a test's) is a name a config may choose too."""
 
 #: ``matcher = "auto"``: a pair whose optical axes differ by at least ``auto_flow_max_angle`` is
 #: matched with ``AUTO_LEARNED`` (when its weights are on disk); any other pair with ``AUTO_DENSE``,
@@ -19,6 +20,6 @@ AUTO_GUIDED = "aliked-lightglue+guided-flow"
 
 def check_matcher_name(name: str) -> str:
     """``name`` when it is ``auto`` or a registered matcher; ValueError naming the choices otherwise."""
-    if name != AUTO and name not in MATCHER_NAMES:
-        raise ValueError(f"unknown matcher {name!r}; choose one of {[AUTO, *sorted(MATCHER_NAMES)]}")
+    if name != AUTO and name not in MATCHERS:
+        raise ValueError(f"unknown matcher {name!r}; choose one of {[AUTO, *sorted(MATCHERS)]}")
     return name

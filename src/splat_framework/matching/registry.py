@@ -7,18 +7,18 @@ from typing import TYPE_CHECKING, Any
 from .base import Matcher
 from .classical import DenseFlowMatcher, SiftMatcher
 from .learned import AlikedLightGlueMatcher, DiskLightGlueMatcher, LoFTRMatcher, MissingWeightsError
-from .names import AUTO, AUTO_DENSE, AUTO_GUIDED, AUTO_LEARNED
+from .names import AUTO, AUTO_DENSE, AUTO_GUIDED, AUTO_LEARNED, MATCHERS
 
 if TYPE_CHECKING:  # pragma: no cover
     from .config import MatchConfig
 
-MATCHERS: dict[str, type] = {
+MATCHERS.update({
     "dense": DenseFlowMatcher,
     "sift": SiftMatcher,
     "loftr": LoFTRMatcher,
     "disk-lightglue": DiskLightGlueMatcher,
     "aliked-lightglue": AlikedLightGlueMatcher,
-}
+})
 __all__ = ["AUTO", "AUTO_DENSE", "AUTO_GUIDED", "AUTO_LEARNED", "MATCHERS", "build_matcher", "get_matcher",
            "learned_available"]
 
