@@ -19,7 +19,7 @@ from pydantic import Field
 
 import tyro
 
-from splat_framework.config import (
+from splat_framework.plugin import (
     Fraction,
     GaussianModelConfig,
     Interval,

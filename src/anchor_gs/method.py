@@ -3,7 +3,7 @@
 Kept torch-free: the CLI reads it to build ``--help``.
 """
 
-from splat_framework.registry import MethodSpec
+from splat_framework.plugin import MethodSpec
 
 from .config import OctreeTrainConfig, ScaffoldTrainConfig
 

@@ -23,17 +23,14 @@ use) and the feature bank.
 
 from __future__ import annotations
 
-import math
-
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from splat_framework.cameras import Camera
 from splat_framework.losses import photometric_loss
-from splat_framework.model.gaussians import GaussianModel, knn_scale
+from splat_framework.model.gaussians import knn_scale, log_lerp, run_fraction
 from splat_framework.model.init import initial_points
-from splat_framework.render import RenderOutput, rasterize, rgb_to_sh
+from splat_framework.plugin import Camera, GaussianModel, RenderOutput, rasterize, rgb_to_sh
 
 VIEW_MARGIN = 0.5
 """Anchors are decoded when they project within the image widened by this fraction on every side."""
@@ -53,13 +50,13 @@ class ScaffoldModel(GaussianModel):
     """Scaffold-GS (see the module docstring)."""
 
     FIXED = ("anchors",)
-    """Per-row tensors that are not optimised (kept so when rebuilt from a checkpoint)."""
 
-    def __init__(self, config, scene_scale: float, points: Tensor, colors: Tensor,
-                 camera_centers: Tensor | None = None):
+    def __init__(self, config, scene_scale: float, points: Tensor | None, colors: Tensor | None,
+                 camera_centers: Tensor | None = None, *, rows=None):
         cfg = config.model
-        self.voxel_size = float(cfg.voxel_size) or float(knn_scale(points).median())
-        super().__init__(config, scene_scale, points, colors)
+        # a model rebuilt from ``rows`` gets its voxel size back with its extra state
+        self.voxel_size = float(cfg.voxel_size) or (float(knn_scale(points).median()) if rows is None else 0.0)
+        super().__init__(config, scene_scale, points, colors, rows=rows)
 
     @classmethod
     def from_data(cls, config, datamanager, generator):
@@ -111,31 +108,24 @@ class ScaffoldModel(GaussianModel):
         return self.num_anchors * self.config.model.n_offsets
 
     # ------------------------------------------------------------- optimise
-    def learning_rates(self) -> dict[str, float]:
+    def learning_rates(self, step: int) -> dict[str, float]:
+        """The public code's rates at ``step``; offsets and the opacity and colour MLPs decay
+        exponentially over the run (its ``get_expon_lr_func``)."""
         cfg = self.config.model
-        return {"offsets": cfg.offset_lr * self.scene_scale, "anchor_feat": cfg.feature_lr, "scaling": cfg.scaling_lr,
-                "mlp_opacity": cfg.mlp_opacity_lr, "mlp_cov": cfg.mlp_cov_lr, "mlp_color": cfg.mlp_color_lr}
+        start = {"offsets": cfg.offset_lr * self.scene_scale, "anchor_feat": cfg.feature_lr, "scaling": cfg.scaling_lr,
+                 "mlp_opacity": cfg.mlp_opacity_lr, "mlp_cov": cfg.mlp_cov_lr, "mlp_color": cfg.mlp_color_lr}
+        finals = {"offsets": cfg.offset_lr_final * self.scene_scale, "mlp_opacity": cfg.mlp_opacity_lr * 0.01,
+                  "mlp_color": cfg.mlp_color_lr * 0.00625}
+        t = run_fraction(step, self.config.total_steps)
+        return start | {k: log_lerp(start[k], final, t) for k, final in finals.items()}
 
     def make_optimizers(self) -> dict[str, torch.optim.Optimizer]:
         """One Adam per per-row parameter and one per MLP (as the public code's param groups)."""
-        lrs = self.learning_rates()
+        lrs = self.learning_rates(0)
         tensors = {k: [p] for k, p in self.params.items() if p.requires_grad}
         tensors |= {k: list(m.parameters()) for k, m in self.networks.items()}
         return {k: torch.optim.Adam([{"params": ps, "lr": lrs[k], "name": k}], lr=lrs[k], eps=1e-15)
                 for k, ps in tensors.items()}
-
-    def update_learning_rates(self, optimizers: dict, step: int, total_steps: int) -> None:
-        """Exponential decays over the run (the public code's ``get_expon_lr_func``)."""
-        cfg = self.config.model
-        t = min(max(step / max(total_steps, 1), 0.0), 1.0)
-        finals = {"offsets": cfg.offset_lr_final * self.scene_scale, "mlp_opacity": cfg.mlp_opacity_lr * 0.01,
-                  "mlp_color": cfg.mlp_color_lr * 0.00625}
-        start = self.learning_rates()
-        for k, final in finals.items():
-            if k in optimizers:
-                lr = math.exp(math.log(start[k]) * (1 - t) + math.log(final) * t)
-                for g in optimizers[k].param_groups:
-                    g["lr"] = lr
 
     def positions(self) -> Tensor:
         """[A, 3] anchor positions."""
@@ -226,10 +216,3 @@ class ScaffoldModel(GaussianModel):
     def load_extra_state(self, state: dict) -> None:
         self.voxel_size = float(state["voxel_size"])
         self.reference_center = torch.as_tensor(state["reference_center"]).float()
-
-    @classmethod
-    def from_checkpoint(cls, config, scene_scale: float, checkpoint: dict) -> "ScaffoldModel":
-        model = super().from_checkpoint(config, scene_scale, checkpoint)
-        for key in cls.FIXED:
-            model.params[key].requires_grad_(False)
-        return model

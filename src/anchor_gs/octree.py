@@ -118,13 +118,13 @@ class OctreeModel(ScaffoldModel):
 
     FIXED = ("anchors", "level", "extra_level")
 
-    def __init__(self, config, scene_scale: float, points: Tensor, colors: Tensor,
-                 camera_centers: Tensor | None = None):
-        if camera_centers is None:
+    def __init__(self, config, scene_scale: float, points: Tensor | None, colors: Tensor | None,
+                 camera_centers: Tensor | None = None, *, rows=None):
+        if camera_centers is None and rows is None:
             raise ValueError("OctreeModel needs the training camera centres")
         self._camera_centers = camera_centers
-        self.step = None
-        super().__init__(config, scene_scale, points, colors, camera_centers)
+        self.step = None  # a model rebuilt from a checkpoint opens every level (its octree comes with its extra state)
+        super().__init__(config, scene_scale, points, colors, camera_centers, rows=rows)
 
     def init_params(self, points: Tensor, colors: Tensor) -> dict[str, nn.Parameter]:
         points = points.float()
@@ -185,9 +185,3 @@ class OctreeModel(ScaffoldModel):
         fields["origin"] = torch.as_tensor(fields["origin"]).float().to(dev)
         fields["camera_centers"] = torch.as_tensor(fields["camera_centers"]).float().to(dev)
         self.octree = Octree(**fields)
-
-    @classmethod
-    def from_checkpoint(cls, config, scene_scale: float, checkpoint: dict) -> "OctreeModel":
-        model = super().from_checkpoint(config, scene_scale, checkpoint)
-        model.step = None
-        return model

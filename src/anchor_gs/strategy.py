@@ -27,8 +27,7 @@ from typing import Any, Mapping
 import torch
 from torch import Tensor
 
-from splat_framework.model.ops import append, remove
-from splat_framework.model.strategy import Strategy, check_rows
+from splat_framework.plugin import Strategy, check_rows, ops
 
 REQUIRED_KEYS = ("anchors", "offsets", "anchor_feat", "scaling")
 
@@ -123,7 +122,7 @@ class AnchorStrategy(Strategy):
             cell_feat = _cell_max(params["anchor_feat"][:, None].expand(-1, k, -1)[candidate], inverse, cells.shape[0])
             m = int(new.sum())
             dev = params["anchors"].device
-            append(params, optimizers, state, {
+            ops.append(params, optimizers, state, {
                 "anchors": cells[new] * size,
                 "offsets": torch.zeros(m, k, 3, device=dev),
                 "anchor_feat": cell_feat[new],
@@ -156,7 +155,7 @@ class AnchorStrategy(Strategy):
         state["anchor_denom"][seen] = 0
         n = int(weak.sum())
         if n and n < weak.shape[0]:  # never remove every anchor
-            remove(params, optimizers, state, weak)
+            ops.remove(params, optimizers, state, weak)
             return n
         return 0
 
@@ -229,7 +228,7 @@ class OctreeStrategy(AnchorStrategy):
         else:
             feat = _cell_max(seed_feats, inverse, cells.shape[0])[new]
         k = params["offsets"].shape[1]
-        append(params, optimizers, state, {
+        ops.append(params, optimizers, state, {
             "anchors": positions[new],
             "offsets": seeds.new_zeros(m, k, 3),
             "anchor_feat": feat,

@@ -8,7 +8,7 @@ from pydantic import Field
 
 import tyro
 
-from splat_framework.config import (
+from splat_framework.plugin import (
     DensifyConfig,
     GaussianModelConfig,
     MAX_GAUSSIANS,

@@ -16,7 +16,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from splat_framework.cameras import Camera
+from splat_framework.plugin import Camera
 
 
 def reprojection_error(points: Tensor, camera: Camera, target_uv: Tensor) -> Tensor:

@@ -4,7 +4,7 @@ Kept torch-free: the CLI reads it to build ``--help``. Paper ablation rows are
 TOML variants in the top-level ``configs/`` (the package ``splat_configs``, see ``splat_framework.registry``).
 """
 
-from splat_framework.registry import MethodSpec
+from splat_framework.plugin import MethodSpec
 
 from .config import RayStrategyConfig, SCGModelConfig, SCGTrainConfig
 

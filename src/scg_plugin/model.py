@@ -13,14 +13,12 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from splat_framework.cameras import Camera
-from splat_framework.model.gaussians import GaussianModel
-from splat_framework.model.ops import remove
+from splat_framework.plugin import Camera, GaussianModel, ops
 from splat_framework.profiling import section
 
 from .losses import rendering_geometry_loss
 from .ray_gaussians import MatchCache, RayBundle, gaussian_position_loss, pixel_errors
-from .startup import baseline_schedule, ordinary_points, ray_prior, thin_prior, warm_up_prior
+from .startup import BaselineSchedule, baseline_schedule, ordinary_points, ray_prior, thin_prior, warm_up_prior
 
 RAY_KEYS = ("z", "ray_o", "ray_d", "is_ray", "is_match")
 
@@ -28,14 +26,21 @@ RAY_KEYS = ("z", "ray_o", "ray_d", "is_ray", "is_match")
 class SCGaussianModel(GaussianModel):
     """SCGaussian (NeurIPS 2024): structure-consistent Gaussians from a matching prior."""
 
+    FIXED = ("ray_o", "ray_d", "is_ray", "is_match")
+
     def __init__(
-        self, config, scene_scale, points, colors, bundle: RayBundle | None, cameras: list[Camera], images: list[Tensor]
+        self, config, scene_scale, points, colors, bundle: RayBundle | None = None, cameras: list[Camera] = (),
+        images: list[Tensor] = (), *, rows=None,
     ):
+        """``bundle``: the rays of the matches; ``cameras``, ``images``: the training views (the
+        position loss and the match cache use them; a model rebuilt from a checkpoint has none)."""
         self.bundle = bundle if bundle is not None and len(bundle) > 0 else None
-        self.train_cameras = cameras
-        self.train_images = images
+        self.train_cameras = list(cameras)
+        self.train_images = list(images)
         self.cache: MatchCache | None = None
-        super().__init__(config, scene_scale, points, colors)
+        self.baseline: BaselineSchedule | None = None
+        """The 3dgs baseline's schedules this model trains with instead of its config's (a thin prior)."""
+        super().__init__(config, scene_scale, points, colors, rows=rows)
         cfg = config.model
         if self.bundle is not None and config.model.schedule == "single-stage" and cfg.cache_filter and cfg.cache_until > 0:
             self.cache = MatchCache(self.bundle)
@@ -44,7 +49,7 @@ class SCGaussianModel(GaussianModel):
     @classmethod
     def from_data(cls, config, datamanager, generator):
         """The start-up steps of :mod:`scg_plugin.startup` (prior, warm-up, ordinary Gaussians, the
-        baseline's schedule for a thin prior), then the model (whose ``config`` is the revised one)."""
+        baseline's schedule for a thin prior), then the model (with the run's ``config``)."""
         views = datamanager.train_views()
         cameras = [c for c, _ in views]
         images = [b["image"] for _, b in views]
@@ -53,9 +58,8 @@ class SCGaussianModel(GaussianModel):
         bundle = warm_up_prior(bundle, [c.to("cpu") for c in cameras], config.model, timing, stats)
         pts, cols = ordinary_points(config.model, datamanager, bundle, n_matches, generator)
         baseline = config.model.thin_prior_baseline and thin_prior(config.model, bundle, n_matches)
-        if baseline:
-            config = baseline_schedule(config)
         model = cls(config, datamanager.scene.scene_radius, pts, cols, bundle, cameras, images)
+        model.baseline = baseline_schedule(config) if baseline else None
         model.init_timing = timing
         model.init_stats = stats | {"num_matches": len(bundle) // 2 if bundle is not None else 0,
                                     "baseline_schedule": baseline}
@@ -109,25 +113,30 @@ class SCGaussianModel(GaussianModel):
         return 0 if self.bundle is None else len(self.bundle)
 
     # --------------------------------------------------------------- optimise
-    def learning_rates(self) -> dict[str, float]:
-        lrs = super().learning_rates()
-        lrs["z"] = self.config.model.z_lr * self.scene_scale
-        return lrs
-
-    def update_learning_rates(self, optimizers: dict, step: int, total_steps: int) -> None:
-        super().update_learning_rates(optimizers, step, total_steps)
-        if "z" not in optimizers or self.bundle is None:
-            return
+    def learning_rates(self, step: int) -> dict[str, float]:
+        """3DGS's rates, and ``z``'s: while the single stage caches, the warm-up step size halving
+        every ``warmup_lr_halve_every`` steps; else ``z_lr`` following the position rate's decay."""
+        lrs = super().learning_rates(step)
         cfg = self.config.model
-        if cfg.schedule == "single-stage" and step < max(cfg.cache_until, 1):
+        if self.bundle is None:
+            lrs["z"] = cfg.z_lr * self.scene_scale
+        elif cfg.schedule == "single-stage" and step < max(cfg.cache_until, 1):
             # the paper's single stage: z moves with the warm-up step size while caching
             depth_range = float((self.bundle.far - self.bundle.near).median())
-            lr = cfg.warmup_lr * depth_range * 0.5 ** (step // max(cfg.warmup_lr_halve_every, 1))
+            lrs["z"] = cfg.warmup_lr * depth_range * 0.5 ** (step // max(cfg.warmup_lr_halve_every, 1))
         else:
-            ratio = optimizers["means"].param_groups[0]["lr"] / max(self.config.optim.means_lr * self.scene_scale, 1e-30)
-            lr = cfg.z_lr * self.scene_scale * ratio
-        for g in optimizers["z"].param_groups:
-            g["lr"] = lr
+            ratio = lrs["means"] / max(self.config.optim.means_lr * self.scene_scale, 1e-30)
+            lrs["z"] = cfg.z_lr * self.scene_scale * ratio
+        return lrs
+
+    def strategy_config(self):
+        """The run's strategy, or the baseline's schedule of it after a thin prior."""
+        return self.config.strategy if self.baseline is None else self.baseline.strategy
+
+    def on_step_start(self, step: int) -> None:
+        super().on_step_start(step)
+        if self.baseline is not None:  # the baseline's SH schedule
+            self.active_sh_degree = min(step // max(self.baseline.sh_degree_interval, 1), self.config.model.sh_degree)
 
     def prepare_for_strategy(self) -> None:
         p = self.params
@@ -154,17 +163,17 @@ class SCGaussianModel(GaussianModel):
                 losses["gp"] = cfg.lambda_gp * gaussian_position_loss(pos, self.bundle, self.train_cameras)
         if cfg.lambda_rg > 0 and step >= cfg.rg_start:
             with section("rendering geometry"):
-                losses["rg"] = cfg.lambda_rg * self._rg_loss(outputs, camera)
+                losses["rg"] = cfg.lambda_rg * self._rg_loss(outputs, camera, batch.get("train_position"))
         return losses
 
-    def _rg_loss(self, outputs, camera: Camera) -> Tensor:
-        """L_rg for the matches seen from the rendered training view."""
+    def _rg_loss(self, outputs, camera: Camera, view: int | None) -> Tensor:
+        """L_rg for the matches seen from the rendered training view, at ``view`` in the training
+        split (the batch's ``train_position``; None: not a training view, no term)."""
         b = self.bundle
-        view = self._view_position(camera)
         total, count = outputs.depth.sum() * 0.0, 0
         if view is None:
             return total
-        depth = self.rendered_depth(outputs)
+        depth = outputs.expected_depth
         sel_view = b.view == view
         for partner in torch.unique(b.partner_view[sel_view]).tolist():
             sel = sel_view & (b.partner_view == partner)
@@ -173,12 +182,6 @@ class SCGaussianModel(GaussianModel):
             )
             count += 1
         return total / max(count, 1)
-
-    def _view_position(self, camera: Camera) -> int | None:
-        for k, c in enumerate(self.train_cameras):
-            if c.name == camera.name and torch.equal(c.world_to_cam, camera.world_to_cam):
-                return k
-        return None
 
     def after_optimizer_step(self, step: int, losses, optimizers=None, strategy_state=None) -> None:
         cfg = self.config.model
@@ -202,7 +205,7 @@ class SCGaussianModel(GaussianModel):
         drop = torch.zeros(self.num_gaussians, dtype=torch.bool, device=dev)
         drop[:g] = ~keep
         if drop.any():
-            remove(self.params, optimizers or {}, strategy_state if strategy_state is not None else {}, drop)
+            ops.remove(self.params, optimizers or {}, strategy_state if strategy_state is not None else {}, drop)
         self.bundle = self.bundle.select(keep)
         self.bundle.z = self.params["z"].data[: len(self.bundle)].clone()
         self.cache = None
@@ -215,7 +218,6 @@ class SCGaussianModel(GaussianModel):
         return state
 
     def load_extra_state(self, state: dict) -> None:
-        self.train_cameras = getattr(self, "train_cameras", [])
         dev = self.params["means"].device
         b = state.get("bundle")
         self.bundle = RayBundle(**{k: v.to(dev) for k, v in b.items()}) if b is not None else None

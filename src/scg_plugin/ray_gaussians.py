@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from splat_framework.cameras import Camera
+from splat_framework.plugin import Camera
 
 
 

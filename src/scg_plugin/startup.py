@@ -11,7 +11,8 @@
    ``init.num_points`` random ones, or at least ``FALLBACK_POINTS`` when the
    prior is missing or sparse (one warning).
 4. :func:`baseline_schedule`: with a missing or sparse prior, the run trains with
-   the 3dgs baseline's densification and SH schedules (``thin_prior_baseline``).
+   the 3dgs baseline's densification and SH schedules (``thin_prior_baseline``), which the
+   model keeps beside the run's one config.
 
 Each step returns what the next needs and records its own wall time.
 """
@@ -20,11 +21,12 @@ from __future__ import annotations
 
 import time
 import warnings
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
-from splat_framework.cameras import Camera
+from splat_framework.plugin import Camera, StrategyConfig
 from splat_framework.matching.prior import compute_match_set, match_pairs
 from splat_framework.init_config import FALLBACK_POINTS
 from splat_framework.model.init import initial_points
@@ -80,19 +82,29 @@ def thin_prior(cfg, bundle: RayBundle | None, n_matches: int) -> bool:
     return bundle is None or n_matches < cfg.sparse_matches
 
 
-def baseline_schedule(config):
-    """Step 4: ``config`` with the densification and SH schedules that the ``3dgs`` baseline
-    would use at the same total iterations (its own thresholds and iterations, rescaled as
-    ``--steps`` does), the strategy kind (SCGaussian's, which keeps the ray-based Gaussians)
-    and every other field unchanged."""
+@dataclass(frozen=True)
+class BaselineSchedule:
+    """What a run with a thin prior trains with instead of its config's schedule (the run's config,
+    saved in config.json and checked by ``--resume``, stays the one config of the run)."""
+
+    strategy: StrategyConfig
+    """The densification: SCGaussian's strategy kind with the ``3dgs`` baseline's thresholds and iterations."""
+    sh_degree_interval: int
+    """Steps between SH degree increases, the baseline's."""
+
+
+def baseline_schedule(config) -> BaselineSchedule:
+    """Step 4: the densification and SH schedules that the ``3dgs`` baseline would use at the
+    same total iterations as ``config`` (its own thresholds and iterations, rescaled as
+    ``--steps`` does), in ``config``'s strategy kind (SCGaussian's, which keeps the ray-based
+    Gaussians) with its other strategy fields unchanged."""
     from splat_framework.config import resolve_steps
     from splat_framework.methods.gaussian_splatting import config_3dgs
 
     base = resolve_steps(config_3dgs().model_copy(update={"steps": config.total_steps}))
     strategy = type(config.strategy).model_validate(
         config.strategy.model_dump() | base.strategy.model_dump(exclude={"kind", "enabled"}))
-    model = config.model.model_copy(update={"sh_degree_interval": base.model.sh_degree_interval})
-    return config.model_copy(update={"strategy": strategy, "model": model})
+    return BaselineSchedule(strategy=strategy, sh_degree_interval=base.model.sh_degree_interval)
 
 
 def ordinary_points(

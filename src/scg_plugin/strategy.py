@@ -7,7 +7,7 @@ from typing import Mapping
 import torch
 from torch import Tensor
 
-from splat_framework.model.strategy import DefaultStrategy
+from splat_framework.plugin import DefaultStrategy
 
 #: Per-row flags of SCGaussian's parameters: ``is_match`` (a Gaussian of a match, rows [0, G)) and
 #: ``is_ray`` (its position is ``ray_o + z * ray_d``).

@@ -44,19 +44,6 @@ def colorize_depth(
     return img
 
 
-def model_depth_mode(model) -> str:
-    """The depth mode ``model.get_outputs`` renders with ("accumulated" when the model does not say)."""
-    cfg = getattr(getattr(model, "config", None), "model", None)
-    return getattr(cfg, "depth_mode", "accumulated")
-
-
-def expected_depth(depth: Tensor, alpha: Tensor, depth_mode: str) -> Tensor:
-    """[H, W, 1] expected depth sum_i w_i z_i / alpha, whichever mode ``depth`` was rendered in."""
-    if depth_mode == "expected":
-        return depth
-    return depth / alpha.clamp_min(1e-6)
-
-
 DEPTH_KEYS = ("depth_abs_rel", "depth_within_5pct", "depth_coverage")
 """Geometry metrics of :func:`depth_metrics` (None where the dataset has no GT depth)."""
 
@@ -155,7 +142,6 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
     st_lpips = STLPIPSMetric(device=background.device) if not available and STLPIPSMetric.available()[0] else None
     if st_lpips is not None:
         reason += "; ST-LPIPS reported instead (not comparable with papers' LPIPS)"
-    mode = model_depth_mode(model)
     per_view = []
     render_time = 0.0
     for i, (camera, batch) in enumerate(datamanager.eval_views()):
@@ -174,7 +160,7 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
         synchronize(background.device)
         render_time += time.perf_counter() - t0
         pred, gt = out.rgb.clamp(0, 1), batch["image"]
-        depth = expected_depth(out.depth, out.alpha, mode)
+        depth = out.expected_depth
         m = evaluate_images(pred, gt, mask=mask, lpips=lpips if available else None, st_lpips=st_lpips)
         m.update(depth_metrics(depth, out.alpha, batch.get("depth")))
         name = camera.name or f"view{batch['index']:03d}"

@@ -70,8 +70,8 @@ from .metrics import psnr
 from .model.strategy import Strategy
 from .profiling import section
 from .render import set_compile
-from .render._threads import apply_process_threads
-from .registry import get_method
+from .render import apply_process_threads
+from .registry import MethodSpec, get_method
 from .rng import restore_rng_state, rng_state, seed_everything
 from .run_folder import prepare_run_dir
 from .run_lock import is_empty_run_dir
@@ -176,9 +176,15 @@ class Trainer:
         callbacks: ``callback(trainer, step)`` called after every completed
             step (after its periodic checkpoint); a callback may call
             :meth:`request_stop` to stop the run like SIGINT would.
+        spec: the registered method ``config.method`` names, when the caller already looked it
+            up (the CLI); else it is looked up here, once.
     """
 
-    def __init__(self, config: TrainConfig, callbacks: Sequence[Callable[["Trainer", int], None]] = ()):
+    def __init__(
+        self, config: TrainConfig, callbacks: Sequence[Callable[["Trainer", int], None]] = (),
+        spec: MethodSpec | None = None,
+    ):
+        self.spec = get_method(config.method) if spec is None else spec
         self.config = resolve_steps(config)
         self.callbacks = list(callbacks)
         self.device = resolve_config_devices(self.config)["device"]  # every device field, before anything is written
@@ -212,9 +218,8 @@ class Trainer:
         self.timing["data_s"] = time.perf_counter() - t0
         bg = 1.0 if scene.white_background else 0.0
         self.background = torch.full((3,), bg, device=self.device)
-        spec = get_method(self.config.method)
         t0 = time.perf_counter()
-        self.model = spec.model_class().from_data(self.config, self.datamanager, self.generator).to(self.device)
+        self.model = self.spec.model_class().from_data(self.config, self.datamanager, self.generator).to(self.device)
         self.timing.update(self.model.init_timing)
         self.timing["init_s"] = time.perf_counter() - t0 - sum(self.model.init_timing.values())
         self.optimizers = self.model.make_optimizers()
@@ -306,7 +311,7 @@ class Trainer:
     def _check_same_experiment(self, path: Path, saved: dict) -> None:
         """DataError naming the fields (up to 4) in which ``saved`` (a config dict as written by this
         or an older version) is another experiment than this run's config."""
-        old = upgrade_saved_config(dict(saved), get_method(self.config.method).default_config())
+        old = upgrade_saved_config(dict(saved), self.spec.default_config())
         new = self.config_payload()["config"]
         if old.get("method") not in (None, new["method"]):
             raise DataError(f"{path}: the run was trained with method {old['method']!r}, not {new['method']!r}")
@@ -365,14 +370,7 @@ class Trainer:
 
     def _load_state(self, path: Path, ck: dict) -> None:
         dev = self.device
-        old = self.model.params
-        self.model.params = torch.nn.ParameterDict(
-            {k: torch.nn.Parameter(v.to(dev), requires_grad=old[k].requires_grad) for k, v in ck["params"].items()}
-        )
-        if ck.get("networks"):
-            self.model.networks.load_state_dict(ck["networks"])
-        if ck.get("model_state"):
-            self.model.load_extra_state(ck["model_state"])
+        self.model.restore(ck, dev)
         self.optimizers = self.model.make_optimizers()
         for k, o in self.optimizers.items():
             o.load_state_dict(ck["optimizers"][k])
@@ -438,17 +436,12 @@ class Trainer:
 
     # ------------------------------------------------------------------ step
     def _set_learning_rates(self, step: int) -> None:
-        """Schedule from the base rates every step, then the fault factor (never compounded)."""
-        base = self.model.learning_rates()
+        """Every optimizer's rate from the model's schedule (:meth:`GaussianModel.learning_rates`,
+        a pure function of the step), times the fault factor (never compounded)."""
+        rates = self.model.learning_rates(step)
         for k, o in self.optimizers.items():
-            if k in base:
-                for g in o.param_groups:
-                    g["lr"] = base[k]
-        self.model.update_learning_rates(self.optimizers, step, self.config.total_steps)
-        if self.lr_factor != 1.0:
-            for o in self.optimizers.values():
-                for g in o.param_groups:
-                    g["lr"] *= self.lr_factor
+            for g in o.param_groups:
+                g["lr"] = rates[k] * self.lr_factor
 
     def train_step(self, step: int) -> tuple[dict, float] | None:
         """One optimisation step; None when it was skipped (non-finite loss or gradients)."""
@@ -631,6 +624,9 @@ class Trainer:
         return metrics
 
 
-def train(config: TrainConfig, callbacks: Sequence[Callable[[Trainer, int], None]] = ()) -> dict:
-    """Train ``config`` end to end and return metrics (also written to metrics.json)."""
-    return Trainer(config, callbacks).train()
+def train(
+    config: TrainConfig, callbacks: Sequence[Callable[[Trainer, int], None]] = (), spec: MethodSpec | None = None
+) -> dict:
+    """Train ``config`` end to end and return metrics (also written to metrics.json); ``spec``: the
+    method's registration when the caller has it (see :class:`Trainer`)."""
+    return Trainer(config, callbacks, spec).train()

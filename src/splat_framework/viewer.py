@@ -236,7 +236,7 @@ class Viewer:
     def render_panel(self, label: str) -> np.ndarray | None:
         """Render dataset camera ``label`` with this project's rasterizer into the side panel:
         [H, W*3, 3] uint8 (RGB | depth | |error| against the photo, or the RGB again without one)."""
-        from .evaluation import colorize_depth, error_map, expected_depth, model_depth_mode, to_uint8
+        from .evaluation import colorize_depth, error_map, to_uint8
 
         if label not in self._cameras:
             return None
@@ -247,7 +247,7 @@ class Viewer:
                 return None
             out = model.get_outputs(camera.to(bg.device), bg)
         rgb = out.rgb.clamp(0, 1)
-        depth = colorize_depth(expected_depth(out.depth, out.alpha, model_depth_mode(model)), out.alpha)
+        depth = colorize_depth(out.expected_depth, out.alpha)
         err = error_map(rgb, photo.to(rgb.device)) if photo is not None else to_uint8(rgb)
         panel = np.concatenate([to_uint8(rgb), depth, err], axis=1)
         self._image.image = panel

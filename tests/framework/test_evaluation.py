@@ -9,7 +9,8 @@ import pytest
 import torch
 
 from splat_framework.errors import DataError
-from splat_framework.evaluation import DEPTH_KEYS, depth_metrics, evaluate, expected_depth, label_panel
+from splat_framework.evaluation import DEPTH_KEYS, depth_metrics, evaluate, label_panel
+from splat_framework.render import RenderOutput
 
 
 # ------------------------------------------------------------------ unit
@@ -27,11 +28,13 @@ def test_depth_metrics_values():
     assert none["depth_abs_rel"] is None and none["depth_within_5pct"] is None and none["depth_coverage"] == 0.0
 
 
-def test_expected_depth_handles_both_modes():
+def test_expected_depth_handles_both_modes_once():
     alpha = torch.tensor([0.5, 0.25])[:, None, None]
     acc = torch.tensor([1.0, 1.0])[:, None, None]
-    assert torch.allclose(expected_depth(acc, alpha, "accumulated"), torch.tensor([2.0, 4.0])[:, None, None])
-    assert expected_depth(acc, alpha, "expected") is acc
+    out = RenderOutput(rgb=torch.zeros(2, 1, 3), depth=acc, alpha=alpha, depth_mode="accumulated")
+    assert torch.allclose(out.expected_depth, torch.tensor([2.0, 4.0])[:, None, None])
+    assert out.expected_depth is out.expected_depth  # computed once per render
+    assert RenderOutput(rgb=torch.zeros(2, 1, 3), depth=acc, alpha=alpha, depth_mode="expected").expected_depth is acc
 
 
 def test_label_panel_draws_in_the_corner_only():
@@ -246,8 +249,8 @@ def test_render_fps_leaves_out_the_first_renders_warm_up():
         def get_outputs(self, camera, background):
             SlowFirst.calls += 1
             time.sleep(0.4 if SlowFirst.calls == 1 else 0.01)
-            return SimpleNamespace(rgb=torch.full((64, 64, 3), 0.5), depth=torch.ones(64, 64, 1),
-                                   alpha=torch.ones(64, 64, 1))
+            return RenderOutput(rgb=torch.full((64, 64, 3), 0.5), depth=torch.ones(64, 64, 1),
+                                alpha=torch.ones(64, 64, 1))
 
     class Views:
         scene = SimpleNamespace(masked_metrics=False)

@@ -629,3 +629,13 @@ def test_cli_help_is_fast_and_flat():
     for flag in ("--data", "--views", "--matcher", "--out", "--weights", "--no-epipolar-check"):
         assert flag in out.stdout
     assert time.perf_counter() - t0 < 15
+
+
+def test_matcher_names_are_the_registered_matchers_and_validate_configs():
+    from splat_framework.matching import names, registry
+
+    assert registry.MATCHERS is names.MATCHERS and all(registry.MATCHERS.values())  # one registry, classes filled in
+    AUTO = names.AUTO
+    with pytest.raises(ValueError, match="unknown matcher 'nope'"):
+        MatchConfig(matcher="nope")
+    assert MatchConfig(matcher=AUTO).matcher == AUTO

@@ -422,3 +422,23 @@ def test_broken_variants_warn_in_one_line_and_fail_only_when_asked_for(tmp_path,
         assert registry.get_method("3dgs").name == "3dgs"
         with pytest.raises(DataError, match="bad-type.toml.*model.sh_degree"):
             registry.get_method("bad-type")
+
+
+def test_a_cli_run_looks_its_method_up_once(tmp_path, monkeypatch):
+    from splat_framework.cli import train as cli_train
+
+    calls = []
+    real = registry.discover_methods
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(registry, "discover_methods", counted)
+    run = ["3dgs", "--data", "synthetic/forward-tiny", "--steps", "4", "--output", str(tmp_path / "run"),
+           "--no-progress", "--no-save-renders", "--model.init-num-points", "200"]
+    cli_train.main(run)
+    assert len(calls) == 1  # parsing; the trainer gets the spec instead of asking the registry again
+    calls.clear()
+    cli_train.main([*run, "--resume"])  # a resume checks config.json against the same spec
+    assert len(calls) == 1

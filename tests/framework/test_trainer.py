@@ -125,13 +125,47 @@ def test_run_folder_rules(tmp_path):
 
 def test_learning_rate_factor_does_not_compound(tmp_path):
     trainer = Trainer(tiny_config(tmp_path / "run", steps=20, progress=False))
-    base = trainer.model.learning_rates()
     trainer.lr_factor = 0.5
     for step in (0, 1, 2, 3):
         trainer._set_learning_rates(step)
+    base = trainer.model.learning_rates(3)
     for k, opt in trainer.optimizers.items():
-        if k != "means":  # means follows its decay schedule
-            assert opt.param_groups[0]["lr"] == pytest.approx(base[k] * 0.5)
+        assert opt.param_groups[0]["lr"] == base[k] * 0.5
+
+
+def test_a_model_loads_by_construction_then_restore(tmp_path, monkeypatch):
+    from splat_framework.model.gaussians import GaussianModel
+
+    trainer = Trainer(tiny_config(tmp_path / "run", steps=20, progress=False))
+    payload = trainer.state_payload(0)
+    built = []
+    real_init = GaussianModel.__init__
+
+    def spy(self, *args, **kwargs):
+        built.append(kwargs.get("rows") is not None)
+        real_init(self, *args, **kwargs)
+
+    monkeypatch.setattr(GaussianModel, "__init__", spy)
+    monkeypatch.setattr(GaussianModel, "init_params", lambda *a: pytest.fail("a checkpoint is not initialised"))
+    model = GaussianModel.from_checkpoint(trainer.config, trainer.model.scene_scale, payload)
+    assert built == [True]  # normal construction, from the checkpoint's rows
+    assert model.active_sh_degree == trainer.config.model.sh_degree
+    for k, p in trainer.model.params.items():
+        assert torch.equal(model.params[k], p.detach().cpu()) and model.params[k].requires_grad == p.requires_grad
+
+
+def test_learning_rates_are_a_pure_function_of_the_step(tmp_path):
+    trainer = Trainer(tiny_config(tmp_path / "run", steps=20, progress=False))
+    model = trainer.model
+    at_7 = model.learning_rates(7)
+    for opt in trainer.optimizers.values():  # whatever the optimizers hold, the schedule does not read it
+        for g in opt.param_groups:
+            g["lr"] = 123.0
+    assert model.learning_rates(7) == at_7
+    assert model.learning_rates(0)["means"] > at_7["means"] > model.learning_rates(20)["means"]
+    assert model.learning_rates(20)["means"] == pytest.approx(model.config.optim.means_lr_final * model.scene_scale)
+    trainer._set_learning_rates(7)
+    assert {k: o.param_groups[0]["lr"] for k, o in trainer.optimizers.items()} == at_7
 
 
 def test_memory_budget_from_environment(tmp_path, monkeypatch):

@@ -238,8 +238,11 @@ def assert_baseline_schedule(trainer):
     assert isinstance(used, RayStrategyConfig)
     assert trainer.strategy.config == used
     assert used.model_dump(exclude={"kind"}) == base.strategy.model_dump(exclude={"kind"})
-    assert trainer.model.config.model.sh_degree_interval == base.model.sh_degree_interval
-    assert trainer.config.strategy != used  # the run's own config (config.json, --resume) is unchanged
+    assert trainer.model.baseline.sh_degree_interval == base.model.sh_degree_interval
+    trainer.model.on_step_start(base.model.sh_degree_interval)
+    assert trainer.model.active_sh_degree == 1  # the baseline's SH schedule, not the run config's
+    assert trainer.model.config is trainer.config  # one config: the run's (config.json, --resume), unchanged
+    assert trainer.config.strategy != used
 
 
 def test_sparse_prior_warns_and_adds_random_ordinary_gaussians(scene, monkeypatch):

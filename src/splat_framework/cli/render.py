@@ -75,7 +75,7 @@ def render_run(args: RenderArgs, replace: bool, check_video) -> Path:
     import torch
     from rich.progress import track
 
-    from ..evaluation import colorize_depth, expected_depth, model_depth_mode, to_uint8, write_png
+    from ..evaluation import colorize_depth, to_uint8, write_png
     from ..output_paths import RENDER_FOLDER, claim_output
     from ..run import background_for, load_run
 
@@ -85,13 +85,12 @@ def render_run(args: RenderArgs, replace: bool, check_video) -> Path:
         out = args.out or args.run_dir / "renders"
         claim_output(out, RENDER_FOLDER, overwrite=replace)
         views = dm.eval_views()
-        mode = model_depth_mode(model)
         with torch.no_grad():
             for cam, batch in track(views, description="rendering test views"):
                 o = model.get_outputs(cam, bg)
                 name = cam.name or f"view{batch['index']:03d}"
                 write_png(out / f"{name}_render.png", to_uint8(o.rgb))
-                write_png(out / f"{name}_depth.png", colorize_depth(expected_depth(o.depth, o.alpha, mode), o.alpha))
+                write_png(out / f"{name}_depth.png", colorize_depth(o.expected_depth, o.alpha))
         print(f"wrote {len(views)} views to {out}")
         return out
     kind, cams = camera_path(args.path, dm, args.frames)
@@ -117,7 +116,7 @@ def write_video(model, cams, bg, out: Path, fps: int, depth: bool) -> Path:
     import torch
     from rich.progress import track
 
-    from ..evaluation import colorize_depth, expected_depth, model_depth_mode, to_uint8
+    from ..evaluation import colorize_depth, to_uint8
     from ..video import open_video
 
     out = Path(out)
@@ -125,7 +124,6 @@ def write_video(model, cams, bg, out: Path, fps: int, depth: bool) -> Path:
     w, h = cams[0].width, cams[0].height
     targets = video_targets(out, depth)
     tmps = [t.with_name("." + t.name + ".tmp.mp4") for t in targets]
-    mode = model_depth_mode(model)
     inv_range = (1.0 / max(c.far for c in cams), 1.0 / min(c.near for c in cams))
     writers = []
     try:
@@ -136,8 +134,7 @@ def write_video(model, cams, bg, out: Path, fps: int, depth: bool) -> Path:
                 o = model.get_outputs(cam.to(bg.device), bg)
                 writers[0].write(to_uint8(o.rgb))
                 if depth:
-                    d = expected_depth(o.depth, o.alpha, mode)
-                    writers[1].write(colorize_depth(d, o.alpha, inv_range))
+                    writers[1].write(colorize_depth(o.expected_depth, o.alpha, inv_range))
         for wr in writers:
             wr.close()
         for tmp, target in zip(tmps, targets):

@@ -98,12 +98,13 @@ def main(args: list[str] | None = None) -> dict:
         )
     from ..trainer import train
 
+    spec = methods[config.method]  # the one lookup of the run, handed down
     if not config.viewer:
-        return train(config)
+        return train(config, spec=spec)
     from ..viewer import ViewerCallback
 
     live = ViewerCallback(port=config.viewer_port, every=config.viewer_every, host=config.viewer_host)
-    metrics = train(config, callbacks=[live])
+    metrics = train(config, callbacks=[live], spec=spec)
     if live.viewer is not None:
         print(f"training done; the viewer stays at {live.viewer.url} (Ctrl-C to stop)", flush=True)
         live.viewer.serve_until_interrupted()

@@ -9,6 +9,10 @@ once, into float32 tensors on the device:
 - ``backdrop`` [H, W, 1] in {0, 1} (1 = unlit backdrop): training views of a
   ``scene.dark_backdrop`` scene, when the DataManager is asked for it.
 
+A batch also carries ``index`` (the camera's index in the scene) and, for a training view
+(``next_train``, ``train_views``), ``train_position``: its position in ``train_indices``
+(what a model keeps per training view, e.g. SCGaussian's matches, is indexed by it).
+
 Training order: shuffled epochs over the training views. The permutation of
 epoch ``e`` is drawn from a ``torch.Generator`` seeded from ``(seed, e)``
 only, so ``next_train(step)`` is a pure function of ``(seed, step)`` and a
@@ -184,12 +188,16 @@ class DataManager:
         if epoch != self._perm_epoch:
             self._perm = self.epoch_permutation(epoch)
             self._perm_epoch = epoch
-        idx = self.train_indices[self._perm[pos]]
-        return self.cameras[idx], self.batch(idx)
+        return self.train_view(self._perm[pos])
+
+    def train_view(self, position: int) -> tuple[Camera, Batch]:
+        """The training view at ``position`` in ``train_indices``, its batch carrying ``train_position``."""
+        idx = self.train_indices[position]
+        return self.cameras[idx], self.batch(idx) | {"train_position": position}
 
     def train_views(self) -> list[tuple[Camera, Batch]]:
         """All training views, in split order."""
-        return [(self.cameras[i], self.batch(i)) for i in self.train_indices]
+        return [self.train_view(p) for p in range(len(self.train_indices))]
 
     def eval_views(self) -> list[tuple[Camera, Batch]]:
         """All held-out views, in split order."""

@@ -9,6 +9,8 @@ from pydantic import Field, field_validator
 
 from splat_framework.config_base import MAX_MATCHES, MAX_VIEWS, Device, SplatConfig
 
+from .names import check_matcher_name
+
 
 class MatchConfig(SplatConfig):
     """How matches between training views are computed and verified."""
@@ -91,8 +93,4 @@ class MatchConfig(SplatConfig):
     @field_validator("matcher")
     @classmethod
     def _known_matcher(cls, v: str) -> str:
-        from .registry import AUTO, MATCHERS
-
-        if v != AUTO and v not in MATCHERS:
-            raise ValueError(f"unknown matcher {v!r}; choose one of {[AUTO, *sorted(MATCHERS)]}")
-        return v
+        return check_matcher_name(v)

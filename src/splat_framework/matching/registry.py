@@ -1,4 +1,4 @@
-"""Matchers by name, and the rule of the default matcher ``auto``."""
+"""Matchers by name (their names, and the rule of ``auto``, in :mod:`.names`)."""
 
 from __future__ import annotations
 
@@ -7,28 +7,20 @@ from typing import TYPE_CHECKING, Any
 from .base import Matcher
 from .classical import DenseFlowMatcher, SiftMatcher
 from .learned import AlikedLightGlueMatcher, DiskLightGlueMatcher, LoFTRMatcher, MissingWeightsError
+from .names import AUTO, AUTO_DENSE, AUTO_GUIDED, AUTO_LEARNED, MATCHERS
 
 if TYPE_CHECKING:  # pragma: no cover
     from .config import MatchConfig
 
-MATCHERS: dict[str, type] = {
+MATCHERS.update({
     "dense": DenseFlowMatcher,
     "sift": SiftMatcher,
     "loftr": LoFTRMatcher,
     "disk-lightglue": DiskLightGlueMatcher,
     "aliked-lightglue": AlikedLightGlueMatcher,
-}
-
-
-#: ``matcher = "auto"``: a pair whose optical axes differ by at least ``auto_flow_max_angle`` is
-#: matched with ``AUTO_LEARNED`` (when its weights are on disk); any other pair with ``AUTO_DENSE``,
-#: and when that leaves fewer than ``auto_min_matches`` verified matches also with ``AUTO_LEARNED``,
-#: keeping the larger verified set.
-AUTO = "auto"
-AUTO_DENSE = "dense"
-AUTO_LEARNED = "aliked-lightglue"
-#: What ``auto`` reports for a wide pair matched with ``AUTO_LEARNED`` plus the dense flow it guides.
-AUTO_GUIDED = "aliked-lightglue+guided-flow"
+})
+__all__ = ["AUTO", "AUTO_DENSE", "AUTO_GUIDED", "AUTO_LEARNED", "MATCHERS", "build_matcher", "get_matcher",
+           "learned_available"]
 
 
 def learned_available(config: MatchConfig) -> bool:

@@ -13,9 +13,9 @@ handles them generically. Parameters that are not per row (the MLPs of an
 anchor-based method, an appearance embedding) live in ``networks`` (an
 ``nn.ModuleDict`` built by :meth:`GaussianModel.build_networks`), may have their own
 optimizers under their own names in :meth:`make_optimizers`, and are checkpointed
-with the rows. Methods customise training through the hooks
-``positions``, ``get_loss_dict``, ``trainable_keys``, ``densify_now`` and
-``after_optimizer_step`` instead of forking the trainer.
+with the rows. Methods customise training through the hooks of
+:class:`GaussianModel` (its docstring lists them in the order the trainer calls
+them) instead of forking the trainer.
 """
 
 from __future__ import annotations
@@ -30,7 +30,6 @@ from torch import Tensor, nn
 
 from ..cameras import Camera
 from ..config import TrainConfig
-from ..evaluation import expected_depth
 from ..losses import depth_smoothness, photometric_loss, scale_anisotropy, stereo_consistency
 from ..profiling import section
 from ..render import RenderOutput, rasterize, rgb_to_sh
@@ -56,14 +55,65 @@ def knn_scale(points: Tensor, k: int = 3) -> Tensor:
     return torch.from_numpy(rms).to(device=points.device, dtype=points.dtype).clamp_min(1e-7)
 
 
+def run_fraction(step: int, total_steps: int) -> float:
+    """``step / total_steps`` clamped to [0, 1]: how far a schedule over the run has gone."""
+    return min(max(step / max(total_steps, 1), 0.0), 1.0)
+
+
+def log_lerp(start: float, final: float, t: float) -> float:
+    """The exponential decay of a learning rate from ``start`` (t = 0) to ``final`` (t = 1)."""
+    return math.exp(math.log(start) * (1 - t) + math.log(final) * t)
+
+
 class GaussianModel(nn.Module):
-    """Vanilla 3D Gaussian Splatting.
+    """Vanilla 3D Gaussian Splatting, and the lifecycle every method's model follows.
+
+    The hooks, in the order :class:`splat_framework.trainer.Trainer` calls them:
+
+    ==========================================================  =====================================
+    hook (receives)                                             returns / does
+    ==========================================================  =====================================
+    **set-up**
+    ``from_data(config, datamanager, generator)``               the model; builds it with ``__init__``,
+    (classmethod)                                               which calls ``init_params(points,
+                                                                colors)`` (rows) and ``build_networks()``
+    ``init_timing``, ``init_stats`` (attributes)                seconds and numbers for metrics.json
+    ``make_optimizers()``                                       {name: Optimizer}
+    ``strategy_config()``                                       the StrategyConfig it trains with
+    ``restore(checkpoint, device)`` (``--resume``, a restore    loads rows, ``networks``, then
+    after faults)                                               ``load_extra_state(state)``; the
+                                                                trainer then calls ``make_optimizers()``
+    **each step**
+    ``on_step_start(step)``                                     None (SH degree, levels open, ...)
+    ``learning_rates(step)``                                    {optimizer name: rate}, pure in step
+    ``training_render(step)`` around ``get_outputs(camera,      RenderOutput (rgb, depth, alpha, meta;
+    background)``                                               ``expected_depth`` on demand)
+    ``get_loss_dict(outputs, batch, camera, step)``             {term: scalar Tensor}, summed; ``batch``
+                                                                carries ``image``, ``index``,
+                                                                ``train_position`` and the masks
+    ``densify_now(step)``                                       bool: the strategy runs this step
+    ``trainable_keys(step)``                                    optimizer names to step (None: all)
+    ``after_optimizer_step(step, losses, optimizers,            None (may resize rows with ``ops``)
+    strategy_state)``
+    ``prepare_for_strategy()`` (when densifying)                None (``params["means"]`` true)
+    **checkpoint**
+    ``extra_state()``                                           dict of state beyond rows and networks
+    **end of training**
+    ``get_outputs(camera, background)`` (evaluation)            RenderOutput of a test view
+    ``report(datamanager)``                                     dict for metrics.json, or None
+    **loading a run** (splat-eval, -render, -export, -view)
+    ``from_checkpoint(config, scene_scale, checkpoint)``        the model: ``__init__`` with ``rows``,
+    (classmethod)                                               then ``restore(checkpoint)``
+    ``export_gaussians()`` (PLY export, viewer)                 standard 3DGS Gaussians
+    ==========================================================  =====================================
 
     Args:
         config: the run config (``config.model`` is a GaussianModelConfig).
         scene_scale: spatial scale of the scene (position lr and size thresholds).
-        points: [M, 3] initial positions (see :meth:`from_data`).
-        colors: [M, 3] initial colours in [0, 1].
+        points: [M, 3] initial positions (None with ``rows``).
+        colors: [M, 3] initial colours in [0, 1] (None with ``rows``).
+        rows: the per-row tensors of a trained model (a checkpoint's ``params``), taken as they are
+            instead of initialising from ``points``; :meth:`restore` then loads the rest.
     """
 
     init_timing: Mapping[str, float] = MappingProxyType({})
@@ -74,12 +124,18 @@ class GaussianModel(nn.Module):
     _train_step: int | None = None
     """The training step whose render is being drawn (set by :meth:`training_render`), else None."""
 
-    def __init__(self, config: TrainConfig, scene_scale: float, points: Tensor, colors: Tensor):
+    FIXED: tuple[str, ...] = ()
+    """Per-row tensors that are not optimised (a model rebuilt from a checkpoint keeps them so)."""
+
+    def __init__(
+        self, config: TrainConfig, scene_scale: float, points: Tensor | None, colors: Tensor | None,
+        *, rows: Mapping[str, Tensor] | None = None,
+    ):
         super().__init__()
         self.config = config
         self.scene_scale = float(scene_scale)
         self.active_sh_degree = 0
-        self.params = nn.ParameterDict(self.init_params(points, colors))
+        self.params = nn.ParameterDict(self.init_params(points, colors) if rows is None else self.as_params(rows))
         self.networks = self.build_networks()
 
     # ------------------------------------------------------------------ build
@@ -123,10 +179,14 @@ class GaussianModel(nn.Module):
         return self.params["means"].shape[0]
 
     # --------------------------------------------------------------- optimise
-    def learning_rates(self) -> dict[str, float]:
+    def learning_rates(self, step: int) -> dict[str, float]:
+        """The learning rate of every optimizer at ``step``, a pure function of the step (a resumed
+        run gets the same rates): 3DGS's base rates, the position rate decaying exponentially
+        from ``means_lr`` to ``means_lr_final`` over the run. A subclass adds its own keys."""
         o = self.config.optim
+        t = run_fraction(step, self.config.total_steps)
         return {
-            "means": o.means_lr * self.scene_scale,
+            "means": log_lerp(o.means_lr, o.means_lr_final, t) * self.scene_scale,
             "quats": o.quats_lr,
             "scales": o.scales_lr,
             "opacities": o.opacities_lr,
@@ -136,22 +196,12 @@ class GaussianModel(nn.Module):
 
     def make_optimizers(self) -> dict[str, torch.optim.Optimizer]:
         """One Adam per trainable parameter key."""
-        lrs = self.learning_rates()
+        lrs = self.learning_rates(0)
         return {
             k: torch.optim.Adam([{"params": [p], "lr": lrs[k], "name": k}], lr=lrs[k], eps=1e-15)
             for k, p in self.params.items()
             if p.requires_grad and k in lrs
         }
-
-    def update_learning_rates(self, optimizers: dict, step: int, total_steps: int) -> None:
-        """Exponential decay of the position lr over the run (3DGS schedule)."""
-        if "means" not in optimizers:
-            return
-        o = self.config.optim
-        t = min(max(step / max(total_steps, 1), 0.0), 1.0)
-        lr = math.exp(math.log(o.means_lr) * (1 - t) + math.log(o.means_lr_final) * t) * self.scene_scale
-        for g in optimizers["means"].param_groups:
-            g["lr"] = lr
 
     def trainable_keys(self, step: int) -> set[str] | None:
         """Parameter keys to update at ``step`` (None = all)."""
@@ -267,23 +317,15 @@ class GaussianModel(nn.Module):
             losses["backdrop"] = cfg.backdrop_weight * (outputs.alpha * backdrop).sum() / backdrop.sum().clamp_min(1.0)
         if cfg.depth_smoothness > 0:
             losses["depth_smooth"] = cfg.depth_smoothness * depth_smoothness(
-                self.rendered_depth(outputs), batch["image"], outputs.alpha, gamma=cfg.depth_smoothness_gamma)
+                outputs.expected_depth, batch["image"], outputs.alpha, gamma=cfg.depth_smoothness_gamma)
         if cfg.anisotropy_weight > 0:
             losses["anisotropy"] = cfg.anisotropy_weight * scale_anisotropy(self.params["scales"], cfg.max_anisotropy)
         if cfg.stereo_weight > 0 and step >= cfg.stereo_start * self.config.total_steps:
             with section("stereo"):
                 losses["stereo"] = cfg.stereo_weight * self._stereo_loss(
-                    outputs, self.rendered_depth(outputs), batch["image"], camera, step)
+                    outputs, outputs.expected_depth, batch["image"], camera, step)
         with section("photometric"):
             return {"photometric": photometric_loss(outputs.rgb, gt, lambda_dssim=cfg.lambda_dssim)} | losses
-
-    def rendered_depth(self, outputs: RenderOutput) -> Tensor:
-        """[H, W, 1] the expected depth of ``outputs`` in the model's ``depth_mode``, computed once per
-        render (kept in ``outputs.meta["expected_depth"]``) for every loss term that needs it."""
-        depth = outputs.meta.get("expected_depth")
-        if depth is None:
-            depth = outputs.meta["expected_depth"] = expected_depth(outputs.depth, outputs.alpha, self.config.model.depth_mode)
-        return depth
 
     def _stereo_loss(self, outputs: RenderOutput, depth: Tensor, image: Tensor, camera: Camera, step: int) -> Tensor:
         """losses.stereo_consistency against a partner shifted by a keyed draw of (seed, step), up to
@@ -300,20 +342,31 @@ class GaussianModel(nn.Module):
             shifted = self.get_outputs(camera.shifted_sideways(shift), outputs.meta.get("background"))
         return stereo_consistency(shifted.rgb, depth, outputs.alpha, image, depth.new_tensor(fx * shift))
 
+    # ---------------------------------------------------------------- load
     @classmethod
     def from_checkpoint(cls, config: TrainConfig, scene_scale: float, checkpoint: dict) -> "GaussianModel":
-        """Rebuild a trained model from a checkpoint payload (no initialisation work)."""
-        model = cls.__new__(cls)
-        nn.Module.__init__(model)
-        model.config = config
-        model.scene_scale = float(scene_scale)
+        """A trained model from a checkpoint payload: normal construction from its rows (no
+        initialisation work), then :meth:`restore`; it renders with every SH degree."""
+        model = cls(config, scene_scale, None, None, rows=checkpoint["params"])
+        model.restore(checkpoint)
         model.active_sh_degree = config.model.sh_degree
-        model.params = nn.ParameterDict(
-            {k: nn.Parameter(v, requires_grad=v.is_floating_point()) for k, v in checkpoint["params"].items()}
-        )
-        model.networks = model.build_networks()
-        if checkpoint.get("networks"):
-            model.networks.load_state_dict(checkpoint["networks"])
-        if checkpoint.get("model_state"):
-            model.load_extra_state(checkpoint["model_state"])
         return model
+
+    def as_params(self, rows: Mapping[str, Tensor], like: Mapping[str, Tensor] | None = None) -> dict[str, nn.Parameter]:
+        """``rows`` as parameters, each trainable as the same key of ``like`` is, else when it holds
+        floats and is not in :attr:`FIXED`."""
+        like = like or {}
+        return {
+            k: nn.Parameter(v, requires_grad=like[k].requires_grad if k in like else v.is_floating_point() and k not in self.FIXED)
+            for k, v in rows.items()
+        }
+
+    def restore(self, checkpoint: dict, device: torch.device | str | None = None) -> None:
+        """The restore step of loading: a checkpoint payload's rows (``params``, moved to ``device``
+        when given), network weights and extra state (:meth:`load_extra_state`) into this model."""
+        rows = {k: v.to(device) if device is not None else v for k, v in checkpoint["params"].items()}
+        self.params = nn.ParameterDict(self.as_params(rows, like=self.params))
+        if checkpoint.get("networks"):
+            self.networks.load_state_dict(checkpoint["networks"])
+        if checkpoint.get("model_state"):
+            self.load_extra_state(checkpoint["model_state"])

@@ -11,7 +11,7 @@ from torch import Tensor
 
 from ._kernels import ALPHA_MIN  # a pixel receives a Gaussian only if alpha >= 1/255
 from ..profiling import section
-from ._threads import thread_policy
+from .threads import thread_policy
 from .sh import sh_to_color
 
 
@@ -143,7 +143,7 @@ class ProjectFn(torch.autograd.Function):
     Forward records the projection's graph internally; backward replays it with
     ``torch.autograd.grad`` inside the rasterizer's CPU thread policy, so the
     many small ops of the projection backward also run with the thread count
-    chosen for the rasterizer (see ``_threads``)."""
+    chosen for the rasterizer (see ``threads``)."""
 
     @staticmethod
     def forward(ctx, means, quats, scales, colors, viewmat, K, cfg):  # type: ignore[override]

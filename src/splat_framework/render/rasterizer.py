@@ -12,6 +12,7 @@ compile of ~15-30 s; worth it for training runs, not for tests).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Literal
 
 import torch
@@ -21,7 +22,7 @@ from ._composite import TileGrid, composite, pixel_basis, tile_footprints
 from ._kernels import compile_requested
 from ._project import ProjectFn, footprint, project_and_shade, reference_radii
 from ..profiling import section
-from ._threads import thread_policy
+from .threads import thread_policy
 
 __all__ = ["RenderOutput", "rasterize"]
 
@@ -39,12 +40,22 @@ class RenderOutput:
             backward holds the screen-space positional gradient; "radii" [N]
             int pixel radius (0 = not rendered); "visible" [N] bool;
             "depths" [N] camera z; "width", "height" ints.
+        depth_mode: the mode ``depth`` was rendered in ("accumulated" or "expected").
     """
 
     rgb: Tensor
     depth: Tensor
     alpha: Tensor
     meta: dict = field(default_factory=dict)
+    depth_mode: Literal["accumulated", "expected"] = "accumulated"
+
+    @cached_property
+    def expected_depth(self) -> Tensor:
+        """[H, W, 1] expected depth sum_i w_i z_i / alpha whichever mode ``depth`` was rendered in,
+        computed on first use and kept (every loss term and metric shares one)."""
+        if self.depth_mode == "expected":
+            return self.depth
+        return self.depth / self.alpha.clamp_min(1e-6)
 
 
 def rasterize(
@@ -263,4 +274,4 @@ def _rasterize(
         "height": height,
         "background": background,
     }
-    return RenderOutput(rgb=rgb, depth=depth, alpha=alpha, meta=meta)
+    return RenderOutput(rgb=rgb, depth=depth, alpha=alpha, meta=meta, depth_mode=depth_mode)

@@ -48,6 +48,16 @@ def test_batch_contents(llff_scene):
     assert [b["index"] for _, b in dm.train_views()] == llff_scene.train_indices
 
 
+def test_training_batches_carry_their_position_in_the_training_split(llff_scene):
+    dm = DataManager(llff_scene, seed=3)
+    assert [b["train_position"] for _, b in dm.train_views()] == list(range(len(llff_scene.train_indices)))
+    for step in range(2 * len(llff_scene.train_indices)):
+        cam, batch = dm.next_train(step)
+        assert llff_scene.train_indices[batch["train_position"]] == batch["index"]
+        assert cam is dm.train_cameras[batch["train_position"]] or cam.name == dm.train_cameras[batch["train_position"]].name
+    assert all("train_position" not in b for _, b in dm.eval_views())  # a test view has no training position
+
+
 def test_training_order_epochs_and_resume(llff_scene):
     dm = DataManager(llff_scene, seed=7)
     seq = [dm.next_train(s)[1]["index"] for s in range(40)]

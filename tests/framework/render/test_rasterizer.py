@@ -485,7 +485,7 @@ def test_all_culled_and_inference_mode():
 
 
 def test_thread_policy(monkeypatch):
-    from splat_framework.render import _threads
+    from splat_framework.render import threads as _threads
 
     cpu = torch.device("cpu")
     monkeypatch.setattr(torch, "get_num_threads", lambda: 4)
@@ -509,7 +509,7 @@ def test_thread_policy(monkeypatch):
 
 
 def test_an_integer_splat_threads_sets_the_whole_process(monkeypatch):
-    from splat_framework.render import _threads
+    from splat_framework.render import threads as _threads
 
     before = torch.get_num_threads()
     try:

@@ -15,10 +15,11 @@ from pydantic import Field
 
 from typing import ClassVar
 
-from splat_framework.config import (
+from splat_framework.plugin import (
     DensifyConfig,
     GaussianModelConfig,
     Interval,
+    MethodSpec,
     NonNegative,
     StartSteps,
     Steps,
@@ -26,7 +27,6 @@ from splat_framework.config import (
     TrainConfig,
     strategy_field,
 )
-from splat_framework.registry import MethodSpec
 
 
 class PruneOnlyConfig(StrategyConfig):

@@ -17,9 +17,7 @@ import math
 import torch
 from torch import Tensor
 
-from splat_framework.model.ops import append, rewrite
-from splat_framework.model.strategy import Strategy, check_rows
-from splat_framework.render import quat_to_rotmat
+from splat_framework.plugin import Strategy, check_rows, ops, quat_to_rotmat
 
 MAX_COPIES = 51
 """Most Gaussians one Gaussian is split into at one refinement (further draws of it share the split)."""
@@ -113,11 +111,11 @@ class MCMCStrategy(Strategy):
         split["opacities"], split["scales"] = new_logit, new_scales
         copied = {key: v[inverse] for key, v in split.items()}
         if targets is None:
-            rewrite(params, optimizers, state, unique, {"opacities": new_logit, "scales": new_scales})
-            append(params, optimizers, state, copied)
+            ops.rewrite(params, optimizers, state, unique, {"opacities": new_logit, "scales": new_scales})
+            ops.append(params, optimizers, state, copied)
         else:
             rows = torch.cat([unique, targets])
-            rewrite(params, optimizers, state, rows, {key: torch.cat([split[key], copied[key]]) for key in split})
+            ops.rewrite(params, optimizers, state, rows, {key: torch.cat([split[key], copied[key]]) for key in split})
 
     @torch.no_grad()
     def _inject_noise(self, params, means_lr: float) -> None:

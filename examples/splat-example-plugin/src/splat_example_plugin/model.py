@@ -7,9 +7,7 @@ the parameter and optimizer dicts, built by its config kind (``PruneOnlyConfig``
 
 import torch
 
-from splat_framework.model.gaussians import GaussianModel
-from splat_framework.model.ops import remove
-from splat_framework.model.strategy import Strategy
+from splat_framework.plugin import GaussianModel, Strategy, ops
 
 
 class PruneOnlyStrategy(Strategy):
@@ -30,7 +28,7 @@ class PruneOnlyStrategy(Strategy):
         drop = torch.sigmoid(params["opacities"].detach().flatten()) < self.min_opacity
         n = int(drop.sum())
         if 0 < n < drop.numel():  # never empty the model
-            remove(params, optimizers, state, drop)
+            ops.remove(params, optimizers, state, drop)
         return {"n_prune": n}
 
 
