@@ -64,7 +64,7 @@ class StrategyConfig(SplatConfig):
     config, a TOML variant, a sweep or ``--strategy.kind`` picks it) and its strategy
     class as ``"module:Class"`` in :attr:`strategy_class` (imported, with torch, only
     by :meth:`setup`). A kind registered in the entry-point group
-    ``splat_framework.strategies`` (see :mod:`splat_framework.plugins`) is accepted by
+    ``splat_framework.strategies`` (see :mod:`splat_framework.entry_points`) is accepted by
     every method whose config keeps :data:`RegisteredStrategies`; a method that
     accepts fewer kinds lists them with :func:`strategy_field`."""
 
@@ -79,7 +79,7 @@ class StrategyConfig(SplatConfig):
         """The :class:`~splat_framework.model.strategy.Strategy` this config describes: ``strategy_class(self)``."""
         if not self.strategy_class:
             raise NotImplementedError(f"{type(self).__name__}.strategy_class is not set")
-        from .plugins import load_object
+        from .entry_points import load_object
 
         return load_object(self.strategy_class)(self)
 
@@ -101,7 +101,7 @@ def strategy_kinds() -> dict[str, type[StrategyConfig]]:
     """Every strategy kind a method accepts unless it narrows its field: ``default``
     (:class:`DensifyConfig`), then the ``splat_framework.strategies`` entry points (an entry that is
     not a :class:`StrategyConfig` of its own name's kind is left out with one warning)."""
-    from .plugins import STRATEGY_ENTRY_POINT_GROUP, load_entry_points
+    from .entry_points import STRATEGY_ENTRY_POINT_GROUP, load_entry_points
 
     kinds: dict[str, type[StrategyConfig]] = {"default": DensifyConfig}
     for name, cls in load_entry_points(STRATEGY_ENTRY_POINT_GROUP, "strategy").items():

@@ -70,7 +70,7 @@ class MethodSpec:
         return cfg.model_copy(update={"method": self.name})
 
     def model_class(self) -> type:
-        from .plugins import load_object
+        from .entry_points import load_object
 
         return load_object(self.model)
 
@@ -94,7 +94,7 @@ def default_config_dirs() -> list[Path]:
 
 
 def _load_entry_points(group: str) -> dict[str, MethodSpec]:
-    from .plugins import load_entry_points
+    from .entry_points import load_entry_points
 
     specs: dict[str, MethodSpec] = {}
     for name, spec in load_entry_points(group, "method").items():

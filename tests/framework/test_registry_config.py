@@ -27,7 +27,7 @@ from support import REPO
 
 
 def _fake_eps(monkeypatch, eps):
-    from splat_framework import plugins
+    from splat_framework import entry_points as plugins
 
     for module in (registry, plugins):
         monkeypatch.setattr(module, "entry_points", lambda group: [e for e in eps if e.group == group])
@@ -60,7 +60,7 @@ def test_registered_strategy_kinds_are_every_unnarrowed_methods(monkeypatch):
     """A StrategyConfig in group splat_framework.strategies under its kind's name is accepted by 3dgs
     (whose field is not narrowed) and written back in full; a broken or misnamed entry warns and is left out."""
     from splat_framework.config import strategy_kinds
-    from splat_framework.plugins import STRATEGY_ENTRY_POINT_GROUP
+    from splat_framework.entry_points import STRATEGY_ENTRY_POINT_GROUP
 
     from scg_plugin.config import RayStrategyConfig
     from splat_framework.methods.gaussian_splatting import spec_3dgs
@@ -436,7 +436,7 @@ def test_a_cli_run_looks_its_method_up_once(tmp_path, monkeypatch):
 
     monkeypatch.setattr(registry, "discover_methods", counted)
     run = ["3dgs", "--data", "synthetic/forward-tiny", "--steps", "4", "--output", str(tmp_path / "run"),
-           "--no-progress", "--no-save-renders", "--model.init-num-points", "200"]
+           "--no-progress", "--no-save-renders", "--model.init.num-points", "200"]
     cli_train.main(run)
     assert len(calls) == 1  # parsing; the trainer gets the spec instead of asking the registry again
     calls.clear()
