@@ -60,7 +60,7 @@ def measure(run: str, as_3dgs: bool, steps: int, warmup: int, threads: int | Non
 
     from splat_framework.model.gaussians import GaussianModel
     from splat_framework.registry import get_method
-    from splat_framework.run import background_for, load_run
+    from splat_framework.engine.run import background_for, load_run
 
     if threads:
         torch.set_num_threads(threads)

@@ -46,7 +46,7 @@ def main() -> None:
     args = ap.parse_args()
 
     from splat_framework.registry import get_method
-    from splat_framework.trainer import train
+    from splat_framework.engine.trainer import train
 
     rows = []
     for method in args.methods:

@@ -41,7 +41,7 @@ def main(argv: list[str] | None = None) -> dict:
     args = p.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
-    from splat_framework.trainer import Trainer
+    from splat_framework.engine.trainer import Trainer
 
     snap_args = argparse.Namespace(data=args.data, views=args.views, at=[args.at], train_steps=args.train_steps,
                                    work=args.work)

@@ -4,7 +4,7 @@ For each method, a real run (default: fern, 3 views, the method's default schedu
 is trained once and snapshotted at iterations 0, 500 and 1000 (full training state:
 parameters, optimizers, densification statistics, RNG). Each snapshot is then
 loaded into a fresh trainer, ``--warmup`` steps are run and ``--steps`` steps are
-timed, with the phases of the step measured by :mod:`splat_framework.profiling`
+timed, with the phases of the step measured by :mod:`splat_framework.engine.profiling`
 sections (projection, binning, compositing forward and backward, photometric
 loss, rendering-geometry loss, the rest of backward, finiteness checks,
 optimizer, densification, model hooks, metrics). A second pass of the same steps
@@ -102,7 +102,7 @@ def method_config(method: str, data: str, views: int, steps: int, output: Path):
 
 def snapshots(method: str, args: argparse.Namespace) -> dict[int, Path]:
     """{iteration: checkpoint file} of the method's reference run, training it when missing."""
-    from splat_framework.trainer import Trainer
+    from splat_framework.engine.trainer import Trainer
 
     folder = work_dir(args.work) / f"{args.data.replace('/', '-')}-v{args.views}-{method}-{args.train_steps}"
     snaps = {s: folder / "snapshots" / f"step-{s:06d}.pt" for s in args.at}
@@ -128,7 +128,7 @@ def time_steps(trainer, start: int, steps: int, warmup: int, device) -> dict:
 
     Code older than the profiling sections (a baseline checkout) gets the wall time only."""
     try:
-        from splat_framework.profiling import exclusive, profiling
+        from splat_framework.engine.profiling import exclusive, profiling
     except ImportError:
         exclusive, profiling = dict, _no_sections
 
@@ -157,7 +157,7 @@ def load_snapshot(trainer, path: Path) -> None:
     if hasattr(trainer, "load"):
         trainer.load(path)
     else:
-        from splat_framework.checkpoint import load_checkpoint
+        from splat_framework.engine.checkpoint import load_checkpoint
 
         trainer._load_state(path, load_checkpoint(path))
 
@@ -189,7 +189,7 @@ def _is_tensor_op(key: str) -> bool:
 
 
 def measure(method: str, args: argparse.Namespace) -> list[dict]:
-    from splat_framework.trainer import Trainer
+    from splat_framework.engine.trainer import Trainer
 
     snaps = snapshots(method, args)
     out_dir = work_dir(args.work) / "scratch"

@@ -50,7 +50,7 @@ from .config_base import (  # noqa: F401  (re-exported: the config machinery's h
     cli_parsing,
 )
 from .init_config import InitKinds, RandomInitConfig, upgrade_init_layout
-from .serving import LOOPBACK, Port
+from .viewer.serving import LOOPBACK, Port
 
 SCHEMA_VERSION = 1
 """Version of the saved ``config.json`` layout; bump on incompatible change."""
@@ -379,7 +379,7 @@ def config_payload(config: TrainConfig) -> dict:
 
 def save_config(config: TrainConfig, path: Path) -> None:
     """Write the resolved config as JSON with a schema version and a checksum (atomic)."""
-    from .io import atomic_write_json
+    from .files.io import atomic_write_json
 
     atomic_write_json(path, config_payload(config))
 
@@ -428,7 +428,7 @@ def read_config_json(path: Path, trust_edits: bool = False) -> tuple[str, dict]:
     ``trust_edits`` (the CLIs' ``--trust-edited-config``): a config edited by hand,
     or stripped of its checksum, is refused by default."""
     from .errors import DataError
-    from .io import CHECKSUM_KEY, json_checksum, read_json
+    from .files.io import CHECKSUM_KEY, json_checksum, read_json
 
     payload = read_json(path, verify=False)
     signed = payload.get(CHECKSUM_KEY)

@@ -40,8 +40,8 @@ import torch
 from .cameras import camera_centers, pose_differences
 from .data.images import read_photo
 from .errors import DataError
-from .output_paths import PROCESSED_SCENE, check_output, install_output
-from .work_folder import make_work_folder, remove_stale_work_folders, remove_work_folder
+from .files.output_paths import PROCESSED_SCENE, check_output, install_output
+from .files.work_folder import make_work_folder, remove_stale_work_folders, remove_work_folder
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
 MAPPERS = ("incremental", "global")
@@ -153,7 +153,7 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
     SIMPLE_PINHOLE keeps the photos as they are).
 
     Raises DataError (one line) when an image is unreadable, sizes differ, fewer than 2
-    images register, or ``out`` may not be written (see :mod:`splat_framework.output_paths`: a folder
+    images register, or ``out`` may not be written (see :mod:`splat_framework.files.output_paths`: a folder
     that splat-process did not write, the photos' folder, or, without ``overwrite``, an earlier scene)."""
     if mapper not in MAPPERS:
         raise DataError(f"--mapper must be one of {', '.join(MAPPERS)}, got {mapper!r}")

@@ -115,10 +115,10 @@ def test_triangulated_anchors_start_from_the_matching_prior(dm, method):
 
 @pytest.mark.parametrize("method", sorted(METHODS))
 def test_a_tiny_run_improves_and_resumes_with_its_networks(tmp_path, method):
-    from splat_framework.run import load_trained_model
-    from splat_framework.trainer import Trainer
+    from splat_framework.engine.run import load_trained_model
+    from splat_framework.engine.trainer import Trainer
 
-    from splat_framework.evaluation import evaluate
+    from splat_framework.evaluation.held_out import evaluate
 
     cfg = apply_overrides(METHODS[method][0](), {
         "data": "synthetic/forward-tiny", "steps": 60, "output": str(tmp_path / "run"), "progress": False,
@@ -129,12 +129,12 @@ def test_a_tiny_run_improves_and_resumes_with_its_networks(tmp_path, method):
     assert metrics["strategy"] == "anchor_gs.strategy." + ("OctreeStrategy" if method == "octree-gs" else "AnchorStrategy")
     assert metrics["mean"]["psnr"] > before + 1.0, (before, metrics["mean"]["psnr"])
     _, model = load_trained_model(tmp_path / "run")
-    from splat_framework.export import export_ply, load_ply
+    from splat_framework.export.ply import export_ply, load_ply
 
     ply = load_ply(export_ply(model, tmp_path / "scaffold.ply"))  # the decoded Gaussians of the reference view
     assert 0 < ply["means"].shape[0] <= model.num_gaussians and ply["sh0"].shape[1:] == (1, 3)
     pytest.importorskip("viser")
-    from splat_framework.viewer import splat_arrays
+    from splat_framework.viewer.scene_viewer import splat_arrays
 
     splats = splat_arrays(model, by_type=True)  # the viewer draws the same decoded Gaussians
     assert torch.allclose(torch.from_numpy(splats["centers"]), ply["means"], atol=1e-5)

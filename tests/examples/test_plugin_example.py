@@ -93,7 +93,7 @@ try:  # the plugin kind's flags in --help, without torch
 except SystemExit:
     pass
 assert "torch" not in sys.modules, "--help imported torch"
-from splat_framework import trainer
+from splat_framework.engine import trainer
 from splat_example_plugin.mcmc import MCMCStrategy
 
 seen, counts = [], []

@@ -156,7 +156,7 @@ def test_match_pictures_and_cache_are_written_atomically(tmp_path, monkeypatch):
     for the pictures (drawing) and the match set / cache (MatchSet.save) alike."""
     import errno
 
-    import splat_framework.io as sio
+    import splat_framework.files.io as sio
     from splat_framework.matching import MatchSet, draw_matches
 
     img = np.zeros((8, 8, 3), np.float32)
@@ -236,8 +236,8 @@ def test_scene_ctrl_c_exits_130_and_leaves_nothing(tmp_path):
 def test_building_installs_a_finished_folder_and_nothing_of_an_interrupted_one(tmp_path):
     import stat
 
-    from splat_framework.run_lock import LOCK_NAME
-    from splat_framework.work_folder import building
+    from splat_framework.engine.run_lock import LOCK_NAME
+    from splat_framework.files.work_folder import building
 
     out = tmp_path / "out"
     with building(out, os.rename) as work:

@@ -21,7 +21,7 @@ from config_walk import DEFAULTS, FIELDS, METHODS, members, nested
 from pydantic import ValidationError
 
 from splat_framework import registry
-from splat_framework.checkpoint import MAGIC, checkpoint_path, check_structure, list_checkpoints, load_checkpoint, load_latest
+from splat_framework.engine.checkpoint import MAGIC, checkpoint_path, check_structure, list_checkpoints, load_checkpoint, load_latest
 from splat_framework.cli.common import format_validation_error, tyro_error_line
 from splat_framework.config import MAX_STEPS, SplatConfig, apply_overrides
 from splat_framework.devices import device_fields, resolve_config_devices
@@ -155,7 +155,7 @@ BAD_CHECKPOINTS = {  # name -> (file step, payload edit)
 def test_a_checkpoint_with_a_bad_step_or_nan_values_falls_back_to_the_previous(run_copy, case):
     """A valid checksum proves the bytes, not the values: step -7 or 10^12 and NaN parameters are refused
     in one line naming the file, and the previous good checkpoint is used."""
-    from splat_framework.run import load_trained_model
+    from splat_framework.engine.run import load_trained_model
 
     folder = run_copy / "checkpoints"
     good = list_checkpoints(folder)[-1]
@@ -174,7 +174,7 @@ def test_a_checkpoint_with_a_bad_step_or_nan_values_falls_back_to_the_previous(r
 @pytest.mark.bad_input("a checkpoint with step -7 or 10^12, a step past the run's end, or NaN parameters under a valid checksum", "one warning line, the previous good checkpoint is used")
 def test_resume_skips_a_nan_checkpoint(run_copy, capsys):
     from splat_framework.config import read_config_json
-    from splat_framework.trainer import Trainer
+    from splat_framework.engine.trainer import Trainer
 
     folder = run_copy / "checkpoints"
     good = list_checkpoints(folder)[-1]
@@ -345,7 +345,7 @@ def test_the_memory_plan_counts_what_an_anchor_costs(monkeypatch, tmp_path):
     """Counts at their bounds reach the memory plan, which counts each anchor's neural Gaussians and feature:
     scaffold-gs with n_offsets 256 and feat_dim 1024 is refused before any allocation on a 16 GiB machine,
     where its defaults (and 3dgs with as many points) fit."""
-    import splat_framework.memory_plan as plan
+    import splat_framework.engine.memory_plan as plan
     from splat_framework.data import load_scene
     from splat_framework.data.synthetic import ensure_scene
 

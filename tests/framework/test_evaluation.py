@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from splat_framework.errors import DataError
-from splat_framework.evaluation import DEPTH_KEYS, depth_metrics, evaluate, label_panel
+from splat_framework.evaluation.held_out import DEPTH_KEYS, depth_metrics, evaluate, label_panel
 from splat_framework.render import RenderOutput
 
 
@@ -51,7 +51,7 @@ def test_trained_run_reports_depth_metrics(run_dir):
     metrics = json.loads((run_dir / "metrics.json").read_text())
     mean = metrics["mean"]
     assert set(mean) == {"psnr", "ssim", "lpips", "avg", "st_lpips", *DEPTH_KEYS}
-    from splat_framework.metrics import LPIPSMetric, STLPIPSMetric
+    from splat_framework.evaluation.metrics import LPIPSMetric, STLPIPSMetric
 
     if not LPIPSMetric.available()[0] and STLPIPSMetric.available()[0]:  # ST-LPIPS stands in, under its own name
         assert mean["lpips"] is None and 0 < mean["st_lpips"] < 1 and "ST-LPIPS" in metrics["lpips_note"]
@@ -89,7 +89,7 @@ class _NoDepth:
 
 @pytest.mark.slow
 def test_depth_mode_does_not_change_the_metrics_and_no_gt_gives_none(run_dir):
-    from splat_framework.run import background_for, load_run
+    from splat_framework.engine.run import background_for, load_run
 
     config, dm, model = load_run(run_dir)
     bg = background_for(dm.scene, "cpu")
@@ -109,7 +109,7 @@ def test_depth_mode_does_not_change_the_metrics_and_no_gt_gives_none(run_dir):
 def test_comparison_figure(run_dir, tmp_path):
     import cv2
 
-    from splat_framework.figures import comparison_figure, run_views
+    from splat_framework.evaluation.figures import comparison_figure, run_views
 
     views = run_views(run_dir)
     assert len(views) == 3
@@ -216,7 +216,7 @@ def test_an_edited_or_unsigned_config_is_refused_unless_trusted(run_dir, tmp_pat
     with --trust-edited-config it is used."""
     import shutil
 
-    from splat_framework.io import CHECKSUM_KEY
+    from splat_framework.files.io import CHECKSUM_KEY
 
     run = tmp_path / "run"
     shutil.copytree(run_dir, run, ignore=shutil.ignore_patterns("renders"))

@@ -10,7 +10,7 @@ import torch
 from splat_framework.model.gaussians import GaussianModel
 
 from splat_framework.errors import DataError
-from splat_framework.export import export_ply, gaussians_for_export, load_ply, ply_property_names, write_ply
+from splat_framework.export.ply import export_ply, gaussians_for_export, load_ply, ply_property_names, write_ply
 from splat_framework.render import rasterize
 
 # What the 3DGS reference (GaussianModel.construct_list_of_attributes) writes for SH degree 3.
@@ -125,7 +125,7 @@ def test_bad_files_raise_data_error(tmp_path):
 
 def test_round_trip_renders_identically(run_dir, tmp_path, monkeypatch):
     from splat_framework.cli.export import entrypoint
-    from splat_framework.run import background_for, load_run
+    from splat_framework.engine.run import background_for, load_run
 
     out = tmp_path / "out.ply"
     monkeypatch.setattr(sys, "argv", ["splat-export", str(run_dir), "--ply", str(out)])

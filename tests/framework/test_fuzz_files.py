@@ -16,10 +16,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from splat_framework import registry
-from splat_framework.checkpoint import MAGIC, check_structure, load_checkpoint, save_checkpoint
+from splat_framework.engine.checkpoint import MAGIC, check_structure, load_checkpoint, save_checkpoint
 from splat_framework.config import read_config_json, save_config
 from splat_framework.errors import CheckpointError, DataError
-from splat_framework.export import load_ply, write_ply
+from splat_framework.export.ply import load_ply, write_ply
 
 FUZZ = settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

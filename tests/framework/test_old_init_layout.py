@@ -12,10 +12,10 @@ from pathlib import Path
 import pytest
 
 from splat_framework.config import apply_overrides, experiment_fields, read_config_json, resolve_steps, upgrade_saved_config
-from splat_framework.io import atomic_write_json, read_json
+from splat_framework.files.io import atomic_write_json, read_json
 from splat_framework.registry import get_method
-from splat_framework.run import load_trained_model
-from splat_framework.trainer import Trainer, TrainingInterrupted
+from splat_framework.engine.run import load_trained_model
+from splat_framework.engine.trainer import Trainer, TrainingInterrupted
 from tests.framework.test_reliability import assert_same_params, fixed_config, private_cache, stop_at  # noqa: F401
 
 OLD = Path(__file__).parent / "old_init_configs"

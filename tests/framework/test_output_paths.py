@@ -15,7 +15,7 @@ import pytest
 from cli_harness import run_cli
 
 from splat_framework.errors import DataError
-from splat_framework.output_paths import MARKER, PLY_COMMENT, RENDER_FOLDER, SCENE_FOLDER, check_output
+from splat_framework.files.output_paths import MARKER, PLY_COMMENT, RENDER_FOLDER, SCENE_FOLDER, check_output
 
 TINY_SCENE = ("--width", 16, "--height", 12, "--views", 3)
 
@@ -219,7 +219,7 @@ def test_sweep_refuses_a_folder_that_is_not_a_sweep(tmp_path):
 @pytest.mark.bad_input("an output that the same command wrote before", "exit 2 asking for `--overwrite`; with it, only what the command wrote is removed (the user's other files stay; symlinks are unlinked, never followed)")
 def test_clearing_an_output_unlinks_links_inside_and_keeps_the_users_files(tmp_path):
     """--overwrite's removal (the same function for every command) never descends into a symlink."""
-    from splat_framework.output_paths import RUN_FOLDER, clear_output
+    from splat_framework.files.output_paths import RUN_FOLDER, clear_output
 
     elsewhere = user_folder(tmp_path / "elsewhere", **{"precious.png": "x", "a_render.png": "y"})
     run = _fake_run(tmp_path / "run")

@@ -1,4 +1,4 @@
-"""Test-time pose refinement (splat_framework.pose_refine): a perturbed test camera is fitted back to its photo."""
+"""Test-time pose refinement (splat_framework.evaluation.pose_refine): a perturbed test camera is fitted back to its photo."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import torch
 from torch import nn
 
 from splat_framework.cameras import Camera, intrinsics, look_at
-from splat_framework.metrics import psnr
+from splat_framework.evaluation.metrics import psnr
 from splat_framework.cameras import pose_differences
-from splat_framework.pose_refine import _correction, refine_pose
+from splat_framework.evaluation.pose_refine import _correction, refine_pose
 from splat_framework.render import rasterize
 
 

@@ -17,8 +17,8 @@ from cli_harness import cli_env, run_cli
 
 from splat_framework.cli.common import ArgumentsError
 from splat_framework.errors import DataError
-from splat_framework.run_lock import LOCK_NAME
-from splat_framework.work_folder import make_work_folder, remove_stale_work_folders, remove_work_folder
+from splat_framework.engine.run_lock import LOCK_NAME
+from splat_framework.files.work_folder import make_work_folder, remove_stale_work_folders, remove_work_folder
 
 
 def noise_photos(folder: Path, n: int, w: int, h: int, ext: str = ".jpg") -> list[Path]:
@@ -50,7 +50,7 @@ def test_read_photo_refuses_a_truncated_jpeg_that_opencv_decodes_half_grey(tmp_p
 def _work_folder_of_another_process(out: Path, stay: bool) -> tuple[Path, subprocess.Popen]:
     """A work folder of ``out`` made by a child process, which then exits without cleaning up
     (``stay``: keeps running, holding its lock)."""
-    code = ("import os, sys, time; from pathlib import Path; from splat_framework.work_folder import make_work_folder; "
+    code = ("import os, sys, time; from pathlib import Path; from splat_framework.files.work_folder import make_work_folder; "
             f"print(make_work_folder(Path({str(out)!r})), flush=True); time.sleep(60 if {stay} else 0); os._exit(0)")
     child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=cli_env())
     work = Path(child.stdout.readline().strip())

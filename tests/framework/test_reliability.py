@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 import torch
 
-import splat_framework.trainer as trainer_mod
-from splat_framework.checkpoint import (
+import splat_framework.engine.trainer as trainer_mod
+from splat_framework.engine.checkpoint import (
     CheckpointError,
     checkpoint_path,
     list_checkpoints,
@@ -25,11 +25,11 @@ from splat_framework.checkpoint import (
 from splat_framework.cli.common import run_cli
 from splat_framework.config import apply_overrides
 from splat_framework.errors import DataError
-from splat_framework.io import CHECKSUM_KEY, atomic_write_json, read_json
+from splat_framework.files.io import CHECKSUM_KEY, atomic_write_json, read_json
 from splat_framework.model.gaussians import GaussianModel
 from splat_framework.registry import get_method
-from splat_framework.run import load_trained_model
-from splat_framework.trainer import Trainer, TrainingDiverged, TrainingInterrupted
+from splat_framework.engine.run import load_trained_model
+from splat_framework.engine.trainer import Trainer, TrainingDiverged, TrainingInterrupted
 
 PY = sys.executable
 

@@ -43,7 +43,7 @@ def test_spiral_video(run_dir, tmp_path, monkeypatch):
         assert np.abs(a.astype(int) - b.astype(int)).mean() > 1.0  # the camera moves
     depth = read_video(tmp_path / "spiral_depth.mp4")
     assert len(depth) == 8 and depth[0].shape == (48, 64, 3)
-    from splat_framework.video import h264_available
+    from splat_framework.export.video import h264_available
 
     if h264_available():  # browser-playable: H.264 in yuv420p
         import av
@@ -64,7 +64,7 @@ def test_auto_path_is_spiral_for_forward_scenes(run_dir, monkeypatch):
 def test_spiral_cameras_look_at_the_scene(run_dir):
     from splat_framework.cameras import Camera
     from splat_framework.cli.render import camera_path
-    from splat_framework.run import background_for, load_run
+    from splat_framework.engine.run import background_for, load_run
 
     config, dm, model = load_run(run_dir)
     kind, cams = camera_path("spiral", dm, 8)
@@ -96,7 +96,7 @@ def test_spiral_cameras_look_at_the_scene(run_dir):
 def test_test_views_write_pngs(run_dir, tmp_path, monkeypatch):
     import cv2
 
-    from splat_framework.output_paths import MARKER
+    from splat_framework.files.output_paths import MARKER
 
     out = tmp_path / "pngs"
     render_cli(monkeypatch, run_dir, "--path", "test", "--out", out)

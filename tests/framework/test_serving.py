@@ -57,8 +57,8 @@ def test_invalid_port_is_one_line_at_parse_time(command, flag, port, tmp_path):
 @pytest.mark.bad_input("`splat-view RUN`, `splat-train --viewer` with no host given", "listen on 127.0.0.1 only (the machine's other addresses are refused); the URL printed is the one served")
 @pytest.mark.bad_input("`splat-view --host 0.0.0.0`, `splat-train --viewer-host 0.0.0.0`", "serves every interface, with one warning line naming what becomes reachable (the model, the photos' thumbnails, \"Render with splat\")")
 def test_viewer_listens_on_loopback_unless_a_host_is_given():
-    from splat_framework.serving import ServingWarning
-    from splat_framework.viewer import Viewer
+    from splat_framework.viewer.serving import ServingWarning
+    from splat_framework.viewer.scene_viewer import Viewer
 
     v = Viewer(port=0)
     try:
@@ -143,8 +143,8 @@ def test_splat_train_viewer_host_opens_it_with_a_warning(tmp_path):
 @pytest.mark.bad_input("a host this machine cannot listen on; a viewer server thread that dies", "exit 2, one line, before training writes anything; never a hang")
 def test_a_host_that_cannot_be_listened_on_is_one_error(host):
     """Before: viser tried 1000 ports on it, then the command waited forever for a server that never started."""
-    from splat_framework.serving import InvalidAddress
-    from splat_framework.viewer import Viewer
+    from splat_framework.viewer.serving import InvalidAddress
+    from splat_framework.viewer.scene_viewer import Viewer
 
     with pytest.raises(InvalidAddress, match="cannot listen on"):
         Viewer(port=0, host=host)
@@ -156,8 +156,8 @@ def test_a_server_thread_that_dies_ends_the_wait(monkeypatch):
     ``--port -1`` before) made the command hang. Now: an error after the startup timeout."""
     import websockets.asyncio.server
 
-    from splat_framework.serving import InvalidAddress
-    from splat_framework.viewer import _start_server
+    from splat_framework.viewer.serving import InvalidAddress
+    from splat_framework.viewer.scene_viewer import _start_server
 
     def dies(*args, **kwargs):
         raise RuntimeError("server thread died")
@@ -230,7 +230,7 @@ def test_pages_of_other_sites_cannot_use_the_viewer():
     from websockets.asyncio.client import connect
     from websockets.exceptions import ConnectionClosed
 
-    from splat_framework.viewer import Viewer
+    from splat_framework.viewer.scene_viewer import Viewer
 
     v = Viewer(port=0)
 

@@ -5,8 +5,8 @@ import sys
 import pytest
 import torch
 
-from splat_framework.metrics import IMAGE_METRICS, STLPIPSMetric, evaluate_images
-from splat_framework.st_lpips import STLPIPS, weights_path
+from splat_framework.evaluation.metrics import IMAGE_METRICS, STLPIPSMetric, evaluate_images
+from splat_framework.evaluation.st_lpips import STLPIPS, weights_path
 
 needs_weights = pytest.mark.skipif(weights_path("alex") is None, reason="stlpips-pytorch is not installed")
 
@@ -53,7 +53,7 @@ def test_metric_never_imports_the_package_and_masks_like_ssim():
 
 
 def test_missing_weights_say_which_package(tmp_path, monkeypatch):
-    import splat_framework.st_lpips as st
+    import splat_framework.evaluation.st_lpips as st
 
     monkeypatch.setattr(st.importlib.util, "find_spec", lambda name: None)
     assert st.weights_path("alex") is None

@@ -13,12 +13,12 @@ import torch
 from splat_framework.config import SCHEMA_VERSION, apply_overrides, read_config_json, save_config
 from splat_framework.data import DataError, load_scene, resolve_data_path
 from splat_framework.data.datamanager import view_bytes
-from splat_framework.evaluation import evaluate
-from splat_framework.io import read_json
+from splat_framework.evaluation.held_out import evaluate
+from splat_framework.files.io import read_json
 from splat_framework.registry import get_method
-from splat_framework.memory_plan import parse_bytes
-from splat_framework.run_folder import default_run_dir, prepare_run_dir
-from splat_framework.trainer import Trainer
+from splat_framework.engine.memory_plan import parse_bytes
+from splat_framework.engine.run_folder import default_run_dir, prepare_run_dir
+from splat_framework.engine.trainer import Trainer
 
 
 @pytest.fixture(autouse=True)
@@ -189,7 +189,7 @@ def test_memory_budget_from_environment(tmp_path, monkeypatch):
 
 
 def test_impossible_memory_is_reported_before_training(tmp_path, monkeypatch, capsys):
-    import splat_framework.memory_plan as tr
+    import splat_framework.engine.memory_plan as tr
 
     monkeypatch.setattr(tr, "physical_memory_bytes", lambda: 8 * 2**20)  # 8 MiB machine
     with pytest.raises(DataError, match="needs about .* of memory"):
@@ -222,7 +222,7 @@ def test_config_json_checksum_detects_edits(tmp_path):
 
 
 def test_profiled_step_names_its_phases_and_costs_nothing_when_off(tmp_path):
-    from splat_framework.profiling import exclusive, profiling, section
+    from splat_framework.engine.profiling import exclusive, profiling, section
 
     with section("ignored"):  # off: a plain no-op
         pass
@@ -250,7 +250,7 @@ def test_profiled_step_names_its_phases_and_costs_nothing_when_off(tmp_path):
 
 
 def test_first_nonfinite_names_the_tensor():
-    from splat_framework.trainer import _first_nonfinite
+    from splat_framework.engine.trainer import _first_nonfinite
 
     ok = torch.ones(3)
     assert _first_nonfinite({"a": ok, "b": None}) is None

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from splat_framework import video
+from splat_framework.export import video
 
 
 def frames(n, h, w):

@@ -23,8 +23,8 @@ def viewer(run_dir):
 
 
 def test_viewer_serves_the_model_and_the_cameras(viewer, run_dir):
-    from splat_framework.run import load_run
-    from splat_framework.viewer import ORDINARY_RGB, splat_arrays
+    from splat_framework.engine.run import load_run
+    from splat_framework.viewer.scene_viewer import ORDINARY_RGB, splat_arrays
 
     with urllib.request.urlopen(viewer.url, timeout=30) as r:  # the web client ships in the viser wheel
         assert r.status == 200 and b"<html" in r.read(4096).lower()
@@ -45,7 +45,7 @@ def test_viewer_serves_the_model_and_the_cameras(viewer, run_dir):
 
 
 def test_render_button_shows_splats_own_render(viewer, run_dir):
-    from splat_framework.run import background_for, load_run
+    from splat_framework.engine.run import background_for, load_run
 
     _, dm, model = load_run(run_dir)
     label = next(lab for lab in viewer._chosen.options if lab.startswith("test/"))
@@ -83,8 +83,8 @@ def test_training_viewer_follows_the_model(tmp_path):
     """splat-train --viewer: the callback opens the viewer at the first step and shows a copy of the
     model every viewer_every steps; renders from the browser never touch the training model."""
     from splat_framework.registry import get_method
-    from splat_framework.trainer import Trainer
-    from splat_framework.viewer import ViewerCallback
+    from splat_framework.engine.trainer import Trainer
+    from splat_framework.viewer.scene_viewer import ViewerCallback
 
     cfg = get_method("3dgs").default_config()
     cfg = cfg.model_copy(update=dict(data="synthetic/forward-tiny", steps=12, output=tmp_path / "run", progress=False,

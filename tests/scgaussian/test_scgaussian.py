@@ -208,7 +208,7 @@ def test_too_few_matches_warn_and_fall_back_to_ordinary_gaussians(scene, monkeyp
     """Texture-less views (simulated: the matcher finds nothing) must not crash or train nothing."""
     import scg_plugin.startup as startup
     from splat_framework.matching import MatchSet
-    from splat_framework.trainer import Trainer
+    from splat_framework.engine.trainer import Trainer
 
     sc, _, _ = scene
     monkeypatch.setattr(

@@ -26,7 +26,7 @@ class EvalArgs:
 
 def main(args: EvalArgs) -> dict:
     """Rescore the run, owning its folder meanwhile (it rewrites metrics.json and renders/)."""
-    from ..run_lock import owned
+    from ..engine.run_lock import owned
 
     if args.test_pose_steps is not None and args.test_pose_steps < 0:
         print(f"error: --test-pose-steps must be >= 0, got {args.test_pose_steps}", file=sys.stderr)
@@ -37,9 +37,9 @@ def main(args: EvalArgs) -> dict:
 
 def evaluate_run(args: EvalArgs) -> dict:
     from ..console import print_summary
-    from ..evaluation import evaluate
-    from ..io import atomic_write_json, read_json
-    from ..run import background_for, load_run
+    from ..evaluation.held_out import evaluate
+    from ..files.io import atomic_write_json, read_json
+    from ..engine.run import background_for, load_run
 
     config, dm, model = load_run(args.run_dir, args.device, args.trust_edited_config)
     pose_steps = config.test_pose_steps if args.test_pose_steps is None else args.test_pose_steps

@@ -24,14 +24,14 @@ class ExportArgs:
 
 
 def main(args: ExportArgs) -> Path:
-    from ..output_paths import PLY_FILE, check_output
+    from ..files.output_paths import PLY_FILE, check_output
 
     out = args.ply if args.ply is not None else Path(args.run_dir) / "point_cloud.ply"
     check_output(out, PLY_FILE, overwrite=args.overwrite or args.ply is None, flag="--ply")  # before torch loads
 
-    from ..export import export_ply
-    from ..run import load_trained_model
-    from ..run_lock import owned, writes_inside
+    from ..export.ply import export_ply
+    from ..engine.run import load_trained_model
+    from ..engine.run_lock import owned, writes_inside
 
     with owned(args.run_dir, writes=writes_inside(args.run_dir, out)):  # a PLY elsewhere only reads the run
         _, model = load_trained_model(args.run_dir, args.device, trust_edits=args.trust_edited_config)

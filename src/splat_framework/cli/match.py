@@ -131,7 +131,7 @@ def main(args: MatchArgs) -> "MatchSet":
     from splat_framework.data.parsers import load_scene
     from splat_framework.data.resolve import resolve_data_path
 
-    from ..output_paths import MATCH_FOLDER, check_output, claim_output
+    from ..files.output_paths import MATCH_FOLDER, check_output, claim_output
 
     root = resolve_data_path(args.data)
     check_output(args.out, MATCH_FOLDER, overwrite=args.overwrite, inputs=[root])

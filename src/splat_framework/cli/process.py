@@ -48,7 +48,7 @@ Args = Union[
 
 
 def main(args: ImagesArgs | VideoArgs):
-    from ..output_paths import PROCESSED_SCENE, check_output
+    from ..files.output_paths import PROCESSED_SCENE, check_output
 
     source = args.video if isinstance(args, VideoArgs) else args.folder
     check_output(args.out, PROCESSED_SCENE, overwrite=args.overwrite, inputs=[source])  # before any work

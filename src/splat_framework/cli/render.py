@@ -33,7 +33,7 @@ class RenderArgs:
 
 def camera_path(kind: str, dm, frames: int) -> tuple[str, list]:
     """(resolved kind, cameras) of a novel-view path around the run's views."""
-    from ..camera_paths import orbit_path, spiral_path
+    from ..export.camera_paths import orbit_path, spiral_path
 
     if kind == "auto":
         kind = "orbit" if dm.scene.format in ("blender", "dtu") else "spiral"
@@ -45,8 +45,8 @@ def camera_path(kind: str, dm, frames: int) -> tuple[str, list]:
 
 def main(args: RenderArgs) -> Path:
     from ..errors import DataError
-    from ..output_paths import RENDER_FOLDER, VIDEO_FILE, check_output
-    from ..run_lock import owned, writes_inside
+    from ..files.output_paths import RENDER_FOLDER, VIDEO_FILE, check_output
+    from ..engine.run_lock import owned, writes_inside
 
     if args.frames < 1:
         raise DataError(f"--frames must be >= 1, got {args.frames}")
@@ -75,9 +75,9 @@ def render_run(args: RenderArgs, replace: bool, check_video) -> Path:
     import torch
     from rich.progress import track
 
-    from ..evaluation import colorize_depth, to_uint8, write_png
-    from ..output_paths import RENDER_FOLDER, claim_output
-    from ..run import background_for, load_run
+    from ..evaluation.held_out import colorize_depth, to_uint8, write_png
+    from ..files.output_paths import RENDER_FOLDER, claim_output
+    from ..engine.run import background_for, load_run
 
     config, dm, model = load_run(args.run_dir, args.device, args.trust_edited_config)
     bg = background_for(dm.scene, config.device)
@@ -116,8 +116,8 @@ def write_video(model, cams, bg, out: Path, fps: int, depth: bool) -> Path:
     import torch
     from rich.progress import track
 
-    from ..evaluation import colorize_depth, to_uint8
-    from ..video import open_video
+    from ..evaluation.held_out import colorize_depth, to_uint8
+    from ..export.video import open_video
 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)

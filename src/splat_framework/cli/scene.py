@@ -53,8 +53,8 @@ def main(args: SceneArgs) -> Path:
     from rich.table import Table
 
     from ..data.synthetic.generate import DEFAULTS, ensure_generated, generate_scene
-    from ..output_paths import SCENE_FOLDER, check_output, install_output
-    from ..work_folder import building
+    from ..files.output_paths import SCENE_FOLDER, check_output, install_output
+    from ..files.work_folder import building
 
     console = Console()
     dflt = DEFAULTS[args.kind]

@@ -96,12 +96,12 @@ def main(args: list[str] | None = None) -> dict:
             prog="splat-train",
             description="Train a Gaussian-splatting method. Run 'splat-train METHOD --help' for its options.",
         )
-    from ..trainer import train
+    from ..engine.trainer import train
 
     spec = methods[config.method]  # the one lookup of the run, handed down
     if not config.viewer:
         return train(config, spec=spec)
-    from ..viewer import ViewerCallback
+    from ..viewer.scene_viewer import ViewerCallback
 
     live = ViewerCallback(port=config.viewer_port, every=config.viewer_every, host=config.viewer_host)
     metrics = train(config, callbacks=[live], spec=spec)

@@ -8,7 +8,7 @@ from typing import Annotated
 
 from tyro.conf import Positional, arg
 
-from ..serving import LOOPBACK, Port
+from ..viewer.serving import LOOPBACK, Port
 
 
 @dataclass
@@ -26,7 +26,7 @@ class ViewArgs:
 
 
 def main(args: ViewArgs, serve: bool = True):
-    from ..viewer import view_run
+    from ..viewer.scene_viewer import view_run
 
     viewer = view_run(args.run_dir, args.port, args.host, args.device, args.trust_edited_config)
     print(f"viewer of {args.run_dir} ({viewer.num_splats:,} Gaussians) at {viewer.url}  (Ctrl-C to stop)", flush=True)

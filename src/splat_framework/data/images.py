@@ -247,7 +247,7 @@ def load_mask(path: Path | str, size: tuple[int, int]) -> np.ndarray:
 
     Any channel layout works (the channel mean is taken). Values stay soft, as
     the DTU protocol needs: 1 = object, fractions on its edge (see
-    :mod:`splat_framework.metrics`). Masks at another resolution are resized
+    :mod:`splat_framework.evaluation.metrics`). Masks at another resolution are resized
     with area averaging.
     """
     import cv2

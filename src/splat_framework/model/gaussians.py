@@ -31,9 +31,9 @@ from torch import Tensor, nn
 from ..cameras import Camera
 from ..config import TrainConfig
 from ..losses import depth_smoothness, photometric_loss, scale_anisotropy, stereo_consistency
-from ..profiling import section
+from ..engine.profiling import section
 from ..render import RenderOutput, rasterize, rgb_to_sh
-from ..rng import keyed_generator
+from ..engine.rng import keyed_generator
 from .init import initial_points
 
 def knn_scale(points: Tensor, k: int = 3) -> Tensor:
@@ -68,7 +68,7 @@ def log_lerp(start: float, final: float, t: float) -> float:
 class GaussianModel(nn.Module):
     """Vanilla 3D Gaussian Splatting, and the lifecycle every method's model follows.
 
-    The hooks, in the order :class:`splat_framework.trainer.Trainer` calls them:
+    The hooks, in the order :class:`splat_framework.engine.trainer.Trainer` calls them:
 
     ==========================================================  =====================================
     hook (receives)                                             returns / does

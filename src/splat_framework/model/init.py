@@ -18,7 +18,7 @@ from torch import Tensor
 from ..cameras import Camera
 from ..data.scene import SceneData
 from ..errors import DataError
-from ..export import load_ply
+from ..export.ply import load_ply
 from ..matching import prior
 from ..render import sh_to_rgb
 
@@ -152,7 +152,7 @@ def sfm_points(init, datamanager, generator: torch.Generator) -> StartPoints:
 
 def ply_points(init, datamanager, generator: torch.Generator) -> StartPoints:
     """Kind "ply": the means and degree-0 colours of the Gaussians of ``init.path`` (a 3DGS-layout
-    PLY, :func:`splat_framework.export.load_ply`); DataError for a file without a Gaussian or with
+    PLY, :func:`splat_framework.export.ply.load_ply`); DataError for a file without a Gaussian or with
     a non-finite position."""
     _, images = _train_views(datamanager)
     gaussians = load_ply(init.path)

@@ -41,8 +41,8 @@ import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from ..resources import available_cores
-from ..output_paths import SWEEP_FOLDER, check_output, mark_output
+from ..engine.resources import available_cores
+from ..files.output_paths import SWEEP_FOLDER, check_output, mark_output
 from .backends import import_ray, run_local, run_ray, run_serial, spec_dict
 from .grid import (
     BACKENDS,
@@ -107,7 +107,7 @@ def run_sweep(
 ) -> SweepResult:
     """Run every missing run of ``grid`` into ``out`` and write the results tables.
 
-    ``out`` is new, empty or a sweep folder (see :mod:`splat_framework.output_paths`),
+    ``out`` is new, empty or a sweep folder (see :mod:`splat_framework.files.output_paths`),
     else a :class:`~splat_framework.errors.DataError` before anything runs.
     Runs whose metrics.json exists are skipped. Unknown methods raise
     :class:`SweepError` before anything runs; any other problem of a single

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import DataError
-from ..io import atomic_write_text
+from ..files.io import atomic_write_text
 from .grid import METRICS, NUMERIC_FIELDS, PHASES, RunSpec, group_key
 
 def run_state(run: RunSpec) -> tuple[str, str | None]:
@@ -274,7 +274,7 @@ def write_figures(out: Path, records: list[dict]) -> list[Path]:
 
     Written to ``<out>/figures/<scene>-v<views>.png``; runs without renders are left out.
     """
-    from ..figures import comparison_figure
+    from ..evaluation.figures import comparison_figure
 
     groups: dict[tuple, dict[str, dict]] = {}
     for r in records:

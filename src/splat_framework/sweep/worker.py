@@ -13,8 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import DataError
-from ..io import atomic_write_text
-from ..resources import available_cores, available_memory_bytes
+from ..files.io import atomic_write_text
+from ..engine.resources import available_cores, available_memory_bytes
 from .grid import DEFAULT_MEM_PER_RUN_GB, SweepError
 
 def default_workers(mem_per_run_gb: float = DEFAULT_MEM_PER_RUN_GB) -> int:
@@ -114,7 +114,7 @@ def execute_run(spec: dict, threads: int | None = None) -> dict:
                 torch.set_num_threads(int(threads))
             config = build_config(spec)
             cuda = str(config.device).startswith("cuda")
-            from ..trainer import TrainingInterrupted, train
+            from ..engine.trainer import TrainingInterrupted, train
 
             try:
                 metrics = train(config)

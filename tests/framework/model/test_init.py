@@ -115,7 +115,7 @@ def test_ply_kind_starts_3dgs_from_an_exported_model(tmp_path, forward_dm):
     """Export a model to PLY, start 3dgs from it: its initial means are the PLY's, its colours the
     PLY's base colours; a missing file is one DataError naming it."""
     from splat_framework.errors import DataError
-    from splat_framework.export import export_ply, load_ply
+    from splat_framework.export.ply import export_ply, load_ply
 
     cfg = get_method("3dgs-frustum").default_config()
     source = GaussianModel.from_data(cfg, forward_dm, torch.Generator().manual_seed(0))

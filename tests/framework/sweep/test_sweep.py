@@ -148,7 +148,7 @@ def test_aggregation_and_resume_without_training(tmp_path, monkeypatch):
 
 
 def test_failures_are_recorded_not_raised(tmp_path, monkeypatch):
-    from splat_framework import trainer
+    from splat_framework.engine import trainer
 
     def boom(config):
         if config.seed == 1:

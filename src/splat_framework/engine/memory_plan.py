@@ -5,10 +5,10 @@ from __future__ import annotations
 import os
 import re
 
-from .config import TrainConfig
-from .console import say
-from .data import DataError
-from .data.datamanager import estimate_image_bytes
+from ..config import TrainConfig
+from ..console import say
+from ..data import DataError
+from ..data.datamanager import estimate_image_bytes
 from .resources import available_memory_bytes, physical_memory_bytes
 
 MEMORY_ENV = "SPLAT_IMAGE_MEMORY_BUDGET"

@@ -6,7 +6,7 @@ File layout: ``b"SPLATCKPT1\\n"`` + 64 hex chars of the SHA-256 of the payload
 or corrupt file fails the checksum and is reported, and :func:`load_latest`
 falls back to the newest checkpoint that verifies.
 
-Writing goes through :func:`splat_framework.io.atomic_write_bytes`, so a crash
+Writing goes through :func:`splat_framework.files.io.atomic_write_bytes`, so a crash
 or a full disk while saving leaves the previous checkpoints intact; old files
 are deleted only after the new one is safely on disk. Parameters with NaN/inf
 values are never written.
@@ -24,8 +24,8 @@ from typing import Callable, Mapping, TypeVar
 import torch
 from torch import Tensor
 
-from .errors import CheckpointError  # noqa: F401  (re-exported)
-from .io import atomic_write_bytes
+from ..errors import CheckpointError  # noqa: F401  (re-exported)
+from ..files.io import atomic_write_bytes
 
 MAGIC = b"SPLATCKPT1\n"
 KEEP = 2
@@ -70,7 +70,7 @@ def _check_finite(step: int, payload: dict) -> None:
 def _check_step(path: Path, ck: dict, max_step: int | None = None) -> int:
     """The payload's step, an int in [0, max_step] (default: config.MAX_STEPS) equal to the step in the
     file's name (when it has one)."""
-    from .config import MAX_STEPS
+    from ..config import MAX_STEPS
 
     top = MAX_STEPS if max_step is None else min(max_step, MAX_STEPS)
     step = ck.get("step")

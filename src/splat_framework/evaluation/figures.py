@@ -1,6 +1,6 @@
 """Paper-style qualitative figures assembled from finished runs' test-view renders.
 
-``comparison_figure`` reads only PNGs that :func:`splat_framework.evaluation.evaluate`
+``comparison_figure`` reads only PNGs that :func:`splat_framework.evaluation.held_out.evaluate`
 wrote into ``<run>/renders`` (``<view>_render.png``, ``<view>_gt.png``); it
 loads no model and no dataset, so it is cheap to call from a sweep.
 """
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import DataError
+from ..errors import DataError
 
 __all__ = ["comparison_figure", "run_views"]
 
@@ -76,7 +76,7 @@ def comparison_figure(
     """
     import cv2
 
-    from .evaluation import write_png
+    from .held_out import write_png
 
     if not rows:
         raise DataError("comparison figure: no runs given")

@@ -7,12 +7,12 @@ from pathlib import Path
 import torch
 
 from .checkpoint import check_structure, load_latest
-from .config import read_config_json, upgrade_saved_config
-from .data.cache_dir import user_cache_dir
-from .devices import resolve_config_devices
-from .errors import CheckpointError, DataError
-from .registry import get_method
-from .render import set_compile
+from ..config import read_config_json, upgrade_saved_config
+from ..data.cache_dir import user_cache_dir
+from ..devices import resolve_config_devices
+from ..errors import CheckpointError, DataError
+from ..registry import get_method
+from ..render import set_compile
 
 
 def load_trained_model(run_dir: Path, device: str | None = None, scene_scale: float = 1.0,
@@ -57,7 +57,7 @@ def load_trained_model(run_dir: Path, device: str | None = None, scene_scale: fl
 
 def _renders(model) -> None:
     """Render a 4x4 image of ``model`` (raises if its parameters do not fit the rasterizer)."""
-    from .cameras import Camera, intrinsics
+    from ..cameras import Camera, intrinsics
 
     cam = Camera(K=intrinsics(4.0, 4.0, 2.0, 2.0), world_to_cam=torch.eye(4), width=4, height=4)
     with torch.no_grad():
@@ -66,7 +66,7 @@ def _renders(model) -> None:
 
 def load_run(run_dir: Path, device: str | None = None, trust_edits: bool = False):
     """(config, datamanager, model) of ``run_dir``, the model holding the newest good checkpoint."""
-    from .data import DataManager, load_config_scene
+    from ..data import DataManager, load_config_scene
 
     config, model = load_trained_model(run_dir, device, trust_edits=trust_edits)
     scene = load_config_scene(config)

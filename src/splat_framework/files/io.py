@@ -20,7 +20,7 @@ import os
 import tempfile
 from pathlib import Path
 
-from .errors import DataError
+from ..errors import DataError
 
 CHECKSUM_KEY = "checksum"
 """Key of the embedded checksum in JSON results."""

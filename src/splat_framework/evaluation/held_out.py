@@ -10,9 +10,9 @@ import torch
 from torch import Tensor
 
 from .metrics import IMAGE_METRICS, LPIPSMetric, STLPIPSMetric, evaluate_images, psnr
-from .cameras import pose_differences
+from ..cameras import pose_differences
 from .pose_refine import refine_pose
-from .profiling import synchronize
+from ..engine.profiling import synchronize
 
 
 def colorize_depth(
@@ -97,7 +97,7 @@ def write_png(path: Path, rgb: np.ndarray) -> None:
     """Write an RGB uint8 image (atomically)."""
     import cv2
 
-    from .io import atomic_write_bytes
+    from ..files.io import atomic_write_bytes
 
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
     if not ok:
@@ -120,7 +120,7 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
     plus the depth error when the dataset has ground-truth depth (see :func:`depth_metrics`).
 
     With ``pose_steps`` > 0, each test camera's pose is first fitted to its photo by that many
-    steps of :func:`splat_framework.pose_refine.refine_pose` (the protocol of pose-free methods;
+    steps of :func:`splat_framework.evaluation.pose_refine.refine_pose` (the protocol of pose-free methods;
     for poses estimated from the training photos alone); per view, ``pose_refined_deg`` and
     ``pose_refined_shift`` record how far it moved and ``psnr_before_pose_fit`` the PSNR at the
     pose as given (also averaged in ``mean``).

@@ -3,7 +3,7 @@
 A command that builds its output in a work folder beside it and moves it into place at
 the end (splat-process, splat-scene) leaves that folder behind when it is killed
 (``kill -9``, a power cut: no ``finally`` runs). Each work folder is therefore locked by
-its process with the run-folder lock (:mod:`splat_framework.run_lock`: an exclusive
+its process with the run-folder lock (:mod:`splat_framework.engine.run_lock`: an exclusive
 ``flock`` on ``.splat.lock`` inside it, which the kernel drops when the process dies);
 the next run for the same output removes every work folder of that output whose lock
 nobody holds. A folder that is locked (a run in progress), has no lock file (not ours,
@@ -21,7 +21,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterator
 
-from . import run_lock
+from ..engine import run_lock
 
 
 def _prefix(out: Path) -> str:
@@ -69,7 +69,7 @@ def remove_work_folder(work: Path) -> None:
 def building(out: Path, install: Callable[[Path, Path], object]) -> Iterator[Path]:
     """Build the folder ``out`` in a fresh work folder beside it (yielded), then ``install(work, out)``.
 
-    ``install`` moves the finished folder into place (e.g. :func:`splat_framework.output_paths.install_output`,
+    ``install`` moves the finished folder into place (e.g. :func:`splat_framework.files.output_paths.install_output`,
     which renames it when ``out`` does not exist); the work folder then has the mode a new
     folder gets and no lock file. On any failure or interruption (Ctrl-C) the work folder is
     removed and ``out`` is untouched; after a crash (``kill -9``) the next :func:`building` of

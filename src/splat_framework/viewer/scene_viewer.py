@@ -16,8 +16,8 @@ Cameras are OpenCV-convention in both this project and viser (x right, y down,
 z forward), so poses pass through unchanged.
 
 Where it listens (127.0.0.1 unless a host is given, a free port, the true URL) is
-:mod:`splat_framework.serving`'s; what its clients may do (no traceback from a malformed
-message, no share tunnel, no page of another web site) is :mod:`splat_framework.viser_clients`'.
+:mod:`splat_framework.viewer.serving`'s; what its clients may do (no traceback from a malformed
+message, no share tunnel, no page of another web site) is :mod:`splat_framework.viewer.viser_clients`'.
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ def splat_arrays(model, by_type: bool = False) -> dict[str, np.ndarray]:
     Returns float32 arrays: centers [N, 3], covariances [N, 3, 3] (R S^2 R^T),
     rgbs [N, 3] (degree-0 colour, or the type colours with ``by_type``), opacities [N, 1].
     """
-    from .render import quat_to_rotmat, sh_to_rgb
+    from ..render import quat_to_rotmat, sh_to_rgb
 
     g = model.export_gaussians()
     R = quat_to_rotmat(g["quats"].float())
@@ -91,7 +91,7 @@ def _fov_y(camera) -> float:
 def _thumbnail(image: torch.Tensor) -> np.ndarray:
     import cv2
 
-    from .evaluation import to_uint8
+    from ..evaluation.held_out import to_uint8
 
     img = to_uint8(image)
     f = THUMBNAIL_PX / max(img.shape[:2])
@@ -134,7 +134,7 @@ class Viewer:
 
     Args:
         port: TCP port, 0..65535 (0 = any free one); a port in use: the next free one, said in a
-            :class:`~splat_framework.serving.ServingWarning`. The port served is :attr:`port`, the URL :attr:`url`.
+            :class:`~splat_framework.viewer.serving.ServingWarning`. The port served is :attr:`port`, the URL :attr:`url`.
         host: interface to listen on: 127.0.0.1 (this machine only) by default; any other address
             (0.0.0.0: every interface) brings a ServingWarning naming what becomes reachable.
     """
@@ -236,7 +236,7 @@ class Viewer:
     def render_panel(self, label: str) -> np.ndarray | None:
         """Render dataset camera ``label`` with this project's rasterizer into the side panel:
         [H, W*3, 3] uint8 (RGB | depth | |error| against the photo, or the RGB again without one)."""
-        from .evaluation import colorize_depth, error_map, to_uint8
+        from ..evaluation.held_out import colorize_depth, error_map, to_uint8
 
         if label not in self._cameras:
             return None
@@ -269,7 +269,7 @@ class Viewer:
 def view_run(run_dir: Path, port: int = 8080, host: str = LOOPBACK, device: str | None = None,
              trust_edits: bool = False) -> Viewer:
     """A :class:`Viewer` of a trained run: its newest checkpoint, training and test cameras."""
-    from .run import background_for, load_run
+    from ..engine.run import background_for, load_run
 
     config, dm, model = load_run(run_dir, device, trust_edits)
     viewer = Viewer(port=port, host=host)
@@ -283,7 +283,7 @@ class ViewerCallback:
     first step and shows the model every ``every`` steps (a copy of its parameters: sending ~30k
     Gaussians costs milliseconds, about nothing against a training step).
 
-    A port or host it could not listen on raises :class:`~splat_framework.serving.InvalidAddress`
+    A port or host it could not listen on raises :class:`~splat_framework.viewer.serving.InvalidAddress`
     here, before training starts (and before anything is written)."""
 
     def __init__(self, port: int = 8080, every: int = 100, host: str = LOOPBACK) -> None:

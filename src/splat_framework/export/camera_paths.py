@@ -6,7 +6,7 @@ import math
 
 import torch
 
-from .cameras import Camera, look_at
+from ..cameras import Camera, look_at
 
 
 def _axes(cameras: list[Camera]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

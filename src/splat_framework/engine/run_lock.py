@@ -43,7 +43,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Iterator
 
-from .errors import DataError
+from ..errors import DataError
 
 LOCK_NAME = ".splat.lock"
 """The lock file inside a run folder (ignored when a folder's emptiness is judged)."""

@@ -14,7 +14,7 @@ Reliability contract:
   ``--resume`` (continue it) or ``--overwrite`` (start again; its old
   checkpoints and metrics are removed first).
 - **One owner**: the run folder is locked by this process before the data
-  is loaded (:mod:`splat_framework.run_lock`); a second ``splat-train`` on the
+  is loaded (:mod:`splat_framework.engine.run_lock`); a second ``splat-train`` on the
   same ``--output``, fresh or ``--resume``, or a ``splat-eval`` of it, is
   refused in one line naming the holder; the lock is released when
   :meth:`Trainer.train` ends, however it ends.
@@ -56,22 +56,22 @@ from torch import Tensor
 
 from . import run_lock
 from .checkpoint import CheckpointError, check_structure, list_checkpoints, load_checkpoint, load_latest, save_checkpoint
-from .config import (
+from ..config import (
     TrainConfig, config_payload, experiment_fields, read_config_json, resolve_steps, save_config, upgrade_saved_config,
 )
-from .console import console, print_summary, say, training_progress
-from .data import DataError, DataManager, load_config_scene
-from .data.cache_dir import user_cache_dir
-from .devices import resolve_config_devices
-from .evaluation import evaluate
-from .io import atomic_write_json
+from ..console import console, print_summary, say, training_progress
+from ..data import DataError, DataManager, load_config_scene
+from ..data.cache_dir import user_cache_dir
+from ..devices import resolve_config_devices
+from ..evaluation.held_out import evaluate
+from ..files.io import atomic_write_json
 from .memory_plan import image_memory_budget, plan_memory
-from .metrics import psnr
-from .model.strategy import Strategy
+from ..evaluation.metrics import psnr
+from ..model.strategy import Strategy
 from .profiling import section
-from .render import set_compile
-from .render import apply_process_threads
-from .registry import MethodSpec, get_method
+from ..render import set_compile
+from ..render import apply_process_threads
+from ..registry import MethodSpec, get_method
 from .rng import restore_rng_state, rng_state, seed_everything
 from .run_folder import prepare_run_dir
 from .run_lock import is_empty_run_dir
@@ -261,7 +261,7 @@ class Trainer:
         save_config(self.config, self.run_dir / "config.json")
 
     def release(self) -> None:
-        """Give up the run folder (its lock; see :mod:`splat_framework.run_lock`): done writing."""
+        """Give up the run folder (its lock; see :mod:`splat_framework.engine.run_lock`): done writing."""
         run_lock.release(self.run_dir)
 
     def experiment_record(self) -> dict:

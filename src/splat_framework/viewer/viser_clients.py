@@ -4,7 +4,7 @@ open a share tunnel, and never print a traceback into the user's terminal, whate
 :func:`guard_clients` applies all three to a ``viser.ViserServer`` (relying on viser's
 ``_websock_server``, whose connect callbacks are awaited before any message flows to a client);
 :func:`from_client` wraps a GUI callback. Malformed messages end as one DEBUG line of the
-``splat_framework.viser_clients`` logger (shown only with debug logging on).
+``splat_framework.viewer.viser_clients`` logger (shown only with debug logging on).
 """
 
 from __future__ import annotations
@@ -69,7 +69,7 @@ def _quiet_client_errors(server) -> None:
 
 def _refuse_foreign_pages(server, host: str) -> None:
     """Close, before anything is sent to it, a websocket opened by a page of another web site or
-    under a non-loopback name on a loopback server (:func:`~splat_framework.serving.client_allowed`).
+    under a non-loopback name on a loopback server (:func:`~splat_framework.viewer.serving.client_allowed`).
     Runs first among viser's connect callbacks, which are awaited before a client's messages flow."""
     websock = server._websock_server
 

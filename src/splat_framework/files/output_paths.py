@@ -29,8 +29,8 @@ from fnmatch import fnmatch
 from pathlib import Path
 from typing import Callable, Iterable
 
-from .errors import DataError
-from .run_lock import LOCK_NAME
+from ..errors import DataError
+from ..engine.run_lock import LOCK_NAME
 
 __all__ = [
     "MARKER", "PLY_COMMENT", "OutputKind", "OutputNotWritable", "RUN_FOLDER", "SCENE_FOLDER", "PROCESSED_SCENE",
@@ -42,7 +42,7 @@ MARKER = ".splat-output.json"
 """File that a folder-writing command leaves in its output folder: ``{"written_by": ..., "kind": ...}``."""
 
 PLY_COMMENT = "comment written by splat-export"
-"""Header line of every PLY that :func:`splat_framework.export.write_ply` writes."""
+"""Header line of every PLY that :func:`splat_framework.export.ply.write_ply` writes."""
 
 
 class OutputNotWritable(DataError):
@@ -77,7 +77,7 @@ def _read_marker(folder: Path) -> dict:
 
 def is_run_folder(folder: Path) -> bool:
     """Whether ``folder`` holds a ``config.json`` written by splat-train (schema version, method, valid checksum)."""
-    from .config import read_config_json
+    from ..config import read_config_json
 
     path = Path(folder) / "config.json"
     if not _is_regular(path):

@@ -19,7 +19,7 @@ import dataclasses
 import torch
 from torch import Tensor
 
-from .cameras import Camera
+from ..cameras import Camera
 
 
 def _correction(w: Tensor, v: Tensor) -> Tensor:

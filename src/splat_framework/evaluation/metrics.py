@@ -18,7 +18,7 @@ LPIPS never downloads anything: ``LPIPSMetric.available()`` checks that the
 ``lpips`` and ``torchvision`` packages are importable and that both weight
 files (lpips' linear layers, shipped inside the package, and torchvision's
 VGG16 backbone in the torch hub cache) exist on disk before anything is built.
-Where it is unavailable, ST-LPIPS (``splat_framework.st_lpips``, weights from the
+Where it is unavailable, ST-LPIPS (``splat_framework.evaluation.st_lpips``, weights from the
 ``stlpips-pytorch`` wheel) is reported instead, always under its own name: its
 values are not comparable with LPIPS values in papers, and AVG stays LPIPS's.
 """

@@ -7,9 +7,9 @@ from pathlib import Path
 
 from . import run_lock
 from .checkpoint import remove_stale_temporaries
-from .config import TrainConfig
-from .data import DataError
-from .output_paths import RUN_FOLDER, check_output, check_path, clear_output
+from ..config import TrainConfig
+from ..data import DataError
+from ..files.output_paths import RUN_FOLDER, check_output, check_path, clear_output
 from .run_lock import is_empty_run_dir
 
 
@@ -33,9 +33,9 @@ def prepare_run_dir(config: TrainConfig) -> Path:
 
     Raises DataError (one line, exit code 2 in the CLIs) when ``--output``
     exists and is not empty and neither ``--resume`` nor ``--overwrite`` is
-    given, when it is not a run folder (see :mod:`splat_framework.output_paths`),
+    given, when it is not a run folder (see :mod:`splat_framework.files.output_paths`),
     or when it is, holds, or lies inside the ``--data`` folder; and
-    :class:`~splat_framework.run_lock.RunFolderBusy` when another process holds the
+    :class:`~splat_framework.engine.run_lock.RunFolderBusy` when another process holds the
     folder (see :func:`claim_run_dir`). With ``--overwrite`` what the previous run
     wrote (config, checkpoints, metrics, renders) is removed under the lock,
     symlinks unlinked and never followed, so that nothing of it can be mistaken for
@@ -75,7 +75,7 @@ def prepare_run_dir(config: TrainConfig) -> Path:
 
 
 def claim_run_dir(run_dir: Path, fresh: bool) -> None:
-    """Take the run folder's lock for this process (:mod:`splat_framework.run_lock`), before any data
+    """Take the run folder's lock for this process (:mod:`splat_framework.engine.run_lock`), before any data
     is loaded; a ``fresh`` run checks again under the lock that the folder is still empty, so of two
     runs started together on one ``--output`` the second is refused even if both saw it empty."""
     before = run_lock.holds(run_dir)
