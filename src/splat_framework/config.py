@@ -49,6 +49,7 @@ from .config_base import (  # noqa: F401  (re-exported: the config machinery's h
     Steps,
     cli_parsing,
 )
+from .data_config import PhotoPosesConfig, ResolvedData
 from .init_config import InitKinds, RandomInitConfig, upgrade_init_layout
 from .viewer.serving import LOOPBACK, Port
 
@@ -247,6 +248,10 @@ class TrainConfig(SplatConfig):
     """Image downscale factor (default: the dataset's protocol, e.g. 8 for LLFF, 2 for Blender)."""
     train_poses: Path | None = None
     """Pose file (JSON) whose cameras replace the training views' poses and intrinsics; test views keep the dataset's (the benchmarks' --poses estimated protocol: poses from SfM on the training photos alone, aligned to the dataset's frame; see splat_framework.data.pose_file)."""
+    photos: PhotoPosesConfig = Field(default_factory=PhotoPosesConfig)
+    """Pose estimation when --data is a folder of photos or a video (cached in $SPLAT_CACHE/photos, keyed by the photos' contents and these options)."""
+    resolved_data: Annotated[tyro.conf.Suppress[ResolvedData | None], RUN_OPTION] = None
+    """The dataset as the run resolved it (absolute folder, train and test image names), recorded in config.json so that eval, render, view and export work from any folder and shell."""
     test_pose_steps: int = Field(0, ge=0, le=MAX_STEPS)
     """Fit each test camera's pose to its photo by this many Adam steps, the model frozen, before the final scores (pose-free methods' protocol, as splat-eval --test-pose-steps); 0 = score the test poses as given."""
     steps: Annotated[int, Field(ge=1, le=MAX_STEPS)] | None = None

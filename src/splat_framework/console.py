@@ -55,8 +55,9 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
     table = Table(title=f"{metrics['method']} on {metrics['data']}")
     table.add_column("metric")
     table.add_column("value", justify="right")
+    split = next((v.get("split", "test") for v in metrics.get("per_view") or []), "test")
     for k, v in metrics["mean"].items():
-        table.add_row(f"test {k}", "n/a" if v is None else f"{v:.4f}")
+        table.add_row(f"{split} {k}", "n/a" if v is None else f"{v:.4f}")
     table.add_row("gaussians", str(metrics["num_gaussians"]))
     table.add_row("steps", str(metrics["steps"]))
     if metrics.get("skipped_steps"):
@@ -67,8 +68,8 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
         table.add_row(k, f"{v:.1f}")
     table.add_row("run folder", str(run_dir))
     Console().print(table)
-    if not metrics.get("per_view"):
-        say("No test metrics: the scene has no held-out test view (every photo is a training view); "
+    if split == "train":
+        say("Training-view metrics: the scene has no held-out test view (every photo is a training view); "
             "splat-render RUN --path auto renders a video of novel views", "yellow")
-    elif metrics.get("lpips_note"):
+    if metrics.get("lpips_note"):
         say(f"LPIPS not computed: {metrics['lpips_note']}", "yellow")

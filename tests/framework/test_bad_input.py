@@ -46,7 +46,7 @@ def test_empty_folder(tmp_path):
 def test_unknown_format(tmp_path):
     (tmp_path / "x").mkdir()
     (tmp_path / "x" / "readme.txt").write_text("hi")
-    raises_data_error(lambda: load_scene(tmp_path / "x"), "unknown dataset format")
+    raises_data_error(lambda: load_scene(tmp_path / "x"), "neither a dataset", "splat-process")
     root = make_llff(tmp_path / "l", 3)
     raises_data_error(lambda: load_scene(root, format="nerf"), "unknown dataset format 'nerf'")
     raises_data_error(lambda: load_scene(root, format="blender"), "transforms_train.json", "not found")

@@ -56,17 +56,17 @@ def main(args: ImagesArgs | VideoArgs):
     from ..sfm import estimate_scene, list_images, pick_video_frames
     if isinstance(args, VideoArgs):
         with tempfile.TemporaryDirectory(prefix="splat-frames-") as tmp:
-            frames = pick_video_frames(args.video, args.frames, Path(tmp) / "frames")
-            summary = estimate_scene(frames, args.out, mapper=args.mapper, overwrite=args.overwrite, matcher=args.matcher)
+            photos = pick_video_frames(args.video, args.frames, Path(tmp) / "frames")
+            summary = estimate_scene(photos, args.out, mapper=args.mapper, overwrite=args.overwrite, matcher=args.matcher)
     else:
-        summary = estimate_scene(list_images(args.folder), args.out, mapper=args.mapper, overwrite=args.overwrite,
-                                 matcher=args.matcher)
-    print(f"{args.out}: {len(summary.registered)} of {summary.images} images registered, {summary.points:,} points, "
-          f"mean reprojection error {summary.reprojection_px:.2f} px, {summary.seconds:.1f} s ({summary.mapper} mapper, "
-          f"{summary.matcher} matches)")
+        photos = list_images(args.folder)
+        summary = estimate_scene(photos, args.out, mapper=args.mapper, overwrite=args.overwrite, matcher=args.matcher)
+    print(summary.line(args.out))
     if summary.unregistered:
-        print(f"not registered (left out of the scene): {summary.unregistered} image(s)")
-    print(f"next: splat-train scgaussian --data {args.out}")
+        left_out = [p.name for p in photos if p.stem not in set(summary.registered)]
+        print(f"not registered (left out of the scene): {', '.join(left_out)}")
+    print(f"next: splat-train scgaussian --data {args.out}  (or in one step: splat-train scgaussian --data "
+          f"{args.video if isinstance(args, VideoArgs) else args.folder})")
     return summary
 
 

@@ -8,6 +8,7 @@ cheap for CLIs that only parse arguments.
 
 from __future__ import annotations
 
+import re
 import struct
 from pathlib import Path
 
@@ -290,8 +291,16 @@ def load_depth(path: Path | str, size: tuple[int, int]) -> np.ndarray:
     return d
 
 
-def list_images(folder: Path) -> list[Path]:
-    """Image files directly in ``folder``, sorted by name (hidden files skipped)."""
+def natural_key(name: str) -> tuple:
+    """Sort key of a file name in natural order: digit runs compare as numbers (``9`` before
+    ``18``), the rest case-insensitively; the name itself breaks ties (``01`` and ``1``)."""
+    parts = re.split(r"(\d+)", name)
+    return tuple(int(t) if k % 2 else t.casefold() for k, t in enumerate(parts)), name
+
+
+def list_images(folder: Path, *, natural: bool = True) -> list[Path]:
+    """Image files directly in ``folder`` (hidden files skipped), in natural order (:func:`natural_key`),
+    or by plain name with ``natural=False`` (the order that LLFF's and DTU's pose files follow)."""
     if not folder.is_dir():
         raise DataError(f"{folder}: image folder not found")
     files = [
@@ -299,4 +308,4 @@ def list_images(folder: Path) -> list[Path]:
         for p in folder.iterdir()
         if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in IMAGE_SUFFIXES
     ]
-    return sorted(files, key=lambda p: p.name)
+    return sorted(files, key=lambda p: natural_key(p.name) if natural else p.name)

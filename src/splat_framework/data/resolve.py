@@ -5,13 +5,24 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from ..data_config import PhotoPosesConfig
+from .photos import photo_source, posed_photos
 from .scene import DataError
 
 SYNTHETIC_PREFIX = "synthetic/"
 
 
-def resolve_data_path(spec: str | Path) -> Path:
-    """Resolve a dataset spec to an existing folder.
+def resolve_data_path(spec: str | Path, photos: PhotoPosesConfig | None = None) -> Path:
+    """Resolve a dataset spec to an existing dataset folder: :func:`locate_data`, then, for a folder
+    of photos or a video, the scene posed from them (:func:`splat_framework.data.photos.posed_photos`,
+    with the pose options ``photos``; cached). Raises DataError when none exists."""
+    path = locate_data(spec)
+    kind = photo_source(path)
+    return posed_photos(path, kind, photos) if kind is not None else path
+
+
+def locate_data(spec: str | Path) -> Path:
+    """The existing path that a dataset spec names (nothing is posed).
 
     Order: the path as given; ``synthetic/<name>`` -> the generated scene from
     :func:`splat_framework.data.synthetic.ensure_scene`; a relative path under

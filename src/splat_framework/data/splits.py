@@ -17,7 +17,8 @@ sorted-as-specified lists of indices into the parser's camera list.
 A user's own scene (COLMAP, e.g. from ``splat-process``) of only a few photos
 is trained on all of them when holding out every 8th would leave fewer than
 ``views`` (:func:`own_scene_split`): three photos and ``--views 3`` train on the
-three, and there is no test view to score.
+three, and there is no test view to score; with ``views="all"`` (the default of
+``splat-train --data PHOTOS``) up to :data:`FEW_PHOTOS` photos all train.
 """
 
 from __future__ import annotations
@@ -33,6 +34,8 @@ Views = int | Literal["all"]
 LLFF_HOLDOUT = 8
 BLENDER_DIETNERF_8 = [2, 16, 26, 55, 73, 76, 86, 93]
 DTU_TRAIN_ORDER = [25, 22, 28, 40, 44, 48, 0, 8, 13]
+FEW_PHOTOS = 8
+"""Up to this many photos of one's own, ``views="all"`` trains on every one and holds none out."""
 DTU_TEST = [1, 2, 9, 10, 11, 12, 14, 15, 23, 24, 26, 27, 29, 30, 31, 32, 33, 34, 35, 41, 42, 43, 45, 46, 47]
 
 
@@ -84,8 +87,11 @@ def llff_split(n_images: int, views: Views = "all", holdout: int = LLFF_HOLDOUT)
 def own_scene_split(n_images: int, views: Views = "all") -> tuple[list[int], list[int]]:
     """:func:`llff_split`, except that a scene with at least ``views`` but too few images to also
     hold out test views is trained on ``views`` of them spread by the linspace rule, with no
-    test view (a user's 3 photos and ``--views 3``). Benchmark scenes always have enough images."""
+    test view (a user's 3 photos and ``--views 3``), and that ``views="all"`` over at most
+    :data:`FEW_PHOTOS` images trains on every one. Benchmark scenes always have enough images."""
     views = check_views(views)
+    if views == "all" and n_images <= FEW_PHOTOS:
+        return list(range(n_images)), []
     if views != "all" and n_images >= views and n_images - len(range(0, n_images, LLFF_HOLDOUT)) < views:
         return linspace_pick(list(range(n_images)), views), []
     return llff_split(n_images, views)

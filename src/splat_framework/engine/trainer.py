@@ -60,7 +60,7 @@ from ..config import (
     TrainConfig, config_payload, experiment_fields, read_config_json, resolve_steps, save_config, upgrade_saved_config,
 )
 from ..console import console, print_summary, say, training_progress
-from ..data import DataError, DataManager, load_config_scene
+from ..data import DataError, DataManager, describe_split, load_config_scene, record_data
 from ..data.cache_dir import user_cache_dir
 from ..devices import resolve_config_devices
 from ..evaluation.held_out import evaluate
@@ -209,6 +209,9 @@ class Trainer:
         self.generator = seed_everything(self.config.seed)
         t0 = time.perf_counter()
         scene = load_config_scene(self.config)
+        self.config = record_data(self.config, scene)  # config.json names the folder and split: eval from any shell
+        if describe_split(scene):
+            say(describe_split(scene))
         apply_process_threads()
         budget = plan_memory(scene, self.config, image_memory_budget())
         self.datamanager = DataManager(

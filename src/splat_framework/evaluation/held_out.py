@@ -125,12 +125,17 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
     ``pose_refined_shift`` record how far it moved and ``psnr_before_pose_fit`` the PSNR at the
     pose as given (also averaged in ``mean``).
 
+    A scene with no held-out view (a few photos of one's own, all trained on) is scored on its
+    training views instead, each per-view entry saying ``"split": "train"`` ("test" otherwise).
+
     With ``render_dir``, writes per view ``<view>_render.png``, ``<view>_gt.png``,
-    ``<view>_depth.png`` and a labelled ``<view>_grid.png`` (GT | render | depth | error).
+    ``<view>_depth.png`` and a labelled ``<view>_grid.png`` (GT | render | depth | error);
+    ``<view>`` is the image's name (its file stem).
 
     Returns:
         {"mean": {psnr, ssim, lpips, avg, st_lpips, depth_abs_rel, depth_within_5pct,
-        depth_coverage}, "per_view": [...], "fps": float, "lpips_note": str | None}.
+        depth_coverage}, "per_view": [{"view": image name, "index", "split", metrics...}],
+        "fps": float, "lpips_note": str | None}.
         ``fps`` is rendering alone (no metrics, no file writing), after one untimed
         warm-up render of the first view.
         A mean is None when a metric is unavailable (no LPIPS package, no GT depth;
@@ -144,7 +149,10 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
         reason += "; ST-LPIPS reported instead (not comparable with papers' LPIPS)"
     per_view = []
     render_time = 0.0
-    for i, (camera, batch) in enumerate(datamanager.eval_views()):
+    views, split = datamanager.eval_views(), "test"
+    if not views:  # nothing held out: the training views, labelled as such
+        views, split = datamanager.train_views(), "train"
+    for i, (camera, batch) in enumerate(views):
         moved = {}
         mask = batch.get("mask") if datamanager.scene.masked_metrics else None
         if pose_steps > 0:  # fitted where the metric looks
@@ -163,8 +171,8 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
         depth = out.expected_depth
         m = evaluate_images(pred, gt, mask=mask, lpips=lpips if available else None, st_lpips=st_lpips)
         m.update(depth_metrics(depth, out.alpha, batch.get("depth")))
-        name = camera.name or f"view{batch['index']:03d}"
-        per_view.append({"view": name, "index": int(batch["index"]), **m, **moved})
+        name = camera.name or Path(datamanager.scene.image_paths[batch["index"]]).stem
+        per_view.append({"view": name, "index": int(batch["index"]), "split": split, **m, **moved})
         if render_dir is not None:
             gt8, pred8, depth8 = to_uint8(gt), to_uint8(pred), colorize_depth(depth, out.alpha)
             write_png(render_dir / f"{name}_render.png", pred8)

@@ -31,7 +31,9 @@ def test_own_scene_with_too_few_photos_trains_on_all_of_them():
     assert own_scene_split(2, 2) == ([0, 1], [])
     assert own_scene_split(3, 2) == llff_split(3, 2) == ([1, 2], [0])  # enough: the usual hold-out
     assert own_scene_split(20, 3) == llff_split(20, 3)
-    assert own_scene_split(3, "all") == llff_split(3, "all")
+    assert own_scene_split(3, "all") == ([0, 1, 2], [])  # a few photos of one's own: all of them train
+    assert own_scene_split(8, "all") == (list(range(8)), [])
+    assert own_scene_split(9, "all") == llff_split(9, "all") == ([1, 2, 3, 4, 5, 6, 7], [0, 8])
     with pytest.raises(DataError, match="views=4"):
         own_scene_split(3, 4)
 

@@ -41,13 +41,9 @@ def _loader(fmt: str) -> Callable[..., SceneData]:
     raise DataError(f"unknown dataset format {fmt!r} (choose auto, {', '.join(FORMATS)})")
 
 
-def detect_format(path: Path) -> str:
-    """The dataset format of folder ``path`` (raises DataError when unknown)."""
+def marked_format(path: Path) -> str | None:
+    """The dataset format whose marker file folder ``path`` holds, or None."""
     path = Path(path)
-    if not path.exists():
-        raise DataError(f"{path}: no such dataset folder")
-    if not path.is_dir():
-        raise DataError(f"{path}: not a folder")
     if (path / "poses_bounds.npy").is_file():
         return "llff"
     if (path / "transforms_train.json").is_file():
@@ -58,6 +54,19 @@ def detect_format(path: Path) -> str:
 
     if find_sparse_dir(path) is not None:
         return "colmap"
+    return None
+
+
+def detect_format(path: Path) -> str:
+    """The dataset format of folder ``path`` (raises DataError when unknown)."""
+    path = Path(path)
+    if not path.exists():
+        raise DataError(f"{path}: no such dataset folder")
+    if not path.is_dir():
+        raise DataError(f"{path}: not a folder; splat-process turns your own photos or video into a scene folder")
+    fmt = marked_format(path)
+    if fmt is not None:
+        return fmt
     try:
         empty = not any(path.iterdir())
     except OSError as e:
@@ -65,8 +74,8 @@ def detect_format(path: Path) -> str:
     if empty:
         raise DataError(f"{path}: empty folder, no dataset found")
     raise DataError(
-        f"{path}: unknown dataset format (expected poses_bounds.npy, transforms_train.json, "
-        "cameras_sphere.npz or sparse/0/cameras.bin|txt)"
+        f"{path}: neither a dataset (poses_bounds.npy, transforms_train.json, cameras_sphere.npz or "
+        "sparse/0/cameras.bin|txt) nor a folder of photos; splat-process turns your own photos or video into a scene folder"
     )
 
 
@@ -106,4 +115,4 @@ def load_scene(
         raise DataError(f"{name}: {e.strerror or e}") from None
 
 
-__all__ = ["FORMATS", "detect_format", "load_scene"]
+__all__ = ["FORMATS", "detect_format", "load_scene", "marked_format"]

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..images import natural_key
 from ..scene import DataError, SceneData
 from ..splits import Views, own_scene_split
 from .common import (
@@ -298,7 +299,7 @@ def load_colmap(root: Path, *, views: Views = "all", downscale: float | None = N
         raise DataError(f"{img_file}: no registered images")
 
     folder, image_scale, _ = choose_image_dir(root, downscale, None)
-    entries = sorted(images.values(), key=lambda im: im.name)
+    entries = sorted(images.values(), key=lambda im: natural_key(im.name))  # 9 before 18: the split follows this order
     paths = [folder / im.name for im in entries]
     for p in paths:
         if not p.is_file():

@@ -86,7 +86,10 @@ def check_same_size(paths: Sequence[Path]) -> tuple[int, int]:
 
 
 def find_images(folder: Path) -> list[Path]:
-    paths = list_images(folder)
+    """The images of ``folder`` sorted by plain name: LLFF's ``poses_bounds.npy`` rows and DTU's
+    ``world_mat_i`` follow that order (the reference code sorts names so), so natural order would
+    pair photos with other photos' poses where names are not zero-padded."""
+    paths = list_images(folder, natural=False)
     if not paths:
         raise DataError(f"{folder}: no image files in folder")
     return paths

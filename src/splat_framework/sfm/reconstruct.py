@@ -1,0 +1,161 @@
+"""Posed scenes from a user's own photos: structure from motion with pycolmap.
+
+``estimate_scene(images, out)`` reads the photos (EXIF rotation applied by
+OpenCV), checks that they are readable and of one size, extracts and matches
+features (COLMAP's SIFT, or a registered photo matcher, see :mod:`.photo_matchers`),
+maps them with COLMAP's incremental mapper (or the global one, GLOMAP, with
+``mapper="global"``), undistorts to a pinhole camera and writes a COLMAP folder
+(``images/``, ``sparse/0/``) that :func:`~splat_framework.data.parsers.colmap.load_colmap`
+reads. The folder is built beside ``out`` and renamed into place at the end, so a
+failure leaves nothing half-written.
+
+A learned matcher's matches become COLMAP's keypoints and raw matches; COLMAP verifies
+them (geometric_verification) and maps from them. Few wide-baseline photos are where
+this matters: DTU scan37's 3 training views register 0 of 3 from SIFT, 3 of 3 from
+ALIKED + LightGlue.
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..errors import DataError
+from ..files.output_paths import PROCESSED_SCENE, check_output, install_output
+from ..files.work_folder import make_work_folder, remove_stale_work_folders, remove_work_folder
+from .colmap import load_pycolmap, verified_pair_counts, write_matches
+from .photo_matchers import AUTO_MATCHER, AUTO_PREFERRED, choose_matcher, photo_matchers
+from .photos import stage_images
+
+MAPPERS = ("incremental", "global")
+
+_PAIR_WARNING = re.compile(r"pair \(\d+, \d+\): ")
+"""A photo matcher's per-pair warning, naming the pair by position: replaced by the verified counts by file name."""
+
+
+@dataclass
+class SfmSummary:
+    images: int  # photos given
+    registered: list[str]  # names of the photos with a pose
+    points: int  # 3D points of the model
+    reprojection_px: float  # mean reprojection error
+    seconds: float
+    mapper: str
+    matcher: str = "sift"
+    pair_matches: dict[tuple[str, str], int] = field(default_factory=dict)
+    """Verified matches of every pair of photos, by file name."""
+
+    @property
+    def unregistered(self) -> int:
+        return self.images - len(self.registered)
+
+    def line(self, out: Path | str) -> str:
+        """One line: what the pose estimation of ``out`` found."""
+        return (f"{out}: {len(self.registered)} of {self.images} images registered, {self.points:,} points, "
+                f"mean reprojection error {self.reprojection_px:.2f} px, {self.seconds:.1f} s ({self.mapper} mapper, "
+                f"{self.matcher} matches)")
+
+
+def describe_pair_matches(pairs: dict[tuple[str, str], int]) -> str:
+    """``a.jpg-b.jpg 512, b.jpg-c.jpg 30; every other pair 0``: the pairs with verified matches by file name."""
+    kept = [f"{a}-{b} {n}" for (a, b), n in pairs.items() if n]
+    if not kept:
+        return "no pair has any"
+    zero = len(pairs) - len(kept)
+    return ", ".join(kept) + (f"; the other {zero} pair(s) 0" if zero else "")
+
+
+def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental", overwrite: bool = False,
+                   camera_model: str = "SIMPLE_RADIAL", matcher: str = "sift") -> SfmSummary:
+    """Estimate intrinsics and poses of ``images`` and write the COLMAP scene folder ``out``.
+
+    ``camera_model``: COLMAP's model shared by all photos (SIMPLE_RADIAL: one focal length,
+    centred principal point, one radial distortion term, undistorted away when writing;
+    SIMPLE_PINHOLE keeps the photos as they are).
+
+    Raises DataError (one line) when an image is unreadable, sizes differ, fewer than 2
+    images register (the message gives the verified matches of every pair by file name),
+    or ``out`` may not be written (see :mod:`splat_framework.files.output_paths`: a folder
+    that splat-process did not write, the photos' folder, or, without ``overwrite``, an earlier scene)."""
+    if mapper not in MAPPERS:
+        raise DataError(f"--mapper must be one of {', '.join(MAPPERS)}, got {mapper!r}")
+    plugins = photo_matchers()
+    auto = matcher == AUTO_MATCHER
+    matcher = choose_matcher(matcher, plugins)
+    out = Path(out)
+    check_output(out, PROCESSED_SCENE, overwrite=overwrite, inputs={Path(p).parent for p in images})
+    pycolmap = load_pycolmap()
+    t0 = time.perf_counter()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_work_folders(out)  # left by a run that crashed or was killed
+    work = make_work_folder(out)
+    try:
+        stage_images(images, work / "input")
+        staged = [f"{Path(p).stem}.png" for p in images]
+        original = dict(zip(staged, (Path(p).name for p in images)))
+        db = work / "database.db"
+        cpu = pycolmap.Device.cpu
+        reader = pycolmap.ImageReaderOptions()
+        reader.camera_model = camera_model
+        pycolmap.extract_features(db, work / "input", camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
+                                  device=cpu)
+        if matcher != "sift":
+            import cv2
+
+            rgb = [cv2.imread(str(work / "input" / f), cv2.IMREAD_COLOR)[..., ::-1].copy() for f in staged]
+            try:
+                with warnings.catch_warnings(record=True) as caught:
+                    warnings.simplefilter("always")
+                    found = plugins[matcher].load()(rgb)
+                for w in caught:  # pairs named by position: the verified counts by file name say it better
+                    if not _PAIR_WARNING.match(str(w.message)):
+                        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+                write_matches(pycolmap, db, staged, found)
+            except FileNotFoundError as e:  # the matcher's weights are not installed
+                if not auto:
+                    raise
+                warnings.warn(f"matcher auto: {e}; using SIFT", stacklevel=2)
+                matcher = "sift"
+        if matcher == "sift":
+            pycolmap.match_exhaustive(db, device=cpu)
+        pairs = {(original[a], original[b]): n for (a, b), n in verified_pair_counts(pycolmap, db, staged).items()}
+        (work / "sparse").mkdir()
+        if mapper == "global":
+            models = pycolmap.global_mapping(db, work / "input", work / "sparse")
+        else:
+            models = pycolmap.incremental_mapping(db, work / "input", work / "sparse")
+        best = max(models.values(), key=lambda r: r.num_reg_images(), default=None)
+        registered = [best.images[i].name for i in best.reg_image_ids()] if best is not None else []
+        if len(registered) < 2:
+            raise DataError(
+                f"{images[0].parent}: {len(registered)} of {len(images)} images registered "
+                f"({mapper} mapper, {matcher} matches; verified matches per pair: {describe_pair_matches(pairs)}); "
+                f"try photos with more overlap, more photos, "
+                f"{'--matcher aliked-lightglue, ' if matcher == 'sift' and AUTO_PREFERRED in plugins else ''}"
+                f"or --mapper {'incremental' if mapper == 'global' else 'global'}")
+        model_dir = work / "model"
+        model_dir.mkdir()
+        best.write(model_dir)
+        scene = work / "scene"
+        pycolmap.undistort_images(scene, model_dir, work / "input")  # pinhole: images/, sparse/
+        sparse0 = scene / "sparse" / "0"
+        sparse0.mkdir()
+        for f in list((scene / "sparse").iterdir()):
+            if f.is_file():
+                f.rename(sparse0 / f.name)
+        for extra in ("stereo", "run-colmap-geometric.sh", "run-colmap-photometric.sh"):
+            p = scene / extra
+            shutil.rmtree(p) if p.is_dir() else p.unlink(missing_ok=True)
+        summary = SfmSummary(
+            images=len(images), registered=[Path(n).stem for n in staged if n in set(registered)],
+            points=best.num_points3D(), reprojection_px=float(best.compute_mean_reprojection_error()),
+            seconds=time.perf_counter() - t0, mapper=mapper, matcher=matcher, pair_matches=pairs,
+        )
+        install_output(scene, out, PROCESSED_SCENE)
+        return summary
+    finally:
+        remove_work_folder(work)
