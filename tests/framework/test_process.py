@@ -108,7 +108,8 @@ def test_failures_exit_2_with_one_line_and_write_nothing(forward, tmp_path):
     rng = np.random.default_rng(0)
     for k in range(3):
         cv2.imwrite(str(noise / f"n{k}.png"), rng.integers(0, 256, (200, 240, 3), dtype=np.uint8))
-    assert_one_line_exit_2(run_process("images", str(noise), "--out", str(out)), "registered", "overlap")
+    assert_one_line_exit_2(run_process("images", str(noise), "--out", str(out)), "registered", "overlap",
+                           "verified matches per pair: n0.png-n1.png 0, n0.png-n2.png 0, n1.png-n2.png 0")
     # a video with too few frames
     video = tmp_path / "short.avi"
     writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))

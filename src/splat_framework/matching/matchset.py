@@ -62,6 +62,13 @@ class MatchSet:
         """Matches per pair."""
         return {p: len(self.matches[p][0]) for p in self.pairs()}
 
+    def unmatched_views(self) -> list[int]:
+        """The views (of two or more) without one verified match with any other view."""
+        if len(self.view_ids) < 2:
+            return []
+        matched = {v for (i, j), (a, _) in self.matches.items() if len(a) for v in (i, j)}
+        return [v for v in self.view_ids if v not in matched]
+
     @property
     def n_warnings(self) -> int:
         return len(self.warnings)

@@ -8,6 +8,7 @@ the matches triangulated with the known poses (:func:`triangulated_points`).
 from __future__ import annotations
 
 import time
+import warnings
 from typing import Iterator
 
 import numpy as np
@@ -30,7 +31,18 @@ def compute_match_set(matching: MatchConfig, datamanager) -> MatchSet:
     ids = [int(b["index"]) for _, b in views]
     cache_dir = user_cache_dir() / "matches" if matching.cache else None
     masks = [datamanager.alpha(i) for i in ids] if matching.alpha_mask else None
-    return compute_matches(images, cameras, ids, matching, cache_dir, masks)
+    match_set = compute_matches(images, cameras, ids, matching, cache_dir, masks)
+    warn_unmatched(match_set, {i: c.name for i, c in zip(ids, cameras)})
+    return match_set
+
+
+def warn_unmatched(match_set: MatchSet, names: dict[int, str]) -> None:
+    """One warning naming each training view (``names``: view id -> image name) that has no verified
+    match with any other: the prior cannot place it, so it is learned from its photo alone."""
+    for v in match_set.unmatched_views():
+        warnings.warn(f"training view {names.get(v) or v} has no verified match with any other training view: "
+                      "the matching prior cannot place it (photos with more overlap, or another matcher, "
+                      "help)", stacklevel=3)
 
 
 def match_pairs(match_set: MatchSet, view_ids: list[int]) -> Iterator[tuple[int, int, np.ndarray, np.ndarray]]:

@@ -60,13 +60,18 @@ class SfmSummary:
                 f"{self.matcher} matches)")
 
 
+LISTED_EMPTY_PAIRS = 10
+"""Up to this many pairs without verified matches are named one by one; more are counted."""
+
+
 def describe_pair_matches(pairs: dict[tuple[str, str], int]) -> str:
-    """``a.jpg-b.jpg 512, b.jpg-c.jpg 30; every other pair 0``: the pairs with verified matches by file name."""
+    """``a.jpg-b.jpg 512, b.jpg-c.jpg 30, a.jpg-c.jpg 0``: every pair's verified matches by file name
+    (beyond :data:`LISTED_EMPTY_PAIRS` empty pairs, those are counted instead of named)."""
     kept = [f"{a}-{b} {n}" for (a, b), n in pairs.items() if n]
-    if not kept:
-        return "no pair has any"
-    zero = len(pairs) - len(kept)
-    return ", ".join(kept) + (f"; the other {zero} pair(s) 0" if zero else "")
+    empty = [f"{a}-{b} 0" for (a, b), n in pairs.items() if not n]
+    if len(empty) > LISTED_EMPTY_PAIRS:
+        empty = [f"the other {len(empty)} pairs 0"]
+    return ", ".join(kept + empty)
 
 
 def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental", overwrite: bool = False,

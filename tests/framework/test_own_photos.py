@@ -1,0 +1,178 @@
+"""Own photos in one command and self-contained run folders (issue 42): ``splat-train METHOD --data
+PHOTOS`` poses the photos (cached by their contents), trains on all of a few photos and says so,
+names photos and views by file name in natural order; a run folder evaluates from any folder
+and shell, and one written before the record existed still evaluates and resumes."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from cli_harness import cli_env, run_cli
+
+from splat_framework.cameras import Camera, intrinsics
+from splat_framework.data import describe_split
+from splat_framework.data.images import list_images, natural_key
+from splat_framework.data.parsers.common import find_images
+from splat_framework.data.scene import SceneData
+from splat_framework.data.splits import own_scene_split
+from splat_framework.data_config import PhotoPosesConfig
+from splat_framework.files.io import atomic_write_json, read_json
+from splat_framework.matching.matchset import MatchSet
+from splat_framework.matching.prior import warn_unmatched
+
+NAMES = ["IMG_9", "IMG_18", "IMG_27", "IMG_100"]
+"""The photos' stems in natural order (plain name order would be 100, 18, 27, 9)."""
+
+
+def write_photos(folder: Path, scene: Path) -> Path:
+    """``folder`` holding the 4 views of a small built-in forward scene as IMG_9.png ... IMG_100.png."""
+    folder.mkdir(parents=True)
+    for k, name in enumerate(NAMES):
+        shutil.copy(scene / "images" / f"image{k:03d}.png", folder / f"{name}.png")
+    return folder
+
+
+@pytest.fixture(scope="module")
+def photo_run(tmp_path_factory):
+    """``splat-train 3dgs --data photos`` (a relative path) on 4 photos: (its result, run folder, photos folder)."""
+    pytest.importorskip("pycolmap", reason='posing photos needs pycolmap (pip install "splat[process]")')
+    from splat_framework.data.synthetic.generate import generate_scene
+
+    root = tmp_path_factory.mktemp("own")
+    scene = generate_scene("forward", root / "scene", width=192, height=144, n_views=4, seed=0)
+    photos = write_photos(root / "photos", scene)
+    env = cli_env(SPLAT_CACHE=str(root / "cache"))
+    res = run_cli("train", "3dgs", "--data", "photos", "--steps", "2", "--output", root / "run", "--no-progress",
+                  "--photos.matcher", "sift", "--model.init.num-points", "300", code=0, cwd=root, env=env)
+    return res, root / "run", photos, env
+
+
+def test_a_folder_of_photos_trains_in_one_command_on_all_of_a_few(photo_run):
+    res, run, photos, _ = photo_run
+    out = " ".join((res.stdout + res.stderr).split())
+    assert "photos: estimating the poses of 4 photos (pycolmap, incremental mapper, sift matches)" in out, out
+    assert "photos: 4 of 4 images registered" in out, out
+    assert ("training on all 4 photos: IMG_9, IMG_18, IMG_27, IMG_100; nothing is held out, "
+            "so the metrics are training-view metrics") in out, out
+    assert "train psnr" in res.stdout and "test psnr" not in res.stdout and "Training-view metrics" in out
+    config = read_json(run / "config.json")["config"]
+    assert config["views"] == "all"
+    record = config["resolved_data"]
+    assert Path(record["path"]).is_absolute() and (Path(record["path"]) / "sparse" / "0").is_dir()
+    assert record["train"] == NAMES and record["test"] == []
+    metrics = read_json(run / "metrics.json")
+    assert [(v["view"], v["split"]) for v in metrics["per_view"]] == [(n, "train") for n in NAMES]
+    assert all((run / "renders" / f"{n}_render.png").is_file() for n in NAMES)
+
+
+def test_the_run_folder_evaluates_from_another_folder_and_shell(photo_run, tmp_path):
+    """``--data photos`` was relative to the training shell's folder; splat-eval elsewhere, without
+    $SPLAT_DATA, reads the recorded dataset folder and split."""
+    _, run, _, env = photo_run
+    env = {k: v for k, v in env.items() if k != "SPLAT_DATA"}
+    res = run_cli("eval", run, "--no-renders", code=0, cwd=tmp_path, env=env)
+    assert "train psnr" in res.stdout
+    assert [v["view"] for v in read_json(run / "metrics.json")["per_view"]] == NAMES
+
+
+def test_the_same_photos_are_posed_once_and_a_changed_photo_again(photo_run, tmp_path, monkeypatch, capsys):
+    from splat_framework.data.photos import photo_source, photos_key, posed_photos
+
+    _, run, photos, env = photo_run
+    monkeypatch.setenv("SPLAT_CACHE", env["SPLAT_CACHE"])
+    options = PhotoPosesConfig(matcher="sift")
+    scene = posed_photos(photos, "photos", options)
+    assert str(scene) == read_json(run / "config.json")["config"]["resolved_data"]["path"]
+    assert "photos: poses from the cache (4 of 4 images registered" in capsys.readouterr().err
+    files = list_images(photos)
+    key = photos_key(files, "photos", options)
+    assert photos_key(files, "photos", PhotoPosesConfig(matcher="sift", mapper="global")) != key
+    assert photos_key(files, "photos", PhotoPosesConfig(matcher="sift", frames=5)) == key  # frames: videos only
+    changed = tmp_path / "changed"
+    shutil.copytree(photos, changed)
+    (changed / "IMG_27.png").write_bytes((changed / "IMG_27.png").read_bytes() + b"\0")
+    assert photos_key(list_images(changed), "photos", options) != key
+    assert photo_source(photos) == "photos" and photo_source(scene) is None  # a posed scene is a dataset
+    (tmp_path / "clip.mp4").write_bytes(b"")
+    assert photo_source(tmp_path / "clip.mp4") == "video" and photo_source(tmp_path / "notes.txt") is None
+
+
+def test_a_run_folder_from_before_the_record_evaluates_and_resumes(photo_run, tmp_path, monkeypatch):
+    """config.json as written before it recorded the dataset (no ``resolved_data``, no ``photos``): the
+    run resolves ``data`` under $SPLAT_DATA as it did then, evaluates and resumes."""
+    from splat_framework.cli.eval import EvalArgs, evaluate_run
+    from splat_framework.config import TrainConfig
+    from splat_framework.engine.trainer import Trainer
+
+    _, _, photos, env = photo_run
+    monkeypatch.setenv("SPLAT_CACHE", env["SPLAT_CACHE"])
+    monkeypatch.setenv("SPLAT_DATA", str(photos.parent))  # the fixture's LLFF scene is "scene" under it
+    run = tmp_path / "old"
+
+    def config(**kw) -> TrainConfig:
+        return TrainConfig(data="scene", output=run, progress=False, save_renders=False, compile=False,
+                           model={"init": {"kind": "random", "num_points": 300}}, **kw)
+
+    Trainer(config(steps=2)).train()
+    payload = read_json(run / "config.json")
+    assert payload["config"]["resolved_data"]["train"] == ["image001", "image002", "image003"]
+    for key in ("resolved_data", "photos"):
+        payload["config"].pop(key)
+    atomic_write_json(run / "config.json", payload)  # signed, as the older version signed it
+    metrics = evaluate_run(EvalArgs(run_dir=run, renders=False))
+    assert [v["view"] for v in metrics["per_view"]] == ["image000"]
+    resumed = Trainer(config(steps=2, resume=True))  # the resume check accepts the old config.json
+    try:
+        assert resumed.restore() and resumed.start_step == 2
+        assert resumed.config.resolved_data.test == ["image000"]  # recorded when it writes config.json again
+    finally:
+        resumed.release()
+
+
+def test_photos_are_listed_in_natural_order_and_llff_dtu_keep_name_order(tmp_path):
+    for name in ("IMG_100.png", "IMG_18.png", "img_9.png", "IMG_009.png", "a.png"):
+        (tmp_path / name).write_bytes(b"")
+    assert [p.name for p in list_images(tmp_path)] == ["a.png", "IMG_009.png", "img_9.png", "IMG_18.png", "IMG_100.png"]
+    assert sorted(["frame10", "frame9", "frame100"], key=natural_key) == ["frame9", "frame10", "frame100"]
+    # LLFF's poses_bounds.npy rows and DTU's world_mat_i follow plain name order: the pairing stays
+    assert [p.name for p in find_images(tmp_path)] == ["IMG_009.png", "IMG_100.png", "IMG_18.png", "a.png", "img_9.png"]
+
+
+def _scene(n: int, views) -> SceneData:
+    cams = [Camera(K=intrinsics(4.0, 4.0, 2.0, 2.0), world_to_cam=torch.eye(4), width=4, height=4, name=f"IMG_{k + 1}")
+            for k in range(n)]
+    train, test = own_scene_split(n, views)
+    return SceneData(root=Path("."), format="colmap", cameras=cams, image_paths=[Path(f"IMG_{k + 1}.png") for k in range(n)],
+                     train_indices=train, test_indices=test)
+
+
+def test_more_photos_say_which_train_and_which_test_by_name():
+    assert describe_split(_scene(10, "all")) == ("training on 8 of 10 photos: IMG_2, IMG_3, IMG_4, IMG_5, IMG_6, IMG_7, "
+                                                 "IMG_8, IMG_10; testing on 2: IMG_1, IMG_9")
+    assert describe_split(_scene(8, "all")).startswith("training on all 8 photos: IMG_1, ")
+    benchmark = _scene(10, 3)
+    benchmark.format = "llff"
+    assert describe_split(benchmark) is None
+
+
+def test_a_training_view_without_any_verified_match_is_named():
+    empty = np.zeros((0, 2), np.float32)
+    some = np.ones((20, 2), np.float32)
+    ms = MatchSet(view_ids=[0, 4, 9], matches={(0, 4): (some, some), (0, 9): (empty, empty), (4, 9): (empty, empty)})
+    with pytest.warns(UserWarning, match="training view IMG_52 has no verified match with any other training view"):
+        warn_unmatched(ms, {0: "IMG_18", 4: "IMG_9", 9: "IMG_52"})
+    assert ms.unmatched_views() == [9]
+
+
+@pytest.mark.bad_input("`splat-train --data` a folder that is neither a dataset nor photos", "exit 2, one line pointing at splat-process")
+def test_a_folder_that_is_neither_a_dataset_nor_photos_points_at_splat_process(tmp_path):
+    (tmp_path / "notes").mkdir()
+    (tmp_path / "notes" / "readme.txt").write_text("hi")
+    run_cli("train", "3dgs", "--data", tmp_path / "notes", "--output", tmp_path / "run", code=2,
+            match=("neither a dataset", "nor a folder of photos", "splat-process"), watch=[tmp_path / "notes"])
