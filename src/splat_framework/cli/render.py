@@ -75,7 +75,7 @@ def render_run(args: RenderArgs, replace: bool, check_video) -> Path:
     import torch
     from rich.progress import track
 
-    from ..evaluation.held_out import colorize_depth, to_uint8, write_png
+    from ..evaluation.held_out import colorize_depth, scored_views, to_uint8, view_name, write_png
     from ..files.output_paths import RENDER_FOLDER, claim_output
     from ..engine.run import background_for, load_run
 
@@ -84,11 +84,11 @@ def render_run(args: RenderArgs, replace: bool, check_video) -> Path:
     if args.path == "test":
         out = args.out or args.run_dir / "renders"
         claim_output(out, RENDER_FOLDER, overwrite=replace)
-        views = dm.eval_views()
+        views, split = scored_views(dm)
         with torch.no_grad():
-            for cam, batch in track(views, description="rendering test views"):
+            for cam, batch in track(views, description=f"rendering {split} views"):
                 o = model.get_outputs(cam, bg)
-                name = cam.name or f"view{batch['index']:03d}"
+                name = view_name(dm, cam, batch["index"])
                 write_png(out / f"{name}_render.png", to_uint8(o.rgb))
                 write_png(out / f"{name}_depth.png", colorize_depth(o.expected_depth, o.alpha))
         print(f"wrote {len(views)} views to {out}")

@@ -114,6 +114,18 @@ def error_map(pred: Tensor, gt: Tensor) -> np.ndarray:
     return cv2.applyColorMap((err * 255).astype(np.uint8), cv2.COLORMAP_INFERNO)[..., ::-1].copy()
 
 
+def scored_views(datamanager) -> tuple[list, str]:
+    """The views that are scored and pictured, and their split: the held-out views ("test"), or,
+    where nothing is held out (a few photos of one's own, all trained on), the training views ("train")."""
+    views = datamanager.eval_views()
+    return (views, "test") if views else (datamanager.train_views(), "train")
+
+
+def view_name(datamanager, camera, index: int) -> str:
+    """The name a view's metrics and pictures go by: its image's name (the camera's, else the file stem)."""
+    return camera.name or Path(datamanager.scene.image_paths[index]).stem
+
+
 @torch.no_grad()
 def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = None, pose_steps: int = 0) -> dict:
     """Render every test view and compute PSNR, SSIM, LPIPS (when available) and AVG,
@@ -149,9 +161,7 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
         reason += "; ST-LPIPS reported instead (not comparable with papers' LPIPS)"
     per_view = []
     render_time = 0.0
-    views, split = datamanager.eval_views(), "test"
-    if not views:  # nothing held out: the training views, labelled as such
-        views, split = datamanager.train_views(), "train"
+    views, split = scored_views(datamanager)
     for i, (camera, batch) in enumerate(views):
         moved = {}
         mask = batch.get("mask") if datamanager.scene.masked_metrics else None
@@ -171,7 +181,7 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
         depth = out.expected_depth
         m = evaluate_images(pred, gt, mask=mask, lpips=lpips if available else None, st_lpips=st_lpips)
         m.update(depth_metrics(depth, out.alpha, batch.get("depth")))
-        name = camera.name or Path(datamanager.scene.image_paths[batch["index"]]).stem
+        name = view_name(datamanager, camera, batch["index"])
         per_view.append({"view": name, "index": int(batch["index"]), "split": split, **m, **moved})
         if render_dir is not None:
             gt8, pred8, depth8 = to_uint8(gt), to_uint8(pred), colorize_depth(depth, out.alpha)

@@ -231,11 +231,12 @@ def run_sweep(
 
 
 def _check_data(data: str) -> str | None:
-    """None when the dataset resolves (generating a synthetic scene once, here); else the error."""
+    """None when the dataset is there (generating a synthetic scene once, here; photos are posed by the
+    first run that reads them, with its own pose options); else the error."""
     try:
-        from ..data.resolve import resolve_data_path
+        from ..data.resolve import locate_data
 
-        resolve_data_path(data)
+        locate_data(data)
     except Exception as e:
         return one_line(e)
     return None
