@@ -239,7 +239,7 @@ class TrainConfig(SplatConfig):
     method: tyro.conf.Suppress[str] = "3dgs"
     """Method name (set by the subcommand)."""
     data: str = "synthetic/forward"
-    """Dataset folder; a relative path that does not exist is looked up under $SPLAT_DATA; synthetic/forward and synthetic/object are generated on first use."""
+    """Dataset folder, or a folder of your own photos or a video (posed first, see --photos.*; then every photo trains unless --views says otherwise); a relative path that does not exist is looked up under $SPLAT_DATA; synthetic/forward and synthetic/object are generated on first use."""
     format: Literal["auto", "llff", "blender", "dtu", "colmap"] = "auto"
     """Dataset format; auto detects it from the folder's contents."""
     views: Annotated[int, Field(ge=1, le=MAX_VIEWS)] | Literal["all"] = 3

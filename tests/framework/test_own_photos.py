@@ -5,8 +5,6 @@ and shell, and one written before the record existed still evaluates and resumes
 
 from __future__ import annotations
 
-import json
-import os
 import shutil
 from pathlib import Path
 
@@ -54,7 +52,7 @@ def photo_run(tmp_path_factory):
 
 
 def test_a_folder_of_photos_trains_in_one_command_on_all_of_a_few(photo_run):
-    res, run, photos, _ = photo_run
+    res, run, _, _ = photo_run
     out = " ".join((res.stdout + res.stderr).split())
     assert "photos: estimating the poses of 4 photos (pycolmap, incremental mapper, sift matches)" in out, out
     assert "photos: 4 of 4 images registered" in out, out

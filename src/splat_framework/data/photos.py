@@ -71,7 +71,7 @@ def posed_photos(path: Path, kind: PhotoSource, options: PhotoPosesConfig | None
     what = f"{len(files)} photos" if kind == "photos" else f"{options.frames} frames of the video"
     say(f"{path}: estimating the poses of {what} (pycolmap, {options.mapper} mapper, {options.matcher} matches); "
         f"cached for the next run in {entry}")
-    kwargs = dict(mapper=options.mapper, matcher=options.matcher, overwrite=True)
+    kwargs = {"mapper": options.mapper, "matcher": options.matcher, "overwrite": True}
     if kind == "video":
         with tempfile.TemporaryDirectory(prefix="splat-frames-") as tmp:
             frames = pick_video_frames(path, options.frames, Path(tmp) / "frames")
