@@ -67,9 +67,11 @@ def install() -> None:
         sys.meta_path.append(_MovedFinder())
 
 
-def forward(package: str, module: str, names: frozenset[str], name: str):
-    """A wing's module ``__getattr__``: ``name`` of the old module ``package`` now in ``module``."""
-    if name not in names:
+def forward(package: str, homes: dict[str, str], name: str):
+    """A wing's module ``__getattr__``: ``name`` of the old module ``package``, now in the
+    module ``homes[name]`` (a name relative to ``package``)."""
+    if name not in homes:
         raise AttributeError(f"module {package!r} has no attribute {name!r}")
+    module = f"{package}.{homes[name]}"
     _warn(f"{package}.{name}", f"{module}.{name}")
     return getattr(importlib.import_module(module), name)

@@ -91,7 +91,7 @@ def _fov_y(camera) -> float:
 def _thumbnail(image: torch.Tensor) -> np.ndarray:
     import cv2
 
-    from ..evaluation.held_out import to_uint8
+    from ..evaluation.pictures import to_uint8
 
     img = to_uint8(image)
     f = THUMBNAIL_PX / max(img.shape[:2])
@@ -236,7 +236,7 @@ class Viewer:
     def render_panel(self, label: str) -> np.ndarray | None:
         """Render dataset camera ``label`` with this project's rasterizer into the side panel:
         [H, W*3, 3] uint8 (RGB | depth | |error| against the photo, or the RGB again without one)."""
-        from ..evaluation.held_out import colorize_depth, error_map, to_uint8
+        from ..evaluation.pictures import colorize_depth, error_map, to_uint8
 
         if label not in self._cameras:
             return None
