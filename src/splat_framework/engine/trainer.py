@@ -3,7 +3,7 @@
 One step reads top to bottom in :meth:`Trainer.train_step`::
 
     camera, batch = datamanager.next_train(step)
-    outputs = model.get_outputs(camera, background)
+    outputs = model.get_outputs(camera, background, step=step)
     losses = model.get_loss_dict(outputs, batch, camera, step)
     sum(losses).backward(); optimizers step; strategy densifies
 
@@ -453,8 +453,8 @@ class Trainer:
         model.on_step_start(step)
         self._set_learning_rates(step)
         camera, batch = self.datamanager.next_train(step)
-        with section("forward"), model.training_render(step):
-            outputs = model.get_outputs(camera, self.background)
+        with section("forward"):
+            outputs = model.get_outputs(camera, self.background, step=step)
         with section("loss"):
             losses = model.get_loss_dict(outputs, batch, camera, step)
             extra = self.strategy.loss(model.params, step)  # e.g. MCMC's regularisers; none by default
