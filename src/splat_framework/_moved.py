@@ -22,7 +22,7 @@ PACKAGE = "splat_framework"
 #: old module (under splat_framework) -> where it lives now
 MOVED: dict[str, str] = {
     "trainer": "engine.trainer", "checkpoint": "engine.checkpoint", "run": "engine.run",
-    "run_folder": "engine.run_folder", "run_lock": "engine.run_lock",
+    "run_folder": "engine.run_folder", "run_lock": "files.run_lock",
     "memory_plan": "engine.memory_plan", "rng": "engine.rng", "profiling": "engine.profiling",
     "resources": "engine.resources",
     "metrics": "evaluation.metrics", "st_lpips": "evaluation.st_lpips",

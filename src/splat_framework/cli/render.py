@@ -46,7 +46,7 @@ def camera_path(kind: str, dm, frames: int) -> tuple[str, list]:
 def main(args: RenderArgs) -> Path:
     from ..errors import DataError
     from ..files.output_paths import RENDER_FOLDER, VIDEO_FILE, check_output
-    from ..engine.run_lock import owned, writes_inside
+    from ..files.run_lock import owned, writes_inside
 
     if args.frames < 1:
         raise DataError(f"--frames must be >= 1, got {args.frames}")

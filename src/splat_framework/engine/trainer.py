@@ -14,7 +14,7 @@ Reliability contract:
   ``--resume`` (continue it) or ``--overwrite`` (start again; its old
   checkpoints and metrics are removed first).
 - **One owner**: the run folder is locked by this process before the data
-  is loaded (:mod:`splat_framework.engine.run_lock`); a second ``splat-train`` on the
+  is loaded (:mod:`splat_framework.files.run_lock`); a second ``splat-train`` on the
   same ``--output``, fresh or ``--resume``, or a ``splat-eval`` of it, is
   refused in one line naming the holder; the lock is released when
   :meth:`Trainer.train` ends, however it ends.
@@ -54,7 +54,7 @@ from typing import Callable, Sequence
 import torch
 from torch import Tensor
 
-from . import run_lock
+from ..files import run_lock
 from .checkpoint import CheckpointError, check_structure, list_checkpoints, load_checkpoint, load_latest, save_checkpoint
 from ..config import (
     TrainConfig, config_payload, experiment_fields, read_config_json, resolve_steps, save_config, upgrade_saved_config,
@@ -74,7 +74,7 @@ from ..render import apply_process_threads
 from ..registry import MethodSpec, get_method
 from .rng import restore_rng_state, rng_state, seed_everything
 from .run_folder import prepare_run_dir
-from .run_lock import is_empty_run_dir
+from ..files.output_paths import RUN_FOLDER
 
 MAX_NONFINITE = 20
 """Consecutive non-finite steps tolerated before restoring the last checkpoint."""
@@ -189,7 +189,7 @@ class Trainer:
         self.callbacks = list(callbacks)
         self.device = resolve_config_devices(self.config)["device"]  # every device field, before anything is written
         out = self.config.output
-        fresh = out is None or not Path(out).exists() or (Path(out).is_dir() and is_empty_run_dir(Path(out)))
+        fresh = out is None or not Path(out).exists() or (Path(out).is_dir() and RUN_FOLDER.is_empty(Path(out)))
         self.run_dir = prepare_run_dir(self.config)  # owned by this process from here on (run_lock)
         try:
             # before any data or model work; whether config.json vouches for the checkpoints
@@ -261,7 +261,7 @@ class Trainer:
         save_config(self.config, self.run_dir / "config.json")
 
     def release(self) -> None:
-        """Give up the run folder (its lock; see :mod:`splat_framework.engine.run_lock`): done writing."""
+        """Give up the run folder (its lock; see :mod:`splat_framework.files.run_lock`): done writing."""
         run_lock.release(self.run_dir)
 
     def experiment_record(self) -> dict:
