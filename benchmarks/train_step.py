@@ -4,7 +4,7 @@ For each method, a real run (default: fern, 3 views, the method's default schedu
 is trained once and snapshotted at iterations 0, 500 and 1000 (full training state:
 parameters, optimizers, densification statistics, RNG). Each snapshot is then
 loaded into a fresh trainer, ``--warmup`` steps are run and ``--steps`` steps are
-timed, with the phases of the step measured by :mod:`splat_framework.engine.profiling`
+timed, with the phases of the step measured by :mod:`splat_framework.runtime.profiling`
 sections (projection, binning, compositing forward and backward, photometric
 loss, rendering-geometry loss, the rest of backward, finiteness checks,
 optimizer, densification, model hooks, metrics). A second pass of the same steps
@@ -128,7 +128,7 @@ def time_steps(trainer, start: int, steps: int, warmup: int, device) -> dict:
 
     Code older than the profiling sections (a baseline checkout) gets the wall time only."""
     try:
-        from splat_framework.engine.profiling import exclusive, profiling
+        from splat_framework.runtime.profiling import exclusive, profiling
     except ImportError:
         exclusive, profiling = dict, _no_sections
 

@@ -23,8 +23,8 @@ PACKAGE = "splat_framework"
 MOVED: dict[str, str] = {
     "trainer": "engine.trainer", "checkpoint": "engine.checkpoint", "run": "engine.run",
     "run_folder": "engine.run_folder", "run_lock": "files.run_lock",
-    "memory_plan": "engine.memory_plan", "rng": "engine.rng", "profiling": "engine.profiling",
-    "resources": "engine.resources",
+    "memory_plan": "engine.memory_plan", "rng": "runtime.rng", "profiling": "runtime.profiling",
+    "resources": "runtime.resources",
     "metrics": "evaluation.metrics", "st_lpips": "evaluation.st_lpips",
     "pose_refine": "evaluation.pose_refine", "figures": "evaluation.figures",
     "video": "export.video", "camera_paths": "export.camera_paths",

@@ -222,7 +222,7 @@ def test_config_json_checksum_detects_edits(tmp_path):
 
 
 def test_profiled_step_names_its_phases_and_costs_nothing_when_off(tmp_path):
-    from splat_framework.engine.profiling import exclusive, profiling, section
+    from splat_framework.runtime.profiling import exclusive, profiling, section
 
     with section("ignored"):  # off: a plain no-op
         pass

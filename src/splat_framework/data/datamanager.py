@@ -37,7 +37,7 @@ import torch
 from torch import Tensor
 
 from ..cameras import Camera
-from ..engine.rng import keyed_generator
+from ..runtime.rng import keyed_generator
 from .images import dark_backdrop_mask, load_alpha, load_depth, load_image, load_mask, read_image_size, scaled_size
 from .scene import DataError, SceneData
 

@@ -1,1 +1,1 @@
-"""Running a method: the trainer, checkpoints, run folders, memory plan, random state, profiling, machine resources."""
+"""Running a method: the trainer, checkpoints, run folders, the memory plan."""

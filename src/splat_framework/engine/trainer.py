@@ -68,11 +68,11 @@ from ..files.io import atomic_write_json
 from .memory_plan import image_memory_budget, plan_memory
 from ..evaluation.metrics import psnr
 from ..model.strategy import Strategy
-from .profiling import section
+from ..runtime.profiling import section
 from ..render import set_compile
 from ..render import apply_process_threads
 from ..registry import MethodSpec, get_method
-from .rng import restore_rng_state, rng_state, seed_everything
+from ..runtime.rng import restore_rng_state, rng_state, seed_everything
 from .run_folder import prepare_run_dir
 from ..files.output_paths import RUN_FOLDER
 

@@ -13,7 +13,7 @@ from .metrics import DEPTH_KEYS, IMAGE_METRICS, LPIPSMetric, STLPIPSMetric, dept
 from .pictures import colorize_depth, error_map, label_panel, to_uint8, write_png
 from ..cameras import pose_differences
 from .pose_refine import refine_pose
-from ..engine.profiling import synchronize
+from ..runtime.profiling import synchronize
 
 
 @torch.no_grad()

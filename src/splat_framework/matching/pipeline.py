@@ -137,7 +137,7 @@ def compute_matches(
             except Exception as e:  # corrupt / foreign file: recompute
                 warnings.warn(f"ignoring unreadable match cache {cache_path}: {type(e).__name__}: {e}", stacklevel=2)
 
-    from ..engine.rng import rng_untouched  # torch, imported only when matching runs
+    from ..runtime.rng import rng_untouched  # torch, imported only when matching runs
 
     with rng_untouched():  # a learned matcher's random init must not move the run's random state
         ms = _match_all_pairs(ids, imgs, cams, fg, config, key)

@@ -30,9 +30,9 @@ from torch import Tensor, nn
 from ..cameras import Camera
 from ..config import TrainConfig
 from ..losses import depth_smoothness, photometric_loss, scale_anisotropy, stereo_consistency
-from ..engine.profiling import section
+from ..runtime.profiling import section
 from ..render import RenderOutput, rasterize, rgb_to_sh
-from ..engine.rng import keyed_generator
+from ..runtime.rng import keyed_generator
 from .init import initial_points
 
 def knn_scale(points: Tensor, k: int = 3) -> Tensor:

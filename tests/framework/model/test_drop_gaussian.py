@@ -76,7 +76,7 @@ def test_anchor_models_drop_their_decoded_gaussians(dm):
 def test_keyed_generators_repeat_per_key_and_do_not_collide():
     """The (seed, step) draw does not alias another seed's draw at a shifted step (as a linear mix
     seed * K + step would)."""
-    from splat_framework.engine.rng import keyed_generator
+    from splat_framework.runtime.rng import keyed_generator
 
     def draw(*key):
         return torch.rand(8, generator=keyed_generator(*key))
