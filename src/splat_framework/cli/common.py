@@ -24,6 +24,15 @@ import warnings
 from contextlib import contextmanager
 from typing import Callable, Iterator
 
+EXIT_CODES: dict[int, str] = {
+    0: "success",
+    1: "the machine failed, not the input: a full disk, a read-only or unwritable output, a run that "
+       "diverged through every checkpoint restore, a sweep with failed runs (one line says which)",
+    2: "bad input: an option, a config value, a file or a path the command cannot use (one line naming it)",
+    130: "interrupted (Ctrl-C or SIGTERM); a training run says whether a checkpoint was written",
+}
+"""Exit code -> what it means, for every ``splat-*`` command (the CLI reference lists them)."""
+
 _ENV_ERRNOS = {
     errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG, errno.EMFILE,
 }
