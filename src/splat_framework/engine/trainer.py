@@ -204,7 +204,7 @@ class Trainer:
 
     def _setup(self) -> None:
         """Data, model (SCGaussian: matching, warm-up), optimizers and strategy."""
-        set_compile(self.config.compile, user_cache_dir() / "inductor")
+        set_compile(self.config.compile, user_cache_dir())
         self.timing: dict[str, float] = {}
         self.generator = seed_everything(self.config.seed)
         t0 = time.perf_counter()

@@ -260,25 +260,51 @@ def gathering_bwd(round_fn):
 
 
 _KERNELS: dict[str, object] = {}
-_SETTING: dict[str, bool] = {"compile": False}
+_SETTING: dict[str, object] = {"compile": False, "cache_dir": None}
 
 
 def set_compile(enabled: bool, cache_dir: Path | None = None) -> None:
     """Compile the per-round kernels from now on (``SPLAT_COMPILE=0/1`` in the environment still wins).
 
-    ``cache_dir``: where torch's inductor keeps compiled kernels across processes
-    (``TORCHINDUCTOR_CACHE_DIR``; left alone when the user set it), so a later run
-    loads them in seconds instead of compiling again."""
+    ``cache_dir``: where compiled kernels are kept across processes: the traced graphs in
+    ``cache_dir/precompiled`` (:mod:`.precompiled`) and inductor's generated code in
+    ``cache_dir/inductor`` (``TORCHINDUCTOR_CACHE_DIR``, left alone when the user set it), so a
+    later run loads them in seconds instead of tracing and compiling again."""
     _SETTING["compile"] = bool(enabled)
     if enabled and cache_dir is not None:
-        os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", str(cache_dir))
+        if _SETTING["cache_dir"] != Path(cache_dir):
+            _KERNELS.clear()  # kernels made for another cache folder
+        _SETTING["cache_dir"] = Path(cache_dir)
+        os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", str(Path(cache_dir) / "inductor"))
 
 
 def compile_requested() -> bool:
     env = os.environ.get("SPLAT_COMPILE", "").strip().lower()
     if env:
         return env in ("1", "true", "yes", "on")
-    return _SETTING["compile"]
+    return bool(_SETTING["compile"])
+
+
+def _fwd_static(args: tuple) -> tuple:
+    """The sizes a compiled forward round is specialised on: pairs per round, pixels per tile, features."""
+    return args[4].shape[0], args[7].shape[1], args[9].shape[1]
+
+
+def _bwd_static(args: tuple) -> tuple:
+    """The same for a backward round (gid [nA, B], basis [6, npx], g_out [T, F, npx])."""
+    return args[1].shape[1], args[4].shape[1], args[6].shape[1]
+
+
+def _compiled(name: str, fn, static):
+    """``fn`` compiled: loaded from (or saved to) the cache folder when there is one, else traced
+    in this process by ``torch.compile``."""
+    traced = torch.compile(fn, dynamic=True)
+    folder = _SETTING["cache_dir"]
+    if folder is None:
+        return traced
+    from .precompiled import Precompiled
+
+    return Precompiled(name, fn, static, Path(folder) / "precompiled", traced)
 
 
 def get_kernels():
@@ -289,8 +315,8 @@ def get_kernels():
     if "compiled" not in _KERNELS:
         try:
             _KERNELS["compiled"] = (
-                _with_fallback(torch.compile(gathering_fwd(fwd_round_fused), dynamic=True), eager[0], 6),
-                _with_fallback(torch.compile(gathering_bwd(bwd_round_fused), dynamic=True), eager[1], 3),
+                _with_fallback(_compiled("fwd", gathering_fwd(fwd_round_fused), _fwd_static), eager[0], 6),
+                _with_fallback(_compiled("bwd", gathering_bwd(bwd_round_fused), _bwd_static), eager[1], 3),
             )
         except Exception as exc:  # pragma: no cover - depends on the toolchain
             warnings.warn(f"SPLAT_COMPILE: torch.compile unavailable ({exc}); using eager")
