@@ -21,7 +21,7 @@ and compare the step times of runs taken at the same load.
 Usage:
     SPLAT_DATA=../shared/data python benchmarks/train_step.py [--data llff/fern --views 3]
         [--methods 3dgs scgaussian] [--at 0 500 1000] [--steps 20] [--warmup 3]
-        [--json benchmarks/results/train_step.json] [--readme README.md]
+        [--json docs/measurements/train_step.json] [--readme README.md]
 
 ``--readme`` replaces the block between ``<!-- bench:train_step -->`` and
 ``<!-- /bench:train_step -->``.
@@ -72,7 +72,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--no-torch-profiler", action="store_true", help="skip the op-time pass")
     p.add_argument("--work", type=Path, default=None, help="snapshot folder")
     p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
-    p.add_argument("--json", type=Path, default=Path("benchmarks/results/train_step.json"))
+    p.add_argument("--json", type=Path, default=Path("docs/measurements/train_step.json"))
     p.add_argument("--readme", type=Path, default=None)
     p.add_argument("--compare", nargs="+", type=Path, default=None, metavar="BEFORE_JSON",
                    help="no measuring: JSON files of a baseline's passes, compared with --to "
