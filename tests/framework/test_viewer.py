@@ -49,7 +49,7 @@ def test_every_browser_starts_at_the_first_training_camera(viewer, run_dir):
     field of view), orbiting a point among the Gaussians; that camera's frustum is hidden, and no
     other frustum reaches into its view."""
     from splat_framework.engine.run import load_run
-    from splat_framework.viewer.scene_viewer import frustum_depth, splat_arrays
+    from splat_framework.viewer.scene_viewer import FRUSTUM_DEPTH, frustum_depth, splat_arrays
 
     _, dm, model = load_run(run_dir)
     cam, _ = dm.train_views()[0]
@@ -66,7 +66,7 @@ def test_every_browser_starts_at_the_first_training_camera(viewer, run_dir):
     centers = np.stack([c.center.numpy() for c, _ in dm.train_views() + dm.eval_views()])
     gaps = np.linalg.norm(centers[:, None] - centers[None], axis=-1) + np.diag([np.inf] * len(centers))
     depth = viewer._frusta[first].scale / np.tan(start.fov / 2)  # viser's scale: the far end's half-height
-    assert np.isclose(depth, 0.5 * np.median(gaps.min(1))) and frustum_depth([cam]) == 0.1
+    assert np.isclose(depth, 0.5 * np.median(gaps.min(1))) and frustum_depth([cam]) == FRUSTUM_DEPTH
 
 
 def test_render_button_shows_splats_own_render(viewer, run_dir):

@@ -4,7 +4,8 @@ The browser draws the Gaussians itself (viser's WebGL splat renderer, through
 ``add_gaussian_splats``), so looking around is interactive even though this
 project's CPU rasterizer is slow. Beside it:
 
-- the training cameras as frusta with their photos, the test cameras as frusta;
+- the training cameras as frusta with their photos, the test cameras as frusta
+  (half as deep as the cameras are apart);
 - every browser that connects starts at the first training camera (its position,
   look direction, up and field of view; viser's "Reset View" returns there), so the
   first frame shows the scene;
@@ -47,6 +48,8 @@ RAY_RGB = (1.0, 0.55, 0.1)
 ORDINARY_RGB = (0.2, 0.45, 1.0)
 THUMBNAIL_PX = 160
 """Longest side of the photos drawn in the camera frusta."""
+FRUSTUM_DEPTH = 0.1
+"""Depth (world units) of a frustum drawn alone (see :func:`frustum_depth`)."""
 FRUSTUM_LINE = 0.03
 """Thickness of a frustum's lines, a fraction of its depth."""
 PANEL_PIXELS = 256 * 192
@@ -118,17 +121,17 @@ def _start_view(camera, centers: np.ndarray | None) -> dict[str, np.ndarray | fl
 
 
 def frustum_depth(cameras) -> float:
-    """How deep (world units) the cameras' frusta are drawn: half the median distance from a camera to its
-    nearest neighbour (0.1 for a single camera), so that from any camera its neighbours' frusta
-    stay out of view instead of covering the scene."""
-    centers = np.stack([camera.center.double().cpu().numpy() for camera in cameras]) if cameras else np.zeros((0, 3))
-    if len(centers) < 2:
-        return 0.1
+    """How deep (world units) the cameras' frusta are drawn: half the median distance from a camera
+    to its nearest neighbour (:data:`FRUSTUM_DEPTH` without two distinct cameras), so that from any
+    camera its neighbours' frusta stay out of view instead of covering the scene."""
+    if len(cameras) < 2:
+        return FRUSTUM_DEPTH
+    centers = np.stack([camera.center.double().cpu().numpy() for camera in cameras])
     gaps = np.linalg.norm(centers[:, None] - centers[None], axis=-1)
     np.fill_diagonal(gaps, np.inf)
     nearest = gaps.min(axis=1)
     nearest = nearest[nearest > 0]
-    return 0.5 * float(np.median(nearest)) if len(nearest) else 0.1
+    return 0.5 * float(np.median(nearest)) if len(nearest) else FRUSTUM_DEPTH
 
 
 def panel_camera(camera):
@@ -259,7 +262,7 @@ class Viewer:
         self._centers = arrays["centers"]
         self.num_splats = int(arrays["centers"].shape[0])
 
-    def set_cameras(self, views, kind: str, color: tuple[int, int, int], depth: float = 0.1) -> None:
+    def set_cameras(self, views, kind: str, color: tuple[int, int, int], depth: float = FRUSTUM_DEPTH) -> None:
         """Frusta for ``views`` (a list of (camera, batch) pairs), named ``kind``/``view``, ``depth``
         world units deep; training frusta carry their photo."""
         for camera, batch in views:
@@ -349,7 +352,10 @@ class Viewer:
             out = model.get_outputs(camera.to(bg.device), bg)
         rgb = out.rgb.clamp(0, 1)
         depth = colorize_depth(out.expected_depth, out.alpha)
-        err = error_map(rgb, _resized(photo, camera.height, camera.width).to(rgb.device)) if photo is not None else to_uint8(rgb)
+        if photo is not None:
+            err = error_map(rgb, _resized(photo, camera.height, camera.width).to(rgb.device))
+        else:
+            err = to_uint8(rgb)
         panel = np.concatenate([to_uint8(rgb), depth, err], axis=1)
         self._image.image = panel
         self._image.label = f"splat render of {label}, {camera.width}x{camera.height}: RGB | depth | |error|"
