@@ -289,8 +289,8 @@ def get_kernels():
     if "compiled" not in _KERNELS:
         try:
             _KERNELS["compiled"] = (
-                _with_fallback(torch.compile(gathering_fwd(fwd_round_fused), dynamic=True), eager[0], 6),
-                _with_fallback(torch.compile(gathering_bwd(bwd_round_fused), dynamic=True), eager[1], 3),
+                _with_fallback(torch.compile(gathering_fwd(fwd_round_fused), dynamic=True), eager[0], 6, "forward"),
+                _with_fallback(torch.compile(gathering_bwd(bwd_round_fused), dynamic=True), eager[1], 3, "backward"),
             )
         except Exception as exc:  # pragma: no cover - depends on the toolchain
             warnings.warn(f"SPLAT_COMPILE: torch.compile unavailable ({exc}); using eager")
@@ -298,15 +298,28 @@ def get_kernels():
     return _KERNELS["compiled"]
 
 
-def _with_fallback(compiled, eager, active_arg: int):
+COMPILE_FIRST_S = 120
+"""About how long the first compilation of one kernel takes on a laptop-class CPU (told to the user)."""
+
+
+def _with_fallback(compiled, eager, active_arg: int, which: str):
     """``compiled``, or ``eager`` after any failure and for single-tile rounds (a
     size-1 dimension would make torch.compile specialise and compile again);
-    ``args[active_arg]`` is the round's [nA] active tiles."""
-    state = {"ok": True}
+    ``args[active_arg]`` is the round's [nA] active tiles. The first compiled call (the
+    compilation, or loading it from the inductor cache) runs as a phase of its own:
+    ``which`` names the kernel (forward, backward)."""
+    from ..console import phase
+
+    state = {"ok": True, "compiled_once": False}
 
     def run(*args):
         if state["ok"] and args[active_arg].shape[0] > 1:
             try:
+                if not state["compiled_once"]:
+                    with phase(f"compiling the rasterizer kernels ({which}), about {COMPILE_FIRST_S} s the first time"):
+                        out = compiled(*args)
+                    state["compiled_once"] = True
+                    return out
                 return compiled(*args)
             except Exception as exc:  # pragma: no cover - depends on the toolchain
                 state["ok"] = False
