@@ -153,6 +153,7 @@ class _Terminal:
         if self.progress is None:
             return
         self.progress.remove_task(ph.task)
+        self.progress.refresh()  # the finished row goes before its summary line is printed above the rows
         if ok:
             say(ph.line(done=True), "dim")
         if not self.progress.tasks:

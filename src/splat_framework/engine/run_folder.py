@@ -98,13 +98,13 @@ def _not_empty(run_dir: Path) -> DataError:
 
 def remove_if_unused(run_dir: Path, default_location: bool) -> bool:
     """After a failed or interrupted start of a new run (its lock released): remove ``run_dir`` if it
-    is still empty, and, for a folder under ``outputs/`` (``default_location``), the scene and method
-    folders above it that are left empty; whether ``run_dir`` was removed."""
+    is still empty, and, for a folder under ``outputs/`` (``default_location``), the method, scene
+    and ``outputs`` folders above it that are left empty; whether ``run_dir`` was removed."""
     if not run_dir.is_dir() or any(run_dir.iterdir()):
         return False
     run_dir.rmdir()
     if default_location:
-        for parent in (run_dir.parent, run_dir.parent.parent):  # outputs/SCENE/METHOD, outputs/SCENE
+        for parent in list(run_dir.parents)[:3]:  # outputs/SCENE/METHOD, outputs/SCENE, outputs
             try:
                 parent.rmdir()
             except OSError:  # not empty (other runs), or gone: leave it

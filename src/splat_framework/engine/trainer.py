@@ -348,11 +348,10 @@ class Trainer(TrainState):
             self.timing["train_s"] = self._train_prior_s
             self.save(step)  # == total, unless resumed past a shortened --steps
         t0 = time.perf_counter()
-        with phase("evaluation"):
-            results = evaluate(
-                self.model, self.datamanager, self.background, self.run_dir / "renders" if cfg.save_renders else None,
-                pose_steps=cfg.test_pose_steps,
-            )
+        results = evaluate(
+            self.model, self.datamanager, self.background, self.run_dir / "renders" if cfg.save_renders else None,
+            pose_steps=cfg.test_pose_steps,
+        )
         self.timing["eval_s"] = time.perf_counter() - t0
         self.timing["total_s"] = sum(v for k, v in self.timing.items() if k != "total_s")
         metrics = run_metrics(self, results)

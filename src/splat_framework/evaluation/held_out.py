@@ -11,6 +11,7 @@ from torch import Tensor
 
 from .metrics import IMAGE_METRICS, LPIPSMetric, STLPIPSMetric, evaluate_images, psnr
 from ..cameras import pose_differences
+from ..console import track
 from .pose_refine import refine_pose
 from ..engine.profiling import synchronize
 
@@ -144,7 +145,7 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
         reason += "; ST-LPIPS reported instead (not comparable with papers' LPIPS)"
     per_view = []
     render_time = 0.0
-    for i, (camera, batch) in enumerate(datamanager.eval_views()):
+    for i, (camera, batch) in enumerate(track(datamanager.eval_views(), "evaluation", unit="views")):
         moved = {}
         mask = batch.get("mask") if datamanager.scene.masked_metrics else None
         if pose_steps > 0:  # fitted where the metric looks
