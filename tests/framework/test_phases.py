@@ -66,6 +66,7 @@ def test_the_first_compiled_kernel_call_is_a_phase_of_its_own(terminal):
     assert terminal.getvalue().count("compiling the rasterizer kernels (forward), about 120 s the first time: done") == 1
 
 
+@pytest.mark.bad_input("Ctrl-C twice during a training step", "exit 130 at once; the last line says what is on disk (the newest checkpoint, or that nothing was saved)")
 def test_a_log_shows_every_phase_and_a_double_ctrl_c_says_nothing_was_saved(tmp_path):
     """splat-train into a pipe (a log): the training phase prints plain lines from its first steps,
     never a NaN placeholder, and with SPLAT_COMPILE=0 no compile line. Ctrl-C (a real SIGINT)
