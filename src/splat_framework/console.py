@@ -88,12 +88,18 @@ class Phase:
         parts.append(("done in " if done else "") + _clock(elapsed))
         rate = self.rate()
         if rate:
-            parts.append(f"{rate:.2f} it/s" if rate < 100 else f"{rate:.0f} it/s")
+            parts.append(_speed(rate, self.unit))
             if self.total and not done and self.completed < self.total:
                 parts.append(f"about {_clock((self.total - self.completed) / rate)} left")
         if self.info:
             parts.append(self.info)
         return f"{self.name}: " + ", ".join(parts)
+
+
+def _speed(rate: float, unit: str) -> str:
+    """``12.34 it/s`` (steps, iterations), ``3.1 images/s`` (other units)."""
+    per = "it" if unit in ("", "steps", "iterations") else unit
+    return f"{rate:.2f} {per}/s" if rate < 100 else f"{rate:.0f} {per}/s"
 
 
 def _clock(seconds: float) -> str:
@@ -209,7 +215,7 @@ class _SpeedColumn(TextColumn):
 
     def render(self, task):
         speed = task.finished_speed or task.speed
-        return Text(f"{speed:.2f} it/s" if speed else "", style="progress.data.speed")
+        return Text(_speed(speed, task.fields["unit"]) if speed else "", style="progress.data.speed")
 
 
 class _Plain:

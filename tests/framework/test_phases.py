@@ -6,7 +6,6 @@ README's comparison at equal iterations, rows that fit 80 columns."""
 from __future__ import annotations
 
 import io
-import os
 import re
 import shlex
 import signal

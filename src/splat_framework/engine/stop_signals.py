@@ -29,7 +29,7 @@ def stop_signals(trainer):
         if trainer.stop_reason is None:
             trainer.request_stop(name)
             say(f"{name}: stopping after this step and writing a checkpoint "
-                "(press Ctrl-C again to stop at once without it)", "yellow")
+                "(a second Ctrl-C or SIGTERM stops at once, without it)", "yellow")
         elif not trainer.saving:  # a checkpoint being written is never cut short
             raise KeyboardInterrupt
 
