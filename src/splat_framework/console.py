@@ -236,7 +236,7 @@ class _Plain:
     def changed(self, ph: Phase) -> None:
         now = time.perf_counter()
         due = ph.total and ph.completed - ph.printed_completed >= PLAIN_EVERY_FRACTION * ph.total
-        if self._due(ph, now, due or ph.completed == ph.total):
+        if ph.completed != ph.total and self._due(ph, now, bool(due)):  # the end has its summary line
             self._print(ph, now)
 
     def _due(self, ph: Phase, now: float, progressed: bool) -> bool:
@@ -259,7 +259,7 @@ class _Plain:
 
     def _tick(self) -> None:
         while True:
-            time.sleep(1.0)
+            time.sleep(min(1.0, PLAIN_EVERY_S / 4))
             with self.lock:
                 if not self.open_phases:
                     self.thread = None

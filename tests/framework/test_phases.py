@@ -52,6 +52,29 @@ def test_terminal_rows_keep_their_time_columns_in_80_columns(terminal):
     assert "training: 3000/30000 steps, done in" in done
 
 
+def test_a_log_gets_a_line_every_few_seconds_or_5_percent(monkeypatch):
+    """Without a terminal: a phase that reports no progress (a compilation, COLMAP's mapping) still
+    prints a line every PLAIN_EVERY_S; one that counts prints every 5 %; a quick one prints nothing."""
+    buf = io.StringIO()
+    monkeypatch.setattr(console_mod, "console", Console(file=buf, force_terminal=False, width=200))
+    monkeypatch.setattr(console_mod, "_SHOW", {"enabled": True})
+    monkeypatch.setattr(console_mod, "PLAIN_EVERY_S", 0.2)
+    with console_mod.phase("quick"):
+        pass
+    with console_mod.phase("silent", quiet_s=0.1):
+        time.sleep(0.8)
+    with console_mod.phase("counted", 100, quiet_s=0) as ph:
+        for _ in range(100):
+            ph.advance()
+    lines = buf.getvalue().splitlines()
+    assert not any(ln.startswith("quick") for ln in lines), lines
+    silent = [ln for ln in lines if ln.startswith("silent: 0:00:00")]
+    assert len(silent) >= 2 and lines.count(next(ln for ln in lines if ln.startswith("silent: done in"))) == 1, lines
+    counted = [ln for ln in lines if ln.startswith("counted: ")]
+    assert counted[0].startswith("counted: 1/100 (1%)") and counted[-1].startswith("counted: 100/100, done in")
+    assert 19 <= len(counted) <= 22, counted  # the first, every 5 %, the summary
+
+
 def test_the_first_compiled_kernel_call_is_a_phase_of_its_own(terminal):
     """The kernel compilation (torch.compile's first call) is announced once per kernel."""
     import torch

@@ -24,6 +24,8 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from ..console import phase
+
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
 T_MIN = 1e-4
@@ -308,8 +310,6 @@ def _with_fallback(compiled, eager, active_arg: int, which: str):
     ``args[active_arg]`` is the round's [nA] active tiles. The first compiled call (the
     compilation, or loading it from the inductor cache) runs as a phase of its own:
     ``which`` names the kernel (forward, backward)."""
-    from ..console import phase
-
     state = {"ok": True, "compiled_once": False}
 
     def run(*args):
