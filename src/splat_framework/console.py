@@ -219,7 +219,8 @@ class _SpeedColumn(TextColumn):
 
 
 class _Plain:
-    """Plain progress lines for a log: a background thread prints a phase that has gone quiet."""
+    """Plain progress lines for a log: a background thread prints the innermost phase when it has
+    gone quiet (a compilation inside the training phase: its lines, not the waiting training's)."""
 
     def __init__(self):
         self.lock = threading.RLock()
@@ -264,10 +265,9 @@ class _Plain:
                 if not self.open_phases:
                     self.thread = None
                     return
-                now = time.perf_counter()
-                for ph in self.open_phases:
-                    if self._due(ph, now, False):
-                        self._print(ph, now)
+                now, ph = time.perf_counter(), self.open_phases[-1]  # the innermost: the outer ones wait for it
+                if self._due(ph, now, False):
+                    self._print(ph, now)
 
 
 _TERMINAL = _Terminal()

@@ -39,7 +39,7 @@ def test_terminal_rows_keep_their_time_columns_in_80_columns(terminal):
         for k in range(1, 4):
             time.sleep(0.05)
             ph.update(1000 * k)
-        with console_mod.phase("compiling the rasterizer kernels (forward), about 120 s the first time"):
+        with console_mod.phase("compiling the rasterizer kernels (forward), about 60 s the first time"):
             screen = Console(file=io.StringIO(), width=80, color_system=None, force_terminal=True)
             for row in console_mod._TERMINAL.progress.get_renderables():
                 screen.print(row)
@@ -48,7 +48,7 @@ def test_terminal_rows_keep_their_time_columns_in_80_columns(terminal):
     assert re.search(r"3000/30000 0:00:00 ~\d:\d\d:\d\d [\d.]+ it/s loss", rows[0]), rows[0]
     assert rows[1].startswith("compiling the rasterizer kernels") and rows[1].endswith("0:00:00"), rows[1]
     done = terminal.getvalue()  # each finished phase leaves one summary line
-    assert "compiling the rasterizer kernels (forward), about 120 s the first time: done in" in done
+    assert "compiling the rasterizer kernels (forward), about 60 s the first time: done in" in done
     assert "training: 3000/30000 steps, done in" in done
 
 
@@ -79,13 +79,14 @@ def test_the_first_compiled_kernel_call_is_a_phase_of_its_own(terminal):
     """The kernel compilation (torch.compile's first call) is announced once per kernel."""
     import torch
 
-    from splat_framework.render._kernels import _with_fallback
+    from splat_framework.render._kernels import COMPILE_FIRST_S, _with_fallback
 
     calls = []
     run = _with_fallback(lambda *a: calls.append("compiled") or "c", lambda *a: "e", 0, "forward")
     active = torch.zeros(2)  # two active tiles: the compiled path
     assert run(active) == "c" and run(active) == "c" and calls == ["compiled", "compiled"]
-    assert terminal.getvalue().count("compiling the rasterizer kernels (forward), about 120 s the first time: done") == 1
+    assert terminal.getvalue().count(f"compiling the rasterizer kernels (forward), about {COMPILE_FIRST_S} s the first "
+                                     "time: done") == 1
 
 
 @pytest.mark.bad_input("Ctrl-C twice during a training step", "exit 130 at once; the last line says what is on disk (the newest checkpoint, or that nothing was saved)")

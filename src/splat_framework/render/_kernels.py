@@ -300,7 +300,7 @@ def get_kernels():
     return _KERNELS["compiled"]
 
 
-COMPILE_FIRST_S = 120
+COMPILE_FIRST_S = 60
 """About how long the first compilation of one kernel takes on a laptop-class CPU (told to the user)."""
 
 
