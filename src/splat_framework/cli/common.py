@@ -24,6 +24,8 @@ import warnings
 from contextlib import contextmanager
 from typing import Callable, Iterator
 
+from ..errors import did_you_mean  # noqa: F401  (the CLIs' messages name it from here)
+
 EXIT_CODES: dict[int, str] = {
     0: "success",
     1: "the machine failed, not the input: a full disk, a read-only or unwritable output, a run that "
@@ -195,14 +197,6 @@ class ArgumentsError(Exception):
     """The command line could not be parsed (tyro's error, as one line): exit code 2."""
 
     cli_exit_code = 2
-
-
-def did_you_mean(word: str, choices) -> str:
-    """`` (did you mean 'x'?)`` for the closest of ``choices`` to ``word`` (difflib), or ""."""
-    import difflib
-
-    close = difflib.get_close_matches(word, [str(c) for c in choices], n=1, cutoff=0.6)
-    return f" (did you mean '{close[0]}'?)" if close else ""
 
 
 _BOX = re.compile(r"[\u2500-\u257f]")

@@ -93,3 +93,19 @@ def _not_empty(run_dir: Path) -> DataError:
     return DataError(
         f"{run_dir}: run folder exists and is not empty (use --resume to continue it or --overwrite to replace it)"
     )
+
+
+def remove_if_unused(run_dir: Path, default_location: bool) -> bool:
+    """After a failed or interrupted start of a new run (its lock released): remove ``run_dir`` if it
+    is still empty, and, for a folder under ``outputs/`` (``default_location``), the method, scene
+    and ``outputs`` folders above it that are left empty; whether ``run_dir`` was removed."""
+    if not run_dir.is_dir() or any(run_dir.iterdir()):
+        return False
+    run_dir.rmdir()
+    if default_location:
+        for parent in list(run_dir.parents)[:3]:  # outputs/SCENE/METHOD, outputs/SCENE, outputs
+            try:
+                parent.rmdir()
+            except OSError:  # not empty (other runs), or gone: leave it
+                break
+    return True

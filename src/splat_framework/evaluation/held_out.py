@@ -12,6 +12,7 @@ from torch import Tensor
 from .metrics import DEPTH_KEYS, IMAGE_METRICS, LPIPSMetric, STLPIPSMetric, depth_metrics, evaluate_images, psnr
 from .pictures import colorize_depth, error_map, label_panel, to_uint8, write_png
 from ..cameras import pose_differences
+from ..console import track
 from .pose_refine import refine_pose
 from ..runtime.profiling import synchronize
 
@@ -46,7 +47,7 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
         reason += "; ST-LPIPS reported instead (not comparable with papers' LPIPS)"
     per_view = []
     render_time = 0.0
-    for i, (camera, batch) in enumerate(datamanager.eval_views()):
+    for i, (camera, batch) in enumerate(track(datamanager.eval_views(), "evaluation", unit="views")):
         moved = {}
         mask = batch.get("mask") if datamanager.scene.masked_metrics else None
         if pose_steps > 0:  # fitted where the metric looks

@@ -26,6 +26,8 @@ from typing import Callable
 import torch
 from torch import Tensor
 
+from ..console import phase
+
 _SOURCE = Path(__file__).with_name("_kernels.py")
 
 
@@ -52,11 +54,13 @@ class Precompiled:
         static: args -> the sizes the compiled graph is specialised on (e.g. the round's pair count).
         folder: where the graphs are kept (created on first save).
         fallback: called instead once the ahead-of-time path failed (plain ``torch.compile``).
+        which: the kernel's name in the phase lines ("forward").
     """
 
     def __init__(self, name: str, fn: Callable, static: Callable[[tuple], tuple], folder: Path,
-                 fallback: Callable):
+                 fallback: Callable, which: str = ""):
         self.name, self.fn, self.static, self.folder, self.fallback = name, fn, static, Path(folder), fallback
+        self.which = which or name
         self.graphs: list = []
         self.failed = not supported()
         self._tag = None
@@ -89,13 +93,14 @@ class Precompiled:
         path = self.path_for(args)
         if path.is_file():
             try:
-                with open(path, "rb") as f:
+                with phase(f"loading the compiled rasterizer kernels ({self.which})"), open(path, "rb") as f:
                     graph = torch.compiler.load_compiled_function(f)
                 if graph.guard_check(*args):
                     return graph
             except Exception:  # a file from an interrupted or foreign build: compile it again
                 pass
-        graph = self._compile(args)
+        with phase(f"compiling the rasterizer kernels ({self.which}): once per machine, later runs load them"):
+            graph = self._compile(args)
         self._save(graph, path)
         return graph
 
