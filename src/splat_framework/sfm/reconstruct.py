@@ -24,6 +24,7 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..console import phase
 from ..errors import DataError
 from ..files.output_paths import PROCESSED_SCENE, check_output, install_output
 from ..files.work_folder import make_work_folder, remove_stale_work_folders, remove_work_folder
@@ -106,14 +107,16 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
         cpu = pycolmap.Device.cpu
         reader = pycolmap.ImageReaderOptions()
         reader.camera_model = camera_model
-        pycolmap.extract_features(db, work / "input", camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
-                                  device=cpu)
+        with phase(f"feature extraction ({len(images)} photos)"):
+            pycolmap.extract_features(db, work / "input", camera_mode=pycolmap.CameraMode.SINGLE,
+                                      reader_options=reader, device=cpu)
         if matcher != "sift":
             import cv2
 
             rgb = [cv2.imread(str(work / "input" / f), cv2.IMREAD_COLOR)[..., ::-1].copy() for f in staged]
             try:
-                with warnings.catch_warnings(record=True) as caught:
+                with phase(f"matching ({matcher}, {len(rgb) * (len(rgb) - 1) // 2} pairs)"), \
+                        warnings.catch_warnings(record=True) as caught:
                     warnings.simplefilter("always")
                     found = plugins[matcher].load()(rgb)
                 for w in caught:  # pairs named by position: the verified counts by file name say it better
@@ -126,13 +129,13 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
                 warnings.warn(f"matcher auto: {e}; using SIFT", stacklevel=2)
                 matcher = "sift"
         if matcher == "sift":
-            pycolmap.match_exhaustive(db, device=cpu)
+            with phase(f"matching (sift, {len(images) * (len(images) - 1) // 2} pairs)"):
+                pycolmap.match_exhaustive(db, device=cpu)
         pairs = {(original[a], original[b]): n for (a, b), n in verified_pair_counts(pycolmap, db, staged).items()}
         (work / "sparse").mkdir()
-        if mapper == "global":
-            models = pycolmap.global_mapping(db, work / "input", work / "sparse")
-        else:
-            models = pycolmap.incremental_mapping(db, work / "input", work / "sparse")
+        with phase(f"mapping ({mapper})"):
+            mapping = pycolmap.global_mapping if mapper == "global" else pycolmap.incremental_mapping
+            models = mapping(db, work / "input", work / "sparse")
         best = max(models.values(), key=lambda r: r.num_reg_images(), default=None)
         registered = [best.images[i].name for i in best.reg_image_ids()] if best is not None else []
         if len(registered) < 2:
@@ -146,7 +149,8 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
         model_dir.mkdir()
         best.write(model_dir)
         scene = work / "scene"
-        pycolmap.undistort_images(scene, model_dir, work / "input")  # pinhole: images/, sparse/
+        with phase("undistortion"):
+            pycolmap.undistort_images(scene, model_dir, work / "input")  # pinhole: images/, sparse/
         sparse0 = scene / "sparse" / "0"
         sparse0.mkdir()
         for f in list((scene / "sparse").iterdir()):
