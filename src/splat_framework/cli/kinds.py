@@ -11,7 +11,7 @@ from pydantic import BaseModel
 
 def union_kinds(annotation) -> dict[str, type[BaseModel]]:
     """{kind: config class} of a field annotated as a union of configs tagged by ``kind``
-    (:func:`~splat_framework.init_config.init_field`), else {}."""
+    (:func:`~splat_framework.config.init.init_field`), else {}."""
     while typing.get_origin(annotation) is typing.Annotated:
         annotation = typing.get_args(annotation)[0]
     members = typing.get_args(annotation) if typing.get_origin(annotation) is typing.Union else ()

@@ -213,7 +213,7 @@ class Trainer:
         budget = plan_memory(scene, self.config, image_memory_budget())
         self.datamanager = DataManager(
             scene, device=self.device, seed=self.config.seed, memory_budget_bytes=budget,
-            backdrop=self.config.model.backdrop_weight > 0,
+            backdrop=self.config.model.reg.backdrop_weight > 0,
         )
         self.timing["data_s"] = time.perf_counter() - t0
         bg = 1.0 if scene.white_background else 0.0
