@@ -22,7 +22,7 @@ def regulariser_terms(model, outputs: RenderOutput, batch: dict, camera: Camera,
 
     ``backdrop`` (mean alpha [H, W, 1] over the batch's ``backdrop`` mask, whose target colour
     becomes black: the returned target), ``depth_smooth`` (losses.depth_smoothness of the rendered
-    depth), ``anisotropy`` (losses.scale_anisotropy of ``model.rendered_log_scales(outputs)``) and
+    depth), ``anisotropy`` (losses.scale_anisotropy of ``model.gaussian_log_scales(outputs)``) and
     ``stereo`` (losses.stereo_consistency, from its start), each when its weight is > 0.
     """
     reg = model.config.model.reg
@@ -36,7 +36,7 @@ def regulariser_terms(model, outputs: RenderOutput, batch: dict, camera: Camera,
         terms["depth_smooth"] = reg.depth_smoothness * depth_smoothness(
             outputs.expected_depth, batch["image"], outputs.alpha, gamma=reg.depth_smoothness_gamma)
     if reg.anisotropy_weight > 0:
-        terms["anisotropy"] = reg.anisotropy_weight * scale_anisotropy(model.rendered_log_scales(outputs), reg.max_anisotropy)
+        terms["anisotropy"] = reg.anisotropy_weight * scale_anisotropy(model.gaussian_log_scales(outputs), reg.max_anisotropy)
     if reg.stereo_weight > 0 and step >= reg.stereo_start * model.config.total_steps:
         with section("stereo"):
             terms["stereo"] = reg.stereo_weight * _stereo_loss(model, outputs, batch["image"], camera, step)
