@@ -33,6 +33,12 @@ class StrategyConfig(SplatConfig):
     enabled: bool = True
     """Run densification at all (False keeps the initial Gaussians only)."""
 
+    @classmethod
+    def registered_kinds(cls) -> dict[str, type["StrategyConfig"]]:
+        """The kinds a field of this base type accepts (:func:`strategy_kinds`; the command line's
+        ``--strategy.kind``, see :mod:`splat_framework.cli.kinds`)."""
+        return strategy_kinds()
+
     def setup(self):
         """The :class:`~splat_framework.model.strategy.Strategy` this config describes: ``strategy_class(self)``."""
         if not self.strategy_class:
