@@ -81,7 +81,10 @@ def _active(config):
     within them (set after the schedule is rescaled, so they keep these values)."""
     config = resolve_steps(config.model_copy(update={"steps": STEPS}))
     kind = config.strategy.kind
-    over = {"model": {"reg": ACTIVE["reg"]}, "strategy": ACTIVE["strategy"].get(kind, ACTIVE["strategy"]["default"])}
+    init = config.model.init
+    few = {"fallback": {"num_points": 300}} if hasattr(init, "fallback") else {"num_points": 300} if hasattr(init, "num_points") else {}
+    over = {"model": {"reg": ACTIVE["reg"], "init": few},
+            "strategy": ACTIVE["strategy"].get(kind, ACTIVE["strategy"]["default"])}
     return apply_overrides(config, over)
 
 
