@@ -92,6 +92,8 @@ class GaussianModel(nn.Module):
     ``get_loss_dict(outputs, batch, camera, step)``             {term: scalar Tensor}, summed; ``batch``
                                                                 carries ``image``, ``index``,
                                                                 ``train_position`` and the masks
+    ``gaussian_log_scales(outputs)`` (from ``get_loss_dict``    [N, 3] log-scales the scale regularisers
+    when ``model.reg.anisotropy_weight`` > 0)                   of ``model.reg`` act on
     ``densify_now(step)``                                       bool: the strategy runs this step
     ``trainable_keys(step)``                                    optimizer names to step (None: all)
     ``after_optimizer_step(step, losses, optimizers,            None (may resize rows with ``ops``)
