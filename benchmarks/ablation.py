@@ -13,7 +13,7 @@ the paper text's single-stage schedule, and the two representation ablations
 
 Usage:
     python benchmarks/ablation.py --data llff/fern --views 3 --seeds 0 1 2 \\
-        --out benchmarks/results/ablation-fern [--steps N] [--workers W] \\
+        --out runs/ablation-fern [--steps N] [--workers W] \\
         [--methods 3dgs scgaussian ...] [--backend local|ray --address auto] \\
         [--override model.key=value] [--md PATH] [--readme README.md]
 
@@ -83,7 +83,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--views", nargs="+", default=["3"], help="training view count(s) or 'all'")
     p.add_argument("--steps", type=int, default=None, help="total iterations per run (default: each method's own)")
     p.add_argument("--seeds", nargs="+", type=int, default=[0], help="seeds; the table shows mean ± std over them")
-    p.add_argument("--out", type=Path, default=None, help="sweep folder (default benchmarks/results/ablation-<scene>)")
+    p.add_argument("--out", type=Path, default=None, help="sweep folder (default runs/ablation-<scene>)")
     p.add_argument("--workers", type=int, default=None, help="parallel runs (default: by cores and memory)")
     p.add_argument("--threads", type=int, default=None, help="torch threads per run (default cores // workers)")
     p.add_argument("--methods", nargs="+", default=None, metavar="METHOD",
@@ -238,7 +238,7 @@ def main(argv: list[str] | None = None) -> Path:
     from splat_framework.sweep import Grid, parse_override, parse_views, scene_slug
 
     args = parse_args(argv)
-    out = args.out or Path("benchmarks/results") / f"ablation-{scene_slug(args.data[0])}"
+    out = args.out or Path("runs") / f"ablation-{scene_slug(args.data[0])}"
     overrides: dict = {}
     for text in args.override:
         overrides = deep_merge(overrides, parse_override(text))

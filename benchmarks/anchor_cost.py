@@ -16,7 +16,7 @@ machine, or read only the ratios: the load average is printed under the table.
 
 Usage:
     SPLAT_DATA=../shared/data python benchmarks/anchor_cost.py RUN [RUN ...] [--steps 10] [--warmup 3]
-        [--rounds 2] [--threads 2] [--json benchmarks/results/anchor_cost.json] [--readme README.md]
+        [--rounds 2] [--threads 2] [--json docs/measurements/anchor_cost.json] [--readme README.md]
         [--no-measure]   # the table again from --json
 
 ``--readme`` replaces the block between ``<!-- bench:anchor_cost -->`` and ``<!-- /bench:anchor_cost -->``.
@@ -41,7 +41,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--warmup", type=int, default=3, help="untimed steps first")
     p.add_argument("--rounds", type=int, default=2, help="measurements per (run, model), alternated")
     p.add_argument("--threads", type=int, default=None, help="torch threads (default: all cores)")
-    p.add_argument("--json", type=Path, default=Path("benchmarks/results/anchor_cost.json"))
+    p.add_argument("--json", type=Path, default=Path("docs/measurements/anchor_cost.json"))
     p.add_argument("--readme", type=Path, default=None)
     p.add_argument("--no-measure", action="store_true", help="rewrite the table from --json of an earlier run")
     return p.parse_args(argv)

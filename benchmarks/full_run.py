@@ -1,7 +1,7 @@
 """Full-run benchmark: train methods on a scene and record quality and wall time per phase.
 
     python benchmarks/full_run.py --data llff/fern --views 3 --methods scgaussian 3dgs \
-        --out benchmarks/results/fern-full
+        --out runs/fern-full
 
 Each method trains with its default schedule (or --steps) in its own run folder;
 the script writes ``<out>/full_run.json`` and ``<out>/full_run.md`` with test
@@ -42,7 +42,7 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=None)
     ap.add_argument("--downscale", type=float, default=None)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/full-run"))
+    ap.add_argument("--out", type=Path, default=Path("runs/full-run"))
     args = ap.parse_args()
 
     from splat_framework.registry import get_method

@@ -11,7 +11,7 @@ networks built once per scene and matcher, features detected once per view).
 Usage:
     SPLAT_DATA=../shared/data python benchmarks/matchers.py \\
         --data llff/fern:3 blender/lego:8 dtu/scan37:3 [--matchers dense sift ...] \\
-        [--threads 2] [--json benchmarks/results/matchers.json] [--readme README.md]
+        [--threads 2] [--json docs/measurements/matchers.json] [--readme README.md]
     python benchmarks/matchers.py --data dtu/scan37:3 --json /tmp/m.json \\
         --matchers aliked-lightglue:learned_resize=0,max_keypoints=4096 aliked-lightglue
 
@@ -38,7 +38,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--matchers", nargs="+", default=MATCHER_ROWS,
                    help="matcher names, each optionally with MatchConfig fields: NAME[:key=value,...]")
     p.add_argument("--threads", type=int, default=None, help="torch threads (default: all cores)")
-    p.add_argument("--json", type=Path, default=Path("benchmarks/results/matchers.json"))
+    p.add_argument("--json", type=Path, default=Path("docs/measurements/matchers.json"))
     p.add_argument("--readme", type=Path, default=None, help="splice the table into this file's matcher markers")
     p.add_argument("--key", default="matchers", help="README marker key: <!-- ablation:KEY --> ... <!-- /ablation:KEY -->")
     return p.parse_args(argv)

@@ -124,7 +124,7 @@ def run_one(n: int, device: str, repeats: int, warmup: int, scene: str = "opaque
         p.grad = None
     sync()
 
-    from splat_framework.engine.resources import others_running
+    from splat_framework.runtime.resources import others_running
 
     t_render, t_fwd, t_fb, busy = [], [], [], []
     visible = n_alpha = None

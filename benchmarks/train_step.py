@@ -4,7 +4,7 @@ For each method, a real run (default: fern, 3 views, the method's default schedu
 is trained once and snapshotted at iterations 0, 500 and 1000 (full training state:
 parameters, optimizers, densification statistics, RNG). Each snapshot is then
 loaded into a fresh trainer, ``--warmup`` steps are run and ``--steps`` steps are
-timed, with the phases of the step measured by :mod:`splat_framework.engine.profiling`
+timed, with the phases of the step measured by :mod:`splat_framework.runtime.profiling`
 sections (projection, binning, compositing forward and backward, photometric
 loss, rendering-geometry loss, the rest of backward, finiteness checks,
 optimizer, densification, model hooks, metrics). A second pass of the same steps
@@ -21,7 +21,7 @@ and compare the step times of runs taken at the same load.
 Usage:
     SPLAT_DATA=../shared/data python benchmarks/train_step.py [--data llff/fern --views 3]
         [--methods 3dgs scgaussian] [--at 0 500 1000] [--steps 20] [--warmup 3]
-        [--json benchmarks/results/train_step.json] [--readme README.md]
+        [--json docs/measurements/train_step.json] [--readme README.md]
 
 ``--readme`` replaces the block between ``<!-- bench:train_step -->`` and
 ``<!-- /bench:train_step -->``.
@@ -72,7 +72,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--no-torch-profiler", action="store_true", help="skip the op-time pass")
     p.add_argument("--work", type=Path, default=None, help="snapshot folder")
     p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
-    p.add_argument("--json", type=Path, default=Path("benchmarks/results/train_step.json"))
+    p.add_argument("--json", type=Path, default=Path("docs/measurements/train_step.json"))
     p.add_argument("--readme", type=Path, default=None)
     p.add_argument("--compare", nargs="+", type=Path, default=None, metavar="BEFORE_JSON",
                    help="no measuring: JSON files of a baseline's passes, compared with --to "
@@ -128,7 +128,7 @@ def time_steps(trainer, start: int, steps: int, warmup: int, device) -> dict:
 
     Code older than the profiling sections (a baseline checkout) gets the wall time only."""
     try:
-        from splat_framework.engine.profiling import exclusive, profiling
+        from splat_framework.runtime.profiling import exclusive, profiling
     except ImportError:
         exclusive, profiling = dict, _no_sections
 

@@ -239,7 +239,8 @@ def chromium_binary() -> str | None:
 
 
 class HeadlessPage:
-    """A page of headless Chromium driven through the Chrome DevTools protocol (software WebGL).
+    """A page of headless Chromium driven through the Chrome DevTools protocol (software WebGL),
+    its viewport ``size`` (width, height) CSS pixels.
 
     ``with HeadlessPage(url) as page: page.wait_for_text("...", 60); png = page.screenshot()``
     """
@@ -263,7 +264,7 @@ class HeadlessPage:
         self._proc = subprocess.Popen(
             [chromium_binary(), "--headless=new", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
              f"--window-size={self.size[0]},{self.size[1]}", f"--remote-debugging-port={port}",
-             f"--user-data-dir={self._profile.name}", self.url],
+             f"--user-data-dir={self._profile.name}", "about:blank"],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
         )
         deadline = time.time() + 60
@@ -279,6 +280,9 @@ class HeadlessPage:
                 time.sleep(0.5)
         self._ws = connect(page["webSocketDebuggerUrl"], max_size=100_000_000)
         self._id = 0
+        self.call("Emulation.setDeviceMetricsOverride", width=self.size[0], height=self.size[1], deviceScaleFactor=1,
+                  mobile=False)
+        self.call("Page.navigate", url=self.url)
         return self
 
     def call(self, method: str, **params) -> dict:
@@ -290,8 +294,7 @@ class HeadlessPage:
                 return msg.get("result", {})
 
     def text(self) -> str:
-        res = self.call("Runtime.evaluate", expression="document.body ? document.body.innerText : ''", returnByValue=True)
-        return res.get("result", {}).get("value", "")
+        return self.evaluate("document.body ? document.body.innerText : ''") or ""
 
     def wait_for_text(self, needle: str, timeout: float) -> str:
         import time
@@ -302,6 +305,15 @@ class HeadlessPage:
             if needle in text or time.time() > deadline:
                 return text
             time.sleep(0.5)
+
+    def evaluate(self, expression: str):
+        """The value of a JavaScript expression in the page."""
+        return self.call("Runtime.evaluate", expression=expression, returnByValue=True).get("result", {}).get("value")
+
+    def only_canvases(self) -> None:
+        """Hide everything on the page but its canvases (panels, notifications), for screenshots of the 3D view."""
+        self.evaluate("const s = document.createElement('style'); document.head.appendChild(s); s.textContent = "
+                      "'* {visibility: hidden !important} canvas {visibility: visible !important}'; 1")
 
     def screenshot(self) -> np.ndarray:
         """[H, W, 3] uint8 BGR."""

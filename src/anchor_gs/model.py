@@ -174,10 +174,10 @@ class ScaffoldModel(GaussianModel):
         """What the anchor strategy needs from the model beside the decoded Gaussians (``meta``)."""
         return {"voxel_size": self.voxel_size}
 
-    def get_outputs(self, camera: Camera, background: Tensor | None = None) -> RenderOutput:
+    def get_outputs(self, camera: Camera, background: Tensor | None = None, step: int | None = None) -> RenderOutput:
         visible = self.visible_anchors(camera) & self.lod_mask(camera.center)
         g = self.decode(camera.center, visible)
-        out = rasterize(g["means"], g["quats"], g["scales"], self.drop_opacities(g["opacities"]), g["colors"],
+        out = rasterize(g["means"], g["quats"], g["scales"], self.drop_opacities(g["opacities"], step), g["colors"],
                         camera.world_to_cam.float(), camera.K.float(), camera.width, camera.height,
                         background=background, near_plane=0.01, depth_mode=self.config.model.depth_mode)
         out.meta.update(anchor_visible=visible, neural_opacity=g["neural_opacity"].detach(), neural_kept=g["kept"],

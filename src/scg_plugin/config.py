@@ -32,7 +32,7 @@ class OrdinaryRandomInit(RandomInitConfig):
     kind: Annotated[Literal["random"], KIND] = "random"
     """The start's kind."""
     num_points: int = Field(10_000, ge=0, le=MAX_GAUSSIANS)
-    """Random ordinary Gaussians at start beside the ray-based ones (0 = ordinary ones come only from densification). Matched rays cover only textured surfaces; without these, densification alone does not fill the rest in 1000 iterations (lego 19.76 -> 20.80, fern 20.70 -> 20.92 with the dense matcher)."""
+    """Random ordinary Gaussians at start beside the ray-based ones (0 = ordinary ones come only from densification): matched rays cover only textured surfaces."""
 
 
 class OrdinaryFrustumInit(FrustumInitConfig):
@@ -84,7 +84,7 @@ class SCGModelConfig(GaussianModelConfig):
     sparse_matches: int = Field(1000, ge=0, le=MAX_MATCHES)
     """Below this many verified matches the prior is too sparse to grow a model from: the run warns and adds max(init.num_points, 10000) random ordinary Gaussians alongside the ray-based ones (0 = never)."""
     thin_prior_baseline: bool = True
-    """When the prior is missing or sparse (fewer than sparse_matches matches), also train as the 3dgs baseline does at the same budget: its densification schedule and SH schedule, the ray-based Gaussians still kept (scg_plugin.startup.baseline_schedule). A model made mostly of random Gaussians then grows like one, so a thin prior does not leave SCGaussian below its baseline (seed 0: lego 8 views, 136 SIFT matches, 22.03 -> 22.33, 3dgs 21.92; fern with no matches 17.72, 3dgs 17.48, while without it every random Gaussian was pruned)."""
+    """When the prior is missing or sparse (fewer than sparse_matches matches), also train as the 3dgs baseline does at the same budget: its densification schedule and SH schedule, the ray-based Gaussians still kept (scg_plugin.startup.baseline_schedule). A model made mostly of random Gaussians then grows like one, so a thin prior does not leave SCGaussian below its baseline."""
 
 
 class RayStrategyConfig(DensifyConfig):

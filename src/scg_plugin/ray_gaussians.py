@@ -9,6 +9,7 @@ only learnable coordinate.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import torch
 from torch import Tensor
@@ -189,12 +190,13 @@ def warm_up(
     lr_fraction: float,
     halve_every: int,
     cache: MatchCache | None,
+    on_step: Callable[[], None] | None = None,
 ) -> Tensor:
     """Stage 1 of the public code: optimise only z with L_gp.
 
     The Adam step size is ``lr_fraction`` of the median depth range, halved every
     ``halve_every`` iterations. Returns the final z [G] (the cache, when given,
-    holds the best z per match).
+    holds the best z per match). ``on_step`` is called after each iteration (progress).
     """
     z = torch.nn.Parameter(bundle.z.clone())
     if steps <= 0 or len(bundle) == 0:
@@ -219,4 +221,6 @@ def warm_up(
             z.clamp_(min=1e-3)
         if cache is not None:
             cache.update(z, bundle, cameras, proj)
+        if on_step is not None:
+            on_step()
     return z.detach()

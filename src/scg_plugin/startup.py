@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from splat_framework.console import phase
 from splat_framework.plugin import Camera, StrategyConfig
 from splat_framework.matching.prior import compute_match_set, match_pairs
 from splat_framework.config.init import FALLBACK_POINTS
@@ -65,7 +66,9 @@ def warm_up_prior(bundle: RayBundle | None, cameras: list[Camera], cfg, timing: 
     t0 = time.perf_counter()
     if bundle is not None and cfg.schedule == "two-stage" and cfg.warmup_steps > 0:
         cache = MatchCache(bundle) if cfg.cache_filter else None
-        z = warm_up(bundle, cameras, cfg.warmup_steps, cfg.warmup_lr, cfg.warmup_lr_halve_every, cache)
+        with phase("SCGaussian warm-up", cfg.warmup_steps, unit="iterations") as progress:
+            z = warm_up(bundle, cameras, cfg.warmup_steps, cfg.warmup_lr, cfg.warmup_lr_halve_every, cache,
+                        on_step=progress.advance)
         if cache is not None:
             bundle.z = cache.best_z
             keep = cache.keep_mask(cfg.filter_eta_px)

@@ -22,9 +22,9 @@ PACKAGE = "splat_framework"
 #: old module (under splat_framework) -> where it lives now
 MOVED: dict[str, str] = {
     "trainer": "engine.trainer", "checkpoint": "engine.checkpoint", "run": "engine.run",
-    "run_folder": "engine.run_folder", "run_lock": "engine.run_lock",
-    "memory_plan": "engine.memory_plan", "rng": "engine.rng", "profiling": "engine.profiling",
-    "resources": "engine.resources",
+    "run_folder": "engine.run_folder", "run_lock": "files.run_lock",
+    "memory_plan": "engine.memory_plan", "rng": "runtime.rng", "profiling": "runtime.profiling",
+    "resources": "runtime.resources",
     "metrics": "evaluation.metrics", "st_lpips": "evaluation.st_lpips",
     "pose_refine": "evaluation.pose_refine", "figures": "evaluation.figures",
     "video": "export.video", "camera_paths": "export.camera_paths",
@@ -68,9 +68,11 @@ def install() -> None:
         sys.meta_path.append(_MovedFinder())
 
 
-def forward(package: str, module: str, names: frozenset[str], name: str):
-    """A wing's module ``__getattr__``: ``name`` of the old module ``package`` now in ``module``."""
-    if name not in names:
+def forward(package: str, homes: dict[str, str], name: str):
+    """A wing's module ``__getattr__``: ``name`` of the old module ``package``, now in the
+    module ``homes[name]`` (a name relative to ``package``)."""
+    if name not in homes:
         raise AttributeError(f"module {package!r} has no attribute {name!r}")
+    module = f"{package}.{homes[name]}"
     _warn(f"{package}.{name}", f"{module}.{name}")
     return getattr(importlib.import_module(module), name)

@@ -1,15 +1,23 @@
-"""The terminal: one-line messages, the training progress bar and the end-of-run summary table (rich).
+"""The terminal: one-line messages, the progress of each phase of a command and the end-of-run
+summary table (rich).
 
-Messages and the bar go to stderr (``console``); the summary table to stdout.
+Messages and progress go to stderr (``console``); the summary table to stdout. Every long step of a
+command (loading data, matching, the SCGaussian warm-up, compiling kernels, training, evaluation,
+``splat-process``'s steps) runs inside :func:`phase`, one mechanism for all: a live row in a
+terminal, plain lines at a steady cadence in a log.
 """
 
 from __future__ import annotations
 
+import threading
+import time
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Iterator, Sequence
 
 from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Column
 from rich.table import Table
 from rich.text import Text
 
@@ -21,24 +29,184 @@ def say(message: str, style: str | None = None) -> None:
     console.print(Text(message, style=style or ""), soft_wrap=True)
 
 
+PLAIN_EVERY_S = 10.0
+"""Without a terminal: the most seconds between two progress lines of a running phase."""
+PLAIN_EVERY_FRACTION = 0.05
+"""Without a terminal: a phase with a known total also prints a line each time this fraction of it is done."""
+PLAIN_QUIET_S = 2.0
+"""Without a terminal: a phase prints nothing before it has run this long (a quick phase, or a failed
+start, leaves no progress lines; the error stays one line)."""
+
+_SHOW = {"enabled": True}
+
+
+def show_progress(enabled: bool) -> None:
+    """Whether phases show their progress from now on (``--progress``, on by default); messages
+    (:func:`say`) are printed either way."""
+    _SHOW["enabled"] = bool(enabled)
+
+
+class Phase:
+    """One phase of a command (loading data, matching, warm-up, compiling, training, evaluation) and
+    its progress, shown by :func:`phase`: call :meth:`advance` or :meth:`update` as work is done."""
+
+    def __init__(self, name: str, total: int | None, completed: int, unit: str, info: str, quiet_s: float):
+        self.name, self.total, self.completed, self.unit, self.info = name, total, completed, unit, info
+        self.quiet_s = quiet_s
+        self.start_completed = completed
+        self.t0 = time.perf_counter()
+        self.printed_at: float | None = None  # plain display: when its last line was printed
+        self.printed_completed = completed
+        self.display: _Terminal | _Plain | None = None
+        self.task = None  # the terminal display's rich task
+
+    def advance(self, n: int = 1) -> None:
+        """``n`` more units done."""
+        self.update(self.completed + n)
+
+    def update(self, completed: int | None = None, *, info: str | None = None) -> None:
+        """Set the units done and/or the info text (e.g. the training loss)."""
+        if completed is not None:
+            self.completed = completed
+        if info is not None:
+            self.info = info
+        if self.display is not None:
+            self.display.changed(self)
+
+    def rate(self) -> float | None:
+        """Units per second since the phase began (None before the first unit)."""
+        done, dt = self.completed - self.start_completed, time.perf_counter() - self.t0
+        return done / dt if done > 0 and dt > 0 else None
+
+    def line(self, done: bool = False) -> str:
+        """The plain one-line status: ``NAME: 120/1000 (12%), 0:00:12, 9.8 it/s, about 0:01:30 left, INFO``."""
+        elapsed = time.perf_counter() - self.t0
+        parts = []
+        if self.total:
+            parts.append(f"{self.completed}/{self.total}{' ' + self.unit if self.unit else ''}"
+                         + ("" if done else f" ({100 * self.completed // max(self.total, 1)}%)"))
+        parts.append(("done in " if done else "") + _clock(elapsed))
+        rate = self.rate()
+        if rate:
+            parts.append(_speed(rate, self.unit))
+            if self.total and not done and self.completed < self.total:
+                parts.append(f"about {_clock((self.total - self.completed) / rate)} left")
+        if self.info:
+            parts.append(self.info)
+        return f"{self.name}: " + ", ".join(parts)
+
+
+def _speed(rate: float, unit: str) -> str:
+    """``12.34 it/s`` (steps, iterations), ``3.1 images/s`` (other units)."""
+    per = "it" if unit in ("", "steps", "iterations") else unit
+    return f"{rate:.2f} {per}/s" if rate < 100 else f"{rate:.0f} {per}/s"
+
+
+def _clock(seconds: float) -> str:
+    s = int(seconds)
+    return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}"
+
+
 @contextmanager
-def training_progress(enabled: bool):
-    """The live bar of a training run: step, loss, train PSNR, Gaussian count, it/s, elapsed and remaining time."""
-    progress = Progress(
-        TextColumn("[bold]{task.description}"),
-        BarColumn(),
-        TextColumn("{task.completed}/{task.total}"),
-        TextColumn("[cyan]loss {task.fields[loss]:.4f}"),
-        TextColumn("[green]PSNR {task.fields[psnr]:.2f}"),
-        TextColumn("[magenta]{task.fields[n]} gaussians"),
-        _SpeedColumn(),
-        TimeElapsedColumn(),
-        TimeRemainingColumn(),
-        console=console,
-        disable=not enabled,
-    )
-    with progress:
-        yield progress
+def phase(name: str, total: int | None = None, *, completed: int = 0, unit: str = "", info: str = "",
+          quiet_s: float = PLAIN_QUIET_S) -> Iterator[Phase]:
+    """Show one phase of a command while the block runs; yields its :class:`Phase` to report progress.
+
+    In a terminal: a live row (name, bar, done/total, elapsed, remaining, rate, info) under any
+    outer phase's, replaced by one summary line when the phase ends. Without a terminal (a log file,
+    nohup, CI): plain lines, the first after ``quiet_s`` seconds, then one every
+    :data:`PLAIN_EVERY_S` seconds or :data:`PLAIN_EVERY_FRACTION` of ``total``, whichever comes first,
+    and the summary line (if any line was printed, or ``quiet_s`` is 0). A phase that fails prints
+    no summary (its error does). Nothing is shown after ``show_progress(False)``."""
+    ph = Phase(name, total, completed, unit, info, quiet_s)
+    if _SHOW["enabled"]:
+        ph.display = _TERMINAL if console.is_terminal else _PLAIN
+        ph.display.open(ph)
+    ok = False
+    try:
+        yield ph
+        ok = True
+    finally:
+        if ph.display is not None:
+            ph.display.close(ph, ok)
+
+
+def track(items: Sequence, name: str, unit: str = "") -> Iterator:
+    """Iterate ``items`` inside ``phase(name, len(items))``, one unit per item."""
+    with phase(name, len(items), unit=unit) as ph:
+        for item in items:
+            yield item
+            ph.advance()
+
+
+class _Terminal:
+    """Live rows (rich) on the terminal, one per open phase; finished phases leave a summary line."""
+
+    def __init__(self):
+        self.progress: Progress | None = None
+
+    def open(self, ph: Phase) -> None:
+        if self.progress is None:
+            self.progress = _Rows(console=console, transient=True)
+            self.progress.start()
+        ph.task = self.progress.add_task(ph.name, total=ph.total, completed=ph.completed, info=ph.info, unit=ph.unit)
+
+    def changed(self, ph: Phase) -> None:
+        if self.progress is not None:
+            self.progress.update(ph.task, completed=ph.completed, info=ph.info)
+
+    def close(self, ph: Phase, ok: bool) -> None:
+        if self.progress is None:
+            return
+        self.progress.remove_task(ph.task)
+        self.progress.refresh()  # the finished row goes before its summary line is printed above the rows
+        if ok:
+            say(ph.line(done=True), "dim")
+        if not self.progress.tasks:
+            self.progress.stop()
+            self.progress = None
+
+
+class _Rows(Progress):
+    """The live rows, one table each so that one phase's long name does not squeeze another's
+    columns; the time columns come before the info text, which is cut first (80 columns fit)."""
+
+    def __init__(self, **kwargs):
+        name = TextColumn("[bold]{task.description}", table_column=Column(no_wrap=True, overflow="ellipsis", max_width=NAME_WIDTH))
+        info = TextColumn("{task.fields[info]}", table_column=Column(no_wrap=True, overflow="ellipsis", ratio=1))
+        bar = BarColumn(bar_width=10)
+        self.sized = (name, bar, _CountColumn(), TimeElapsedColumn(), _RemainingColumn(), _SpeedColumn(), info)
+        long_name = TextColumn("[bold]{task.description}", table_column=Column(no_wrap=True, overflow="ellipsis", ratio=1))
+        self.unsized = (long_name, bar, TimeElapsedColumn())
+        super().__init__(*self.sized, expand=True, **kwargs)
+
+    def get_renderables(self):
+        for task in self.tasks:
+            columns = self.sized if task.total is not None else self.unsized
+            table = Table.grid(*(c.get_table_column().copy() for c in columns), padding=(0, 1), expand=True)
+            table.add_row(*(c(task) for c in columns))
+            yield table
+
+
+NAME_WIDTH = 22
+"""Terminal columns for a phase's name in a row with a bar and counts (longer names are cut)."""
+
+
+class _CountColumn(TextColumn):
+    def __init__(self):
+        super().__init__("")
+
+    def render(self, task):
+        return Text(f"{task.completed:.0f}/{task.total:.0f}" if task.total is not None else "")
+
+
+class _RemainingColumn(TextColumn):
+    def __init__(self):
+        super().__init__("")
+
+    def render(self, task):
+        left = task.time_remaining if task.total is not None and not task.finished else None
+        return Text(f"~{_clock(left)}" if left is not None else "", style="progress.remaining")
 
 
 class _SpeedColumn(TextColumn):
@@ -47,8 +215,63 @@ class _SpeedColumn(TextColumn):
 
     def render(self, task):
         speed = task.finished_speed or task.speed
-        return Text(f"{speed:.2f} it/s" if speed else "-- it/s")
+        return Text(_speed(speed, task.fields["unit"]) if speed else "", style="progress.data.speed")
 
+
+class _Plain:
+    """Plain progress lines for a log: a background thread prints the innermost phase when it has
+    gone quiet (a compilation inside the training phase: its lines, not the waiting training's)."""
+
+    def __init__(self):
+        self.lock = threading.RLock()
+        self.open_phases: list[Phase] = []
+        self.thread: threading.Thread | None = None
+
+    def open(self, ph: Phase) -> None:
+        with self.lock:
+            self.open_phases.append(ph)
+            if self.thread is None or not self.thread.is_alive():
+                self.thread = threading.Thread(target=self._tick, name="splat-progress", daemon=True)
+                self.thread.start()
+
+    def changed(self, ph: Phase) -> None:
+        now = time.perf_counter()
+        due = ph.total and ph.completed - ph.printed_completed >= PLAIN_EVERY_FRACTION * ph.total
+        if ph.completed != ph.total and self._due(ph, now, bool(due)):  # the end has its summary line
+            self._print(ph, now)
+
+    def _due(self, ph: Phase, now: float, progressed: bool) -> bool:
+        if now - ph.t0 < ph.quiet_s:
+            return False
+        if ph.printed_at is None:
+            return True
+        return progressed or now - ph.printed_at >= PLAIN_EVERY_S
+
+    def _print(self, ph: Phase, now: float) -> None:
+        with self.lock:
+            ph.printed_at, ph.printed_completed = now, ph.completed
+            say(ph.line())
+
+    def close(self, ph: Phase, ok: bool) -> None:
+        with self.lock:
+            self.open_phases.remove(ph)
+            if ok and (ph.printed_at is not None or ph.quiet_s == 0):
+                say(ph.line(done=True))
+
+    def _tick(self) -> None:
+        while True:
+            time.sleep(min(1.0, PLAIN_EVERY_S / 4))
+            with self.lock:
+                if not self.open_phases:
+                    self.thread = None
+                    return
+                now, ph = time.perf_counter(), self.open_phases[-1]  # the innermost: the outer ones wait for it
+                if self._due(ph, now, False):
+                    self._print(ph, now)
+
+
+_TERMINAL = _Terminal()
+_PLAIN = _Plain()
 
 def print_summary(metrics: dict, run_dir: Path) -> None:
     """The final rich table: test metrics, Gaussian count and time per phase."""

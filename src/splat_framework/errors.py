@@ -10,3 +10,11 @@ class DataError(ValueError):
 
 class CheckpointError(RuntimeError):
     """A checkpoint file is missing, truncated or corrupt (one-line message)."""
+
+
+def did_you_mean(word: str, choices) -> str:
+    """`` (did you mean 'x'?)`` for the closest of ``choices`` to ``word`` (difflib), or ""."""
+    import difflib
+
+    close = difflib.get_close_matches(word, [str(c) for c in choices], n=1, cutoff=0.6)
+    return f" (did you mean '{close[0]}'?)" if close else ""

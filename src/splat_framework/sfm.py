@@ -38,6 +38,7 @@ import numpy as np
 import torch
 
 from .cameras import camera_centers, pose_differences
+from .console import phase
 from .data.images import read_photo
 from .errors import DataError
 from .files.output_paths import PROCESSED_SCENE, check_output, install_output
@@ -176,27 +177,29 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
         cpu = pycolmap.Device.cpu
         reader = pycolmap.ImageReaderOptions()
         reader.camera_model = camera_model
-        pycolmap.extract_features(db, work / "input", camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
-                                  device=cpu)
+        with phase(f"feature extraction ({len(images)} photos)"):
+            pycolmap.extract_features(db, work / "input", camera_mode=pycolmap.CameraMode.SINGLE,
+                                      reader_options=reader, device=cpu)
         if matcher != "sift":
             import cv2
 
             staged = sorted((work / "input").iterdir())
             rgb = [cv2.imread(str(f), cv2.IMREAD_COLOR)[..., ::-1].copy() for f in staged]
             try:
-                _write_matches(pycolmap, db, [f.name for f in staged], plugins[matcher].load()(rgb))
+                with phase(f"matching ({matcher}, {len(rgb) * (len(rgb) - 1) // 2} pairs)"):
+                    _write_matches(pycolmap, db, [f.name for f in staged], plugins[matcher].load()(rgb))
             except FileNotFoundError as e:  # the matcher's weights are not installed
                 if not auto:
                     raise
                 warnings.warn(f"matcher auto: {e}; using SIFT", stacklevel=2)
                 matcher = "sift"
         if matcher == "sift":
-            pycolmap.match_exhaustive(db, device=cpu)
+            with phase(f"matching (sift, {len(images) * (len(images) - 1) // 2} pairs)"):
+                pycolmap.match_exhaustive(db, device=cpu)
         (work / "sparse").mkdir()
-        if mapper == "global":
-            models = pycolmap.global_mapping(db, work / "input", work / "sparse")
-        else:
-            models = pycolmap.incremental_mapping(db, work / "input", work / "sparse")
+        with phase(f"mapping ({mapper})"):
+            mapping = pycolmap.global_mapping if mapper == "global" else pycolmap.incremental_mapping
+            models = mapping(db, work / "input", work / "sparse")
         best = max(models.values(), key=lambda r: r.num_reg_images(), default=None)
         registered = sorted(best.images[i].name for i in best.reg_image_ids()) if best is not None else []
         if len(registered) < 2:
@@ -209,7 +212,8 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
         model_dir.mkdir()
         best.write(model_dir)
         scene = work / "scene"
-        pycolmap.undistort_images(scene, model_dir, work / "input")  # pinhole: images/, sparse/
+        with phase("undistortion"):
+            pycolmap.undistort_images(scene, model_dir, work / "input")  # pinhole: images/, sparse/
         sparse0 = scene / "sparse" / "0"
         sparse0.mkdir()
         for f in list((scene / "sparse").iterdir()):

@@ -236,7 +236,7 @@ def test_scene_ctrl_c_exits_130_and_leaves_nothing(tmp_path):
 def test_building_installs_a_finished_folder_and_nothing_of_an_interrupted_one(tmp_path):
     import stat
 
-    from splat_framework.engine.run_lock import LOCK_NAME
+    from splat_framework.files.run_lock import LOCK_NAME
     from splat_framework.files.work_folder import building
 
     out = tmp_path / "out"

@@ -9,7 +9,9 @@ import pytest
 import torch
 
 from splat_framework.errors import DataError
-from splat_framework.evaluation.held_out import DEPTH_KEYS, depth_metrics, evaluate, label_panel
+from splat_framework.evaluation.held_out import evaluate
+from splat_framework.evaluation.metrics import DEPTH_KEYS, depth_metrics
+from splat_framework.evaluation.pictures import label_panel
 from splat_framework.render import RenderOutput
 
 

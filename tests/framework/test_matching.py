@@ -513,7 +513,7 @@ def test_matching_leaves_torch_random_state_alone(plane_scene, monkeypatch):
     """Building a learned matcher draws random initial weights; matching must not move the run's
     random state, or a run whose matches were computed trains differently from one that read them
     from the cache. The unguarded pipeline does move it (so this test can fail)."""
-    from splat_framework.engine import rng
+    from splat_framework.runtime import rng
 
     img_a, img_b, cam_a, cam_b, _ = plane_scene
     cfg = MatchConfig(matcher="aliked-lightglue", max_keypoints=256, learned_resize=320, cache=False)

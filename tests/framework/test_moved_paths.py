@@ -19,7 +19,8 @@ def test_old_module_path_is_the_moved_module_and_warns(old, monkeypatch):
 
 
 @pytest.mark.parametrize("wing, module, name", [
-    ("evaluation", "held_out", "evaluate"), ("export", "ply", "write_ply"), ("viewer", "scene_viewer", "Viewer")])
+    ("evaluation", "held_out", "evaluate"), ("evaluation", "pictures", "write_png"), ("evaluation", "metrics", "depth_metrics"),
+    ("export", "ply", "write_ply"), ("viewer", "scene_viewer", "Viewer")])
 def test_old_names_of_a_module_that_became_a_wing(wing, module, name):
     package = importlib.import_module(f"splat_framework.{wing}")
     with pytest.warns(DeprecationWarning, match=f"moved to splat_framework.{wing}.{module}.{name}"):

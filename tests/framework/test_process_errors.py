@@ -17,7 +17,7 @@ from cli_harness import cli_env, run_cli
 
 from splat_framework.cli.common import ArgumentsError
 from splat_framework.errors import DataError
-from splat_framework.engine.run_lock import LOCK_NAME
+from splat_framework.files.run_lock import LOCK_NAME
 from splat_framework.files.work_folder import make_work_folder, remove_stale_work_folders, remove_work_folder
 
 

@@ -449,7 +449,8 @@ def test_sigterm_writes_checkpoint_exits_130_and_resume_finishes(tmp_path):
     assert proc.returncode == 130, stderr
     assert "Traceback" not in stderr
     lines = [line for line in stderr.splitlines() if line.strip()]
-    assert len(lines) == 1 and lines[0].startswith("stopped: SIGTERM at step "), stderr
+    assert len(lines) == 2 and lines[0].startswith("SIGTERM: stopping after this step"), stderr
+    assert lines[1].startswith("stopped: SIGTERM at step "), stderr
     path, ck = load_latest(out / "checkpoints")
     assert 1 <= ck["step"] < 60 and all(torch.isfinite(t).all() for t in ck["params"].values())
     assert not (out / "metrics.json").exists()

@@ -19,14 +19,15 @@ from pathlib import Path
 import pytest
 from cli_harness import cli_env, run_cli
 
-from splat_framework.engine import run_lock
+from splat_framework.files import run_lock
 from splat_framework.engine.checkpoint import checkpoint_step, list_checkpoints, load_checkpoint, save_checkpoint
 from splat_framework.config import read_config_json
 from splat_framework.errors import DataError
 from splat_framework.files.io import CHECKSUM_KEY, atomic_write_json, read_json
+from splat_framework.files.output_paths import RUN_FOLDER
 from splat_framework.registry import get_method
 from splat_framework.engine.run_folder import prepare_run_dir
-from splat_framework.engine.run_lock import LOCK_NAME
+from splat_framework.files.run_lock import LOCK_NAME
 
 TINY = ("3dgs", "--data", "synthetic/forward-tiny", "--no-progress", "--no-save-renders",
         "--model.init.num-points", "300")
@@ -51,7 +52,7 @@ def wait_for_lock(folder: Path, proc: subprocess.Popen, timeout: float = 120) ->
 
 def hold_lock(folder: Path) -> subprocess.Popen:
     """A process that takes ``folder``'s lock and sleeps (torch-free: it starts in a fraction of a second)."""
-    code = ("import sys, time; from splat_framework.engine.run_lock import acquire; "
+    code = ("import sys, time; from splat_framework.files.run_lock import acquire; "
             "acquire(sys.argv[1]); print('locked', flush=True); time.sleep(120)")
     proc = subprocess.Popen([sys.executable, "-c", code, str(folder)], env=cli_env(), stdout=subprocess.PIPE, text=True)
     assert proc.stdout.readline().strip() == "locked"
@@ -236,5 +237,5 @@ def test_the_lock_file_is_never_a_planted_symlink_or_fifo(tmp_path):
     plain.mkdir()
     with run_lock.owned(plain) as lock:
         assert run_lock.holds(plain) and lock is run_lock.acquire(plain)  # the process's own lock, again
-        assert run_lock.is_empty_run_dir(plain)
+        assert RUN_FOLDER.is_empty(plain)  # the lock file does not count
     assert not run_lock.holds(plain) and list(plain.iterdir()) == []

@@ -248,6 +248,8 @@ def test_pages_of_other_sites_cannot_use_the_viewer():
     try:
         own = f"http://localhost:{v.port}"
         assert asyncio.run(first_message(f"ws://localhost:{v.port}", own)) == "message"
+        numeric = f"http://127.0.0.1:{v.port}"  # the page opened by its address (headless Chromium's in test_viewer)
+        assert asyncio.run(first_message(f"ws://127.0.0.1:{v.port}", numeric)) == "message"
         assert asyncio.run(first_message(f"ws://127.0.0.1:{v.port}", None)) == "message"  # not a browser
         assert asyncio.run(first_message(f"ws://localhost:{v.port}", "http://evil.example")) == 1008
         assert asyncio.run(first_message(f"ws://evil.example:{v.port}", f"http://evil.example:{v.port}")) == 1008

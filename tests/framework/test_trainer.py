@@ -222,7 +222,7 @@ def test_config_json_checksum_detects_edits(tmp_path):
 
 
 def test_profiled_step_names_its_phases_and_costs_nothing_when_off(tmp_path):
-    from splat_framework.engine.profiling import exclusive, profiling, section
+    from splat_framework.runtime.profiling import exclusive, profiling, section
 
     with section("ignored"):  # off: a plain no-op
         pass
@@ -387,7 +387,7 @@ def test_backdrop_loss_makes_the_backdrop_empty_and_black(tmp_path):
 
 
 def test_the_training_step_renders_with_drop_gaussian_and_evaluation_without(tmp_path, monkeypatch):
-    """``model.reg.drop_rate``: the trainer's step renders inside ``training_render`` (some Gaussians
+    """``model.reg.drop_rate``: the trainer's step renders with its ``step`` (some Gaussians
     dropped, the same ones when the run is repeated); a render after the step draws all of them."""
     drawn = []
 
@@ -396,10 +396,10 @@ def test_the_training_step_renders_with_drop_gaussian_and_evaluation_without(tmp
         model = trainer.model
         render = model.get_outputs
 
-        def spy(camera, background=None):
+        def spy(camera, background=None, step=None):
             ones = torch.ones(model.num_gaussians)
-            drawn.append(model.drop_opacities(ones))
-            return render(camera, background)
+            drawn.append(model.drop_opacities(ones, step))
+            return render(camera, background, step=step)
 
         monkeypatch.setattr(model, "get_outputs", spy)
         assert trainer.train_step(3) is not None

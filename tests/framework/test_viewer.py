@@ -44,13 +44,40 @@ def test_viewer_serves_the_model_and_the_cameras(viewer, run_dir):
     assert np.allclose(typed[0], ORDINARY_RGB) and not np.allclose(typed[1], ORDINARY_RGB)
 
 
+def test_every_browser_starts_at_the_first_training_camera(viewer, run_dir):
+    """A browser that connects looks through the first training camera (position, look direction, up,
+    field of view), orbiting a point among the Gaussians; that camera's frustum is hidden, and no
+    other frustum reaches into its view."""
+    from splat_framework.engine.run import load_run
+    from splat_framework.viewer.scene_viewer import FRUSTUM_DEPTH, frustum_depth, splat_arrays
+
+    _, dm, model = load_run(run_dir)
+    cam, _ = dm.train_views()[0]
+    c2w = cam.cam_to_world.double().numpy()
+    start = viewer.server.initial_camera
+    assert np.allclose(start.position, c2w[:3, 3]) and np.allclose(start.up, -c2w[:3, 1])
+    look = start.look_at - start.position
+    assert np.allclose(look / np.linalg.norm(look), c2w[:3, 2])
+    assert np.isclose(start.fov, 2 * np.arctan2(cam.height / 2, float(cam.K[1, 1])))
+    depths = (splat_arrays(model)["centers"] - c2w[:3, 3]) @ c2w[:3, 2]
+    assert np.isclose(np.linalg.norm(look), np.median(depths[depths > cam.near]))
+    first = viewer._chosen.options[0]
+    assert not viewer._frusta[first].visible and all(f.visible for k, f in viewer._frusta.items() if k != first)
+    centers = np.stack([c.center.numpy() for c, _ in dm.train_views() + dm.eval_views()])
+    gaps = np.linalg.norm(centers[:, None] - centers[None], axis=-1) + np.diag([np.inf] * len(centers))
+    depth = viewer._frusta[first].scale / np.tan(start.fov / 2)  # viser's scale: the far end's half-height
+    assert np.isclose(depth, 0.5 * np.median(gaps.min(1))) and frustum_depth([cam]) == FRUSTUM_DEPTH
+
+
 def test_render_button_shows_splats_own_render(viewer, run_dir):
     from splat_framework.engine.run import background_for, load_run
+    from splat_framework.viewer.scene_viewer import PANEL_PIXELS
 
     _, dm, model = load_run(run_dir)
     label = next(lab for lab in viewer._chosen.options if lab.startswith("test/"))
     panel = viewer.render_panel(label)
     cam, _ = dm.eval_views()[0]
+    assert cam.width * cam.height <= PANEL_PIXELS  # a camera within the panel's pixels renders at its own size
     assert panel.shape == (cam.height, 3 * cam.width, 3) and panel.dtype == np.uint8
     with torch.no_grad():
         rgb = model.get_outputs(cam, background_for(dm.scene, "cpu")).rgb
@@ -58,25 +85,77 @@ def test_render_button_shows_splats_own_render(viewer, run_dir):
     assert np.abs(panel[:, : cam.width].astype(int) - expect.astype(int)).max() <= 1
     assert viewer.render_panel("no/such camera") is None
     viewer.go_to(label)  # no browser connected: nothing to move, no error
-    assert not viewer._frusta[label].visible and all(f.visible for k, f in viewer._frusta.items() if k != label)
+    start = viewer._chosen.options[0]  # where browsers that connect later start: its frustum stays hidden
+    assert not viewer._frusta[label].visible and not viewer._frusta[start].visible
+    assert all(f.visible for k, f in viewer._frusta.items() if k not in (label, start))
 
 
-@pytest.mark.skipif(chromium_binary() is None, reason="Chromium is not installed (Debian package chromium)")
-def test_the_page_loads_in_headless_chromium(viewer):
-    """The page's own client connects and receives the scene: its panel names the Gaussian count, the
-    browser draws the splats (the view moved to a training camera is not blank)."""
-    with HeadlessPage(viewer.url) as page:
-        text = page.wait_for_text(f"{viewer.num_splats:,} Gaussians", timeout=90)
+def test_a_large_camera_renders_the_panel_within_its_pixels(viewer, monkeypatch):
+    """A camera larger than PANEL_PIXELS renders scaled down (aspect kept), compared against its photo
+    resized alike; a smaller one is never scaled up."""
+    from splat_framework.evaluation.pictures import error_map
+    from splat_framework.viewer import scene_viewer
+
+    label = viewer._chosen.options[0]
+    cam, photo = viewer._cameras[label]
+    monkeypatch.setattr(scene_viewer, "PANEL_PIXELS", cam.width * cam.height // 4)
+    small = scene_viewer.panel_camera(cam)
+    assert (small.width, small.height) == (cam.width // 2, cam.height // 2)
+    assert torch.allclose(small.K[:2], cam.K[:2] / 2) and scene_viewer.panel_camera(small) is small
+    panel = viewer.render_panel(label)
+    assert panel.shape == (small.height, 3 * small.width, 3)
+    assert f"{small.width}x{small.height}" in viewer._image.label
+    halved = photo.reshape(small.height, 2, small.width, 2, 3).mean((1, 3))
+    with torch.no_grad():
+        rgb = viewer._model.get_outputs(small, viewer._background).rgb.clamp(0, 1)
+    assert np.abs(panel[:, 2 * small.width:].astype(int) - error_map(rgb, halved).astype(int)).max() <= 1
+
+
+def test_render_with_splat_says_it_is_busy(viewer, monkeypatch):
+    """While "Render with splat" works its button is disabled and reads "Rendering…"; it comes back
+    when the render is done, and after a render that failed."""
+    from splat_framework.viewer.scene_viewer import BUSY_LABEL, RENDER_LABEL
+
+    seen, render = [], viewer.render_panel
+
+    def watched(label):
+        seen.append((viewer._render.disabled, viewer._render.label))
+        if len(seen) == 2:
+            raise RuntimeError("a render that fails")
+        return render(label)
+
+    monkeypatch.setattr(viewer, "render_panel", watched)
+    assert viewer.render_chosen() is not None
+    assert (viewer._render.disabled, viewer._render.label) == (False, RENDER_LABEL)
+    with pytest.raises(RuntimeError):
+        viewer.render_chosen()
+    assert seen == [(True, BUSY_LABEL)] * 2 and (viewer._render.disabled, viewer._render.label) == (False, RENDER_LABEL)
+
+
+@pytest.mark.skipif(chromium_binary() is None,
+                    reason="Chromium is not installed (Debian: apt-get install -y chromium); the browser test needs it")
+def test_the_first_frame_shows_the_scene_in_headless_chromium(viewer):
+    """A browser opening http://127.0.0.1:PORT (a loopback page the client guard accepts) draws the scene
+    from the first training camera before anything is clicked: the page's own client connects and
+    receives the model (its panel names the Gaussian count), the canvas is covered by splats, and it
+    is the picture splat's rasterizer renders at that camera (over the page's white background)."""
+    camera, _ = viewer._cameras[viewer._chosen.options[0]]
+    big = camera.scaled(4)  # the viewport has the camera's aspect: the canvas is the camera's picture
+    with torch.no_grad():
+        expect = viewer._model.get_outputs(big, torch.ones(3)).rgb.clamp(0, 1).numpy()
+    with HeadlessPage(f"http://127.0.0.1:{viewer.port}", size=(big.width, big.height)) as page:
+        text = page.wait_for_text(f"{viewer.num_splats:,} Gaussians", timeout=60)
         assert f"{viewer.num_splats:,} Gaussians" in text and "Render with splat" in text
-        empty = page.screenshot()
-        viewer.go_to(viewer._chosen.options[0])  # the browser's camera jumps to a training camera
-        time.sleep(3)
-        shot = page.screenshot()
-    assert shot.shape[2] == 3 and shot.std() > 5
-    # the splats fill the middle of the view once the camera looks at them (a blank canvas does not change)
-    h, w = shot.shape[:2]
-    centre = (slice(h // 4, 3 * h // 4), slice(w // 8, w // 2))
-    assert np.abs(shot[centre].astype(int) - empty[centre].astype(int)).mean() > 5
+        page.only_canvases()
+        deadline, shot = time.time() + 30, None
+        while True:  # the splats are sorted in a web worker and fade in: wait for two equal frames
+            last, shot = shot, page.screenshot()[..., ::-1] / 255.0
+            if last is not None and np.abs(shot - last).mean() < 0.005 or time.time() > deadline:
+                break
+            time.sleep(0.5)
+    drawn = (np.abs(shot - 1).max(-1) > 0.06).mean()  # not the page's white background
+    assert shot.shape[:2] == expect.shape[:2] and drawn > 0.5
+    assert np.corrcoef(shot.mean(-1).ravel(), expect.mean(-1).ravel())[0, 1] > 0.5
 
 
 def test_training_viewer_follows_the_model(tmp_path):
@@ -96,6 +175,10 @@ def test_training_viewer_follows_the_model(tmp_path):
         trainer.train()
         assert seen[0] == (1, 500) and live.viewer.num_splats == trainer.model.num_gaussians
         assert "(step 12)" in live.viewer._status.content
+        # browsers start at the first training camera, orbiting a point among the Gaussians shown at step 1
+        cam, _ = trainer.datamanager.train_views()[0]
+        start = live.viewer.server.initial_camera
+        assert np.allclose(start.position, cam.center.numpy(), atol=1e-5) and live.viewer._start_pivoted
         shown = live.viewer._model
         assert shown is not trainer.model and all(
             shown.params[k] is not v and torch.equal(shown.params[k], v) for k, v in trainer.model.params.items())

@@ -24,6 +24,17 @@ import warnings
 from contextlib import contextmanager
 from typing import Callable, Iterator
 
+from ..errors import did_you_mean  # noqa: F401  (the CLIs' messages name it from here)
+
+EXIT_CODES: dict[int, str] = {
+    0: "success",
+    1: "the machine failed, not the input: a full disk, a read-only or unwritable output, a run that "
+       "diverged through every checkpoint restore, a sweep with failed runs (one line says which)",
+    2: "bad input: an option, a config value, a file or a path the command cannot use (one line naming it)",
+    130: "interrupted (Ctrl-C or SIGTERM); a training run says whether a checkpoint was written",
+}
+"""Exit code -> what it means, for every ``splat-*`` command (the CLI reference lists them)."""
+
 _ENV_ERRNOS = {
     errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG, errno.EMFILE,
 }
@@ -188,14 +199,6 @@ class ArgumentsError(Exception):
     """The command line could not be parsed (tyro's error, as one line): exit code 2."""
 
     cli_exit_code = 2
-
-
-def did_you_mean(word: str, choices) -> str:
-    """`` (did you mean 'x'?)`` for the closest of ``choices`` to ``word`` (difflib), or ""."""
-    import difflib
-
-    close = difflib.get_close_matches(word, [str(c) for c in choices], n=1, cutoff=0.6)
-    return f" (did you mean '{close[0]}'?)" if close else ""
 
 
 _BOX = re.compile(r"[\u2500-\u257f]")

@@ -26,7 +26,7 @@ class EvalArgs:
 
 def main(args: EvalArgs) -> dict:
     """Rescore the run, owning its folder meanwhile (it rewrites metrics.json and renders/)."""
-    from ..engine.run_lock import owned
+    from ..files.run_lock import owned
 
     if args.test_pose_steps is not None and args.test_pose_steps < 0:
         print(f"error: --test-pose-steps must be >= 0, got {args.test_pose_steps}", file=sys.stderr)

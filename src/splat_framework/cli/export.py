@@ -31,7 +31,7 @@ def main(args: ExportArgs) -> Path:
 
     from ..export.ply import export_ply
     from ..engine.run import load_trained_model
-    from ..engine.run_lock import owned, writes_inside
+    from ..files.run_lock import owned, writes_inside
 
     with owned(args.run_dir, writes=writes_inside(args.run_dir, out)):  # a PLY elsewhere only reads the run
         _, model = load_trained_model(args.run_dir, args.device, trust_edits=args.trust_edited_config)

@@ -46,7 +46,7 @@ def camera_path(kind: str, dm, frames: int) -> tuple[str, list]:
 def main(args: RenderArgs) -> Path:
     from ..errors import DataError
     from ..files.output_paths import RENDER_FOLDER, VIDEO_FILE, check_output
-    from ..engine.run_lock import owned, writes_inside
+    from ..files.run_lock import owned, writes_inside
 
     if args.frames < 1:
         raise DataError(f"--frames must be >= 1, got {args.frames}")
@@ -75,7 +75,7 @@ def render_run(args: RenderArgs, replace: bool, check_video) -> Path:
     import torch
     from rich.progress import track
 
-    from ..evaluation.held_out import colorize_depth, to_uint8, write_png
+    from ..evaluation.pictures import colorize_depth, to_uint8, write_png
     from ..files.output_paths import RENDER_FOLDER, claim_output
     from ..engine.run import background_for, load_run
 
@@ -116,7 +116,7 @@ def write_video(model, cams, bg, out: Path, fps: int, depth: bool) -> Path:
     import torch
     from rich.progress import track
 
-    from ..evaluation.held_out import colorize_depth, to_uint8
+    from ..evaluation.pictures import colorize_depth, to_uint8
     from ..export.video import open_video
 
     out = Path(out)

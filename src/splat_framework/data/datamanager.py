@@ -37,7 +37,8 @@ import torch
 from torch import Tensor
 
 from ..cameras import Camera
-from ..engine.rng import keyed_generator
+from ..console import track
+from ..runtime.rng import keyed_generator
 from .images import dark_backdrop_mask, load_alpha, load_depth, load_image, load_mask, read_image_size, scaled_size
 from .scene import DataError, SceneData
 
@@ -109,7 +110,7 @@ class DataManager:
         self.lazy = memory_budget_bytes is not None and nbytes > memory_budget_bytes
         self._cache: dict[int, Batch] = {}
         if not self.lazy:
-            for i in used:
+            for i in track(used, "decoding images", unit="images"):
                 self._cache[i] = self._decode(i)
         else:
             # cache what fits, training views first; the rest is decoded on demand

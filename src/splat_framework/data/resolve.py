@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from ..errors import did_you_mean
 from .scene import DataError
 
 SYNTHETIC_PREFIX = "synthetic/"
@@ -37,4 +38,29 @@ def resolve_data_path(spec: str | Path) -> Path:
         if candidate.exists():
             return candidate
     where = f"$SPLAT_DATA={env}" if env else "$SPLAT_DATA, which is not set"
-    raise DataError(f"{text}: no such dataset folder (also looked in {where})")
+    hint = did_you_mean(posix.rstrip("/"), dataset_names(path, Path(env).expanduser() if env else None))
+    raise DataError(f"{text}: no such dataset folder{hint} (also looked in {where})")
+
+
+def dataset_names(asked: Path, data_root: Path | None) -> list[str]:
+    """Names that ``--data asked`` could have meant: the folders beside ``asked`` (from the current
+    folder and from ``data_root``, ``$SPLAT_DATA``), those one and two levels under ``data_root``
+    (``llff/fern``), and the synthetic scenes."""
+    from .synthetic.generate import NAMED_SCENES
+
+    names = [SYNTHETIC_PREFIX + n for n in NAMED_SCENES]
+    for root in (Path.cwd(), data_root):
+        if root is not None:
+            names += [(asked.parent / p.name).as_posix() for p in _folders(root / asked.parent)]
+    if data_root is not None:
+        for top in _folders(data_root):
+            names += [top.name] + [f"{top.name}/{p.name}" for p in _folders(top)]
+    return names
+
+
+def _folders(folder: Path) -> list[Path]:
+    """The visible sub-folders of ``folder`` (none when it cannot be listed)."""
+    try:
+        return [p for p in folder.iterdir() if p.is_dir() and not p.name.startswith(".")]
+    except OSError:
+        return []

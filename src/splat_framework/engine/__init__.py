@@ -1,1 +1,1 @@
-"""Running a method: the trainer, checkpoints, run folders and their lock, memory plan, random state, profiling, machine resources."""
+"""Running a method: the trainer, checkpoints, run folders, the memory plan."""

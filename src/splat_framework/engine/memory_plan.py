@@ -9,7 +9,7 @@ from ..config import TrainConfig
 from ..console import say
 from ..data import DataError
 from ..data.datamanager import estimate_image_bytes
-from .resources import available_memory_bytes, physical_memory_bytes
+from ..runtime.resources import available_memory_bytes, physical_memory_bytes
 
 MEMORY_ENV = "SPLAT_IMAGE_MEMORY_BUDGET"
 """Environment variable: cap on the decoded-image cache, in bytes ("512M", "2G", "1.5GiB" accepted)."""

@@ -51,7 +51,7 @@ def load_trained_model(run_dir: Path, device: str | None = None, scene_scale: fl
     if found is None:
         raise CheckpointError(f"{run_dir / 'checkpoints'}: no valid checkpoint")
     model = found[1].to(config.device)
-    set_compile(config.compile, user_cache_dir() / "inductor")
+    set_compile(config.compile, user_cache_dir())
     return config, model
 
 

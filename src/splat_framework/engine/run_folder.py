@@ -5,12 +5,11 @@ from __future__ import annotations
 from datetime import datetime
 from pathlib import Path
 
-from . import run_lock
+from ..files import run_lock
 from .checkpoint import remove_stale_temporaries
 from ..config import TrainConfig
 from ..data import DataError
 from ..files.output_paths import RUN_FOLDER, check_output, check_path, clear_output
-from .run_lock import is_empty_run_dir
 
 
 def default_run_dir(config: TrainConfig) -> Path:
@@ -35,7 +34,7 @@ def prepare_run_dir(config: TrainConfig) -> Path:
     exists and is not empty and neither ``--resume`` nor ``--overwrite`` is
     given, when it is not a run folder (see :mod:`splat_framework.files.output_paths`),
     or when it is, holds, or lies inside the ``--data`` folder; and
-    :class:`~splat_framework.engine.run_lock.RunFolderBusy` when another process holds the
+    :class:`~splat_framework.files.run_lock.RunFolderBusy` when another process holds the
     folder (see :func:`claim_run_dir`). With ``--overwrite`` what the previous run
     wrote (config, checkpoints, metrics, renders) is removed under the lock,
     symlinks unlinked and never followed, so that nothing of it can be mistaken for
@@ -75,12 +74,12 @@ def prepare_run_dir(config: TrainConfig) -> Path:
 
 
 def claim_run_dir(run_dir: Path, fresh: bool) -> None:
-    """Take the run folder's lock for this process (:mod:`splat_framework.engine.run_lock`), before any data
+    """Take the run folder's lock for this process (:mod:`splat_framework.files.run_lock`), before any data
     is loaded; a ``fresh`` run checks again under the lock that the folder is still empty, so of two
     runs started together on one ``--output`` the second is refused even if both saw it empty."""
     before = run_lock.holds(run_dir)
     lock = run_lock.acquire(run_dir)
-    if fresh and not is_empty_run_dir(run_dir):
+    if fresh and not RUN_FOLDER.is_empty(run_dir):
         if not before:
             lock.release()
         raise _not_empty(run_dir)
@@ -94,3 +93,19 @@ def _not_empty(run_dir: Path) -> DataError:
     return DataError(
         f"{run_dir}: run folder exists and is not empty (use --resume to continue it or --overwrite to replace it)"
     )
+
+
+def remove_if_unused(run_dir: Path, default_location: bool) -> bool:
+    """After a failed or interrupted start of a new run (its lock released): remove ``run_dir`` if it
+    is still empty, and, for a folder under ``outputs/`` (``default_location``), the method, scene
+    and ``outputs`` folders above it that are left empty; whether ``run_dir`` was removed."""
+    if not run_dir.is_dir() or any(run_dir.iterdir()):
+        return False
+    run_dir.rmdir()
+    if default_location:
+        for parent in list(run_dir.parents)[:3]:  # outputs/SCENE/METHOD, outputs/SCENE, outputs
+            try:
+                parent.rmdir()
+            except OSError:  # not empty (other runs), or gone: leave it
+                break
+    return True

@@ -1,13 +1,22 @@
-"""Evaluation: held-out views (held_out), metrics, ST-LPIPS, test-time pose refinement, figures.
+"""Evaluation: held-out views (held_out), pictures (PNG, colour maps), metrics, ST-LPIPS, test-time pose refinement, figures.
 
 The names of the old module ``splat_framework.evaluation`` resolve here for one release, with a
-``DeprecationWarning``; import them from ``splat_framework.evaluation.held_out``.
+``DeprecationWarning``; import them from the module that holds them now (held_out, metrics, pictures).
 """
 
 from .._moved import forward
 
-_OLD_NAMES = frozenset(['DEPTH_KEYS', 'colorize_depth', 'depth_metrics', 'error_map', 'evaluate', 'label_panel', 'to_uint8', 'write_png'])
+_OLD_HOMES = {
+    "evaluate": "held_out",
+    "DEPTH_KEYS": "metrics",
+    "depth_metrics": "metrics",
+    "colorize_depth": "pictures",
+    "error_map": "pictures",
+    "label_panel": "pictures",
+    "to_uint8": "pictures",
+    "write_png": "pictures",
+}
 
 
 def __getattr__(name: str):
-    return forward(__name__, f"{__name__}.held_out", _OLD_NAMES, name)
+    return forward(__name__, _OLD_HOMES, name)

@@ -76,7 +76,7 @@ def comparison_figure(
     """
     import cv2
 
-    from .held_out import write_png
+    from .pictures import write_png
 
     if not rows:
         raise DataError("comparison figure: no runs given")

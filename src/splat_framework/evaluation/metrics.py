@@ -186,3 +186,32 @@ def evaluate_images(
         lp = lpips.compute(pred, gt, mask)
     st = st_lpips.compute(pred, gt, mask) if st_lpips is not None else None
     return {"psnr": p, "ssim": s, "lpips": lp, "avg": avg_metric(p, s, lp), "st_lpips": st}
+
+
+DEPTH_KEYS = ("depth_abs_rel", "depth_within_5pct", "depth_coverage")
+"""Geometry metrics of :func:`depth_metrics` (None where the dataset has no GT depth)."""
+
+
+def depth_metrics(depth: Tensor, alpha: Tensor, gt_depth: Tensor | None, min_alpha: float = 0.5) -> dict:
+    """Error of a rendered expected depth against ground truth (camera z).
+
+    Evaluated over the pixels with ``alpha > min_alpha`` and GT depth > 0.
+
+    Returns:
+        depth_abs_rel: mean |d - gt| / gt;
+        depth_within_5pct: fraction of those pixels with |d - gt| / gt < 0.05;
+        depth_coverage: fraction of the GT-valid pixels that were evaluated
+        (rendered alpha above ``min_alpha``).
+        All None when there is no GT; the first two None when no pixel qualifies.
+    """
+    if gt_depth is None:
+        return dict.fromkeys(DEPTH_KEYS)
+    gt = gt_depth[..., 0].float()
+    has_gt = gt > 0
+    sel = has_gt & (alpha[..., 0] > min_alpha)
+    n_gt = int(has_gt.sum())
+    out = {"depth_coverage": float(sel.sum()) / n_gt if n_gt else None}
+    if not bool(sel.any()):
+        return {"depth_abs_rel": None, "depth_within_5pct": None, **out}
+    rel = (depth[..., 0].float()[sel] - gt[sel]).abs() / gt[sel]
+    return {"depth_abs_rel": float(rel.mean()), "depth_within_5pct": float((rel < 0.05).float().mean()), **out}

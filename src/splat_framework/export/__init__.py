@@ -6,8 +6,14 @@ The names of the old module ``splat_framework.export`` resolve here for one rele
 
 from .._moved import forward
 
-_OLD_NAMES = frozenset(['export_ply', 'gaussians_for_export', 'load_ply', 'ply_property_names', 'write_ply'])
+_OLD_HOMES = {
+    "export_ply": "ply",
+    "gaussians_for_export": "ply",
+    "load_ply": "ply",
+    "ply_property_names": "ply",
+    "write_ply": "ply",
+}
 
 
 def __getattr__(name: str):
-    return forward(__name__, f"{__name__}.ply", _OLD_NAMES, name)
+    return forward(__name__, _OLD_HOMES, name)

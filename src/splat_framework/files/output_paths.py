@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Callable, Iterable
 
 from ..errors import DataError
-from ..engine.run_lock import LOCK_NAME
+from .run_lock import LOCK_NAME
 
 __all__ = [
     "MARKER", "PLY_COMMENT", "OutputKind", "OutputNotWritable", "RUN_FOLDER", "SCENE_FOLDER", "PROCESSED_SCENE",
@@ -133,6 +133,10 @@ class OutputKind:
     """How to go on when an output of ours is there (the message's last words)."""
     ignored: tuple[str, ...] = ()
     """Names that do not make a folder non-empty (a run folder's lock file)."""
+
+    def is_empty(self, path: Path) -> bool:
+        """Whether the folder ``path`` holds nothing but :attr:`ignored` names."""
+        return all(p.name in self.ignored for p in Path(path).iterdir())
 
     def is_ours(self, path: Path) -> bool:
         if self.folder and _read_marker(path).get("kind") == self.key:
@@ -264,7 +268,7 @@ def check_output(path: Path, kind: OutputKind, *, overwrite: bool = False, keep:
     """
     path = Path(path)
     check_path(path, kind, inputs=inputs, flag=flag)
-    if not os.path.lexists(path) or (kind.folder and all(p.name in kind.ignored for p in path.iterdir())):
+    if not os.path.lexists(path) or (kind.folder and kind.is_empty(path)):
         return False
     if not kind.is_ours(path):
         what = "is not empty and is not" if kind.folder else "exists and is not"

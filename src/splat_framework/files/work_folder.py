@@ -3,7 +3,7 @@
 A command that builds its output in a work folder beside it and moves it into place at
 the end (splat-process, splat-scene) leaves that folder behind when it is killed
 (``kill -9``, a power cut: no ``finally`` runs). Each work folder is therefore locked by
-its process with the run-folder lock (:mod:`splat_framework.engine.run_lock`: an exclusive
+its process with the run-folder lock (:mod:`splat_framework.files.run_lock`: an exclusive
 ``flock`` on ``.splat.lock`` inside it, which the kernel drops when the process dies);
 the next run for the same output removes every work folder of that output whose lock
 nobody holds. A folder that is locked (a run in progress), has no lock file (not ours,
@@ -21,7 +21,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable, Iterator
 
-from ..engine import run_lock
+from . import run_lock
 
 
 def _prefix(out: Path) -> str:

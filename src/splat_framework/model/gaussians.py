@@ -21,7 +21,6 @@ them) instead of forking the trainer.
 from __future__ import annotations
 
 import math
-from contextlib import contextmanager
 from types import MappingProxyType
 from typing import Any, Mapping
 
@@ -31,9 +30,9 @@ from torch import Tensor, nn
 from ..cameras import Camera
 from ..config import TrainConfig
 from ..losses import photometric_loss
-from ..engine.profiling import section
+from ..runtime.profiling import section
 from ..render import RenderOutput, rasterize, rgb_to_sh
-from ..engine.rng import keyed_generator
+from ..runtime.rng import keyed_generator
 from .init import initial_points
 from .regularisers import regulariser_terms
 
@@ -87,8 +86,8 @@ class GaussianModel(nn.Module):
     **each step**
     ``on_step_start(step)``                                     None (SH degree, levels open, ...)
     ``learning_rates(step)``                                    {optimizer name: rate}, pure in step
-    ``training_render(step)`` around ``get_outputs(camera,      RenderOutput (rgb, depth, alpha, meta;
-    background)``                                               ``expected_depth`` on demand)
+    ``get_outputs(camera, background, step=step)``              RenderOutput (rgb, depth, alpha, meta;
+    (a training render: DropGaussian applies)                   ``expected_depth`` on demand)
     ``get_loss_dict(outputs, batch, camera, step)``             {term: scalar Tensor}, summed; ``batch``
                                                                 carries ``image``, ``index``,
                                                                 ``train_position`` and the masks
@@ -125,8 +124,6 @@ class GaussianModel(nn.Module):
     metrics.json's timing; a subclass sets its own dict on the instance."""
     init_stats: Mapping[str, Any] = MappingProxyType({})
     """Numbers about the initialisation (e.g. match counts), written to metrics.json."""
-    _train_step: int | None = None
-    """The training step whose render is being drawn (set by :meth:`training_render`), else None."""
 
     FIXED: tuple[str, ...] = ()
     """Per-row tensors that are not optimised (a model rebuilt from a checkpoint keeps them so)."""
@@ -225,21 +222,12 @@ class GaussianModel(nn.Module):
         interval = max(self.config.model.sh_degree_interval, 1)
         self.active_sh_degree = min(step // interval, self.config.model.sh_degree)
 
-    @contextmanager
-    def training_render(self, step: int):
-        """Renders inside the block are step ``step``'s training render (DropGaussian applies to them)."""
-        self._train_step = step
-        try:
-            yield
-        finally:
-            self._train_step = None
-
-    def drop_opacities(self, opacities: Tensor) -> Tensor:
-        """[N] activated opacities as a training render draws them (DropGaussian, ``model.reg.drop_rate``):
-        each row zeroed with probability p = drop_rate * (fraction of the run done), the others
-        divided by (1 - p); the draw is a pure function of (seed, step), so a resumed run repeats it.
-        Outside :meth:`training_render`, or with p = 0, ``opacities`` unchanged."""
-        step = self._train_step
+    def drop_opacities(self, opacities: Tensor, step: int | None) -> Tensor:
+        """[N] activated opacities as step ``step``'s training render draws them (DropGaussian,
+        ``model.reg.drop_rate``): each row zeroed with probability p = drop_rate * (fraction of the run
+        done), the others divided by (1 - p); the draw is a pure function of (seed, step), so a
+        resumed run repeats it. With ``step`` None (not a training render) or p = 0, ``opacities``
+        unchanged."""
         if step is None:
             return opacities
         rate = self.config.model.reg.drop_rate * min(step / max(self.config.total_steps, 1), 1.0)
@@ -281,7 +269,9 @@ class GaussianModel(nn.Module):
         """[N, 3] world positions of all Gaussians."""
         return self.params["means"]
 
-    def get_outputs(self, camera: Camera, background: Tensor | None = None) -> RenderOutput:
+    def get_outputs(self, camera: Camera, background: Tensor | None = None, step: int | None = None) -> RenderOutput:
+        """Render ``camera``'s view; ``step`` is the training step when this is a training render
+        (DropGaussian draws from it), None for evaluation, the viewer and exports."""
         p = self.params
         d = self.active_sh_degree
         coeffs = torch.cat([p["sh0"], p["shN"]], dim=1)[:, : (d + 1) ** 2]
@@ -289,7 +279,7 @@ class GaussianModel(nn.Module):
             self.positions(),
             p["quats"],
             torch.exp(p["scales"]),
-            self.drop_opacities(torch.sigmoid(p["opacities"])),
+            self.drop_opacities(torch.sigmoid(p["opacities"]), step),
             coeffs,
             camera.world_to_cam.float(),
             camera.K.float(),

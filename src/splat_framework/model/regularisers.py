@@ -10,8 +10,8 @@ import torch
 from torch import Tensor
 
 from ..cameras import Camera
-from ..engine.profiling import section
-from ..engine.rng import keyed_generator
+from ..runtime.profiling import section
+from ..runtime.rng import keyed_generator
 from ..losses import depth_smoothness, scale_anisotropy, stereo_consistency
 from ..render import RenderOutput
 
@@ -54,6 +54,5 @@ def _stereo_loss(model, outputs: RenderOutput, image: Tensor, camera: Camera, st
     fx = float(camera.K[0, 0])
     draw = float(torch.rand((), generator=keyed_generator(model.config.seed, step, 1))) * 2.0 - 1.0
     shift = draw * model.config.model.reg.stereo_disparity * camera.width * mean_z / fx
-    with model.training_render(step):
-        shifted = model.get_outputs(camera.shifted_sideways(shift), outputs.meta.get("background"))
+    shifted = model.get_outputs(camera.shifted_sideways(shift), outputs.meta.get("background"), step=step)
     return stereo_consistency(shifted.rgb, depth, outputs.alpha, image, depth.new_tensor(fx * shift))

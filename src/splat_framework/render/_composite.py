@@ -31,7 +31,7 @@ from torch import Tensor
 from torch.autograd.function import once_differentiable
 
 from ._kernels import ALPHA_MAX, T_MIN, get_kernels
-from ..engine.profiling import section
+from ..runtime.profiling import section
 from .threads import thread_policy
 _DUMMY_LOGIT = -1.0e4  # exp() == 0 in float32 and float64
 

@@ -24,6 +24,9 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from ..console import phase
+from .precompiled import Precompiled
+
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
 T_MIN = 1e-4
@@ -260,25 +263,49 @@ def gathering_bwd(round_fn):
 
 
 _KERNELS: dict[str, object] = {}
-_SETTING: dict[str, bool] = {"compile": False}
+_SETTING: dict[str, object] = {"compile": False, "cache_dir": None}
 
 
 def set_compile(enabled: bool, cache_dir: Path | None = None) -> None:
     """Compile the per-round kernels from now on (``SPLAT_COMPILE=0/1`` in the environment still wins).
 
-    ``cache_dir``: where torch's inductor keeps compiled kernels across processes
-    (``TORCHINDUCTOR_CACHE_DIR``; left alone when the user set it), so a later run
-    loads them in seconds instead of compiling again."""
+    ``cache_dir``: where compiled kernels are kept across processes: the traced graphs in
+    ``cache_dir/precompiled`` (:mod:`.precompiled`) and inductor's generated code in
+    ``cache_dir/inductor`` (``TORCHINDUCTOR_CACHE_DIR``, left alone when the user set it), so a
+    later run loads them in seconds instead of tracing and compiling again."""
     _SETTING["compile"] = bool(enabled)
     if enabled and cache_dir is not None:
-        os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", str(cache_dir))
+        if _SETTING["cache_dir"] != Path(cache_dir):
+            _KERNELS.clear()  # kernels made for another cache folder
+        _SETTING["cache_dir"] = Path(cache_dir)
+        os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", str(Path(cache_dir) / "inductor"))
 
 
 def compile_requested() -> bool:
     env = os.environ.get("SPLAT_COMPILE", "").strip().lower()
     if env:
         return env in ("1", "true", "yes", "on")
-    return _SETTING["compile"]
+    return bool(_SETTING["compile"])
+
+
+def _fwd_static(args: tuple) -> tuple:
+    """The sizes a compiled forward round is specialised on: pairs per round, pixels per tile, features."""
+    return args[4].shape[0], args[7].shape[1], args[9].shape[1]
+
+
+def _bwd_static(args: tuple) -> tuple:
+    """The same for a backward round (gid [nA, B], basis [6, npx], g_out [T, F, npx])."""
+    return args[1].shape[1], args[4].shape[1], args[6].shape[1]
+
+
+def _compiled(name: str, fn, static, which: str):
+    """``fn`` compiled: loaded from (or saved to) the cache folder when there is one, else traced
+    in this process by ``torch.compile``."""
+    traced = torch.compile(fn, dynamic=True)
+    folder = _SETTING["cache_dir"]
+    if folder is None:
+        return traced
+    return Precompiled(name, fn, static, Path(folder) / "precompiled", traced, which)
 
 
 def get_kernels():
@@ -289,8 +316,8 @@ def get_kernels():
     if "compiled" not in _KERNELS:
         try:
             _KERNELS["compiled"] = (
-                _with_fallback(torch.compile(gathering_fwd(fwd_round_fused), dynamic=True), eager[0], 6),
-                _with_fallback(torch.compile(gathering_bwd(bwd_round_fused), dynamic=True), eager[1], 3),
+                _with_fallback(_compiled("fwd", gathering_fwd(fwd_round_fused), _fwd_static, "forward"), eager[0], 6, "forward"),
+                _with_fallback(_compiled("bwd", gathering_bwd(bwd_round_fused), _bwd_static, "backward"), eager[1], 3, "backward"),
             )
         except Exception as exc:  # pragma: no cover - depends on the toolchain
             warnings.warn(f"SPLAT_COMPILE: torch.compile unavailable ({exc}); using eager")
@@ -298,15 +325,24 @@ def get_kernels():
     return _KERNELS["compiled"]
 
 
-def _with_fallback(compiled, eager, active_arg: int):
+
+def _with_fallback(compiled, eager, active_arg: int, which: str):
     """``compiled``, or ``eager`` after any failure and for single-tile rounds (a
     size-1 dimension would make torch.compile specialise and compile again);
-    ``args[active_arg]`` is the round's [nA] active tiles."""
-    state = {"ok": True}
+    ``args[active_arg]`` is the round's [nA] active tiles. The first compiled call (the
+    compilation, or loading it from the inductor cache) runs as a phase of its own:
+    ``which`` names the kernel (forward, backward); a :class:`Precompiled` kernel names its own
+    phases (loading, or compiling once per machine)."""
+    state = {"ok": True, "compiled_once": isinstance(compiled, Precompiled)}
 
     def run(*args):
         if state["ok"] and args[active_arg].shape[0] > 1:
             try:
+                if not state["compiled_once"]:
+                    with phase(f"compiling the rasterizer kernels ({which}) for this process"):
+                        out = compiled(*args)
+                    state["compiled_once"] = True
+                    return out
                 return compiled(*args)
             except Exception as exc:  # pragma: no cover - depends on the toolchain
                 state["ok"] = False

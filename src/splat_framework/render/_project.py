@@ -10,7 +10,7 @@ import torch
 from torch import Tensor
 
 from ._kernels import ALPHA_MIN  # a pixel receives a Gaussian only if alpha >= 1/255
-from ..engine.profiling import section
+from ..runtime.profiling import section
 from .threads import thread_policy
 from .sh import sh_to_color
 

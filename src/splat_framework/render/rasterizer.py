@@ -21,7 +21,7 @@ from torch import Tensor
 from ._composite import TileGrid, composite, pixel_basis, tile_footprints
 from ._kernels import compile_requested
 from ._project import ProjectFn, footprint, project_and_shade, reference_radii
-from ..engine.profiling import section
+from ..runtime.profiling import section
 from .threads import thread_policy
 
 __all__ = ["RenderOutput", "rasterize"]

@@ -28,7 +28,7 @@ from contextlib import contextmanager
 
 import torch
 
-from ..engine.resources import others_running
+from ..runtime.resources import others_running
 
 
 def apply_process_threads() -> int | None:

@@ -41,7 +41,7 @@ import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from ..engine.resources import available_cores
+from ..runtime.resources import available_cores
 from ..files.output_paths import SWEEP_FOLDER, check_output, mark_output
 from .backends import import_ray, run_local, run_ray, run_serial, spec_dict
 from .grid import (

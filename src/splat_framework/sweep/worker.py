@@ -14,7 +14,7 @@ from typing import Any
 
 from ..errors import DataError
 from ..files.io import atomic_write_text
-from ..engine.resources import available_cores, available_memory_bytes
+from ..runtime.resources import available_cores, available_memory_bytes
 from .grid import DEFAULT_MEM_PER_RUN_GB, SweepError
 
 def default_workers(mem_per_run_gb: float = DEFAULT_MEM_PER_RUN_GB) -> int:

@@ -6,8 +6,17 @@ The names of the old module ``splat_framework.viewer`` resolve here for one rele
 
 from .._moved import forward
 
-_OLD_NAMES = frozenset(['ORDINARY_RGB', 'RAY_RGB', 'STARTUP_S', 'THUMBNAIL_PX', 'Viewer', 'ViewerCallback', 'splat_arrays', 'view_run'])
+_OLD_HOMES = {
+    "ORDINARY_RGB": "scene_viewer",
+    "RAY_RGB": "scene_viewer",
+    "STARTUP_S": "scene_viewer",
+    "THUMBNAIL_PX": "scene_viewer",
+    "Viewer": "scene_viewer",
+    "ViewerCallback": "scene_viewer",
+    "splat_arrays": "scene_viewer",
+    "view_run": "scene_viewer",
+}
 
 
 def __getattr__(name: str):
-    return forward(__name__, f"{__name__}.scene_viewer", _OLD_NAMES, name)
+    return forward(__name__, _OLD_HOMES, name)

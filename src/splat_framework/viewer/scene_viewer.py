@@ -4,11 +4,17 @@ The browser draws the Gaussians itself (viser's WebGL splat renderer, through
 ``add_gaussian_splats``), so looking around is interactive even though this
 project's CPU rasterizer is slow. Beside it:
 
-- the training cameras as frusta with their photos, the test cameras as frusta;
+- the training cameras as frusta with their photos, the test cameras as frusta
+  (half as deep as the cameras are apart);
+- every browser that connects starts at the first training camera (its position,
+  look direction, up and field of view; viser's "Reset View" returns there), so the
+  first frame shows the scene;
 - "Go to camera": moves every connected browser to a dataset camera;
 - "Render with splat": this project's rasterizer renders the chosen camera
   (RGB | depth | |error| against its photo) into the side panel, so the
-  browser's splats and the real renderer can be compared at the same pose;
+  browser's splats and the real renderer can be compared at the same pose; the
+  camera is scaled down to :data:`PANEL_PIXELS` pixels, and the button reads
+  "Rendering…" (disabled) until the render is done;
 - "Colour by type" (models with ray-based Gaussians, SCGaussian): ray-based
   Gaussians orange, ordinary ones blue: the picture of the paper's claim.
 
@@ -25,6 +31,7 @@ from __future__ import annotations
 import contextlib
 import copy
 import io
+import math
 import threading
 import warnings
 from pathlib import Path
@@ -35,12 +42,20 @@ import torch
 from .serving import LOOPBACK, InvalidAddress, ServingWarning, check_port, exposure_warning, free_port, server_url
 from .viser_clients import from_client, guard_clients
 
-__all__ = ["Viewer", "splat_arrays"]
+__all__ = ["Viewer", "frustum_depth", "panel_camera", "splat_arrays"]
 
 RAY_RGB = (1.0, 0.55, 0.1)
 ORDINARY_RGB = (0.2, 0.45, 1.0)
 THUMBNAIL_PX = 160
 """Longest side of the photos drawn in the camera frusta."""
+FRUSTUM_DEPTH = 0.1
+"""Depth (world units) of a frustum drawn alone (see :func:`frustum_depth`)."""
+FRUSTUM_LINE = 0.03
+"""Thickness of a frustum's lines, a fraction of its depth."""
+PANEL_PIXELS = 256 * 192
+"""Most pixels of one image of the "Render with splat" panel: a larger camera is rendered scaled down
+to this many (the CPU rasterizer's time grows with the pixels; see :func:`panel_camera`)."""
+RENDER_LABEL, BUSY_LABEL = "Render with splat", "Rendering…"
 
 
 @torch.no_grad()
@@ -88,10 +103,56 @@ def _fov_y(camera) -> float:
     return float(2 * np.arctan2(camera.height / 2, float(camera.K[1, 1])))
 
 
+def _start_view(camera, centers: np.ndarray | None) -> dict[str, np.ndarray | float]:
+    """Where a browser's camera starts to look through ``camera``: position [3], look_at [3] (the
+    point it orbits: at the median depth of the ``centers`` [N, 3] in front of it, else midway between
+    its near and far planes), up [3] (the image's up, -y in OpenCV) and fov (vertical, radians)."""
+    import viser.transforms as vtf
+
+    wxyz, position = _pose(camera)
+    R = vtf.SO3(wxyz).as_matrix()
+    depth = 0.5 * (camera.near + camera.far)
+    if centers is not None and len(centers):
+        z = (centers - position) @ R[:, 2]
+        ahead = z[z > camera.near]
+        if len(ahead):
+            depth = float(np.median(ahead))
+    return {"position": position, "look_at": position + depth * R[:, 2], "up": -R[:, 1], "fov": _fov_y(camera)}
+
+
+def frustum_depth(cameras) -> float:
+    """How deep (world units) the cameras' frusta are drawn: half the median distance from a camera
+    to its nearest neighbour (:data:`FRUSTUM_DEPTH` without two distinct cameras), so that from any
+    camera its neighbours' frusta stay out of view instead of covering the scene."""
+    if len(cameras) < 2:
+        return FRUSTUM_DEPTH
+    centers = np.stack([camera.center.double().cpu().numpy() for camera in cameras])
+    gaps = np.linalg.norm(centers[:, None] - centers[None], axis=-1)
+    np.fill_diagonal(gaps, np.inf)
+    nearest = gaps.min(axis=1)
+    nearest = nearest[nearest > 0]
+    return 0.5 * float(np.median(nearest)) if len(nearest) else FRUSTUM_DEPTH
+
+
+def panel_camera(camera):
+    """``camera`` as "Render with splat" renders it: scaled down (never up, aspect kept) to at most
+    :data:`PANEL_PIXELS` pixels."""
+    factor = math.sqrt(PANEL_PIXELS / (camera.width * camera.height))
+    return camera if factor >= 1 else camera.scaled(factor)
+
+
+def _resized(photo: torch.Tensor, height: int, width: int) -> torch.Tensor:
+    """[H, W, 3] -> [height, width, 3], pixel areas averaged."""
+    if photo.shape[:2] == (height, width):
+        return photo
+    chw = photo.permute(2, 0, 1)[None].float()
+    return torch.nn.functional.interpolate(chw, size=(height, width), mode="area")[0].permute(1, 2, 0)
+
+
 def _thumbnail(image: torch.Tensor) -> np.ndarray:
     import cv2
 
-    from ..evaluation.held_out import to_uint8
+    from ..evaluation.pictures import to_uint8
 
     img = to_uint8(image)
     f = THUMBNAIL_PX / max(img.shape[:2])
@@ -154,6 +215,9 @@ class Viewer:
         self._background = None
         self._cameras: dict[str, tuple] = {}  # label -> (camera, photo [H, W, 3] or None)
         self._frusta: dict[str, object] = {}  # label -> viser frustum handle
+        self._centers: np.ndarray | None = None  # [N, 3] of the Gaussians shown
+        self._start_label: str | None = None  # the camera browsers start at
+        self._start_pivoted = False  # whether its orbit point came from the model's Gaussians
         self.num_splats = 0
         gui = self.server.gui
         self._by_type = gui.add_checkbox("Colour by type", initial_value=False, hint="ray-based orange, ordinary blue")
@@ -162,8 +226,8 @@ class Viewer:
         self._chosen = gui.add_dropdown("Camera", ["(none)"])
         goto = gui.add_button("Go to camera")
         goto.on_click(from_client(lambda _: self.go_to(self._chosen.value)))
-        render = gui.add_button("Render with splat")
-        render.on_click(from_client(lambda _: self.render_panel(self._chosen.value)))
+        self._render = gui.add_button(RENDER_LABEL)
+        self._render.on_click(from_client(lambda _: self.render_chosen()))
         self._image = gui.add_image(np.zeros((8, 24, 3), np.uint8), label="splat render: RGB | depth | |error|")
 
     @property
@@ -186,6 +250,8 @@ class Viewer:
         self._by_type.visible = has_types
         self._draw_splats()
         self._status.content = f"**{self.num_splats:,} Gaussians** {note}".strip()
+        if not self._start_pivoted:
+            self._set_start_view()
 
     def _draw_splats(self) -> None:
         with self._lock:
@@ -193,37 +259,59 @@ class Viewer:
                 return
             arrays = splat_arrays(self._model, by_type=bool(self._by_type.value))
         self.server.scene.add_gaussian_splats("/gaussians", **arrays)
+        self._centers = arrays["centers"]
         self.num_splats = int(arrays["centers"].shape[0])
 
-    def set_cameras(self, views, kind: str, color: tuple[int, int, int]) -> None:
-        """Frusta for ``views`` (a list of (camera, batch) pairs), named ``kind``/``view``; training
-        frusta carry their photo."""
+    def set_cameras(self, views, kind: str, color: tuple[int, int, int], depth: float = FRUSTUM_DEPTH) -> None:
+        """Frusta for ``views`` (a list of (camera, batch) pairs), named ``kind``/``view``, ``depth``
+        world units deep; training frusta carry their photo."""
         for camera, batch in views:
             label = f"{kind}/{camera.name or batch['index']}"
             photo = batch.get("image")
             wxyz, position = _pose(camera)
-            self._frusta[label] = self.server.scene.add_camera_frustum(
-                f"/cameras/{label}", fov=_fov_y(camera), aspect=camera.width / camera.height, scale=0.1,
+            self._frusta[label] = self.server.scene.add_camera_frustum(  # viser's scale: the far end's half-height
+                f"/cameras/{label}", fov=_fov_y(camera), aspect=camera.width / camera.height,
+                scale=depth * math.tan(_fov_y(camera) / 2), thickness=FRUSTUM_LINE * depth,
                 color=color, wxyz=wxyz, position=position,
                 image=_thumbnail(photo) if kind == "train" and photo is not None else None,
             )
             self._cameras[label] = (camera, photo)
         self._chosen.options = tuple(self._cameras)
         self._chosen.value = next(iter(self._cameras))
+        if self._start_label is None and kind == "train" and views:
+            self._start_label = self._chosen.value
+            self._set_start_view()
+
+    def _set_start_view(self) -> None:
+        """Every browser that connects from now on starts looking through the first training camera
+        (viser's initial camera, to which "Reset View" also returns; the scene's up is that camera's),
+        whose frustum, which would cover the view with its photo, is hidden as by :meth:`go_to`."""
+        if self._start_label is None:
+            return
+        camera, _ = self._cameras[self._start_label]
+        view = _start_view(camera, self._centers)
+        self._start_pivoted = self._centers is not None
+        self.server.scene.set_up_direction(view["up"])
+        start = self.server.initial_camera
+        start.fov, start.position, start.look_at, start.up = view["fov"], view["position"], view["look_at"], view["up"]
+        self._show_frusta_but(self._start_label)
 
     def set_dataset(self, datamanager) -> None:
-        """The training cameras (orange, with their photos) and the test cameras (blue)."""
-        self.set_cameras(datamanager.train_views(), "train", (230, 120, 20))
-        self.set_cameras(datamanager.eval_views(), "test", (40, 90, 230))
+        """The training cameras (orange, with their photos) and the test cameras (blue), their frusta
+        as deep as :func:`frustum_depth` says."""
+        train, test = datamanager.train_views(), datamanager.eval_views()
+        depth = frustum_depth([camera for camera, _ in train + test])
+        self.set_cameras(train, "train", (230, 120, 20), depth)
+        self.set_cameras(test, "test", (40, 90, 230), depth)
 
     # ------------------------------------------------------------- controls
     def go_to(self, label: str) -> None:
         """Move every connected browser's view to dataset camera ``label`` (whose own frustum, which
-        would cover the view with its photo, is hidden until another camera is chosen)."""
+        would cover the view with its photo, is hidden until another camera is chosen; so is always
+        that of the first training camera, where browsers that connect later start)."""
         if label not in self._cameras:
             return
-        for other, frustum in self._frusta.items():
-            frustum.visible = other != label
+        self._show_frusta_but(label)
         camera, _ = self._cameras[label]
         wxyz, position = _pose(camera)
         for client in self.server.get_clients().values():
@@ -232,15 +320,31 @@ class Viewer:
                 client.camera.wxyz = wxyz
                 client.camera.position = position
 
+    def _show_frusta_but(self, label: str) -> None:
+        """Hide the frustum of camera ``label`` and that of the camera browsers start at, show the others."""
+        for other, frustum in self._frusta.items():
+            frustum.visible = other not in (label, self._start_label)
+
+    def render_chosen(self) -> np.ndarray | None:
+        """"Render with splat": :meth:`render_panel` of the camera chosen in the dropdown, the button
+        disabled and reading "Rendering…" until it is done (or has failed)."""
+        self._render.disabled, self._render.label = True, BUSY_LABEL
+        try:
+            return self.render_panel(self._chosen.value)
+        finally:
+            self._render.disabled, self._render.label = False, RENDER_LABEL
+
     @torch.no_grad()
     def render_panel(self, label: str) -> np.ndarray | None:
-        """Render dataset camera ``label`` with this project's rasterizer into the side panel:
-        [H, W*3, 3] uint8 (RGB | depth | |error| against the photo, or the RGB again without one)."""
-        from ..evaluation.held_out import colorize_depth, error_map, to_uint8
+        """Render dataset camera ``label``, scaled down by :func:`panel_camera`, with this project's
+        rasterizer into the side panel: [h, w*3, 3] uint8 (RGB | depth | |error| against the photo,
+        or the RGB again without one)."""
+        from ..evaluation.pictures import colorize_depth, error_map, to_uint8
 
         if label not in self._cameras:
             return None
         camera, photo = self._cameras[label]
+        camera = panel_camera(camera)
         with self._lock:
             model, bg = self._model, self._background
             if model is None:
@@ -248,9 +352,13 @@ class Viewer:
             out = model.get_outputs(camera.to(bg.device), bg)
         rgb = out.rgb.clamp(0, 1)
         depth = colorize_depth(out.expected_depth, out.alpha)
-        err = error_map(rgb, photo.to(rgb.device)) if photo is not None else to_uint8(rgb)
+        if photo is not None:
+            err = error_map(rgb, _resized(photo, camera.height, camera.width).to(rgb.device))
+        else:
+            err = to_uint8(rgb)
         panel = np.concatenate([to_uint8(rgb), depth, err], axis=1)
         self._image.image = panel
+        self._image.label = f"splat render of {label}, {camera.width}x{camera.height}: RGB | depth | |error|"
         return panel
 
     def close(self) -> None:

@@ -32,10 +32,9 @@ def test_drop_rate_ramps_with_the_run_and_is_a_function_of_seed_and_step(dm):
     ones = torch.ones(model.num_gaussians)
 
     def kept(m, step):
-        with m.training_render(step):
-            return m.drop_opacities(ones)
+        return m.drop_opacities(ones, step)
 
-    assert torch.equal(model.drop_opacities(ones), ones)  # not in a training render
+    assert torch.equal(model.drop_opacities(ones, None), ones)  # not a training render
     assert torch.equal(kept(model, 0), ones)  # the ramp starts at 0
     keep = kept(model, 50)
     rate = 0.4 * 50 / 100
@@ -46,23 +45,18 @@ def test_drop_rate_ramps_with_the_run_and_is_a_function_of_seed_and_step(dm):
     assert not torch.equal(keep, kept(_model(dm, 0.4, seed=1), 50))
     # past the run's end the rate stays at its maximum
     assert (kept(model, 500) == 0).float().mean().item() == pytest.approx(0.4, abs=0.03)
-    with pytest.raises(RuntimeError), model.training_render(7):
-        raise RuntimeError("a failed render")
-    assert torch.equal(model.drop_opacities(ones), ones)  # the block always ends
 
 
 def test_dropped_gaussians_get_no_gradient_and_evaluation_renders_all(dm):
     cam, _ = next(iter(dm.train_views()))
     model, plain = _model(dm, 0.5), _model(dm, 0.0)
-    with model.training_render(80):
-        keep = model.drop_opacities(torch.ones(model.num_gaussians))
-        out = model.get_outputs(cam)
+    keep = model.drop_opacities(torch.ones(model.num_gaussians), 80)
+    out = model.get_outputs(cam, step=80)
     out.rgb.sum().backward()
     grad = model.params["opacities"].grad
     assert torch.all(grad[keep == 0] == 0)
     assert grad[keep > 0].abs().sum() > 0
-    with plain.training_render(80):  # rate 0: a training render is the full model
-        assert not torch.allclose(out.rgb, plain.get_outputs(cam).rgb)
+    assert not torch.allclose(out.rgb, plain.get_outputs(cam, step=80).rgb)  # rate 0: the full model
     with torch.no_grad():
         assert torch.equal(model.get_outputs(cam).rgb, plain.get_outputs(cam).rgb)
 
@@ -74,8 +68,7 @@ def test_anchor_models_drop_their_decoded_gaussians(dm):
     cam, _ = next(iter(dm.train_views()))
     with torch.no_grad():
         full = model.get_outputs(cam)
-        with model.training_render(100):
-            dropped = model.get_outputs(cam)
+        dropped = model.get_outputs(cam, step=100)
         assert not torch.allclose(full.rgb, dropped.rgb)
         assert torch.equal(full.rgb, model.get_outputs(cam).rgb)
 
@@ -83,7 +76,7 @@ def test_anchor_models_drop_their_decoded_gaussians(dm):
 def test_keyed_generators_repeat_per_key_and_do_not_collide():
     """The (seed, step) draw does not alias another seed's draw at a shifted step (as a linear mix
     seed * K + step would)."""
-    from splat_framework.engine.rng import keyed_generator
+    from splat_framework.runtime.rng import keyed_generator
 
     def draw(*key):
         return torch.rand(8, generator=keyed_generator(*key))

@@ -70,8 +70,7 @@ def test_the_stereo_term_joins_the_loss_after_its_start_and_reaches_the_gaussian
     cam, batch = next(iter(dm.train_views()))
 
     def losses(step):
-        with model.training_render(step):
-            out = model.get_outputs(cam)
+        out = model.get_outputs(cam, step=step)
         return model.get_loss_dict(out, batch, cam, step)
 
     assert "stereo" not in losses(44)

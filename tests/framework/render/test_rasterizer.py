@@ -525,6 +525,7 @@ def test_compiled_kernels_match_eager_in_a_training_step(monkeypatch, tmp_path):
     """torch.compile'd compositing (what compile="auto" turns on for long CPU runs) gives the eager
     forward and gradients; any compile failure falls back to eager, so this also runs without a compiler."""
     from splat_framework.render import _kernels
+    from splat_framework.render.precompiled import Precompiled, supported
 
     width, height = 40, 30
     viewmat, K = make_camera(width, height)
@@ -540,15 +541,23 @@ def test_compiled_kernels_match_eager_in_a_training_step(monkeypatch, tmp_path):
     eager = fwd_bwd()
     monkeypatch.delenv("SPLAT_COMPILE")
     monkeypatch.delenv("TORCHINDUCTOR_CACHE_DIR", raising=False)
-    _kernels.set_compile(True, tmp_path / "inductor")
+    _kernels.set_compile(True, tmp_path)
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             for _ in range(2):  # the second call runs the cached kernels
                 for a, b in zip(fwd_bwd(), eager):
                     torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
+            saved = sorted(p.name.split("-")[0] for p in (tmp_path / "precompiled").glob("*.bin"))
+            # a new process: the kernels come from the saved graphs, nothing is traced again
+            _kernels._KERNELS.clear()
+            monkeypatch.setattr(Precompiled, "_compile", lambda self, args: pytest.fail("traced again"))
+            for a, b in zip(fwd_bwd(), eager):
+                torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
     finally:
         _kernels.set_compile(False)
-    fell_back = [str(w.message) for w in caught if "compiled rasterizer kernels unavailable" in str(w.message)]
+    fell_back = [str(w.message) for w in caught if "unavailable" in str(w.message)]
     if shutil.which("c++") or shutil.which("g++"):  # with a compiler, the compiled kernels really ran
         assert not fell_back, fell_back
+        if supported():
+            assert saved == ["bwd", "fwd"]

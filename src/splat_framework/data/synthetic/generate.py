@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 
 from ..cache_dir import user_cache_dir
+from ...errors import did_you_mean
 from ..scene import DataError
 from .raycast import Scene, cast_rays
 from .scenes import (
@@ -305,7 +306,8 @@ def scene_params(name: str) -> dict:
     try:
         return dict(NAMED_SCENES[name])
     except KeyError:
-        raise DataError(f"synthetic/{name}: unknown synthetic scene (known: {', '.join(NAMED_SCENES)})") from None
+        raise DataError(f"synthetic/{name}: unknown synthetic scene{did_you_mean(name, NAMED_SCENES)} "
+                        f"(known: {', '.join(NAMED_SCENES)})") from None
 
 
 def default_cache_dir() -> Path:

@@ -75,11 +75,6 @@ def command_line() -> str:
     return line if len(line) <= 300 else line[:297] + "..."
 
 
-def is_empty_run_dir(folder: Path) -> bool:
-    """Whether ``folder`` holds nothing but (perhaps) a lock file."""
-    return all(p.name == LOCK_NAME for p in Path(folder).iterdir())
-
-
 class RunLock:
     """An exclusive lock on one run folder, held through an open file descriptor."""
 

@@ -1,0 +1,137 @@
+"""Write the generated parts of the documentation, so that they cannot drift from the code.
+
+    python docs/generate.py           # rewrite the blocks in docs/*.md
+    python docs/generate.py --check   # exit 1 naming the pages that are out of date
+
+Each block sits between ``<!-- generated:NAME -->`` and ``<!-- /generated:NAME -->`` markers in a
+page; everything else in the page is written by hand. The blocks:
+
+- ``cli-help``: every ``splat-*`` command's ``--help``, captured in-process from the command
+  itself (tyro builds it from the configs' field docstrings);
+- ``environment``: every ``SPLAT_*`` variable (:mod:`splat_framework.environment`);
+- ``exit-codes``: :data:`splat_framework.cli.common.EXIT_CODES`;
+- ``methods``: every registered method and config variant, with its description and base.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import os
+import sys
+from importlib.metadata import entry_points
+from pathlib import Path
+from unittest import mock
+
+DOCS = Path(__file__).resolve().parent
+HELP_COLUMNS = "100"
+SHIPPED = {"splat_framework", "scg_plugin", "anchor_gs"}
+"""The packages of this repository: the methods page lists theirs only, not other installed plugins'."""
+ENV = {"COLUMNS": HELP_COLUMNS, "NO_COLOR": "1", "TERM": "dumb", "SPLAT_CONFIG_PATH": ""}
+"""The environment the help is captured in: a fixed width, no colour, no user variants."""
+
+
+def command_help(argv: list[str]) -> str:
+    """What ``argv --help`` prints (``argv[0]`` a console script), at a fixed width, trailing spaces cut."""
+    (ep,) = [e for e in entry_points(group="console_scripts") if e.name == argv[0]]
+    out = io.StringIO()
+    with mock.patch.dict(os.environ, ENV), \
+            mock.patch.object(sys, "argv", [*argv, "--help"]), contextlib.redirect_stdout(out), \
+            contextlib.redirect_stderr(io.StringIO()):
+        try:
+            ep.load()()
+        except SystemExit as e:
+            if e.code not in (0, None):
+                raise RuntimeError(f"{' '.join(argv)} --help exited {e.code}") from None
+    return "\n".join(line.rstrip() for line in out.getvalue().strip("\n").splitlines())
+
+
+def commands() -> list[str]:
+    return sorted(e.name for e in entry_points(group="console_scripts") if e.name.startswith("splat-"))
+
+
+def cli_help_block() -> str:
+    parts = []
+    for name in commands():
+        parts += [f"### `{name}`", "", "```text", command_help([name]), "```", ""]
+    parts += ["### `splat-train 3dgs` (the flags of one method)", "",
+              "Every method has the run options above plus its own model, strategy and optimiser flags; "
+              "`splat-train METHOD --help` lists them. For `3dgs`:", "",
+              "```text", command_help(["splat-train", "3dgs"]), "```"]
+    return "\n".join(parts)
+
+
+def environment_block() -> str:
+    from splat_framework.environment import VARIABLES
+
+    rows = ["| variable | what it does |", "|---|---|"]
+    rows += [f"| `{name}` | {text} |" for name, text in VARIABLES.items()]
+    return "\n".join(rows)
+
+
+def exit_codes_block() -> str:
+    from splat_framework.cli.common import EXIT_CODES
+
+    rows = ["| code | meaning |", "|---|---|"]
+    rows += [f"| {code} | {text} |" for code, text in EXIT_CODES.items()]
+    return "\n".join(rows)
+
+
+def methods_block() -> str:
+    from splat_framework.registry import discover_methods
+
+    rows = ["| name | what it is |", "|---|---|"]
+    with mock.patch.dict(os.environ, {"SPLAT_CONFIG_PATH": ""}):
+        methods = discover_methods()
+    for name, spec in sorted(methods.items()):
+        if spec.model.partition(".")[0] not in SHIPPED:
+            continue  # a plugin installed beside the project
+        rows.append(f"| `{name}` | {spec.description.strip().splitlines()[0]} |")
+    return "\n".join(rows)
+
+
+BLOCKS = {"cli-help": cli_help_block, "environment": environment_block, "exit-codes": exit_codes_block,
+          "methods": methods_block}
+
+
+def splice(text: str, name: str, block: str, page: str) -> str:
+    start, end = f"<!-- generated:{name} -->", f"<!-- /generated:{name} -->"
+    i, j = text.find(start), text.find(end)
+    if i < 0 or j < i:
+        raise SystemExit(f"{page}: no '{start}' ... '{end}' markers")
+    return text[: i + len(start)] + "\n" + block.strip("\n") + "\n" + text[j:]
+
+
+def generated_pages() -> dict[Path, str]:
+    """Every page holding a generated block -> its text with every block up to date."""
+    out = {}
+    built: dict[str, str] = {}
+    for page in sorted(DOCS.glob("*.md")):
+        text = new = page.read_text()
+        for name, make in BLOCKS.items():
+            if f"<!-- generated:{name} -->" in new:
+                built.setdefault(name, make())
+                new = splice(new, name, built[name], page.name)
+        if new != text:
+            out[page] = new
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--check", action="store_true", help="only report pages that are out of date (exit 1)")
+    args = parser.parse_args(argv)
+    stale = generated_pages()
+    if args.check:
+        for page in stale:
+            print(f"{page.relative_to(DOCS.parent)} is out of date: run python docs/generate.py")
+        return 1 if stale else 0
+    for page, text in stale.items():
+        page.write_text(text)
+        print(f"wrote {page.relative_to(DOCS.parent)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,122 @@
+"""What a checkpoint holds of a :class:`~splat_framework.engine.trainer.Trainer`, and loading it back.
+
+A checkpoint holds everything the next step depends on: parameters, Adam states, densification
+state, model extra state, all RNG states, the learning-rate factor, the fault counters and the
+time spent so far, with the experiment record that ``--resume`` checks
+(:mod:`splat_framework.engine.resume_check`).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import torch
+
+from ..console import say
+from .checkpoint import CheckpointError, check_structure, list_checkpoints, load_checkpoint, load_latest
+from .resume_check import check_checkpoint_record, experiment_record
+from ..runtime.rng import restore_rng_state, rng_state
+
+
+class TrainState:
+    """The checkpoint side of the Trainer (a base class of it): it reads and sets the trainer's
+    model, optimizers, strategy state, generator, counters and timing."""
+
+    @property
+    def checkpoint_dir(self) -> Path:
+        return self.run_dir / "checkpoints"
+
+    def _train_seconds(self) -> float:
+        extra = time.perf_counter() - self._train_t0 if self._train_t0 is not None else 0.0
+        return self._train_prior_s + extra
+
+    def experiment_record(self) -> dict:
+        """The experiment fields of this run's resolved config (what a resume may not change), as
+        JSON values; every checkpoint carries it, covered by the checkpoint's checksum."""
+        return experiment_record(self.config)
+
+    def state_payload(self, step: int) -> dict:
+        timing = dict(self.timing)
+        timing["train_s"] = self._train_seconds()
+        return {
+            "step": step,
+            "method": self.config.method,
+            "experiment": self.experiment_record(),
+            "total_steps": self.config.total_steps,
+            "params": {k: v.detach().cpu() for k, v in self.model.params.items()},
+            "networks": {k: v.detach().cpu() for k, v in self.model.networks.state_dict().items()},
+            "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()},
+            "strategy_state": {
+                k: (v.detach().cpu() if torch.is_tensor(v) else v) for k, v in self.strategy_state.items()
+            },
+            "model_state": self.model.extra_state(),
+            **rng_state(self.generator, self.device),
+            "lr_factor": self.lr_factor,
+            "skipped_steps": self.skipped_steps,
+            "densify_skipped_steps": self.densify_skipped,
+            "restores": self.restores,
+            "timing": timing,
+        }
+
+    def _load_state(self, path: Path, ck: dict) -> None:
+        dev = self.device
+        self.model.restore(ck, dev)
+        self.optimizers = self.model.make_optimizers()
+        for k, o in self.optimizers.items():
+            o.load_state_dict(ck["optimizers"][k])
+        self.strategy_state = {
+            k: (v.to(dev) if torch.is_tensor(v) else v) for k, v in ck["strategy_state"].items()
+        }
+        restore_rng_state(ck, self.generator, dev)
+        self.lr_factor = float(ck.get("lr_factor", 1.0))
+        self.start_step = int(ck["step"])
+
+    def load(self, path: Path) -> int:
+        """Load the training state of one checkpoint file (CheckpointError if it does not verify); its step."""
+        self._restore_from(Path(path), load_checkpoint(path))
+        return self.start_step
+
+    def restore(self) -> bool:
+        """Load the newest good checkpoint (``--resume``); False when there is none.
+
+        A corrupt or truncated newer checkpoint is reported in one line and
+        the previous one is used; CheckpointError when checkpoint files exist
+        but none verifies.
+        """
+        found = self._load_latest_state()
+        if found is None:
+            if list_checkpoints(self.checkpoint_dir):
+                raise CheckpointError(
+                    f"{self.checkpoint_dir}: no valid checkpoint to resume from (all corrupt); use --overwrite to start again"
+                )
+            return False
+        path, ck = found
+        self.skipped_steps = int(ck.get("skipped_steps", 0))
+        self.densify_skipped = int(ck.get("densify_skipped_steps", 0))
+        self.restores = int(ck.get("restores", 0))
+        timing = dict(ck.get("timing", {}))
+        self._train_prior_s = float(timing.pop("train_s", 0.0))
+        self.timing.update(timing)
+        say(f"resumed from {path} (step {self.start_step})", "cyan")
+        return True
+
+    def _load_latest_state(self) -> tuple[Path, dict] | None:
+        """Load the newest checkpoint that verifies and restores (see :meth:`_restore_from`);
+        a bad newer one is reported and the previous one tried."""
+        return load_latest(
+            self.checkpoint_dir, report=lambda msg: say(f"warning: {msg}", "yellow"), accept=self._restore_from
+        )
+
+    def _restore_from(self, path: Path, ck: dict) -> dict:
+        """Load a verified payload into the trainer after checking its structure against the model
+        (parameter names and per-row shapes, float32, optimizer moments); CheckpointError otherwise,
+        and DataError for a checkpoint of another experiment (:func:`check_checkpoint_record`)."""
+        check_checkpoint_record(self.config, self.spec, path, ck, self._config_verified)
+        check_structure(path, ck, self.model.params, max_step=self.config.total_steps)
+        try:
+            self._load_state(path, ck)
+        except (KeyError, ValueError, TypeError, IndexError, RuntimeError) as e:  # e.g. a crafted model_state
+            first = (str(e).splitlines() or [""])[0]
+            raise CheckpointError(f"{path}: cannot restore ({type(e).__name__}: {first})") from None
+        return ck

@@ -1,0 +1,123 @@
+"""Kernels compiled once per machine and kept on disk, so that a later process starts in seconds.
+
+``torch.compile`` traces a function with dynamo the first time each process calls it, even when
+inductor's cache already holds the generated code: for the rasterizer's unrolled round kernels
+that is tens of seconds of every run's start on a 2-core CPU. ``torch.compile(f).aot_compile``
+keeps the traced graph and its guards in one file that a later process loads without tracing
+(the generated code itself stays in inductor's cache beside it).
+
+:class:`Precompiled` wraps one kernel: each call runs the first loaded graph whose guards accept
+the arguments; when none does, it loads the file of the arguments' static signature (device,
+dtype, the sizes the graph is specialised on), or compiles one and saves it atomically. Sizes
+that vary from call to call (active tiles, Gaussians, image size) stay symbolic, and equal sizes
+are not merged (no duck sizing), so a graph serves every round of every image of a run. Where
+the torch build lacks the API, or anything in it fails, the kernel falls back to plain
+``torch.compile`` once, with one warning line.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import warnings
+from pathlib import Path
+from typing import Callable
+
+import torch
+from torch import Tensor
+
+from ..console import phase
+
+_SOURCE = Path(__file__).with_name("_kernels.py")
+
+
+def supported() -> bool:
+    """Whether this torch build can save and load compiled graphs (``aot_compile``)."""
+    return hasattr(torch.compiler, "load_compiled_function") and hasattr(
+        getattr(torch, "_dynamo", None), "config") and hasattr(torch._dynamo.config, "enable_aot_compile")
+
+
+def build_tag() -> str:
+    """What a saved graph depends on beside its arguments: torch, Python, and the kernels' source."""
+    h = hashlib.sha256()
+    for part in (torch.__version__, os.sys.version, _SOURCE.read_bytes()):
+        h.update(part if isinstance(part, bytes) else part.encode())
+    return h.hexdigest()[:16]
+
+
+class Precompiled:
+    """One kernel, compiled ahead of time per static signature and kept under ``folder``.
+
+    Args:
+        name: the kernel's file-name stem ("fwd", "bwd").
+        fn: the pure tensor function to compile.
+        static: args -> the sizes the compiled graph is specialised on (e.g. the round's pair count).
+        folder: where the graphs are kept (created on first save).
+        fallback: called instead once the ahead-of-time path failed (plain ``torch.compile``).
+        which: the kernel's name in the phase lines ("forward").
+    """
+
+    def __init__(self, name: str, fn: Callable, static: Callable[[tuple], tuple], folder: Path,
+                 fallback: Callable, which: str = ""):
+        self.name, self.fn, self.static, self.folder, self.fallback = name, fn, static, Path(folder), fallback
+        self.which = which or name
+        self.graphs: list = []
+        self.failed = not supported()
+        self._tag = None
+
+    def path_for(self, args: tuple) -> Path:
+        """The file of the graph for ``args``' static signature."""
+        first = next(a for a in args if isinstance(a, Tensor))
+        self._tag = self._tag or build_tag()
+        key = repr((first.device.type, str(first.dtype), self.static(args)))
+        return self.folder / f"{self.name}-{self._tag}-{hashlib.sha256(key.encode()).hexdigest()[:12]}.bin"
+
+    def __call__(self, *args):
+        if not self.failed:
+            for graph in self.graphs:
+                if graph.guard_check(*args):
+                    return graph(*args)
+            try:
+                graph = self._load_or_compile(args)
+            except Exception as exc:  # pragma: no cover - depends on the torch build and toolchain
+                self.failed = True
+                first = (str(exc).strip().splitlines() or [""])[0][:200]
+                warnings.warn(f"saved rasterizer kernels unavailable ({type(exc).__name__}: {first}); "
+                              "compiling in this process instead", stacklevel=2)
+            else:
+                self.graphs.append(graph)
+                return graph(*args)
+        return self.fallback(*args)
+
+    def _load_or_compile(self, args: tuple):
+        path = self.path_for(args)
+        if path.is_file():
+            try:
+                with phase(f"loading the compiled rasterizer kernels ({self.which})"), open(path, "rb") as f:
+                    graph = torch.compiler.load_compiled_function(f)
+                if graph.guard_check(*args):
+                    return graph
+            except Exception:  # a file from an interrupted or foreign build: compile it again
+                pass
+        with phase(f"compiling the rasterizer kernels ({self.which}): once per machine, later runs load them"):
+            graph = self._compile(args)
+        self._save(graph, path)
+        return graph
+
+    def _compile(self, args: tuple):
+        import torch._dynamo.config as dynamo_config
+        import torch.fx.experimental._config as fx_config
+
+        example = tuple(a.clone() if isinstance(a, Tensor) else a for a in args)  # kernels write in place
+        with dynamo_config.patch(specialize_float=True), fx_config.patch(use_duck_shape=False):
+            return torch.compile(self.fn, dynamic=True, fullgraph=True).aot_compile((example, {}))
+
+    def _save(self, graph, path: Path) -> None:
+        """Keep the graph (torch writes it atomically, so a process writing the same file beside
+        this one is harmless); a failure to write costs only the next process the compilation."""
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            graph.save_compiled_function(str(path))
+        except OSError as exc:
+            warnings.warn(f"{path.parent}: cannot keep the compiled rasterizer kernels ({exc.strerror or exc})",
+                          stacklevel=3)

@@ -1,0 +1,191 @@
+"""What a user sees while a command runs (console.phase) and the start-up papercuts of issue 42:
+phase lines in a log, no NaN placeholders, a double Ctrl-C that says what was saved, no empty run
+folder after a failed start, "did you mean", a resume refusal naming only the changed fields, the
+README's comparison at equal iterations, rows that fit 80 columns."""
+
+from __future__ import annotations
+
+import io
+import re
+import shlex
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from rich.console import Console
+
+from cli_harness import cli_env, run_cli
+from splat_framework import console as console_mod
+
+README = Path(__file__).resolve().parents[2] / "README.md"
+
+
+@pytest.fixture
+def terminal(monkeypatch):
+    """The console as an 80-column terminal; yields the buffer it writes to."""
+    buf = io.StringIO()
+    monkeypatch.setattr(console_mod, "console", Console(file=buf, force_terminal=True, width=80, color_system=None))
+    monkeypatch.setattr(console_mod, "_SHOW", {"enabled": True})
+    return buf
+
+
+def test_terminal_rows_keep_their_time_columns_in_80_columns(terminal):
+    """Each phase is a row of its own; at 80 columns the count, elapsed and remaining time and the
+    rate are whole (the info text is what gets cut), even beside a phase with a long name."""
+    with console_mod.phase("training", 30000, unit="steps", info="loss 0.0123  PSNR 23.45  123456 gaussians") as ph:
+        for k in range(1, 4):
+            time.sleep(0.05)
+            ph.update(1000 * k)
+        with console_mod.phase("compiling the rasterizer kernels (forward), about 60 s the first time"):
+            screen = Console(file=io.StringIO(), width=80, color_system=None, force_terminal=True)
+            for row in console_mod._TERMINAL.progress.get_renderables():
+                screen.print(row)
+    rows = screen.file.getvalue().splitlines()
+    assert len(rows) == 2 and all(len(r) <= 80 for r in rows), rows
+    assert re.search(r"3000/30000 0:00:00 ~\d:\d\d:\d\d [\d.]+ it/s loss", rows[0]), rows[0]
+    assert rows[1].startswith("compiling the rasterizer kernels") and rows[1].endswith("0:00:00"), rows[1]
+    done = terminal.getvalue()  # each finished phase leaves one summary line
+    assert "compiling the rasterizer kernels (forward), about 60 s the first time: done in" in done
+    assert "training: 3000/30000 steps, done in" in done
+
+
+def test_a_log_gets_a_line_every_few_seconds_or_5_percent(monkeypatch):
+    """Without a terminal: a phase that reports no progress (a compilation, COLMAP's mapping) still
+    prints a line every PLAIN_EVERY_S; one that counts prints every 5 %; a quick one prints nothing."""
+    buf = io.StringIO()
+    monkeypatch.setattr(console_mod, "console", Console(file=buf, force_terminal=False, width=200))
+    monkeypatch.setattr(console_mod, "_SHOW", {"enabled": True})
+    monkeypatch.setattr(console_mod, "PLAIN_EVERY_S", 0.2)
+    with console_mod.phase("quick"):
+        pass
+    with console_mod.phase("silent", quiet_s=0.1):
+        time.sleep(0.8)
+    with console_mod.phase("counted", 100, quiet_s=0) as ph:
+        for _ in range(100):
+            ph.advance()
+    lines = buf.getvalue().splitlines()
+    assert not any(ln.startswith("quick") for ln in lines), lines
+    silent = [ln for ln in lines if ln.startswith("silent: 0:00:00")]
+    assert len(silent) >= 2 and lines.count(next(ln for ln in lines if ln.startswith("silent: done in"))) == 1, lines
+    counted = [ln for ln in lines if ln.startswith("counted: ")]
+    assert counted[0].startswith("counted: 1/100 (1%)") and counted[-1].startswith("counted: 100/100, done in")
+    assert 19 <= len(counted) <= 22, counted  # the first, every 5 %, the summary
+
+
+def test_the_first_compiled_kernel_call_is_a_phase_of_its_own(terminal):
+    """The kernel compilation (torch.compile's first call) is announced once per kernel."""
+    import torch
+
+    from splat_framework.render._kernels import _with_fallback
+
+    calls = []
+    run = _with_fallback(lambda *a: calls.append("compiled") or "c", lambda *a: "e", 0, "forward")
+    active = torch.zeros(2)  # two active tiles: the compiled path
+    assert run(active) == "c" and run(active) == "c" and calls == ["compiled", "compiled"]
+    assert terminal.getvalue().count("compiling the rasterizer kernels (forward) for this process: done") == 1
+
+
+@pytest.mark.bad_input("Ctrl-C twice during a training step", "exit 130 at once; the last line says what is on disk (the newest checkpoint, or that nothing was saved)")
+def test_a_log_shows_every_phase_and_a_double_ctrl_c_says_nothing_was_saved(tmp_path):
+    """splat-train into a pipe (a log): the training phase prints plain lines from its first steps,
+    never a NaN placeholder, and with SPLAT_COMPILE=0 no compile line. Ctrl-C (a real SIGINT)
+    says that the run stops after the step with a checkpoint; a second one before that stops at
+    once, exit 130, and the last line says that nothing was saved."""
+    from splat_framework.data.synthetic import ensure_scene
+
+    data = ensure_scene("forward-tiny")
+    run = tmp_path / "run"
+    cmd = [sys.executable, "-m", "splat_framework.cli.train", "3dgs", "--data", str(data), "--steps", "200",
+           "--output", str(run), "--checkpoint-every", "0", "--model.init.num-points", "20000"]
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                            env=cli_env(SPLAT_COMPILE="0"), stdin=subprocess.DEVNULL)
+    seen = []
+    try:
+        for line in proc.stderr:
+            seen.append(line)
+            if line.startswith("training: "):
+                break
+        assert seen and seen[-1].startswith("training: "), "".join(seen)
+        proc.send_signal(signal.SIGINT)
+        for line in proc.stderr:
+            seen.append(line)
+            if line.startswith("SIGINT: stopping after this step"):
+                proc.send_signal(signal.SIGINT)
+                break
+        rest = proc.stderr.read()
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    err = "".join(seen) + rest
+    shown = f"{shlex.join(cmd)}\nexit {proc.returncode}\n{err}"
+    assert proc.returncode == 130, shown
+    assert "nan" not in err.lower() and "compiling" not in err and "Traceback" not in err, shown
+    assert re.search(r"^training: \d+/200 steps \(\d+%\), 0:00:\d\d", err, re.M), shown
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("stopped: SIGINT again during step ") and "nothing was saved" in last, shown
+    assert not (run / "checkpoints").exists() or not any((run / "checkpoints").iterdir()), shown
+
+
+@pytest.mark.bad_input("a mistyped `--data` (`llff/fren`, `synthetic/forwrd-tiny`)",
+                       "exit 2, one line with \"did you mean\"; no empty run folder left under `outputs/`")
+def test_failed_starts_leave_no_run_folder_and_suggest_the_name(tmp_path, monkeypatch):
+    """Three mistyped datasets: three one-line errors with a suggestion, and no outputs/ folder left
+    behind (in-process); and once through the CLI."""
+    from splat_framework.data import DataError
+    from splat_framework.engine.trainer import Trainer
+    from splat_framework.registry import get_method
+
+    data_root = tmp_path / "data"
+    (data_root / "llff" / "fern").mkdir(parents=True)
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.setenv("SPLAT_DATA", str(data_root))
+    monkeypatch.chdir(work)
+    for typo, hint in [("llff/fren", "llff/fern"), ("lff/fern", "llff/fern"), ("synthetic/forwrd-tiny", "forward-tiny")]:
+        cfg = get_method("3dgs").default_config().model_copy(update={"data": typo, "steps": 2, "progress": False})
+        with pytest.raises(DataError, match=f"did you mean '{hint}'"):
+            Trainer(cfg)
+    assert not (work / "outputs").exists()
+    run_cli("train", "3dgs", "--data", "llff/fren", "--steps", "2", code=2, match="did you mean 'llff/fern'?",
+            watch=[work], cwd=work, env=cli_env(SPLAT_DATA=str(data_root), SPLAT_COMPILE="0"))
+
+
+def test_resume_refusal_names_only_the_fields_the_user_changed(tmp_path):
+    """--resume with another --steps and --seed: the refusal names steps and seed, not the internal
+    default_steps nor the schedule fields --steps rescales."""
+    from splat_framework.config import resolve_steps, save_config
+    from splat_framework.registry import get_method
+
+    run = tmp_path / "run"
+    run.mkdir()
+    cfg = get_method("3dgs").default_config().model_copy(update={"steps": 20, "data": "synthetic/forward-tiny"})
+    save_config(resolve_steps(cfg), run / "config.json")
+    res = run_cli("train", "3dgs", "--data", "synthetic/forward-tiny", "--output", run, "--resume",
+                  "--steps", "30", "--seed", "1", code=2, match="--resume cannot change the experiment",
+                  watch=[run], env=cli_env(SPLAT_COMPILE="0"))
+    changed = res.message.split("experiment: ")[1].split(" (resume with")[0]
+    assert changed == "steps (20 -> 30), seed (0 -> 1)", res.message
+
+
+def test_the_readme_compares_methods_at_the_same_iterations():
+    """The README's commands that train 3dgs and scgaussian on the same scene and views resolve to
+    the same number of iterations (3dgs's own default is 3000, scgaussian's 1000 for 3 views)."""
+    import tyro
+
+    from splat_framework.cli.train import build_parser_type
+    from splat_framework.config import resolve_steps
+
+    runs: dict[tuple, dict[str, int]] = {}
+    for line in README.read_text().splitlines():
+        words = shlex.split(line.split("#")[0]) if line.startswith("splat-train ") else []
+        if len(words) > 1 and words[1] in ("3dgs", "scgaussian"):
+            config = resolve_steps(tyro.cli(build_parser_type(asked=words[1], argv=words[1:]), args=words[1:]))
+            runs.setdefault((config.data, config.views), {})[words[1]] = config.total_steps
+    compared = {k: v for k, v in runs.items() if len(v) == 2}
+    assert compared, runs
+    for scene, steps in compared.items():
+        assert steps["3dgs"] == steps["scgaussian"], (scene, steps)
