@@ -21,11 +21,12 @@ import tyro
 
 from splat_framework.plugin import (
     Fraction,
-    GaussianModelConfig,
     Interval,
     LearningRate,
+    ModelConfig,
     NonNegative,
     Positive,
+    SplatConfig,
     Steps,
     StrategyConfig,
     TrainConfig,
@@ -40,7 +41,7 @@ MAX_LEVELS = 32
 """Most levels of detail or growing levels (a voxel size divided by fork^levels)."""
 
 
-class ScaffoldModelConfig(GaussianModelConfig):
+class ScaffoldModelConfig(ModelConfig):
     """Anchors (voxelised initial points) decoded per view into neural Gaussians."""
 
     voxel_size: NonNegative = 0.0
@@ -51,6 +52,16 @@ class ScaffoldModelConfig(GaussianModelConfig):
     """Anchor feature size (the MLPs' width; at most 1024: the public code uses 32, and the memory plan counts it per anchor)."""
     lambda_scaling: NonNegative = 0.01
     """Weight of the volume regulariser: mean product of the neural Gaussians' scales."""
+
+    def memory_per_point(self, bytes_per_gaussian: int) -> int:
+        """An anchor: its n_offsets neural Gaussians, and its feature, offsets and scaling with their
+        gradients and two Adam moments (4 copies of float32)."""
+        return self.n_offsets * bytes_per_gaussian + 16 * (self.feat_dim + 3 * self.n_offsets + 6)
+
+
+class ScaffoldOptimConfig(SplatConfig):
+    """Learning rates of Scaffold-GS's and Octree-GS's anchors and MLPs (Adam, one optimizer per group)."""
+
     offset_lr: LearningRate = 0.01
     """Offset learning rate, times the scene scale (exponential decay to offset_lr_final over the run)."""
     offset_lr_final: LearningRate = 1e-4
@@ -65,11 +76,6 @@ class ScaffoldModelConfig(GaussianModelConfig):
     """Scale/rotation MLP learning rate (constant)."""
     mlp_color_lr: LearningRate = 0.008
     """Colour MLP learning rate (decays to 0.625 % over the run)."""
-
-    def memory_per_point(self, bytes_per_gaussian: int) -> int:
-        """An anchor: its n_offsets neural Gaussians, and its feature, offsets and scaling with their
-        gradients and two Adam moments (4 copies of float32)."""
-        return self.n_offsets * bytes_per_gaussian + 16 * (self.feat_dim + 3 * self.n_offsets + 6)
 
 
 class AnchorUpdateConfig(StrategyConfig):
@@ -112,6 +118,8 @@ class ScaffoldTrainConfig(TrainConfig):
     """Model options."""
     strategy: strategy_field(AnchorStrategyConfig) = Field(default_factory=AnchorStrategyConfig)
     """Anchor growing and pruning."""
+    optim: ScaffoldOptimConfig = Field(default_factory=ScaffoldOptimConfig)
+    """Learning rates."""
 
 
 class OctreeModelConfig(ScaffoldModelConfig):
@@ -165,3 +173,5 @@ class OctreeTrainConfig(TrainConfig):
     """Model options."""
     strategy: strategy_field(OctreeStrategyConfig) = Field(default_factory=OctreeStrategyConfig)
     """Octree anchor growing and pruning."""
+    optim: ScaffoldOptimConfig = Field(default_factory=ScaffoldOptimConfig)
+    """Learning rates."""

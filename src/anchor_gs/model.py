@@ -30,6 +30,7 @@ from torch import Tensor, nn
 from splat_framework.losses import photometric_loss
 from splat_framework.model.gaussians import knn_scale, log_lerp, run_fraction
 from splat_framework.model.init import initial_points
+from splat_framework.model.regularisers import regulariser_terms
 from splat_framework.plugin import Camera, GaussianModel, RenderOutput, rasterize, rgb_to_sh
 
 VIEW_MARGIN = 0.5
@@ -111,7 +112,7 @@ class ScaffoldModel(GaussianModel):
     def learning_rates(self, step: int) -> dict[str, float]:
         """The public code's rates at ``step``; offsets and the opacity and colour MLPs decay
         exponentially over the run (its ``get_expon_lr_func``)."""
-        cfg = self.config.model
+        cfg = self.config.optim
         start = {"offsets": cfg.offset_lr * self.scene_scale, "anchor_feat": cfg.feature_lr, "scaling": cfg.scaling_lr,
                  "mlp_opacity": cfg.mlp_opacity_lr, "mlp_cov": cfg.mlp_cov_lr, "mlp_color": cfg.mlp_color_lr}
         finals = {"offsets": cfg.offset_lr_final * self.scene_scale, "mlp_opacity": cfg.mlp_opacity_lr * 0.01,
@@ -184,16 +185,25 @@ class ScaffoldModel(GaussianModel):
         return out
 
     def get_loss_dict(self, outputs: RenderOutput, batch: dict, camera: Camera, step: int) -> dict[str, Tensor]:
-        """L1 + D-SSIM, plus the volume regulariser on the rendered neural Gaussians' scales."""
+        """L1 + D-SSIM, the opt-in regularisers' terms (``model.reg``), and the volume regulariser on
+        the rendered neural Gaussians' scales."""
         cfg = self.config.model
-        losses = {"photometric": photometric_loss(outputs.rgb, batch["image"], lambda_dssim=cfg.lambda_dssim)}
+        target, terms = regulariser_terms(self, outputs, batch, camera, step)
+        losses = {"photometric": photometric_loss(outputs.rgb, target, lambda_dssim=cfg.lambda_dssim)} | terms
         scales = outputs.meta["neural_scales"]
         if cfg.lambda_scaling > 0 and scales.shape[0] > 0:
             losses["scaling"] = cfg.lambda_scaling * scales.prod(dim=-1).mean()
         return losses
 
+    def gaussian_log_scales(self, outputs: RenderOutput) -> Tensor:
+        """[M, 3] log-scales of the neural Gaussians drawn in ``outputs``."""
+        return torch.log(outputs.meta["neural_scales"])
+
     def on_step_start(self, step: int) -> None:
         """No spherical harmonics: colours come from the colour MLP."""
+
+    def on_loaded(self) -> None:
+        """No spherical harmonics to raise."""
 
     @torch.no_grad()
     def export_gaussians(self, camera: Camera | None = None) -> dict[str, Tensor]:

@@ -22,7 +22,7 @@ from splat_framework.plugin import (
     strategy_field,
 )
 
-from splat_framework.init_config import KIND, FrustumInitConfig, RandomInitConfig, init_field
+from splat_framework.config.init import KIND, FrustumInitConfig, RandomInitConfig, init_field
 from splat_framework.matching import MatchConfig
 
 

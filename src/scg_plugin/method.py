@@ -4,7 +4,7 @@ Kept torch-free: the CLI reads it to build ``--help``. Paper ablation rows are
 TOML variants in the top-level ``configs/`` (the package ``splat_configs``, see ``splat_framework.registry``).
 """
 
-from splat_framework.plugin import MethodSpec
+from splat_framework.plugin import MethodSpec, RegularisersConfig
 
 from .config import RayStrategyConfig, SCGModelConfig, SCGTrainConfig
 
@@ -22,7 +22,10 @@ def config_scgaussian() -> SCGTrainConfig:
         method="scgaussian",
         default_steps=1000,
         schedule_views=4,
-        model=SCGModelConfig(sh_degree_interval=1000, depth_smoothness=5.0, depth_smoothness_gamma=50.0, drop_rate=0.2),
+        model=SCGModelConfig(
+            sh_degree_interval=1000,
+            reg=RegularisersConfig(depth_smoothness=5.0, depth_smoothness_gamma=50.0, drop_rate=0.2),
+        ),
         strategy=RayStrategyConfig(
             grow_grad2d=0.0004,
             refine_start_iter=500,

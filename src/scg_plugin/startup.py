@@ -29,7 +29,7 @@ from torch import Tensor
 from splat_framework.console import phase
 from splat_framework.plugin import Camera, StrategyConfig
 from splat_framework.matching.prior import compute_match_set, match_pairs
-from splat_framework.init_config import FALLBACK_POINTS
+from splat_framework.config.init import FALLBACK_POINTS
 from splat_framework.model.init import initial_points
 
 from .ray_gaussians import MatchCache, RayBundle, build_ray_bundle, warm_up

@@ -18,6 +18,8 @@ _EXPORTS: dict[str, str] = {
     "MethodSpec": "splat_framework.registry",
     "SplatConfig": "splat_framework.config",
     "TrainConfig": "splat_framework.config",
+    "ModelConfig": "splat_framework.config",
+    "RegularisersConfig": "splat_framework.config",
     "GaussianModelConfig": "splat_framework.config",
     "OptimConfig": "splat_framework.config",
     "StrategyConfig": "splat_framework.config",
@@ -57,7 +59,8 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .cameras import Camera
     from .config import (
         MAX_GAUSSIANS, MAX_MATCHES, RUN_OPTION, DensifyConfig, Fraction, GaussianModelConfig, Interval, LearningRate,
-        NonNegative, OptimConfig, OptionalPeriod, Period, Positive, RampPeriod, SplatConfig, StartSteps, Steps,
+        ModelConfig, NonNegative, OptimConfig, OptionalPeriod, Period, Positive, RampPeriod, RegularisersConfig,
+        SplatConfig, StartSteps, Steps,
         StrategyConfig, TrainConfig, strategy_field,
     )
     from .model import ops

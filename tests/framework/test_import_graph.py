@@ -111,3 +111,16 @@ def test_no_import_cycle_in_src():
 
 def test_no_module_imports_another_modules_private_names():
     assert import_graph()[1] == []
+
+
+def test_the_config_package_reaches_no_torch_module():
+    """``--help`` is built from the configs: nothing ``splat_framework.config`` imports, at any depth,
+    is a module of the model, the renderer or the engine (they import torch)."""
+    graph, _ = import_graph()
+    reached, todo = set(), ["splat_framework.config"]
+    while todo:
+        for target in graph[todo.pop()] - reached:
+            reached.add(target)
+            todo.append(target)
+    heavy = [m for m in reached if m.startswith(("splat_framework.model", "splat_framework.render", "splat_framework.engine"))]
+    assert "splat_framework.config.persist" in reached and heavy == []

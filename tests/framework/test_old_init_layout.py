@@ -60,3 +60,18 @@ def test_run_saved_in_the_old_layout_resumes_bit_identically(tmp_path):
     assert_same_params(straight.model, resumed.model)
     config, model = load_trained_model(tmp_path / "b")
     assert config.model.init.kind == "frustum" and model.num_gaussians == straight.model.num_gaussians
+
+
+def test_flat_regularisers_and_anchor_learning_rates_find_their_groups():
+    """Written before ``model.reg`` and Scaffold-GS's own ``optim`` (issue 41): a flat regulariser
+    moves into ``model.reg``, an anchor learning rate from ``model`` into ``optim``, and the 3DGS
+    fields Scaffold-GS never read (``model.sh_degree``, ``optim.means_lr``, ...) are dropped."""
+    raw = json.loads((OLD / "scaffold-gs.json").read_text())["config"]
+    assert "sh_degree" in raw["model"] and "means_lr" in raw["optim"] and "offset_lr" in raw["model"]
+    raw["model"]["stereo_weight"], raw["model"]["offset_lr"] = 0.5, 0.02
+    defaults = get_method(raw["method"]).default_config()
+    config = type(defaults).model_validate(upgrade_saved_config(raw, defaults))
+    assert config.model.reg.stereo_weight == 0.5 and config.optim.offset_lr == 0.02
+    assert "sh_degree" not in type(config.model).model_fields and "means_lr" not in type(config.optim).model_fields
+    method, raw = read_config_json(OLD / "scgaussian.json")
+    assert raw["model"]["reg"]["depth_smoothness"] == 5.0 and raw["model"]["sh_degree"] == 3  # scgaussian reads it

@@ -117,7 +117,7 @@ def test_resume_reproduces_uninterrupted_run_3dgs(tmp_path):
     assert (tmp_path / "b" / "config.json").read_bytes() == saved
     Trainer(cfg_fn(tmp_path / "b", resume=True, progress=False, eval_every=7))
     # a run written before a field existed resumes: the field takes its default
-    forget_fields(tmp_path / "b" / "config.json", "schedule_views", "model.backdrop_weight", "strategy.kind")
+    forget_fields(tmp_path / "b" / "config.json", "schedule_views", "model.reg.backdrop_weight", "strategy.kind")
     Trainer(cfg_fn(tmp_path / "b", resume=True))
     assert straight.model.num_gaussians != 300, "densification should have run"
     assert_same_params(straight.model, resumed.model)

@@ -365,7 +365,7 @@ def test_a_model_hook_that_resizes_the_model_is_said_and_counted(tmp_path, monke
 def test_backdrop_loss_makes_the_backdrop_empty_and_black(tmp_path):
     """With a ``backdrop`` mask in the batch: its mean rendered alpha is a loss term whose
     gradient lowers opacities, and the photometric target is black there; weight 0 (the default) turns it off."""
-    model_options = {"init": {"num_points": 500}, "backdrop_weight": 1.0}
+    model_options = {"init": {"num_points": 500}, "reg": {"backdrop_weight": 1.0}}
     trainer = Trainer(tiny_config(tmp_path / "run", steps=1, progress=False, model=model_options))
     model = trainer.model
     cam, batch = trainer.datamanager.next_train(0)
@@ -380,19 +380,19 @@ def test_backdrop_loss_makes_the_backdrop_empty_and_black(tmp_path):
     losses["backdrop"].backward()
     assert float(model.params["opacities"].grad.sum()) > 0  # gradient descent lowers opacity
 
-    off = model.config.model.model_copy(update={"backdrop_weight": 0.0})
+    off = model.config.model.reg.model_copy(update={"backdrop_weight": 0.0})
     assert type(off)().backdrop_weight == 0.0  # the default
-    model.config = model.config.model_copy(update={"model": off})
+    model.config = model.config.model_copy(update={"model": model.config.model.model_copy(update={"reg": off})})
     assert set(model.get_loss_dict(out, batch | {"backdrop": back}, cam, 0)) == {"photometric"}
 
 
 def test_the_training_step_renders_with_drop_gaussian_and_evaluation_without(tmp_path, monkeypatch):
-    """``model.drop_rate``: the trainer's step renders with its ``step`` (some Gaussians
+    """``model.reg.drop_rate``: the trainer's step renders with its ``step`` (some Gaussians
     dropped, the same ones when the run is repeated); a render after the step draws all of them."""
     drawn = []
 
     def run(name):
-        trainer = Trainer(tiny_config(tmp_path / name, steps=4, progress=False, model={"init": {"num_points": 500}, "drop_rate": 0.9}))
+        trainer = Trainer(tiny_config(tmp_path / name, steps=4, progress=False, model={"init": {"num_points": 500}, "reg": {"drop_rate": 0.9}}))
         model = trainer.model
         render = model.get_outputs
 

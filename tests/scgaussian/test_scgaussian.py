@@ -284,7 +284,7 @@ def test_sparse_prior_warns_and_adds_random_ordinary_gaussians(scene, monkeypatc
 def test_triangulation_without_matches_falls_back_to_the_reference_random_init(scene, monkeypatch):
     import splat_framework.matching.prior as prior
     from splat_framework.matching import MatchSet
-    from splat_framework.init_config import FALLBACK_POINTS
+    from splat_framework.config.init import FALLBACK_POINTS
     from splat_framework.model.gaussians import GaussianModel
     from splat_framework.model.init import frustum_box
     from splat_framework.registry import get_method

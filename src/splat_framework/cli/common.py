@@ -111,8 +111,10 @@ def _subclasses(cls: type) -> list[type]:
     return [c for sub in cls.__subclasses__() for c in (sub, *_subclasses(sub))]
 
 
-def parse_cli(f, *, prog: str, args: list[str] | None = None, field_prefix: str | None = None, **kwargs):
+def parse_cli(f, *, prog: str, args: list[str] | None = None, field_prefix: str | None = None, subcommands=(),
+              **kwargs):
     """``tyro.cli(f)`` under :func:`one_line_parse_errors`: whatever tyro rejects is one line (exit 2).
+    ``subcommands``: the names its first argument may take (methods), for an unknown one's message.
 
     ``field_prefix``: for a command whose config is not a training config (splat-match,
     splat-scene), the dotted path its fields' errors are named under ("" = the flag's own
@@ -123,7 +125,7 @@ def parse_cli(f, *, prog: str, args: list[str] | None = None, field_prefix: str 
     from ..errors import DataError
 
     try:
-        with one_line_parse_errors(prog):
+        with one_line_parse_errors(prog, subcommands):
             return tyro.cli(f, prog=prog, args=sys.argv[1:] if args is None else args, **kwargs)
     except InvalidArguments as e:
         if field_prefix is None:

@@ -1,6 +1,7 @@
-"""``--PATH.kind K`` on the command line: switch a tagged-union field of a config to kind ``K``
+"""``--PATH.kind K`` on the command line: switch a kind-tagged field of a config to kind ``K``
 before the argument parser is built, so that tyro shows and parses that kind's own flags
-(``splat-train 3dgs --model.init.kind ply --model.init.path x.ply``). Torch-free."""
+(``splat-train 3dgs --model.init.kind ply --model.init.path x.ply``, ``splat-train 3dgs
+--strategy.kind mcmc``). The one kind switch of every command. Torch-free."""
 
 from __future__ import annotations
 
@@ -11,10 +12,17 @@ from pydantic import BaseModel
 
 def union_kinds(annotation) -> dict[str, type[BaseModel]]:
     """{kind: config class} of a field annotated as a union of configs tagged by ``kind``
-    (:func:`~splat_framework.init_config.init_field`), else {}."""
+    (:func:`~splat_framework.config.init.init_field`, :func:`~splat_framework.config.strategy_field`),
+    as one such config, or as a base whose ``registered_kinds()`` lists them (the registered
+    strategies); else {}."""
     while typing.get_origin(annotation) is typing.Annotated:
         annotation = typing.get_args(annotation)[0]
-    members = typing.get_args(annotation) if typing.get_origin(annotation) is typing.Union else ()
+    if typing.get_origin(annotation) is typing.Union:
+        members = typing.get_args(annotation)
+    elif isinstance(annotation, type) and "registered_kinds" in vars(annotation):  # the base itself, not a narrowed kind
+        return dict(annotation.registered_kinds())
+    else:
+        members = (annotation,)
     kinds = {}
     for m in members:
         field = getattr(m, "model_fields", {}).get("kind")
@@ -70,3 +78,37 @@ def choose_kinds(config: BaseModel, argv: list[str], prefix: str = "") -> BaseMo
         if value is not getattr(config, name, None):
             updates[name] = value
     return config.model_copy(update=updates) if updates else config
+
+
+def hidden_kind_flags(argv: list[str], config: BaseModel, prefix: str = "") -> list[str]:
+    """``argv`` without the ``--PATH.kind K`` flags of fields whose ``kind`` the parser does not show
+    (``tyro.conf.Suppress``: a strategy's), once :func:`choose_kinds` has applied them; such a flag
+    without a value is an :class:`~splat_framework.cli.common.ArgumentsError`."""
+    import tyro
+
+    suppress = typing.get_args(tyro.conf.Suppress[int])[1]
+    for name in type(config).model_fields:
+        value = getattr(config, name, None)
+        if not isinstance(value, BaseModel):
+            continue
+        kind = type(value).model_fields.get("kind")
+        if kind is not None and any(m is suppress for m in kind.metadata):
+            argv = _without_flag(argv, f"--{prefix}{name}.kind")
+        argv = hidden_kind_flags(argv, value, f"{prefix}{name}.")
+    return argv
+
+
+def _without_flag(argv: list[str], flag: str) -> list[str]:
+    norm, out, i = flag.replace("_", "-"), [], 0
+    while i < len(argv):
+        name, eq, _ = argv[i].partition("=")
+        if name.replace("_", "-") != norm:
+            out.append(argv[i])
+        elif not eq:
+            if i + 1 >= len(argv):
+                from .common import ArgumentsError
+
+                raise ArgumentsError(f"{flag} needs a kind; see the command's --help")
+            i += 1
+        i += 1
+    return out

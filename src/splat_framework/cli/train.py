@@ -1,4 +1,6 @@
-"""``splat-train METHOD --data PATH [options]``: train a registered method.
+"""``splat-train METHOD --data PATH [options]``: train a registered method;
+``splat-train --load-config RUN/config.json [options]``: train a saved experiment again, into a new
+folder, with the options given changed (the method comes from the file, run options do not).
 
 Every registered method (entry points of group ``splat_framework.methods``) and
 every config variant (package data found through the ``splat_framework.configs``
@@ -12,9 +14,10 @@ import sys
 from pathlib import Path
 
 
-def build_parser_type(methods=None, argv: list[str] = (), asked: str | None = None):
-    """The subcommand type of every method's default config; the ``asked`` method's with the
-    kinds that ``argv``'s ``--PATH.kind K`` flags choose (``cli.kinds.choose_kinds``)."""
+def build_parser_type(methods=None, argv: list[str] = (), asked: str | None = None, loaded=None):
+    """The subcommand type of every method's default config; the ``asked`` method's (``loaded``, a
+    saved run's config, when given) with the kinds that ``argv``'s ``--PATH.kind K`` flags choose
+    (``cli.kinds.choose_kinds``)."""
     import tyro
 
     from ..registry import discover_methods
@@ -22,6 +25,8 @@ def build_parser_type(methods=None, argv: list[str] = (), asked: str | None = No
 
     methods = discover_methods() if methods is None else methods
     defaults = {name: spec.default_config() for name, spec in methods.items()}
+    if loaded is not None:
+        defaults[asked] = loaded
     if asked in defaults:
         defaults[asked] = choose_kinds(defaults[asked], list(argv))
     descriptions = {name: spec.description for name, spec in methods.items()}
@@ -46,36 +51,59 @@ def _discover(asked: str | None):
     return methods
 
 
-STRATEGY_KIND_FLAG = "--strategy.kind"
+LOAD_CONFIG_FLAG = "--load-config"
 
 
-def _strategy_kind(argv: list[str]) -> tuple[list[str], str | None]:
-    """``argv`` without ``--strategy.kind KIND`` (or ``=KIND``), and KIND (None when not given)."""
-    rest, kind, it = [], None, iter(argv)
+def _load_config_flag(argv: list[str]) -> tuple[list[str], str | None]:
+    """``argv`` without ``--load-config PATH`` (or ``=PATH``), and PATH (None when not given)."""
+    rest, path, it = [], None, iter(argv)
     for a in it:
-        if a == STRATEGY_KIND_FLAG:
-            kind = next(it, None)
-            if kind is None:
+        if a == LOAD_CONFIG_FLAG:
+            path = next(it, None)
+            if path is None:
                 from .common import ArgumentsError
 
-                raise ArgumentsError(f"{STRATEGY_KIND_FLAG} needs a strategy kind; see splat-train METHOD --help")
-        elif a.startswith(STRATEGY_KIND_FLAG + "="):
-            kind = a.partition("=")[2]
+                raise ArgumentsError(f"{LOAD_CONFIG_FLAG} needs a run's config.json; see splat-train --help")
+        elif a.startswith(LOAD_CONFIG_FLAG + "="):
+            path = a.partition("=")[2]
         else:
             rest.append(a)
-    return rest, kind
+    return rest, path
 
 
-def _with_strategy_kind(spec, kind: str):
-    """``spec`` whose default strategy is ``kind``'s, with that kind's defaults (the ``--strategy.*``
-    flags then edit it); a kind the method does not accept is a ValidationError naming the field."""
-    from dataclasses import replace
+def load_saved_experiment(path: str, methods: dict):
+    """(method name, config) of the experiment a run's ``config.json`` at ``path`` saved, for a new run:
+    the saved config in today's layout, its run options (output folder, resume, device, ...) the
+    method's defaults. A missing, unreadable or foreign file is a one-line DataError."""
+    from pathlib import Path
 
-    from ..config import deep_merge
+    from pydantic import ValidationError
 
-    spec = replace(spec, overrides=deep_merge(spec.overrides, {"strategy": {"kind": kind}}))
-    spec.default_config()  # refuses a kind the method does not accept, before tyro builds its parser
-    return spec
+    from ..config import RUN_OPTION, read_config_json, upgrade_saved_config
+    from ..errors import DataError
+    from .common import did_you_mean
+
+    file = Path(path)
+    if not file.is_file():
+        raise DataError(f"{file}: no such file (--load-config takes a run's config.json)")
+    try:
+        method, raw = read_config_json(file)
+    except (UnicodeDecodeError, ValueError) as e:
+        if isinstance(e, DataError):
+            raise
+        raise DataError(f"{file}: not a run's config.json ({type(e).__name__})") from None
+    if method not in methods:
+        raise DataError(f"{file}: method {method!r} is not registered{did_you_mean(str(method), methods)}")
+    defaults = methods[method].default_config()
+    try:
+        saved = type(defaults).model_validate(upgrade_saved_config(raw, defaults))
+    except ValidationError as e:
+        from .common import format_validation_error
+
+        raise DataError(f"{file}: not a {method} config ({format_validation_error(e)})") from None
+    run_options = {name: getattr(defaults, name) for name, info in type(defaults).model_fields.items()
+                   if any(m is RUN_OPTION for m in info.metadata)}
+    return method, saved.model_copy(update=run_options)
 
 
 VIEWS_FLAG = "--views"
@@ -108,24 +136,33 @@ def own_photos_views(config, argv: list[str]):
 
 
 def main(args: list[str] | None = None) -> dict:
-    import tyro
+    from .common import ArgumentsError, parse_cli
+    from .kinds import hidden_kind_flags
 
-    from .common import one_line_parse_errors
-
-    argv, strategy_kind = _strategy_kind(sys.argv[1:] if args is None else args)
-    asked = next((a for a in argv if not a.startswith("-")), None)
+    argv, load = _load_config_flag(sys.argv[1:] if args is None else args)
+    if load is None:
+        asked = next((a for a in argv if not a.startswith("-")), None)
+    else:  # the method, if named at all, comes first (a later word is a flag's value)
+        asked = argv[0] if argv and not argv[0].startswith("-") else None
     methods = _discover(asked)
-    if strategy_kind is not None and asked in methods:
-        methods[asked] = _with_strategy_kind(methods[asked], strategy_kind)
+    loaded = None
+    if load is not None:
+        method, loaded = load_saved_experiment(load, methods)
+        if asked not in (None, method):
+            raise ArgumentsError(f"{LOAD_CONFIG_FLAG} {load} trains its own method {method!r}; leave out {asked!r}")
+        if asked is None:
+            argv, asked = [method, *argv], method
     # tyro's errors and invalid values: one line (cli.common.run_cli), not tyro's box
-    with one_line_parse_errors("splat-train", subcommands=methods):
-        parser_type = build_parser_type(methods, argv, asked)
-        config = tyro.cli(
-            parser_type,
-            args=argv,
-            prog="splat-train",
-            description="Train a Gaussian-splatting method. Run 'splat-train METHOD --help' for its options.",
-        )
+    parser_type = build_parser_type(methods, argv, asked, loaded)
+    config = parse_cli(
+        parser_type,
+        prog="splat-train",
+        args=hidden_kind_flags(argv, loaded if loaded is not None else methods[asked].default_config())
+        if asked in methods else argv,
+        subcommands=methods,
+        description="Train a Gaussian-splatting method. Run 'splat-train METHOD --help' for its options; "
+        f"'splat-train {LOAD_CONFIG_FLAG} RUN/config.json [options]' re-runs a saved experiment into a new folder.",
+    )
     config = own_photos_views(config, argv)
     from ..engine.trainer import train
 

@@ -71,7 +71,7 @@ class DataManager:
         memory_budget_bytes: optional cap on decoded tensor memory; above it
             images are decoded on demand instead of cached.
         backdrop: give training batches the ``backdrop`` mask on scenes with a dark
-            backdrop (only a loss that uses it needs it: ``model.backdrop_weight > 0``).
+            backdrop (only a loss that uses it needs it: ``model.reg.backdrop_weight > 0``).
     """
 
     def __init__(

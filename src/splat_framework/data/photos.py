@@ -15,7 +15,7 @@ import tempfile
 from pathlib import Path
 from typing import Literal
 
-from ..data_config import PhotoPosesConfig
+from ..config.data import PhotoPosesConfig
 from .cache_dir import user_cache_dir
 from .images import list_images
 from .parsers import marked_format

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from ..data_config import PhotoPosesConfig
+from ..config.data import PhotoPosesConfig
 from ..errors import did_you_mean
 from .photos import photo_source, posed_photos
 from .scene import DataError

@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
-from ..data_config import ResolvedData, absolute, source_of
+from ..config.data import ResolvedData, absolute, source_of
 from .parsers import load_scene
 from .parsers.common import scene_extent
 from .pose_file import apply_pose_file

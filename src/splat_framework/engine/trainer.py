@@ -155,7 +155,7 @@ class Trainer(TrainState):
             budget = plan_memory(scene, self.config, image_memory_budget())
             self.datamanager = DataManager(
                 scene, device=self.device, seed=self.config.seed, memory_budget_bytes=budget,
-                backdrop=self.config.model.backdrop_weight > 0,
+                backdrop=self.config.model.reg.backdrop_weight > 0,
             )
         self.config = record_data(self.config, scene)  # config.json names the folder and split: eval from any shell
         if describe_split(scene):

@@ -7,7 +7,7 @@ from typing import Literal
 
 from pydantic import Field, field_validator
 
-from splat_framework.config_base import MAX_MATCHES, MAX_VIEWS, Device, SplatConfig
+from splat_framework.config.base import MAX_MATCHES, MAX_VIEWS, Device, SplatConfig
 
 from .names import check_matcher_name
 

@@ -29,11 +29,12 @@ from torch import Tensor, nn
 
 from ..cameras import Camera
 from ..config import TrainConfig
-from ..losses import depth_smoothness, photometric_loss, scale_anisotropy, stereo_consistency
+from ..losses import photometric_loss
 from ..runtime.profiling import section
 from ..render import RenderOutput, rasterize, rgb_to_sh
 from ..runtime.rng import keyed_generator
 from .init import initial_points
+from .regularisers import regulariser_terms
 
 def knn_scale(points: Tensor, k: int = 3) -> Tensor:
     """[N] root-mean-square distance of each point to its ``k`` nearest neighbours (3DGS init scale).
@@ -90,6 +91,8 @@ class GaussianModel(nn.Module):
     ``get_loss_dict(outputs, batch, camera, step)``             {term: scalar Tensor}, summed; ``batch``
                                                                 carries ``image``, ``index``,
                                                                 ``train_position`` and the masks
+    ``gaussian_log_scales(outputs)`` (from ``get_loss_dict``    [N, 3] log-scales the scale regularisers
+    when ``model.reg.anisotropy_weight`` > 0)                   of ``model.reg`` act on
     ``densify_now(step)``                                       bool: the strategy runs this step
     ``trainable_keys(step)``                                    optimizer names to step (None: all)
     ``after_optimizer_step(step, losses, optimizers,            None (may resize rows with ``ops``)
@@ -102,7 +105,8 @@ class GaussianModel(nn.Module):
     ``report(datamanager)``                                     dict for metrics.json, or None
     **loading a run** (splat-eval, -render, -export, -view)
     ``from_checkpoint(config, scene_scale, checkpoint)``        the model: ``__init__`` with ``rows``,
-    (classmethod)                                               then ``restore(checkpoint)``
+    (classmethod)                                               then ``restore(checkpoint)``, then
+                                                                ``on_loaded()`` (every SH degree)
     ``export_gaussians()`` (PLY export, viewer)                 standard 3DGS Gaussians
     ==========================================================  =====================================
 
@@ -220,13 +224,13 @@ class GaussianModel(nn.Module):
 
     def drop_opacities(self, opacities: Tensor, step: int | None) -> Tensor:
         """[N] activated opacities as step ``step``'s training render draws them (DropGaussian,
-        ``model.drop_rate``): each row zeroed with probability p = drop_rate * (fraction of the run
+        ``model.reg.drop_rate``): each row zeroed with probability p = drop_rate * (fraction of the run
         done), the others divided by (1 - p); the draw is a pure function of (seed, step), so a
         resumed run repeats it. With ``step`` None (not a training render) or p = 0, ``opacities``
         unchanged."""
         if step is None:
             return opacities
-        rate = self.config.model.drop_rate * min(step / max(self.config.total_steps, 1), 1.0)
+        rate = self.config.model.reg.drop_rate * min(step / max(self.config.total_steps, 1), 1.0)
         if rate <= 0:
             return opacities
         keep = torch.rand(opacities.shape[0], generator=keyed_generator(self.config.seed, step)) >= rate
@@ -290,46 +294,17 @@ class GaussianModel(nn.Module):
     def get_loss_dict(
         self, outputs: RenderOutput, batch: dict, camera: Camera, step: int
     ) -> dict[str, Tensor]:
-        """Loss terms; the trainer minimises their sum.
-
-        ``photometric`` always; ``backdrop`` (mean alpha [H, W, 1] over the batch's
-        ``backdrop`` mask, whose target colour becomes black) on scenes with one;
-        ``depth_smooth`` (losses.depth_smoothness of the rendered depth), ``anisotropy``
-        (losses.scale_anisotropy) and ``stereo`` (losses.stereo_consistency, from its start) when
-        their weights are > 0.
-        """
-        cfg = self.config.model
-        gt = batch["image"]
-        backdrop = batch.get("backdrop")
-        losses = {}
-        if backdrop is not None and cfg.backdrop_weight > 0:
-            gt = gt * (1.0 - backdrop)
-            losses["backdrop"] = cfg.backdrop_weight * (outputs.alpha * backdrop).sum() / backdrop.sum().clamp_min(1.0)
-        if cfg.depth_smoothness > 0:
-            losses["depth_smooth"] = cfg.depth_smoothness * depth_smoothness(
-                outputs.expected_depth, batch["image"], outputs.alpha, gamma=cfg.depth_smoothness_gamma)
-        if cfg.anisotropy_weight > 0:
-            losses["anisotropy"] = cfg.anisotropy_weight * scale_anisotropy(self.params["scales"], cfg.max_anisotropy)
-        if cfg.stereo_weight > 0 and step >= cfg.stereo_start * self.config.total_steps:
-            with section("stereo"):
-                losses["stereo"] = cfg.stereo_weight * self._stereo_loss(
-                    outputs, outputs.expected_depth, batch["image"], camera, step)
+        """Loss terms; the trainer minimises their sum: ``photometric`` (against the image, its
+        backdrop blacked out when that regulariser is on), then the terms of the opt-in regularisers
+        ``model.reg`` switches on (:func:`~splat_framework.model.regularisers.regulariser_terms`)."""
+        target, terms = regulariser_terms(self, outputs, batch, camera, step)
         with section("photometric"):
-            return {"photometric": photometric_loss(outputs.rgb, gt, lambda_dssim=cfg.lambda_dssim)} | losses
+            return {"photometric": photometric_loss(outputs.rgb, target, lambda_dssim=self.config.model.lambda_dssim)} | terms
 
-    def _stereo_loss(self, outputs: RenderOutput, depth: Tensor, image: Tensor, camera: Camera, step: int) -> Tensor:
-        """losses.stereo_consistency against a partner shifted by a keyed draw of (seed, step), up to
-        ``stereo_disparity`` x width pixels of disparity at the view's mean covered ``depth`` [H, W, 1]."""
-        cfg = self.config.model
-        cover = outputs.alpha[..., 0] > 0.5
-        if not bool(cover.any()):
-            return depth.sum() * 0.0
-        mean_z = float(depth.detach()[..., 0][cover].mean())
-        fx = float(camera.K[0, 0])
-        draw = float(torch.rand((), generator=keyed_generator(self.config.seed, step, 1))) * 2.0 - 1.0
-        shift = draw * cfg.stereo_disparity * camera.width * mean_z / fx
-        shifted = self.get_outputs(camera.shifted_sideways(shift), outputs.meta.get("background"), step=step)
-        return stereo_consistency(shifted.rgb, depth, outputs.alpha, image, depth.new_tensor(fx * shift))
+    def gaussian_log_scales(self, outputs: RenderOutput) -> Tensor:
+        """[N, 3] log-scales of the Gaussians the scale regularisers act on (``reg.anisotropy_weight``):
+        every row here; a model whose Gaussians are decoded per view gives those drawn in ``outputs``."""
+        return self.params["scales"]
 
     # ---------------------------------------------------------------- load
     @classmethod
@@ -338,8 +313,12 @@ class GaussianModel(nn.Module):
         initialisation work), then :meth:`restore`; it renders with every SH degree."""
         model = cls(config, scene_scale, None, None, rows=checkpoint["params"])
         model.restore(checkpoint)
-        model.active_sh_degree = config.model.sh_degree
+        model.on_loaded()
         return model
+
+    def on_loaded(self) -> None:
+        """After :meth:`from_checkpoint`'s restore: render with every SH degree."""
+        self.active_sh_degree = self.config.model.sh_degree
 
     def as_params(self, rows: Mapping[str, Tensor], like: Mapping[str, Tensor] | None = None) -> dict[str, nn.Parameter]:
         """``rows`` as parameters, each trainable as the same key of ``like`` is, else when it holds

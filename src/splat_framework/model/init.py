@@ -1,5 +1,5 @@
 """The initial points of every method, one function per kind of ``model.init``
-(:mod:`splat_framework.init_config`), called through :func:`initial_points`.
+(:mod:`splat_framework.config.init`), called through :func:`initial_points`.
 
 Each function takes ``(config, datamanager, generator)`` and returns a :class:`StartPoints`
 on the training images' device. The generator is the run's (seeded), so a start is a pure
@@ -37,7 +37,7 @@ class StartPoints:
 
 
 def initial_points(init, datamanager, generator: torch.Generator) -> StartPoints:
-    """The start that ``init`` (an :class:`~splat_framework.init_config.InitConfig`) describes, built
+    """The start that ``init`` (an :class:`~splat_framework.config.init.InitConfig`) describes, built
     by the function its ``points_fn`` names."""
     module, _, name = init.points_fn.partition(":")
     return getattr(importlib.import_module(module), name)(init, datamanager, generator)

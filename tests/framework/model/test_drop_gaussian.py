@@ -20,7 +20,7 @@ def dm(tmp_path_factory):
 
 def _config(method: str, rate: float, seed: int = 0):
     return apply_overrides(get_method(method).default_config(),
-                           {"steps": 100, "seed": seed, "model": {"drop_rate": rate, "init": {"num_points": 2000}}})
+                           {"steps": 100, "seed": seed, "model": {"reg": {"drop_rate": rate}, "init": {"num_points": 2000}}})
 
 
 def _model(dm, rate: float, seed: int = 0) -> GaussianModel:

@@ -65,7 +65,7 @@ def dm(tmp_path_factory):
 
 def test_the_stereo_term_joins_the_loss_after_its_start_and_reaches_the_gaussians(dm):
     cfg = apply_overrides(get_method("3dgs").default_config(), {
-        "steps": 90, "model": {"stereo_weight": 1.0, "stereo_start": 0.5, "init": {"num_points": 2000}}})
+        "steps": 90, "model": {"reg": {"stereo_weight": 1.0, "stereo_start": 0.5}, "init": {"num_points": 2000}}})
     model = GaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
     cam, batch = next(iter(dm.train_views()))
 

@@ -19,6 +19,7 @@ from splat_framework.plugin import (
     DensifyConfig,
     GaussianModelConfig,
     Interval,
+    MAX_GAUSSIANS,
     MethodSpec,
     NonNegative,
     StartSteps,
@@ -47,7 +48,7 @@ class MCMCConfig(StrategyConfig):
 
     kind: tyro.conf.Suppress[Literal["mcmc"]] = "mcmc"
     """The strategy's tag."""
-    cap_max: int = Field(1_000_000, ge=1, le=50_000_000)
+    cap_max: int = Field(1_000_000, ge=1, le=MAX_GAUSSIANS)
     """Most Gaussians the model grows to."""
     growth_rate: NonNegative = 0.05
     """Each refinement adds this fraction of the Gaussians (until cap_max)."""

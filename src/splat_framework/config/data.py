@@ -9,7 +9,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field
 
-from .config_base import SplatConfig
+from .base import SplatConfig
 
 MAX_FRAMES = 1000
 """Largest number of frames taken from a video."""

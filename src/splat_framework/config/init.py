@@ -20,8 +20,8 @@ from typing import Annotated, ClassVar, Literal, Union
 import tyro
 from pydantic import Field
 
-from .config_base import MAX_GAUSSIANS, Positive, SplatConfig
-from .matching.config import MatchConfig
+from .base import MAX_GAUSSIANS, Positive, SplatConfig
+from ..matching.config import MatchConfig
 
 FALLBACK_POINTS = 10_000
 """Random points a model starts from when its prior (matches, triangulated points) is missing or sparse."""

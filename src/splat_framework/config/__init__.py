@@ -1,0 +1,82 @@
+"""Typed run configuration shared by every method (torch-free: the CLIs build their ``--help``
+from these classes; every field carries a docstring right below it, which tyro shows as the
+flag's help). Every name is importable from here; the modules say what each is:
+
+- :mod:`.base`: the machinery under every config (:class:`SplatConfig`, markers such as
+  :data:`Steps` and :data:`RUN_OPTION`, bounded field types, :func:`cli_parsing`),
+- :mod:`.init`: the initialisation kinds of ``model.init``,
+- :mod:`.strategy`: the densification strategies' configs,
+- :mod:`.model`: what every model reads (:class:`ModelConfig`), the opt-in regularisers
+  (``model.reg``), the 3DGS model and its learning rates,
+- :mod:`.train`: :class:`TrainConfig`, the command-line contract, and the experiment's fields,
+- :mod:`.schedule`: ``--steps`` rescaling the schedule (:data:`Steps` fields),
+- :mod:`.merge`: overrides of variants and sweeps (:func:`apply_overrides`),
+- :mod:`.persist`: ``config.json`` (save, read, upgrade old layouts).
+
+A method's config is a subclass of :class:`TrainConfig` whose ``model`` field holds the
+method-specific part. Variants (paper ablation rows) are a base config plus a few overrides.
+"""
+
+from __future__ import annotations
+
+from .base import (
+    DEVICE_MARKER,
+    MAX_GAUSSIANS,
+    MAX_MATCHES,
+    MAX_SCHEDULE,
+    MAX_STEPS,
+    MAX_VIEWS,
+    RUN_OPTION,
+    SHORTEN_ONLY,
+    STEPS_MARKER,
+    Device,
+    Finite,
+    Fraction,
+    Interval,
+    InvalidArguments,
+    LearningRate,
+    Marker,
+    NonNegative,
+    OptionalPeriod,
+    Period,
+    Positive,
+    RampPeriod,
+    SplatConfig,
+    StartSteps,
+    Steps,
+    cli_parsing,
+)
+from .init import InitKinds, RandomInitConfig, upgrade_init_layout
+from .merge import apply_overrides, deep_merge
+from .model import (
+    REGULARISER_FIELDS,
+    GaussianModelConfig,
+    ModelConfig,
+    OptimConfig,
+    RegularisersConfig,
+    upgrade_reg_layout,
+)
+from .persist import (
+    MOVED_FIELDS,
+    SCHEMA_VERSION,
+    config_payload,
+    read_config_json,
+    regroup_fields,
+    save_config,
+    upgrade_saved_config,
+)
+from .schedule import resolve_steps, scale_schedule
+from .strategy import DensifyConfig, RegisteredStrategies, StrategyConfig, strategy_field, strategy_kinds
+from .train import TrainConfig, experiment_fields
+
+__all__ = [
+    "DEVICE_MARKER", "MAX_GAUSSIANS", "MAX_MATCHES", "MAX_SCHEDULE", "MAX_STEPS", "MAX_VIEWS", "MOVED_FIELDS",
+    "REGULARISER_FIELDS", "RUN_OPTION", "SCHEMA_VERSION", "SHORTEN_ONLY", "STEPS_MARKER",
+    "DensifyConfig", "Device", "Finite", "Fraction", "GaussianModelConfig", "InitKinds", "Interval",
+    "InvalidArguments", "LearningRate", "Marker", "ModelConfig", "NonNegative", "OptimConfig", "OptionalPeriod",
+    "Period", "Positive", "RampPeriod", "RandomInitConfig", "RegisteredStrategies", "RegularisersConfig",
+    "SplatConfig", "StartSteps", "Steps", "StrategyConfig", "TrainConfig",
+    "apply_overrides", "cli_parsing", "config_payload", "deep_merge", "experiment_fields", "read_config_json",
+    "regroup_fields", "resolve_steps", "save_config", "scale_schedule", "strategy_field", "strategy_kinds",
+    "upgrade_init_layout", "upgrade_reg_layout", "upgrade_saved_config",
+]

@@ -1,0 +1,54 @@
+"""Schedule arithmetic: ``--steps`` (or more views than a method's schedule is written for)
+rescales every :data:`~splat_framework.config.base.Steps` field of a config. Torch-free."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from .base import SHORTEN_ONLY, STEPS_MARKER, Marker, SplatConfig
+from .train import TrainConfig
+
+
+def _has_marker(info, marker: Marker) -> bool:
+    return any(m is marker for m in info.metadata)
+
+
+def scale_schedule(config: SplatConfig, factor: float) -> SplatConfig:
+    """A copy of ``config`` with every :data:`Steps` field multiplied by ``factor`` (recursively),
+    except that a :data:`StartSteps` or :data:`RampPeriod` field is only ever shortened (times
+    ``min(factor, 1)``).
+
+    The rule for starts follows the public 3DGS and SCGaussian code, which begin densification
+    at iteration 500 whatever the run's length; measured on lego (8 views, 2000 iterations,
+    seed 0) scgaussian's densification from 500 scored 23.53 against 23.18 from 1000 (its
+    4-view schedule stretched in proportion). The same for the SH degree's interval, which
+    the public code keeps at 1000 (stretched to 2000, lego never left degree 0): seeds 0-2,
+    23.58 ± 0.08 -> 23.65 ± 0.08.
+    """
+    updates: dict[str, Any] = {}
+    for name, info in type(config).model_fields.items():
+        value = getattr(config, name)
+        if isinstance(value, SplatConfig):
+            updates[name] = scale_schedule(value, factor)
+        elif _has_marker(info, STEPS_MARKER) and isinstance(value, int) and value > 0:
+            f = min(factor, 1.0) if _has_marker(info, SHORTEN_ONLY) else factor
+            updates[name] = max(1, int(round(value * f)))
+    return config.model_copy(update=updates)
+
+
+def resolve_steps(config: TrainConfig) -> TrainConfig:
+    """The config with its total iterations settled and the schedule rescaled to fit them.
+
+    The total is ``--steps`` when given, else ``default_steps``, scaled by
+    views / ``schedule_views`` when the run has more training views than the
+    method's schedule is written for (each view is then seen as often); a
+    resolved config resolves to itself (so a resumed run sees the same schedule).
+    """
+    steps = config.steps
+    if steps is None and config.schedule_views > 0 and isinstance(config.views, int) and config.views > config.schedule_views:
+        steps = int(round(config.default_steps * config.views / config.schedule_views))
+    if steps is None or steps == config.default_steps:
+        return config
+    scaled = scale_schedule(config, steps / config.default_steps)
+    return scaled.model_copy(update={"default_steps": steps, "steps": steps})
+

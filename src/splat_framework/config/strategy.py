@@ -1,0 +1,135 @@
+"""The densification strategies' configs: :class:`StrategyConfig` (each kind tagged by ``kind``),
+3DGS's :class:`DensifyConfig`, and the kinds every method accepts (:data:`RegisteredStrategies`,
+filled from the ``splat_framework.strategies`` entry points). Torch-free."""
+
+from __future__ import annotations
+
+import warnings
+from functools import cache
+from typing import Annotated, Any, ClassVar, Literal, Union
+
+import tyro
+from pydantic import BeforeValidator, Field, SerializeAsAny
+
+from .base import Interval, NonNegative, OptionalPeriod, Positive, SplatConfig, StartSteps, Steps
+
+
+
+class StrategyConfig(SplatConfig):
+    """Base of the densification strategies' configs, each tagged by its ``kind``.
+
+    Each subclass names its ``kind`` (a one-value Literal: the tag by which a saved
+    config, a TOML variant, a sweep or ``--strategy.kind`` picks it) and its strategy
+    class as ``"module:Class"`` in :attr:`strategy_class` (imported, with torch, only
+    by :meth:`setup`). A kind registered in the entry-point group
+    ``splat_framework.strategies`` (see :mod:`splat_framework.entry_points`) is accepted by
+    every method whose config keeps :data:`RegisteredStrategies`; a method that
+    accepts fewer kinds lists them with :func:`strategy_field`."""
+
+    strategy_class: ClassVar[str] = ""
+    """``"module:Class"`` of the :class:`~splat_framework.model.strategy.Strategy` built from this config."""
+    kind: str
+    """The strategy's tag."""
+    enabled: bool = True
+    """Run densification at all (False keeps the initial Gaussians only)."""
+
+    @classmethod
+    def registered_kinds(cls) -> dict[str, type["StrategyConfig"]]:
+        """The kinds a field of this base type accepts (:func:`strategy_kinds`; the command line's
+        ``--strategy.kind``, see :mod:`splat_framework.cli.kinds`)."""
+        return strategy_kinds()
+
+    def setup(self):
+        """The :class:`~splat_framework.model.strategy.Strategy` this config describes: ``strategy_class(self)``."""
+        if not self.strategy_class:
+            raise NotImplementedError(f"{type(self).__name__}.strategy_class is not set")
+        from ..entry_points import load_object
+
+        return load_object(self.strategy_class)(self)
+
+
+def strategy_field(*configs: type[StrategyConfig]):
+    """The annotation of a ``strategy`` field accepting only these :class:`StrategyConfig` kinds.
+
+    A method whose strategy must not be swapped for any registered one (SCGaussian keeps the
+    Gaussians of its matches) narrows its field, e.g.
+    ``strategy: strategy_field(MyStrategyConfig, DensifyConfig) = Field(default_factory=MyStrategyConfig)``.
+    The CLI shows the flags of the default's kind (no subcommand to type)."""
+    if len(configs) == 1:
+        return Annotated[configs[0], tyro.conf.AvoidSubcommands]
+    return Annotated[Union[configs], Field(discriminator="kind"), tyro.conf.AvoidSubcommands]
+
+
+@cache
+def strategy_kinds() -> dict[str, type[StrategyConfig]]:
+    """Every strategy kind a method accepts unless it narrows its field: ``default``
+    (:class:`DensifyConfig`), then the ``splat_framework.strategies`` entry points (an entry that is
+    not a :class:`StrategyConfig` of its own name's kind is left out with one warning)."""
+    from ..entry_points import STRATEGY_ENTRY_POINT_GROUP, load_entry_points
+
+    kinds: dict[str, type[StrategyConfig]] = {"default": DensifyConfig}
+    for name, cls in load_entry_points(STRATEGY_ENTRY_POINT_GROUP, "strategy").items():
+        if not (isinstance(cls, type) and issubclass(cls, StrategyConfig)) or cls.model_fields["kind"].default != name:
+            warnings.warn(f"strategy plugin '{name}' is not a StrategyConfig of kind '{name}'; ignored", stacklevel=2)
+        elif name in kinds:
+            warnings.warn(f"strategy kind '{name}' registered twice; keeping the first", stacklevel=2)
+        else:
+            kinds[name] = cls
+    return kinds
+
+
+def _registered_strategy(value: Any) -> Any:
+    """``value`` (a dict or a config) as the :class:`StrategyConfig` of its registered kind."""
+    kinds = strategy_kinds()
+    kind = value.get("kind", "default") if isinstance(value, dict) else getattr(value, "kind", None)
+    if kind not in kinds:
+        raise ValueError(f"unknown strategy kind {kind!r} (registered: {', '.join(repr(k) for k in kinds)})")
+    cls = kinds[kind]
+    return value if type(value) is cls else cls.model_validate(value if isinstance(value, dict) else value.model_dump())
+
+
+class DensifyConfig(StrategyConfig):
+    """Adaptive density control of 3DGS (clone, split, prune, opacity reset)."""
+
+    kind: tyro.conf.Suppress[Literal["default"]] = "default"
+    """The strategy's tag."""
+    prune_opa: Annotated[float, Field(ge=0, lt=1, allow_inf_nan=False)] = 0.005
+    """Prune Gaussians whose opacity falls below this."""
+    grow_grad2d: NonNegative = 0.0002
+    """Grow Gaussians whose mean screen-space gradient (NDC units) exceeds this."""
+    grow_scale3d: Positive = 0.01
+    """Clone below / split above this largest scale, relative to the scene scale."""
+    grow_scale2d: Positive = 0.05
+    """Also split Gaussians whose screen radius / image size exceeds this (only before refine_scale2d_stop_iter)."""
+    prune_scale3d: Positive = 0.1
+    """After the first opacity reset, prune Gaussians larger than this (relative to the scene scale)."""
+    prune_scale2d: Positive = 0.15
+    """Prune Gaussians whose screen radius exceeds this fraction of the image size (until refine_scale2d_stop_iter)."""
+    refine_scale2d_stop_iter: Steps = 0
+    """Stop the 2D-size pruning after this iteration (0 = never use it)."""
+    refine_start_iter: StartSteps = 500
+    """First iteration at which densification runs (a longer schedule keeps it: see StartSteps)."""
+    refine_stop_iter: Steps = 2500
+    """Last iteration at which densification runs."""
+    reset_every: OptionalPeriod = 3000
+    """Reset opacities to 2*prune_opa every this many iterations (None: never; the 3D-size pruning, which starts after the first reset, then never runs either)."""
+    opacity_decay: Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)] = 1.0
+    """Multiply every opacity by this after each step from refine_start_iter on (Binocular3DGS, Han et al. NeurIPS 2024: 0.995, with no reset), so only Gaussians the views keep asking for stay opaque (1 = off)."""
+    refine_every: Interval = 100
+    """Densify every this many iterations (not rescaled by --steps, so short runs do not densify more often)."""
+    pause_refine_after_reset: Steps = 0
+    """Skip densification for this many iterations after an opacity reset."""
+    absgrad: bool = False
+    """Use the absolute-gradient criterion (AbsGS); raise grow_grad2d accordingly."""
+    revised_opacity: bool = False
+    """Use the revised opacity for cloned/split Gaussians (Rota Bulo et al. 2024)."""
+
+    strategy_class: ClassVar[str] = "splat_framework.model.strategy:DefaultStrategy"
+
+
+RegisteredStrategies = Annotated[
+    SerializeAsAny[StrategyConfig], BeforeValidator(_registered_strategy), tyro.conf.AvoidSubcommands
+]
+"""The strategy kinds every method accepts unless it narrows them with :func:`strategy_field`:
+``default`` (:class:`DensifyConfig`) and every kind of the ``splat_framework.strategies`` entry points."""
+
