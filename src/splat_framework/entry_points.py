@@ -15,6 +15,9 @@ from typing import Any
 STRATEGY_ENTRY_POINT_GROUP = "splat_framework.strategies"
 """Entry-point group of strategy kinds: ``KIND = "module:ConfigClass"``, a torch-free
 ``StrategyConfig`` subclass whose ``kind`` is KIND; every method not narrowing its strategy accepts it."""
+INIT_ENTRY_POINT_GROUP = "splat_framework.inits"
+"""Entry-point group of initialisation kinds: ``KIND = "module:ConfigClass"``, a torch-free
+``InitConfig`` subclass whose ``kind`` is KIND; every model not narrowing its ``init`` accepts it."""
 
 
 def load_object(path: str) -> Any:

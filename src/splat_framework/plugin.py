@@ -25,6 +25,8 @@ _EXPORTS: dict[str, str] = {
     "StrategyConfig": "splat_framework.config",
     "DensifyConfig": "splat_framework.config",
     "strategy_field": "splat_framework.config",
+    "InitConfig": "splat_framework.config",
+    "init_field": "splat_framework.config",
     # field markers of configs
     "Steps": "splat_framework.config",
     "StartSteps": "splat_framework.config",
@@ -44,6 +46,8 @@ _EXPORTS: dict[str, str] = {
     "Strategy": "splat_framework.model.strategy",
     "DefaultStrategy": "splat_framework.model.strategy",
     "check_rows": "splat_framework.model.strategy",
+    "StartPoints": "splat_framework.model.init",
+    "scene_box": "splat_framework.model.init",
     "Camera": "splat_framework.cameras",
     "RenderOutput": "splat_framework.render",
     "rasterize": "splat_framework.render",
@@ -61,8 +65,9 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
         MAX_GAUSSIANS, MAX_MATCHES, RUN_OPTION, DensifyConfig, Fraction, GaussianModelConfig, Interval, LearningRate,
         ModelConfig, NonNegative, OptimConfig, OptionalPeriod, Period, Positive, RampPeriod, RegularisersConfig,
         SplatConfig, StartSteps, Steps,
-        StrategyConfig, TrainConfig, strategy_field,
+        StrategyConfig, TrainConfig, strategy_field, InitConfig, init_field,
     )
+    from .model.init import StartPoints, scene_box
     from .model import ops
     from .model.gaussians import GaussianModel
     from .model.strategy import DefaultStrategy, Strategy, check_rows

@@ -139,6 +139,29 @@ def test_plugin_strategy_trains_3dgs(plugin_site, tmp_path):
     assert r.returncode == 0 and "resumed from" in r.stdout + r.stderr, r.stderr[-3000:]  # the same experiment, read back
 
 
+def test_a_plugin_start_kind_starts_any_method(plugin_site, tmp_path):
+    """``--model.init.kind grid`` (entry-point group splat_framework.inits) from outside the repository:
+    3dgs starts from the plugin's lattice, with the kind's own flags; config.json names it and a
+    resume reads it back."""
+    out = tmp_path / "run"
+    args = ["3dgs", "--model.init.kind", "grid", "--model.init.per-axis", "6", "--strategy.no-enabled",
+            "--data", "synthetic/forward-tiny", "--steps", "3", "--output", str(out), "--no-progress"]
+    env = _env(plugin_site, tmp_path)
+    r = subprocess.run([sys.executable, "-m", "splat_framework.cli.train", *args[:5], "--help"], capture_output=True,
+                       text=True, env=env, timeout=120)
+    assert r.returncode == 0 and "--model.init.per-axis" in r.stdout and "--model.init.num-points" not in r.stdout
+    r = subprocess.run([sys.executable, "-m", "splat_framework.cli.train", *args], capture_output=True, text=True,
+                       env=env, cwd=tmp_path, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    import json
+
+    assert json.loads((out / "metrics.json").read_text())["num_gaussians"] == 6**3
+    assert json.loads((out / "config.json").read_text())["config"]["model"]["init"] == {"kind": "grid", "per_axis": 6}
+    r = subprocess.run([sys.executable, "-m", "splat_framework.cli.train", *args, "--resume"], capture_output=True,
+                       text=True, env=env, cwd=tmp_path, timeout=600)
+    assert r.returncode == 0 and "resumed from" in r.stdout + r.stderr, r.stderr[-3000:]
+
+
 @pytest.mark.bad_input("a strategy kind the method does not accept (scgaussian --strategy.kind mcmc) or no registered one",
                        "exit 2, one line naming strategy.kind and what the method accepts")
 def test_narrowed_method_refuses_a_plugin_strategy(plugin_site, tmp_path):

@@ -46,7 +46,7 @@ from .base import (
     Steps,
     cli_parsing,
 )
-from .init import InitKinds, RandomInitConfig, upgrade_init_layout
+from .init import InitConfig, InitKinds, RandomInitConfig, init_field, init_kinds, upgrade_init_layout
 from .merge import apply_overrides, deep_merge
 from .model import (
     REGULARISER_FIELDS,
@@ -72,11 +72,11 @@ from .train import TrainConfig, experiment_fields
 __all__ = [
     "DEVICE_MARKER", "MAX_GAUSSIANS", "MAX_MATCHES", "MAX_SCHEDULE", "MAX_STEPS", "MAX_VIEWS", "MOVED_FIELDS",
     "REGULARISER_FIELDS", "RUN_OPTION", "SCHEMA_VERSION", "SHORTEN_ONLY", "STEPS_MARKER",
-    "DensifyConfig", "Device", "Finite", "Fraction", "GaussianModelConfig", "InitKinds", "Interval",
+    "DensifyConfig", "Device", "Finite", "Fraction", "GaussianModelConfig", "InitConfig", "InitKinds", "Interval",
     "InvalidArguments", "LearningRate", "Marker", "ModelConfig", "NonNegative", "OptimConfig", "OptionalPeriod",
     "Period", "Positive", "RampPeriod", "RandomInitConfig", "RegisteredStrategies", "RegularisersConfig",
     "SplatConfig", "StartSteps", "Steps", "StrategyConfig", "TrainConfig",
-    "apply_overrides", "cli_parsing", "config_payload", "deep_merge", "experiment_fields", "read_config_json",
+    "apply_overrides", "cli_parsing", "config_payload", "deep_merge", "experiment_fields", "init_field", "init_kinds", "read_config_json",
     "regroup_fields", "resolve_steps", "save_config", "scale_schedule", "strategy_field", "strategy_kinds",
     "upgrade_init_layout", "upgrade_reg_layout", "upgrade_saved_config",
 ]

@@ -131,3 +131,34 @@ class SplatConfig(BaseModel):
             if _CLI_PARSING.get():
                 raise InvalidArguments(e, type(self)) from None
             raise
+
+
+def registered_kinds(group: str, what: str, base: type, builtins: dict[str, type]) -> dict[str, type]:
+    """{kind: config class} of a kind-tagged config family: ``builtins``, then the classes named in
+    the entry-point ``group`` (``KIND = "module:ConfigClass"``). An entry that is not a subclass of
+    ``base`` whose ``kind`` defaults to its own name, or that repeats a kind, is left out with one
+    warning naming it (a broken plugin must not kill the CLI)."""
+    import warnings
+
+    from ..entry_points import load_entry_points
+
+    kinds = dict(builtins)
+    for name, cls in load_entry_points(group, what).items():
+        if not (isinstance(cls, type) and issubclass(cls, base)) or cls.model_fields["kind"].default != name:
+            warnings.warn(f"{what} plugin '{name}' is not a {base.__name__} of kind '{name}'; ignored", stacklevel=2)
+        elif name in kinds:
+            warnings.warn(f"{what} kind '{name}' registered twice; keeping the first", stacklevel=2)
+        else:
+            kinds[name] = cls
+    return kinds
+
+
+def as_registered_kind(value: Any, kinds: dict[str, type], default_kind: str, what: str) -> Any:
+    """``value`` (a dict, e.g. from config.json, or a config) as the config class of its ``kind``
+    among ``kinds`` (a missing kind in a dict: ``default_kind``); an unknown kind is a ValueError
+    naming the registered ones."""
+    kind = value.get("kind", default_kind) if isinstance(value, dict) else getattr(value, "kind", None)
+    if kind not in kinds:
+        raise ValueError(f"unknown {what} kind {kind!r} (registered: {', '.join(repr(k) for k in kinds)})")
+    cls = kinds[kind]
+    return value if type(value) is cls else cls.model_validate(value if isinstance(value, dict) else value.model_dump())

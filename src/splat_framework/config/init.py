@@ -7,20 +7,23 @@ points for every method (3dgs's Gaussians, Scaffold-GS's and Octree-GS's anchors
 ordinary Gaussians). A function takes ``(config, datamanager, generator)`` and returns
 ``(points [N, 3], colours [N, 3] in [0, 1], stats)``.
 
-A method's model config lists the kinds it accepts with :func:`init_field`; on the command line
-``--model.init.kind K`` picks one and shows its flags (``splat-train 3dgs --model.init.kind ply
---help``), a TOML variant writes ``[overrides.model.init] kind = "K"``.
+Every model accepts the built-in kinds and those a plugin registers in the entry-point group
+``splat_framework.inits`` (:data:`InitKinds`); a model that accepts fewer lists them with
+:func:`init_field`. On the command line ``--model.init.kind K`` picks one and shows its flags
+(``splat-train 3dgs --model.init.kind ply --help``), a TOML variant writes
+``[overrides.model.init] kind = "K"``.
 """
 
 from __future__ import annotations
 
+from functools import cache
 from pathlib import Path
-from typing import Annotated, ClassVar, Literal, Union
+from typing import Annotated, Any, ClassVar, Literal, Union
 
 import tyro
-from pydantic import Field
+from pydantic import BeforeValidator, Field, SerializeAsAny
 
-from .base import MAX_GAUSSIANS, Positive, SplatConfig
+from .base import MAX_GAUSSIANS, Positive, SplatConfig, as_registered_kind, registered_kinds
 from ..matching.config import MatchConfig
 
 FALLBACK_POINTS = 10_000
@@ -28,9 +31,9 @@ FALLBACK_POINTS = 10_000
 
 KIND = tyro.conf.arg(
     metavar="KIND",
-    help="The start's kind, described above: random, frustum, triangulated, sfm or ply (a fallback, and "
-    "SCGaussian's ordinary Gaussians: random or frustum); each kind has its own flags, which --help "
-    "shows after --model.init.kind K.",
+    help="The start's kind, described above: random, frustum, triangulated, sfm, ply, or one a plugin "
+    "registers (a fallback, and SCGaussian's ordinary Gaussians: random or frustum); each kind has its "
+    "own flags, which --help shows after --model.init.kind K.",
 )
 """The ``kind`` flag of every initialisation: a placeholder and one help text (the field takes any
 kind of its union, each with its own flags; see :mod:`splat_framework.cli.kinds`)."""
@@ -43,6 +46,12 @@ class InitConfig(SplatConfig):
     """The initialisation's tag."""
     points_fn: ClassVar[str]
     """``module:function`` building this kind's points (see the module docstring)."""
+
+    @classmethod
+    def registered_kinds(cls) -> dict[str, type["InitConfig"]]:
+        """The kinds a field of this base type accepts (:func:`init_kinds`; the command line's
+        ``--model.init.kind``, see :mod:`splat_framework.cli.kinds`)."""
+        return init_kinds()
 
     @property
     def planned_points(self) -> int:
@@ -121,8 +130,30 @@ class PlyInitConfig(InitConfig):
     points_fn = "splat_framework.model.init:ply_points"
 
 
-InitKinds = init_field(RandomInitConfig, FrustumInitConfig, TriangulatedInitConfig, SfMInitConfig, PlyInitConfig)
-"""The initialisation kinds every model accepts unless its config narrows or widens them."""
+BUILTIN_INITS: dict[str, type[InitConfig]] = {
+    c.model_fields["kind"].default: c
+    for c in (RandomInitConfig, FrustumInitConfig, TriangulatedInitConfig, SfMInitConfig, PlyInitConfig)
+}
+"""The initialisation kinds of the framework itself."""
+
+
+@cache
+def init_kinds() -> dict[str, type[InitConfig]]:
+    """Every initialisation kind a model accepts unless it narrows its ``init``: the built-ins, then
+    the ``splat_framework.inits`` entry points."""
+    from ..entry_points import INIT_ENTRY_POINT_GROUP
+
+    return registered_kinds(INIT_ENTRY_POINT_GROUP, "initialisation", InitConfig, BUILTIN_INITS)
+
+
+def _registered_init(value: Any) -> Any:
+    """``value`` (a dict or a config) as the :class:`InitConfig` of its registered kind."""
+    return as_registered_kind(value, init_kinds(), "random", "initialisation")
+
+
+InitKinds = Annotated[SerializeAsAny[InitConfig], BeforeValidator(_registered_init), tyro.conf.AvoidSubcommands]
+"""The initialisation kinds every model accepts unless its config narrows them with :func:`init_field`:
+the built-ins and every kind of the ``splat_framework.inits`` entry points."""
 
 
 def upgrade_init_layout(model: dict) -> dict:

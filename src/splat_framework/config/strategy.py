@@ -4,14 +4,15 @@ filled from the ``splat_framework.strategies`` entry points). Torch-free."""
 
 from __future__ import annotations
 
-import warnings
 from functools import cache
 from typing import Annotated, Any, ClassVar, Literal, Union
 
 import tyro
 from pydantic import BeforeValidator, Field, SerializeAsAny
 
-from .base import Interval, NonNegative, OptionalPeriod, Positive, SplatConfig, StartSteps, Steps
+from .base import (
+    Interval, NonNegative, OptionalPeriod, Positive, SplatConfig, StartSteps, Steps, as_registered_kind, registered_kinds,
+)
 
 
 
@@ -63,29 +64,15 @@ def strategy_field(*configs: type[StrategyConfig]):
 @cache
 def strategy_kinds() -> dict[str, type[StrategyConfig]]:
     """Every strategy kind a method accepts unless it narrows its field: ``default``
-    (:class:`DensifyConfig`), then the ``splat_framework.strategies`` entry points (an entry that is
-    not a :class:`StrategyConfig` of its own name's kind is left out with one warning)."""
-    from ..entry_points import STRATEGY_ENTRY_POINT_GROUP, load_entry_points
+    (:class:`DensifyConfig`), then the ``splat_framework.strategies`` entry points."""
+    from ..entry_points import STRATEGY_ENTRY_POINT_GROUP
 
-    kinds: dict[str, type[StrategyConfig]] = {"default": DensifyConfig}
-    for name, cls in load_entry_points(STRATEGY_ENTRY_POINT_GROUP, "strategy").items():
-        if not (isinstance(cls, type) and issubclass(cls, StrategyConfig)) or cls.model_fields["kind"].default != name:
-            warnings.warn(f"strategy plugin '{name}' is not a StrategyConfig of kind '{name}'; ignored", stacklevel=2)
-        elif name in kinds:
-            warnings.warn(f"strategy kind '{name}' registered twice; keeping the first", stacklevel=2)
-        else:
-            kinds[name] = cls
-    return kinds
+    return registered_kinds(STRATEGY_ENTRY_POINT_GROUP, "strategy", StrategyConfig, {"default": DensifyConfig})
 
 
 def _registered_strategy(value: Any) -> Any:
     """``value`` (a dict or a config) as the :class:`StrategyConfig` of its registered kind."""
-    kinds = strategy_kinds()
-    kind = value.get("kind", "default") if isinstance(value, dict) else getattr(value, "kind", None)
-    if kind not in kinds:
-        raise ValueError(f"unknown strategy kind {kind!r} (registered: {', '.join(repr(k) for k in kinds)})")
-    cls = kinds[kind]
-    return value if type(value) is cls else cls.model_validate(value if isinstance(value, dict) else value.model_dump())
+    return as_registered_kind(value, strategy_kinds(), "default", "strategy")
 
 
 class DensifyConfig(StrategyConfig):

@@ -49,14 +49,20 @@ def _train_views(datamanager) -> tuple[list[Camera], list[Tensor]]:
 
 
 # ------------------------------------------------------------------ random
-def box_points(init, datamanager, generator: torch.Generator) -> StartPoints:
-    """Kind "random": ``init.num_points`` points uniform in the scene's content box, else the box of
-    the training frusta (:func:`frustum_box`), grey."""
+def scene_box(datamanager) -> Tensor:
+    """[2, 3] min and max corner (CPU) of where a scene's content is: the dataset's content box when it
+    has one, else the box of the training frusta (:func:`frustum_box`)."""
     scene: SceneData = datamanager.scene
-    cameras, images = _train_views(datamanager)
-    box = torch.tensor(scene.content_box) if scene.content_box is not None else frustum_box(cameras)
-    points, colors = sample_box_points(box, init.num_points, generator)
-    return StartPoints(points.to(images[0].device), colors.to(images[0].device))
+    if scene.content_box is not None:
+        return torch.tensor(scene.content_box, dtype=torch.float32)
+    return frustum_box(_train_views(datamanager)[0])
+
+
+def box_points(init, datamanager, generator: torch.Generator) -> StartPoints:
+    """Kind "random": ``init.num_points`` points uniform in :func:`scene_box`, grey."""
+    device = _train_views(datamanager)[1][0].device
+    points, colors = sample_box_points(scene_box(datamanager), init.num_points, generator)
+    return StartPoints(points.to(device), colors.to(device))
 
 
 def frustum_points(init, datamanager, generator: torch.Generator) -> StartPoints:

@@ -1,9 +1,11 @@
 """A minimal splat plugin: 3DGS with view-independent (SH degree 0) colour and a prune-only densification
-strategy, plus an MCMC-style strategy that every method accepting registered strategies can train with.
+strategy, plus an MCMC-style strategy that every method accepting registered strategies can train with,
+and a lattice start that every model accepting registered initialisations can start from.
 
 A plugin is a package that names a ``MethodSpec`` in the entry-point group
 ``splat_framework.methods`` and a strategy config in ``splat_framework.strategies``
-(``splat-train 3dgs --strategy.kind mcmc``). Configs must stay torch-free (they are
+(``splat-train 3dgs --strategy.kind mcmc``) and a start config in ``splat_framework.inits``
+(``splat-train 3dgs --model.init.kind grid``). Configs must stay torch-free (they are
 read to build ``splat-train --help``); the model and the strategies are imported
 only when training starts (a strategy config names its class as ``module:Class``).
 """
@@ -18,6 +20,7 @@ from typing import ClassVar
 from splat_framework.plugin import (
     DensifyConfig,
     GaussianModelConfig,
+    InitConfig,
     Interval,
     MAX_GAUSSIANS,
     MethodSpec,
@@ -28,6 +31,20 @@ from splat_framework.plugin import (
     TrainConfig,
     strategy_field,
 )
+
+
+class GridInitConfig(InitConfig):
+    """Lattice start: points on a regular grid filling the scene's box, grey."""
+
+    kind: Literal["grid"] = "grid"
+    """The start's kind."""
+    per_axis: int = Field(20, ge=2, le=200)
+    """Points along each axis of the box (per_axis ** 3 in all)."""
+    points_fn: ClassVar[str] = "splat_example_plugin.grid:grid_points"
+
+    @property
+    def planned_points(self) -> int:
+        return self.per_axis**3
 
 
 class PruneOnlyConfig(StrategyConfig):
