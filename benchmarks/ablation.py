@@ -162,7 +162,7 @@ def publish(json_path: Path, payload, table: str, readme: Path | None, key: str,
     between its ``<!-- PREFIX:KEY -->`` markers when given, and print the table."""
     import json
 
-    from splat_framework.files.io import atomic_write_text
+    from splat_framework.runtime.io import atomic_write_text
 
     atomic_write_text(json_path, json.dumps(payload, indent=1))
     atomic_write_text(json_path.with_suffix(".md"), table)
@@ -233,7 +233,7 @@ def ablation_markdown(
 
 
 def main(argv: list[str] | None = None) -> Path:
-    from splat_framework.files.io import atomic_write_text
+    from splat_framework.runtime.io import atomic_write_text
     from splat_framework.config import deep_merge
     from splat_framework.sweep import Grid, parse_override, parse_views, scene_slug
 
@@ -275,7 +275,7 @@ def sweep(args: argparse.Namespace, grid, out: Path):
 
 def splice_sections(readme: Path, sections: dict[str, str]) -> None:
     """Replace each ``{key: table}`` between its ablation markers in ``readme``."""
-    from splat_framework.files.io import atomic_write_text
+    from splat_framework.runtime.io import atomic_write_text
 
     text = readme.read_text(encoding="utf-8")
     for key, block in sections.items():
@@ -292,7 +292,7 @@ def estimated_poses_tables(args: argparse.Namespace, grid, out: Path, command: s
     import dataclasses
     import json
 
-    from splat_framework.files.io import atomic_write_json, atomic_write_text
+    from splat_framework.runtime.io import atomic_write_json, atomic_write_text
     from splat_framework.sfm import estimate_training_poses
     from splat_framework.sweep import group_key
 
@@ -376,7 +376,7 @@ def publish_figures(out: Path, md_path: Path, groups: list[tuple], max_width: in
     """
     import cv2
 
-    from splat_framework.files.io import atomic_write_bytes
+    from splat_framework.runtime.io import atomic_write_bytes
     from splat_framework.sweep import group_key
 
     written: dict[str, Path] = {}

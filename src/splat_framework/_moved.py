@@ -29,7 +29,7 @@ MOVED: dict[str, str] = {
     "pose_refine": "evaluation.pose_refine", "figures": "evaluation.figures",
     "video": "export.video", "camera_paths": "export.camera_paths",
     "serving": "viewer.serving", "viser_clients": "viewer.viser_clients",
-    "io": "files.io", "output_paths": "files.output_paths", "work_folder": "files.work_folder",
+    "io": "runtime.io", "output_paths": "files.output_paths", "work_folder": "files.work_folder",
     "config_base": "config.base", "init_config": "config.init",
 }
 

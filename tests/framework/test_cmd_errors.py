@@ -156,7 +156,7 @@ def test_match_pictures_and_cache_are_written_atomically(tmp_path, monkeypatch):
     for the pictures (drawing) and the match set / cache (MatchSet.save) alike."""
     import errno
 
-    import splat_framework.files.io as sio
+    import splat_framework.runtime.io as sio
     from splat_framework.matching import MatchSet, draw_matches
 
     img = np.zeros((8, 8, 3), np.float32)

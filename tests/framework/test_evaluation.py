@@ -218,7 +218,7 @@ def test_an_edited_or_unsigned_config_is_refused_unless_trusted(run_dir, tmp_pat
     with --trust-edited-config it is used."""
     import shutil
 
-    from splat_framework.files.io import CHECKSUM_KEY
+    from splat_framework.runtime.io import CHECKSUM_KEY
 
     run = tmp_path / "run"
     shutil.copytree(run_dir, run, ignore=shutil.ignore_patterns("renders"))

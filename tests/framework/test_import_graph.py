@@ -124,3 +124,50 @@ def test_the_config_package_reaches_no_torch_module():
             todo.append(target)
     heavy = [m for m in reached if m.startswith(("splat_framework.model", "splat_framework.render", "splat_framework.engine"))]
     assert "splat_framework.config.persist" in reached and heavy == []
+
+
+LAYERS: list[tuple[str, ...]] = [
+    # what every layer uses
+    ("_moved", "errors", "entry_points", "environment", "console", "runtime", "cameras", "files.run_lock"),
+    # configs and what they name (torch-free; read for --help)
+    ("config", "matching.config", "matching.names", "registry", "methods", "devices"),
+    # where commands may write
+    ("files",),
+    # data: datasets, own photos and their poses, file formats a start is read from
+    ("data", "sfm", "export.ply"),
+    ("matching",),
+    ("render", "losses"),
+    ("model",),
+    ("evaluation", "export"),
+    ("plugin", "scg_plugin", "anchor_gs"),
+    ("engine",),
+    ("viewer", "sweep"),
+    ("cli",),
+]
+"""The layers of src/, lowest first: a module imports modules of its own layer or lower ones only.
+Entries are module prefixes under ``splat_framework`` (or a plugin package); the longest prefix that
+matches a module gives its layer."""
+
+
+def layer_of(module: str) -> int:
+    name = module.removeprefix("splat_framework.") if module != "splat_framework" else "_moved"
+    best, found = -1, None
+    for i, prefixes in enumerate(LAYERS):
+        for p in prefixes:
+            if (name == p or name.startswith(p + ".")) and len(p) > best:
+                best, found = len(p), i
+    if found is None:
+        raise AssertionError(f"{module} is in no layer: add it to LAYERS")
+    return found
+
+
+def test_no_import_runs_back_up_a_layer():
+    graph, _ = import_graph()
+    upward = sorted(f"{a} -> {b}" for a, targets in graph.items() for b in targets if layer_of(b) > layer_of(a))
+    assert upward == []
+
+
+def test_the_layer_rule_sees_an_upward_import():
+    assert layer_of("splat_framework.config.train") < layer_of("splat_framework.viewer.serving")
+    assert layer_of("splat_framework.matching.config") < layer_of("splat_framework.matching.pipeline")
+    assert layer_of("splat_framework.export.ply") < layer_of("splat_framework.model.init") < layer_of("splat_framework.export.video")

@@ -20,7 +20,7 @@ from splat_framework.data.parsers.common import find_images
 from splat_framework.data.scene import SceneData
 from splat_framework.data.splits import own_scene_split
 from splat_framework.config.data import PhotoPosesConfig
-from splat_framework.files.io import atomic_write_json, read_json
+from splat_framework.runtime.io import atomic_write_json, read_json
 from splat_framework.matching.matchset import MatchSet
 from splat_framework.matching.prior import warn_unmatched
 

@@ -25,7 +25,7 @@ from splat_framework.engine.checkpoint import (
 from splat_framework.cli.common import run_cli
 from splat_framework.config import apply_overrides
 from splat_framework.errors import DataError
-from splat_framework.files.io import CHECKSUM_KEY, atomic_write_json, read_json
+from splat_framework.runtime.io import CHECKSUM_KEY, atomic_write_json, read_json
 from splat_framework.model.gaussians import GaussianModel
 from splat_framework.registry import get_method
 from splat_framework.engine.run import load_trained_model

@@ -23,7 +23,7 @@ from splat_framework.files import run_lock
 from splat_framework.engine.checkpoint import checkpoint_step, list_checkpoints, load_checkpoint, save_checkpoint
 from splat_framework.config import read_config_json
 from splat_framework.errors import DataError
-from splat_framework.files.io import CHECKSUM_KEY, atomic_write_json, read_json
+from splat_framework.runtime.io import CHECKSUM_KEY, atomic_write_json, read_json
 from splat_framework.files.output_paths import RUN_FOLDER
 from splat_framework.registry import get_method
 from splat_framework.engine.run_folder import prepare_run_dir

@@ -38,7 +38,7 @@ def main(args: EvalArgs) -> dict:
 def evaluate_run(args: EvalArgs) -> dict:
     from ..console import print_summary
     from ..evaluation.held_out import evaluate
-    from ..files.io import atomic_write_json, read_json
+    from ..runtime.io import atomic_write_json, read_json
     from ..engine.run import background_for, load_run
 
     config, dm, model = load_run(args.run_dir, args.device, args.trust_edited_config)

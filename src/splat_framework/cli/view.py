@@ -8,7 +8,7 @@ from typing import Annotated
 
 from tyro.conf import Positional, arg
 
-from ..viewer.serving import LOOPBACK, Port
+from ..config.address import LOOPBACK, Port
 
 
 @dataclass

@@ -24,7 +24,7 @@ def config_payload(config: TrainConfig) -> dict:
 
 def save_config(config: TrainConfig, path: Path) -> None:
     """Write the resolved config as JSON with a schema version and a checksum (atomic)."""
-    from ..files.io import atomic_write_json
+    from ..runtime.io import atomic_write_json
 
     atomic_write_json(path, config_payload(config))
 
@@ -104,7 +104,7 @@ def read_config_json(path: Path, trust_edits: bool = False) -> tuple[str, dict]:
     ``trust_edits`` (the CLIs' ``--trust-edited-config``): a config edited by hand,
     or stripped of its checksum, is refused by default."""
     from ..errors import DataError
-    from ..files.io import CHECKSUM_KEY, json_checksum, read_json
+    from ..runtime.io import CHECKSUM_KEY, json_checksum, read_json
 
     payload = read_json(path, verify=False)
     signed = payload.get(CHECKSUM_KEY)

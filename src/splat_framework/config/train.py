@@ -18,7 +18,7 @@ from .base import MAX_STEPS, MAX_VIEWS, RUN_OPTION, Device, Interval, Positive, 
 from .data import PhotoPosesConfig, ResolvedData
 from .model import GaussianModelConfig, OptimConfig
 from .strategy import DensifyConfig, RegisteredStrategies
-from ..viewer.serving import LOOPBACK, Port
+from .address import LOOPBACK, Port
 
 
 class TrainConfig(SplatConfig):

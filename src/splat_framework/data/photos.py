@@ -55,7 +55,7 @@ def posed_photos(path: Path, kind: PhotoSource, options: PhotoPosesConfig | None
     """The posed scene folder (COLMAP layout) of the photos in folder ``path`` or of the video ``path``:
     read from the cache, or estimated now (one line before, the summary after) and cached."""
     from ..console import say
-    from ..files.io import atomic_write_json, read_json
+    from ..runtime.io import atomic_write_json, read_json
     from ..sfm.photos import list_images as list_photos
     from ..sfm.reconstruct import estimate_scene
     from ..sfm.video import pick_video_frames

@@ -6,7 +6,7 @@ File layout: ``b"SPLATCKPT1\\n"`` + 64 hex chars of the SHA-256 of the payload
 or corrupt file fails the checksum and is reported, and :func:`load_latest`
 falls back to the newest checkpoint that verifies.
 
-Writing goes through :func:`splat_framework.files.io.atomic_write_bytes`, so a crash
+Writing goes through :func:`splat_framework.runtime.io.atomic_write_bytes`, so a crash
 or a full disk while saving leaves the previous checkpoints intact; old files
 are deleted only after the new one is safely on disk. Parameters with NaN/inf
 values are never written.
@@ -25,7 +25,7 @@ import torch
 from torch import Tensor
 
 from ..errors import CheckpointError  # noqa: F401  (re-exported)
-from ..files.io import atomic_write_bytes
+from ..runtime.io import atomic_write_bytes
 
 MAGIC = b"SPLATCKPT1\n"
 KEEP = 2

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ..files.io import atomic_write_json
+from ..runtime.io import atomic_write_json
 
 
 def run_metrics(trainer, results: dict) -> dict:

@@ -64,7 +64,7 @@ def write_png(path: Path, rgb: np.ndarray) -> None:
     """Write an RGB uint8 image (atomically)."""
     import cv2
 
-    from ..files.io import atomic_write_bytes
+    from ..runtime.io import atomic_write_bytes
 
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
     if not ok:

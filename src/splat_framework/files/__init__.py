@@ -1,1 +1,1 @@
-"""Files a command writes: atomic writes (io), the output-path guard (output_paths), one owner per folder (run_lock), hidden work folders (work_folder)."""
+"""Files a command writes: the output-path guard (output_paths), one owner per folder (run_lock), hidden work folders (work_folder)."""

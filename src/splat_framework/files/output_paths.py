@@ -310,7 +310,7 @@ def clear_output(path: Path, kind: OutputKind) -> None:
 
 def mark_output(folder: Path, kind: OutputKind) -> None:
     """Write the marker that recognises ``folder`` as ``kind``'s output."""
-    from .io import atomic_write_text
+    from ..runtime.io import atomic_write_text
 
     atomic_write_text(Path(folder) / MARKER, json.dumps({"written_by": kind.command, "kind": kind.key}) + "\n")
 

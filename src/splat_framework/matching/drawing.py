@@ -43,7 +43,7 @@ def draw_matches(
         cv2.line(canvas, pi, qi, col, 1, cv2.LINE_AA, shift=4)
         cv2.circle(canvas, pi, 2 * s, col, 1, cv2.LINE_AA, shift=4)
         cv2.circle(canvas, qi, 2 * s, col, 1, cv2.LINE_AA, shift=4)
-    from ..files.io import atomic_write_bytes
+    from ..runtime.io import atomic_write_bytes
 
     path = Path(path)
     ok, encoded = cv2.imencode(path.suffix or ".png", canvas)

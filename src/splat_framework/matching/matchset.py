@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from ..files.io import atomic_write_bytes
+from ..runtime.io import atomic_write_bytes
 
 #: Bump when the matching pipeline changes in a way that invalidates caches.
 CACHE_VERSION = 3
@@ -86,7 +86,7 @@ class MatchSet:
 
     # ----------------------------------------------------------------- io
     def save(self, path: Path | str) -> Path:
-        """Write an .npz atomically (:func:`splat_framework.files.io.atomic_write_bytes`: a temp file in the same folder, fsync, rename)."""
+        """Write an .npz atomically (:func:`splat_framework.runtime.io.atomic_write_bytes`: a temp file in the same folder, fsync, rename)."""
         path = Path(path)
         ps = self.pairs()
         flat = self.concatenated()

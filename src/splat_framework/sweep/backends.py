@@ -12,7 +12,7 @@ from collections import deque
 from pathlib import Path
 from typing import Callable
 
-from ..files.io import atomic_write_json, atomic_write_text
+from ..runtime.io import atomic_write_json, atomic_write_text
 from .grid import RAY_HINT, RunSpec, SweepError
 from .worker import execute_run, one_line, peak_rss_mb
 

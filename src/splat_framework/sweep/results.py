@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import DataError
-from ..files.io import atomic_write_text
+from ..runtime.io import atomic_write_text
 from .grid import METRICS, NUMERIC_FIELDS, PHASES, RunSpec, group_key
 
 def run_state(run: RunSpec) -> tuple[str, str | None]:

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import DataError
-from ..files.io import atomic_write_text
+from ..runtime.io import atomic_write_text
 from ..runtime.resources import available_cores, available_memory_bytes
 from .grid import DEFAULT_MEM_PER_RUN_GB, SweepError
 

@@ -12,7 +12,8 @@ One mechanism for everything this project serves (``splat-view``, ``splat-train 
 - the URL printed is the one that works (:func:`server_url`);
 - a browser page of another site cannot use it, even on loopback (:func:`client_allowed`).
 
-Torch-free and cheap to import: the CLIs' configs use :data:`Port`.
+Torch-free and cheap to import; the config values (:data:`Port`, :data:`LOOPBACK`) live in
+:mod:`splat_framework.config.address`.
 """
 
 from __future__ import annotations
@@ -20,60 +21,23 @@ from __future__ import annotations
 import errno
 import ipaddress
 import socket
-from typing import Annotated
 from urllib.parse import urlsplit
 
-from pydantic import Field
-from tyro.constructors import PrimitiveConstructorSpec
+from ..config.address import LOOPBACK, MAX_PORT, InvalidAddress, Port, check_port  # noqa: F401  (the listening policy's names)
 
 __all__ = [
     "LOOPBACK", "MAX_PORT", "Port", "InvalidAddress", "ServingWarning", "check_port", "free_port",
     "is_loopback", "server_url", "exposure_warning", "client_allowed",
 ]
 
-LOOPBACK = "127.0.0.1"
-"""The default address of every server: this machine only."""
-MAX_PORT = 65535
 PORT_TRIES = 100
 """How many ports after a taken one are tried before giving up."""
 EXPOSED = "the model, the training/test photos' thumbnails and \"Render with splat\""
 """What a viewer serves to whoever connects (the wording of the exposure warning)."""
 
 
-class InvalidAddress(Exception):
-    """A port or host a server cannot listen on (one-line message; the CLIs exit 2).
-
-    Deliberately not a ValueError: the argument parser (tyro) turns ValueErrors raised
-    while parsing into its own multi-line box; this one reaches ``cli.common.run_cli``."""
-
-    cli_exit_code = 2
-
-
 class ServingWarning(UserWarning):
     """A server listens somewhere other than asked or than this machine only (one line)."""
-
-
-def check_port(port: object) -> int:
-    """``port`` as an int in 0..65535, or :class:`InvalidAddress` naming it."""
-    try:
-        value = int(str(port).strip(), 10) if not isinstance(port, int) else port
-    except ValueError:
-        value = None
-    if isinstance(port, bool) or value is None or not 0 <= value <= MAX_PORT:
-        raise InvalidAddress(f"invalid port {port!r}: a TCP port is an integer 0..{MAX_PORT} (0 = any free port)")
-    return value
-
-
-Port = Annotated[
-    int,
-    PrimitiveConstructorSpec(
-        nargs=1, metavar="PORT", instance_from_str=lambda args: check_port(args[0]),
-        is_instance=lambda x: isinstance(x, int) and not isinstance(x, bool), str_from_instance=lambda x: [str(x)],
-    ),
-    Field(ge=0, le=MAX_PORT),
-]
-"""A TCP port, 0..65535 (0 = any free port): checked by pydantic in a config and, on the command
-line, while arguments are parsed (one line and exit 2 for ``-1``, ``70000`` or ``abc``)."""
 
 
 def _addresses(host: str, port: int) -> list[tuple]:
