@@ -122,6 +122,9 @@ def test_resume_reproduces_uninterrupted_run_3dgs(tmp_path):
     assert straight.model.num_gaussians != 300, "densification should have run"
     assert_same_params(straight.model, resumed.model)
     assert mb["mean"]["psnr"] == pytest.approx(ma["mean"]["psnr"], abs=1e-6)
+    # a finished run resumed (nothing left to train) evaluates the model as the run left it
+    again = Trainer(cfg_fn(tmp_path / "b", resume=True)).train()
+    assert again["mean"]["psnr"] == pytest.approx(ma["mean"]["psnr"], abs=1e-6)
 
 
 def test_resume_reproduces_uninterrupted_run_scgaussian(tmp_path):

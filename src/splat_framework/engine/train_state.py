@@ -71,6 +71,8 @@ class TrainState:
         restore_rng_state(ck, self.generator, dev)
         self.lr_factor = float(ck.get("lr_factor", 1.0))
         self.start_step = int(ck["step"])
+        if self.start_step > 0:  # the per-step state (SH degree, open levels) of the step the checkpoint ends
+            self.model.on_step_start(self.start_step - 1)  # so a finished run evaluates as it did
 
     def load(self, path: Path) -> int:
         """Load the training state of one checkpoint file (CheckpointError if it does not verify); its step."""
