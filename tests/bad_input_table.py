@@ -1,4 +1,4 @@
-"""The README's bad-input table, generated from the tests that prove each row.
+"""The bad-input table of docs/reliability.md, generated from the tests that prove each row.
 
 A test that proves what the tools do with a bad input carries the marker
 
@@ -6,12 +6,12 @@ A test that proves what the tools do with a bad input carries the marker
 
 and this module collects the markers (by reading the test files, without importing
 them) into the table between ``<!-- bad-input-table -->`` and ``<!-- /bad-input-table -->``
-in README.md. Tests marked with the same input text share a row. So the README cannot
+in docs/reliability.md. Tests marked with the same input text share a row. So the docs cannot
 promise a behaviour that no test checks: ``test_readme_bad_input_table`` fails when the
-README differs from what the markers say.
+page differs from what the markers say.
 
     python tests/bad_input_table.py            # print the table
-    python tests/bad_input_table.py --write    # rewrite it in README.md
+    python tests/bad_input_table.py --write    # rewrite it in docs/reliability.md
 """
 
 from __future__ import annotations
@@ -22,7 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 TESTS = Path(__file__).resolve().parent
-README = TESTS.parent / "README.md"
+PAGE = TESTS.parent / "docs" / "reliability.md"
+"""The page holding the table."""
 BEGIN = "<!-- bad-input-table: generated from the tests' bad_input markers by `python tests/bad_input_table.py --write` -->"
 END = "<!-- /bad-input-table -->"
 
@@ -78,14 +79,14 @@ def render(rows: list[Row]) -> str:
 
 
 def readme_section(text: str) -> str:
-    """What README.md holds between the markers (raises ValueError when they are missing)."""
+    """What the page holds between the markers (raises ValueError when they are missing)."""
     start, end = text.find(BEGIN), text.find(END)
     if start < 0 or end < start:
-        raise ValueError(f"{README}: the bad-input table markers are missing")
+        raise ValueError(f"{PAGE}: the bad-input table markers are missing")
     return text[start + len(BEGIN):end].strip("\n")
 
 
-def write(readme: Path = README) -> None:
+def write(readme: Path = PAGE) -> None:
     text = readme.read_text(encoding="utf-8")
     readme_section(text)
     start, end = text.find(BEGIN) + len(BEGIN), text.find(END)

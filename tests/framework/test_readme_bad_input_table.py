@@ -1,18 +1,18 @@
-"""The README's bad-input table says exactly what the tests' bad_input markers say."""
+"""The bad-input table of docs/reliability.md says exactly what the tests' bad_input markers say."""
 
 from __future__ import annotations
 
 import textwrap
 
 import pytest
-from bad_input_table import README, collect, readme_section, render
+from bad_input_table import PAGE, collect, readme_section, render
 
 
 def test_readme_bad_input_table():
     rows = collect()
     assert len(rows) >= 10
-    assert readme_section(README.read_text(encoding="utf-8")) == render(rows), (
-        "README.md's bad-input table differs from the tests' markers: run `python tests/bad_input_table.py --write`"
+    assert readme_section(PAGE.read_text(encoding="utf-8")) == render(rows), (
+        "docs/reliability.md's bad-input table differs from the tests' markers: run `python tests/bad_input_table.py --write`"
     )
 
 
