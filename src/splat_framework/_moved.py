@@ -5,7 +5,7 @@ works: a finder on ``sys.meta_path`` answers the old name with the moved module 
 same object, so monkeypatching either name patches both) and warns once with a
 ``DeprecationWarning`` naming the new path. The wings whose package took a moved module's old
 name (``evaluation``, ``export``, ``viewer``) forward its names from their ``__init__``
-through :func:`forward`. Standard library only: imported by ``splat_framework/__init__``.
+through :func:`forwarding`. Standard library only: imported by ``splat_framework/__init__``.
 """
 
 from __future__ import annotations
@@ -68,11 +68,16 @@ def install() -> None:
         sys.meta_path.append(_MovedFinder())
 
 
-def forward(package: str, homes: dict[str, str], name: str):
-    """A wing's module ``__getattr__``: ``name`` of the old module ``package``, now in the
-    module ``homes[name]`` (a name relative to ``package``)."""
-    if name not in homes:
-        raise AttributeError(f"module {package!r} has no attribute {name!r}")
-    module = f"{package}.{homes[name]}"
-    _warn(f"{package}.{name}", f"{module}.{name}")
-    return getattr(importlib.import_module(module), name)
+def forwarding(package: str, homes: dict[str, str]):
+    """The module ``__getattr__`` of a wing whose package took a moved module's old name: a name
+    of the old module ``package`` resolves to the module ``homes[name]`` (relative to ``package``)
+    holding it now, with a DeprecationWarning; any other name is an AttributeError."""
+
+    def __getattr__(name: str):
+        if name not in homes:
+            raise AttributeError(f"module {package!r} has no attribute {name!r}")
+        module = f"{package}.{homes[name]}"
+        _warn(f"{package}.{name}", f"{module}.{name}")
+        return getattr(importlib.import_module(module), name)
+
+    return __getattr__

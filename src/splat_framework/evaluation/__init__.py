@@ -4,7 +4,7 @@ The names of the old module ``splat_framework.evaluation`` resolve here for one 
 ``DeprecationWarning``; import them from the module that holds them now (held_out, metrics, pictures).
 """
 
-from .._moved import forward
+from .._moved import forwarding
 
 _OLD_HOMES = {
     "evaluate": "held_out",
@@ -17,6 +17,4 @@ _OLD_HOMES = {
     "write_png": "pictures",
 }
 
-
-def __getattr__(name: str):
-    return forward(__name__, _OLD_HOMES, name)
+__getattr__ = forwarding(__name__, _OLD_HOMES)

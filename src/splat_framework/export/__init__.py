@@ -4,7 +4,7 @@ The names of the old module ``splat_framework.export`` resolve here for one rele
 ``DeprecationWarning``; import them from ``splat_framework.export.ply``.
 """
 
-from .._moved import forward
+from .._moved import forwarding
 
 _OLD_HOMES = {
     "export_ply": "ply",
@@ -14,6 +14,4 @@ _OLD_HOMES = {
     "write_ply": "ply",
 }
 
-
-def __getattr__(name: str):
-    return forward(__name__, _OLD_HOMES, name)
+__getattr__ = forwarding(__name__, _OLD_HOMES)

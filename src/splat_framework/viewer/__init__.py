@@ -4,7 +4,7 @@ The names of the old module ``splat_framework.viewer`` resolve here for one rele
 ``DeprecationWarning``; import them from ``splat_framework.viewer.scene_viewer``.
 """
 
-from .._moved import forward
+from .._moved import forwarding
 
 _OLD_HOMES = {
     "ORDINARY_RGB": "scene_viewer",
@@ -17,6 +17,4 @@ _OLD_HOMES = {
     "view_run": "scene_viewer",
 }
 
-
-def __getattr__(name: str):
-    return forward(__name__, _OLD_HOMES, name)
+__getattr__ = forwarding(__name__, _OLD_HOMES)
