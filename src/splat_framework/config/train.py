@@ -77,7 +77,7 @@ class TrainConfig(SplatConfig):
     viewer_every: Annotated[Interval, RUN_OPTION] = 100
     """Send the model to the training viewer every this many iterations."""
     compile: Annotated[bool, RUN_OPTION] = True
-    """Fuse the rasterizer's compositing kernels with torch.compile, for training and for rendering this run later (eager fallback on any failure; compiled kernels cached under $SPLAT_CACHE/inductor: about 40 s the first time on a 2-core CPU, seconds after; SPLAT_COMPILE=0/1 overrides). On real fern training steps on a 2-core CPU: 1.85-3.0x faster than eager (benchmarks/train_step.py)."""
+    """Fuse the rasterizer's compositing kernels with torch.compile, for training and for rendering this run later (compiled once per machine and kept under $SPLAT_CACHE; eager fallback on any failure; SPLAT_COMPILE=0/1 overrides)."""
     model: GaussianModelConfig = Field(default_factory=GaussianModelConfig)
     """Model options."""
     strategy: RegisteredStrategies = Field(default_factory=DensifyConfig)
