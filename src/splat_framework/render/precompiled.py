@@ -7,12 +7,13 @@ keeps the traced graph and its guards in one file that a later process loads wit
 (the generated code itself stays in inductor's cache beside it).
 
 :class:`Precompiled` wraps one kernel: each call runs the first loaded graph whose guards accept
-the arguments; when none does, it loads the file of the arguments' static signature (device,
-dtype, the sizes the graph is specialised on), or compiles one and saves it atomically. Sizes
-that vary from call to call (active tiles, Gaussians, image size) stay symbolic, and equal sizes
-are not merged (no duck sizing), so a graph serves every round of every image of a run. Where
-the torch build lacks the API, or anything in it fails, the kernel falls back to plain
-``torch.compile`` once, with one warning line.
+the arguments; when none does, it loads a saved graph of the arguments' static signature (device,
+dtype, the sizes the graph is specialised on, and the thread count, which inductor's CPU code is
+built for), or compiles one and saves it atomically. Sizes that vary from call to call (active
+tiles, Gaussians, image size) stay symbolic, and equal sizes are not merged (no duck sizing), so
+a graph serves every round of every image of a run. Where the torch build lacks the API, or
+anything in it fails, the kernel falls back to plain ``torch.compile`` once, with one warning
+line.
 """
 
 from __future__ import annotations
@@ -29,6 +30,8 @@ from torch import Tensor
 from ..console import phase
 
 _SOURCE = Path(__file__).with_name("_kernels.py")
+GRAPHS_PER_SIGNATURE = 4
+"""Graphs kept per static signature (each with its own guards on the sizes that vary)."""
 
 
 def supported() -> bool:
@@ -65,12 +68,15 @@ class Precompiled:
         self.failed = not supported()
         self._tag = None
 
-    def path_for(self, args: tuple) -> Path:
-        """The file of the graph for ``args``' static signature."""
+    def stem_for(self, args: tuple) -> str:
+        """The file-name stem of the graphs for ``args``' static signature: the device, the dtype, the
+        sizes the graph is specialised on, and what its guards and generated code depend on beside
+        the arguments (the thread count, which inductor's CPU code is built for, and grad mode)."""
         first = next(a for a in args if isinstance(a, Tensor))
         self._tag = self._tag or build_tag()
-        key = repr((first.device.type, str(first.dtype), self.static(args)))
-        return self.folder / f"{self.name}-{self._tag}-{hashlib.sha256(key.encode()).hexdigest()[:12]}.bin"
+        key = repr((first.device.type, str(first.dtype), self.static(args), torch.get_num_threads(),
+                    torch.is_grad_enabled()))
+        return f"{self.name}-{self._tag}-{hashlib.sha256(key.encode()).hexdigest()[:12]}"
 
     def __call__(self, *args):
         if not self.failed:
@@ -90,8 +96,11 @@ class Precompiled:
         return self.fallback(*args)
 
     def _load_or_compile(self, args: tuple):
-        path = self.path_for(args)
-        if path.is_file():
+        """A saved graph of ``args``' signature whose guards accept them, else a new one, saved
+        beside the others (at most :data:`GRAPHS_PER_SIGNATURE`; the last is then replaced)."""
+        stem = self.stem_for(args)
+        saved = sorted(self.folder.glob(f"{stem}-*.bin")) if self.folder.is_dir() else []
+        for path in saved:
             try:
                 with phase(f"loading the compiled rasterizer kernels ({self.which})"), open(path, "rb") as f:
                     graph = torch.compiler.load_compiled_function(f)
@@ -101,7 +110,7 @@ class Precompiled:
                 pass
         with phase(f"compiling the rasterizer kernels ({self.which}): once per machine, later runs load them"):
             graph = self._compile(args)
-        self._save(graph, path)
+        self._save(graph, self.folder / f"{stem}-{min(len(saved), GRAPHS_PER_SIGNATURE - 1)}.bin")
         return graph
 
     def _compile(self, args: tuple):
@@ -118,6 +127,6 @@ class Precompiled:
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             graph.save_compiled_function(str(path))
-        except OSError as exc:
-            warnings.warn(f"{path.parent}: cannot keep the compiled rasterizer kernels ({exc.strerror or exc})",
-                          stacklevel=3)
+        except Exception as exc:  # a full disk, or a graph torch cannot serialise: only the next start pays
+            reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else (str(exc).splitlines() or [""])[0]
+            warnings.warn(f"{path.parent}: cannot keep the compiled rasterizer kernels ({reason[:200]})", stacklevel=3)

@@ -561,3 +561,26 @@ def test_compiled_kernels_match_eager_in_a_training_step(monkeypatch, tmp_path):
         assert not fell_back, fell_back
         if supported():
             assert saved == ["bwd", "fwd"]
+
+
+def test_a_saved_kernel_graph_is_keyed_by_what_its_code_is_built_for(tmp_path):
+    """Inductor's CPU code is built for one thread count and the graph's guards check it (and grad
+    mode): graphs for other counts are other files, so a run at 1 thread never replaces, nor is
+    refused by, the graph of a run at 2."""
+    from splat_framework.render.precompiled import Precompiled
+
+    kernel = Precompiled("fwd", None, lambda args: (args[0].shape[1],), tmp_path, None)
+    args = (torch.zeros(3, 8),)
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        one = kernel.stem_for(args)
+        torch.set_num_threads(2)
+        two = kernel.stem_for(args)
+    finally:
+        torch.set_num_threads(threads)
+    with torch.no_grad():
+        no_grad = kernel.stem_for(args)
+    assert len({one, two, no_grad}) == 3
+    assert kernel.stem_for((torch.zeros(5, 8),)) == kernel.stem_for(args)  # a varying size: the same graph
+    assert kernel.stem_for((torch.zeros(3, 4),)) != kernel.stem_for(args)  # a specialised size: another
