@@ -541,6 +541,9 @@ def test_compiled_kernels_match_eager_in_a_training_step(monkeypatch, tmp_path):
     eager = fwd_bwd()
     monkeypatch.delenv("SPLAT_COMPILE")
     monkeypatch.delenv("TORCHINDUCTOR_CACHE_DIR", raising=False)
+    # one thread count throughout (the automatic one follows the machine's load, and each count has
+    # its own compiled graph: see test_a_saved_kernel_graph_is_keyed_by_what_its_code_is_built_for)
+    monkeypatch.setenv("SPLAT_THREADS", str(torch.get_num_threads()))
     _kernels.set_compile(True, tmp_path)
     try:
         with warnings.catch_warnings(record=True) as caught:
