@@ -30,7 +30,7 @@ MOVED: dict[str, str] = {
     "video": "export.video", "camera_paths": "export.camera_paths",
     "serving": "viewer.serving", "viser_clients": "viewer.viser_clients",
     "io": "runtime.io", "output_paths": "files.output_paths", "work_folder": "files.work_folder",
-    "config_base": "config.base", "init_config": "config.init",
+    "config_base": "config.base", "init_config": "config.init", "render.threads": "runtime.threads",
 }
 
 

@@ -21,6 +21,8 @@ from rich.table import Column
 from rich.table import Table
 from rich.text import Text
 
+from .runtime.threads import follow_load
+
 console = Console(stderr=True)
 
 
@@ -70,6 +72,7 @@ class Phase:
             self.completed = completed
         if info is not None:
             self.info = info
+        follow_load()  # every phase's threads follow the machine's load (runtime.threads)
         if self.display is not None:
             self.display.changed(self)
 

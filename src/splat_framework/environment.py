@@ -13,8 +13,9 @@ VARIABLES: dict[str, str] = {
                    "compiled rasterizer kernels are kept under `$SPLAT_CACHE/inductor`.",
     "SPLAT_COMPILE": "`0` or `1`: compile the rasterizer's kernels with torch.compile or run them eagerly, "
                      "whatever `--compile` says.",
-    "SPLAT_THREADS": "Threads of the rasterizer: an integer pins the count, `auto` (the default) follows the "
-                     "cores that are free.",
+    "SPLAT_THREADS": "CPU threads of the whole process (torch and OpenCV, every phase): `auto` (the default) "
+                     "follows the cores other processes leave free, re-read every second; an integer pins the "
+                     "count; `off` leaves it alone.",
     "SPLAT_IMAGE_MEMORY_BUDGET": "Bytes of decoded training images kept in memory (suffixes K, M, G; unset: no "
                                 "limit); images beyond it are decoded again when needed.",
     "SPLAT_CONFIG_PATH": "`:`-separated folders of TOML config variants, searched before the installed "

@@ -40,3 +40,22 @@ def test_train_step_compare_reports_mean_speedup_per_snapshot_and_fills_the_read
     text = readme.read_text()
     assert "| `3dgs` @ 0 | 1,000 | 600 / 400 | 250 | **2.00x** | 4.00 |" in text
     assert "old" not in text and text.endswith("end\n") and "1.10, 1.20, 1.30" in text
+
+
+def test_contention_compares_pairs_with_back_to_back_and_the_busy_loop_with_one_idle_thread(tmp_path):
+    contention = load_script("contention")
+
+    def rec(name, *walls):
+        return {"scenario": name, "walls_s": list(walls), "first_step_s": [4.0] * len(walls),
+                "before": {"loadavg": 0.2, "runnable": 1}, "runnable_during": 2.0}
+
+    records = [rec("alone", 100.0), rec("alone-1", 150.0), rec("pair", 170.0, 180.0), rec("hog", 160.0),
+               rec("alone", 110.0), rec("alone-1", 140.0), rec("pair", 200.0, 190.0), rec("hog", 147.0)]
+    summary = contention.summarise(records, reps=2)
+    assert summary["ratios"]["pair / back to back"] == [180.0 / 200.0, 200.0 / 220.0]  # the slower of the two runs
+    assert summary["ratios"]["hog / alone-1"] == [160.0 / 150.0, 147.0 / 140.0]
+    result = {"method": "3dgs", "data": "llff/fern", "views": 3, "steps": 300, "reps": 2, "env_note": "",
+              "machine": "m", "date": "d", "records": records, "summary": summary}
+    table = contention.markdown(result, "python benchmarks/contention.py")
+    assert "| two runs started together | default | 180 / 200 | 4.0 / 4.0 | 0.90 / 0.91x back to back |" in table
+    assert "| beside a 1-thread busy loop | default | 160 / 147 | 4.0 / 4.0 | 1.07 / 1.05x alone-1 |" in table

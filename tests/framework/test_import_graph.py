@@ -93,7 +93,7 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 def test_the_graph_is_read():
     graph, _ = import_graph()
-    assert "splat_framework.render.threads" in graph["splat_framework.render"]  # from .threads import ...
+    assert "splat_framework.render.sh" in graph["splat_framework.render"]  # from .sh import ...
     assert "splat_framework.matching.names" in graph["splat_framework.matching.config"]
     assert graph["splat_framework.matching.names"] == set()  # a matcher name validates with nothing else
     assert len(graph) > 100

@@ -70,7 +70,7 @@ from ..model.strategy import Strategy
 from .numerics import first_nonfinite as _first_nonfinite, optimized_tensors, trainable_tensors
 from ..runtime.profiling import section
 from ..render import set_compile
-from ..render import apply_process_threads
+from ..runtime.threads import apply_process_threads
 from ..registry import MethodSpec, get_method
 from .resume_check import check_saved_config
 from ..runtime.rng import seed_everything

@@ -4,11 +4,9 @@ from ._kernels import compile_requested, set_compile
 from ._project import quat_to_rotmat
 from .rasterizer import RenderOutput, rasterize
 from .sh import eval_sh, rgb_to_sh, sh_to_color, sh_to_rgb
-from .threads import apply_process_threads
 
 __all__ = [
     "RenderOutput",
-    "apply_process_threads",
     "compile_requested",
     "eval_sh",
     "quat_to_rotmat",

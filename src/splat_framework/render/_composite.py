@@ -32,7 +32,6 @@ from torch.autograd.function import once_differentiable
 
 from ._kernels import ALPHA_MAX, T_MIN, get_kernels
 from ..runtime.profiling import section
-from .threads import thread_policy
 _DUMMY_LOGIT = -1.0e4  # exp() == 0 in float32 and float64
 
 
@@ -307,7 +306,7 @@ class _Composite(torch.autograd.Function):
     @staticmethod
     @once_differentiable
     def backward(ctx, g_rgb, g_depth, g_alpha):  # type: ignore[override]
-        with thread_policy(ctx.saved_tensors[0].device), section("compositing backward"):
+        with section("compositing backward"):
             return _Composite._backward(ctx, g_rgb, g_depth, g_alpha)
 
     @staticmethod

@@ -11,7 +11,6 @@ from torch import Tensor
 
 from ._kernels import ALPHA_MIN  # a pixel receives a Gaussian only if alpha >= 1/255
 from ..runtime.profiling import section
-from .threads import thread_policy
 from .sh import sh_to_color
 
 
@@ -163,7 +162,7 @@ class ProjectFn(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, *grads):  # type: ignore[override]
-        with thread_policy(ctx.leaves[0].device), section("projection backward"):
+        with section("projection backward"):
             pairs = [
                 (o, g) for o, g in zip(ctx.outs, grads) if g is not None and o.requires_grad
             ]

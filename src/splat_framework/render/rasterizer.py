@@ -22,7 +22,7 @@ from ._composite import TileGrid, composite, pixel_basis, tile_footprints
 from ._kernels import compile_requested
 from ._project import ProjectFn, footprint, project_and_shade, reference_radii
 from ..runtime.profiling import section
-from .threads import thread_policy
+from ..runtime.threads import follow_load
 
 __all__ = ["RenderOutput", "rasterize"]
 
@@ -149,10 +149,8 @@ def rasterize(
         SPLAT_COMPILE=0/1: eager or torch.compile'd per-round compositing
             kernels (default: what ``set_compile`` chose, eager until called;
             eager fallback on any compile failure).
-        SPLAT_THREADS: CPU threads inside the rasterizer; "auto" (default)
-            uses the cores other processes leave free, rounded down to a power
-            of two (OpenMP spin-waiting is slow on an oversubscribed CPU), an
-            integer fixes it, "off" leaves torch's setting alone.
+        SPLAT_THREADS: the process's CPU threads (:mod:`splat_framework.runtime.threads`);
+            each CPU call lets the "auto" count follow the machine's load.
 
     Returns:
         RenderOutput with
@@ -175,13 +173,14 @@ def rasterize(
                 "width", "height": ints.
                 "background": [3] the colour blended in.
     """
-    with thread_policy(means.device):
-        return _rasterize(
-            means, quats, scales, opacities, colors, viewmat, K, width, height,
-            sh_degree=sh_degree, background=background, near_plane=near_plane,
-            far_plane=far_plane, depth_mode=depth_mode, eps2d=eps2d, tile_size=tile_size,
-            block=block, chunk_pairs=chunk_pairs,
-        )
+    if means.device.type == "cpu":
+        follow_load()
+    return _rasterize(
+        means, quats, scales, opacities, colors, viewmat, K, width, height,
+        sh_degree=sh_degree, background=background, near_plane=near_plane,
+        far_plane=far_plane, depth_mode=depth_mode, eps2d=eps2d, tile_size=tile_size,
+        block=block, chunk_pairs=chunk_pairs,
+    )
 
 
 def _rasterize(
@@ -233,7 +232,7 @@ def _rasterize(
     proj_inputs = (means, quats, scales, colors, viewmat, K)
     with section("projection"):
         if torch.is_grad_enabled() and any(t.requires_grad for t in proj_inputs):
-            # one autograd node whose backward runs under the rasterizer's thread policy
+            # one autograd node, its backward one timed section
             means2d, conics, cov2d, depths, valid, rgb_g = ProjectFn.apply(*proj_inputs, cfg)
             if means2d.requires_grad:
                 means2d.retain_grad()

@@ -484,43 +484,6 @@ def test_all_culled_and_inference_mode():
     assert out.rgb.shape == (12, 16, 3)
 
 
-def test_thread_policy(monkeypatch):
-    from splat_framework.render import threads as _threads
-
-    cpu = torch.device("cpu")
-    monkeypatch.setattr(torch, "get_num_threads", lambda: 4)
-    monkeypatch.setattr(_threads.os, "cpu_count", lambda: 4)
-    real = _threads.others_running()
-    assert real is None or real >= 0
-    monkeypatch.delenv("SPLAT_THREADS", raising=False)
-    monkeypatch.setattr(_threads, "others_running", lambda: 2)
-    assert _threads.choose_threads(cpu) == 2  # two CPUs busy elsewhere
-    monkeypatch.setattr(_threads, "others_running", lambda: 7)
-    assert _threads.choose_threads(cpu) == 1
-    monkeypatch.setattr(_threads, "others_running", lambda: 0)
-    assert _threads.choose_threads(cpu) is None
-    monkeypatch.setattr(_threads, "others_running", lambda: None)
-    assert _threads.choose_threads(cpu) is None
-    monkeypatch.setenv("SPLAT_THREADS", "1")
-    assert _threads.choose_threads(cpu) == 1
-    monkeypatch.setenv("SPLAT_THREADS", "off")
-    assert _threads.choose_threads(cpu) is None
-    assert _threads.choose_threads(torch.device("cuda")) is None
-
-
-def test_an_integer_splat_threads_sets_the_whole_process(monkeypatch):
-    from splat_framework.render import threads as _threads
-
-    before = torch.get_num_threads()
-    try:
-        for value, expected in (("auto", None), ("off", None), ("0", None), ("1", 1)):
-            monkeypatch.setenv("SPLAT_THREADS", value)
-            assert _threads.apply_process_threads() == expected
-        assert torch.get_num_threads() == 1
-    finally:
-        torch.set_num_threads(before)
-
-
 def test_compiled_kernels_match_eager_in_a_training_step(monkeypatch, tmp_path):
     """torch.compile'd compositing (what compile="auto" turns on for long CPU runs) gives the eager
     forward and gradients; any compile failure falls back to eager, so this also runs without a compiler."""

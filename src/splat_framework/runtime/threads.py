@@ -1,0 +1,129 @@
+"""One CPU thread policy for the whole process: how many threads, and how they wait.
+
+On a CPU shared with other busy processes, a parallel region with more threads
+than free cores waits for its descheduled thread at every barrier, and the
+rasterizer, the losses and the optimizer run hundreds of small regions per step.
+The policy decides for every phase at once (data loading, matching, the
+warm-up, training, evaluation, rendering), because every phase runs through
+the same OpenMP pool (torch, the compiled kernels) and OpenCV's pool:
+
+``SPLAT_THREADS``
+    "auto" (default): follow the cores that are free. :func:`follow_load` is
+    called at every training step, evaluated view, rendered frame and matched
+    pair; at most once a second it reads the runnable threads of other
+    processes (Linux ``/proc``) and sets torch's and OpenCV's thread count to
+    the free cores, rounded down to a power of two, at least 1, at most the
+    count the process started with. A change needs two readings in a row
+    that agree, so a moment's noise does not flip the count, and each count
+    has its own compiled kernel graph (saved once per machine,
+    :mod:`splat_framework.render.precompiled`): at most log2(cores)+1 of them.
+    An integer pins that many threads for the whole process.
+    "off" never touches the thread count.
+
+OpenMP's wait policy is left at its default (spin a few milliseconds, then
+sleep): measured, ``OMP_WAIT_POLICY=PASSIVE`` made a training step 24 % slower
+on idle cores and gained nothing once the count follows the load; it only
+helps a count pinned above the free cores (``docs/decisions.md``).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+
+from .resources import available_cores, others_running
+
+#: Seconds between two readings of the machine's load.
+READ_EVERY_S = 1.0
+
+
+def mode() -> int | str:
+    """``SPLAT_THREADS``: an int, or the lower-cased word ("auto" when unset)."""
+    value = os.environ.get("SPLAT_THREADS", "auto").strip().lower()
+    try:
+        return int(value)
+    except ValueError:
+        return value or "auto"
+
+
+def free_cores(most: int, others: int | None) -> int | None:
+    """Threads to run when ``others`` threads of other processes are runnable: a power of two in [1, most]."""
+    if others is None:
+        return None
+    n = max(1, min(most, available_cores() - others))
+    return 1 << (n.bit_length() - 1) if n < most else n
+
+
+class ThreadPolicy:
+    """The process's thread count: pinned by ``SPLAT_THREADS=N`` or following the free cores."""
+
+    def __init__(self) -> None:
+        self.most: int | None = None  # the ceiling: torch's count when a run started (OMP_NUM_THREADS, a sweep's)
+        self.applied: int | None = None  # the count this policy set last
+        self.pending: int | None = None  # a new count seen once, applied when seen again
+        self.next_read = 0.0
+        self.changes = 0
+
+    def start(self) -> int | None:
+        """Apply a pinned count, or remember the ceiling for "auto"; returns the pinned count (else None)."""
+        import torch
+
+        value = mode()
+        if isinstance(value, int):
+            if value < 1:
+                return None
+            self._set(value)
+            return value
+        current = torch.get_num_threads()
+        if self.most is None or current != self.applied:  # set by someone else since: the new ceiling
+            self.most = current
+        return None
+
+    def follow(self, now: float | None = None) -> int | None:
+        """Under "auto", re-read the load (at most every READ_EVERY_S) and apply the count; returns a new count."""
+        if mode() != "auto":
+            return None
+        now = time.monotonic() if now is None else now
+        if now < self.next_read:
+            return None
+        self.next_read = now + READ_EVERY_S
+        import torch
+
+        if self.most is None:
+            self.most = torch.get_num_threads()
+        want = free_cores(self.most, others_running())
+        if want is None or want == torch.get_num_threads():
+            self.pending = None
+            return None
+        if self.pending != want:  # seen once: wait for a second reading
+            self.pending = want
+            return None
+        self.pending = None
+        self._set(want)
+        return want
+
+    def _set(self, n: int) -> None:
+        import torch
+
+        if n == torch.get_num_threads():
+            return
+        torch.set_num_threads(n)
+        self.applied = n
+        self.changes += 1
+        cv2 = sys.modules.get("cv2")  # OpenCV's own pool, only when a phase loaded it
+        if cv2 is not None:
+            cv2.setNumThreads(n)
+
+
+POLICY = ThreadPolicy()
+
+
+def apply_process_threads() -> int | None:
+    """Start the process's thread policy; returns the pinned count under ``SPLAT_THREADS=N`` (else None)."""
+    return POLICY.start()
+
+
+def follow_load() -> int | None:
+    """Follow the machine's load (cheap: reads ``/proc`` at most once a second); returns a new count or None."""
+    return POLICY.follow()

@@ -1,0 +1,117 @@
+"""The process's one thread policy (runtime.threads): pinned, or following the machine's free cores."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from splat_framework.runtime import threads
+
+
+@pytest.fixture
+def policy(monkeypatch):
+    """A fresh policy on a pretend 4-core machine; torch's count is restored afterwards."""
+    before = torch.get_num_threads()
+    monkeypatch.setattr(threads, "available_cores", lambda: 4)
+    monkeypatch.delenv("SPLAT_THREADS", raising=False)
+    p = threads.ThreadPolicy()
+    p.most = 4
+    counts = []
+    monkeypatch.setattr(torch, "set_num_threads", counts.append)
+    monkeypatch.setattr(torch, "get_num_threads", lambda: counts[-1] if counts else 4)
+    p.counts = counts
+    yield p
+    monkeypatch.undo()
+    torch.set_num_threads(before)
+
+
+def test_free_cores_are_a_power_of_two_within_the_start_count(monkeypatch):
+    monkeypatch.setattr(threads, "available_cores", lambda: 8)
+    assert threads.free_cores(8, 0) == 8
+    assert threads.free_cores(8, 1) == 4  # 7 free: 4 (each count is a compiled graph of its own)
+    assert threads.free_cores(8, 6) == 2
+    assert threads.free_cores(8, 30) == 1  # never 0
+    assert threads.free_cores(4, 0) == 4  # never above what the process started with
+    assert threads.free_cores(8, None) is None  # unknown load: leave it
+
+
+def test_the_count_follows_the_load_after_two_readings_a_second_apart(policy, monkeypatch):
+    load = {"others": 3}
+    monkeypatch.setattr(threads, "others_running", lambda: load["others"])
+    assert policy.follow(now=0.0) is None  # one reading of 1 free core: not yet
+    assert policy.follow(now=0.5) is None  # too soon to read again
+    assert policy.follow(now=1.0) == 1 and policy.counts == [1]  # the second reading agrees
+    load["others"] = 0
+    assert policy.follow(now=2.0) is None
+    load["others"] = 3  # a moment's noise: the pending change is dropped
+    assert policy.follow(now=3.0) is None
+    load["others"] = 0
+    assert policy.follow(now=4.0) is None
+    assert policy.follow(now=5.0) == 4 and policy.counts == [1, 4]
+    assert policy.changes == 2
+
+
+def test_a_pinned_count_is_set_once_for_the_whole_process_and_never_follows(policy, monkeypatch):
+    monkeypatch.setattr(threads, "others_running", lambda: 3)
+    monkeypatch.setenv("SPLAT_THREADS", "2")
+    assert policy.start() == 2 and policy.counts == [2]
+    for t in range(5):
+        assert policy.follow(now=float(t)) is None
+    monkeypatch.setenv("SPLAT_THREADS", "off")
+    assert policy.start() is None
+    assert [policy.follow(now=10.0 + t) for t in range(3)] == [None] * 3 and policy.counts == [2]
+
+
+def test_opencv_pool_follows_too(policy, monkeypatch):
+    cv2 = pytest.importorskip("cv2")
+    before = cv2.getNumThreads()
+    monkeypatch.setattr(threads, "others_running", lambda: 3)
+    try:
+        policy.follow(now=0.0)
+        policy.follow(now=1.0)
+        assert cv2.getNumThreads() == 1
+    finally:
+        cv2.setNumThreads(before)
+
+
+def test_every_phase_and_every_cpu_render_let_the_count_follow(monkeypatch):
+    from splat_framework.console import phase
+    from splat_framework.render import rasterize
+
+    calls = []
+    monkeypatch.setattr(threads.POLICY, "follow", lambda now=None: calls.append(1))
+    with phase("work", 3) as ph:
+        ph.advance()
+        ph.update(info="x")
+    assert len(calls) == 2
+    means = torch.tensor([[0.0, 0.0, 2.0]])
+    rasterize(means, torch.tensor([[1.0, 0, 0, 0]]), torch.full((1, 3), 0.1), torch.ones(1),
+              torch.ones(1, 3), torch.eye(4), torch.tensor([[8.0, 0, 4], [0, 8.0, 4], [0, 0, 1]]), 8, 8)
+    assert len(calls) == 3
+
+
+def test_in_a_fresh_process_a_busy_machine_lowers_torch_threads():
+    """torch itself (not a stand-in) runs fewer threads once every core is busy elsewhere."""
+    code = (
+        "import time, torch; from splat_framework.runtime import threads as t\n"
+        "t.others_running = lambda: t.available_cores()\n"  # every core busy elsewhere
+        "torch.set_num_threads(2); t.POLICY.start()\n"
+        "for now in (0.0, 1.0): t.POLICY.follow(now=now)\n"
+        "print(torch.get_num_threads())\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "1"
+
+
+def test_a_count_set_by_the_caller_before_a_run_is_the_new_ceiling(policy, monkeypatch):
+    """A sweep's in-process worker sets torch's count before each run: that count bounds "auto"."""
+    monkeypatch.setattr(threads, "others_running", lambda: 0)
+    torch.set_num_threads(2)  # the caller, not the policy
+    policy.start()
+    assert policy.most == 2
+    policy.follow(now=0.0)
+    policy.follow(now=1.0)
+    assert torch.get_num_threads() == 2  # idle machine, yet never above the caller's 2
