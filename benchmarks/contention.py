@@ -17,7 +17,7 @@ fills the compile cache (not timed) unless ``--no-warm``.
 Usage:
     SPLAT_DATA=../shared/data python benchmarks/contention.py [--method 3dgs] [--data llff/fern]
         [--steps 300] [--reps 2] [--scenarios alone pair ...] [--env NAME=VALUE ...]
-        [--json docs/measurements/contention.json] [--readme docs/results.md]
+        [--json docs/measurements/contention.json] [--readme README.md docs/rasterizer.md]
 
 ``--env`` sets a variable for every run (to measure one lever, e.g. ``OMP_WAIT_POLICY=ACTIVE``);
 ``--readme`` replaces the block between ``<!-- bench:contention -->`` and ``<!-- /bench:contention -->``.
@@ -198,7 +198,7 @@ def main(argv: list[str] | None = None) -> Path:
     ap.add_argument("--env", nargs="*", default=[], help="NAME=VALUE set for every run (one lever at a time)")
     ap.add_argument("--no-warm", action="store_true", help="do not fill the compile cache with an untimed first run")
     ap.add_argument("--json", type=Path, default=Path("docs/measurements/contention.json"))
-    ap.add_argument("--readme", type=Path, default=None)
+    ap.add_argument("--readme", type=Path, nargs="*", default=[], help="Markdown files whose bench:contention block gets the table")
     args = ap.parse_args(argv)
 
     sys.path.insert(0, str(Path(__file__).parent))
@@ -222,7 +222,8 @@ def main(argv: list[str] | None = None) -> Path:
     }
     result["summary"] = summarise(records, args.reps)
     command = "python benchmarks/contention.py " + " ".join(argv if argv is not None else sys.argv[1:])
-    publish(args.json, result, markdown(result, command), args.readme, "contention", prefix="bench")
+    for readme in args.readme or [None]:
+        publish(args.json, result, markdown(result, command), readme, "contention", prefix="bench")
     return args.json
 
 

@@ -31,6 +31,7 @@ def policy(monkeypatch):
 def test_free_cores_are_a_power_of_two_within_the_start_count(monkeypatch):
     monkeypatch.setattr(threads, "available_cores", lambda: 8)
     assert threads.free_cores(8, 0) == 8
+    assert threads.free_cores(8, 0.3) == 8  # a third of a core busy elsewhere: still all 8
     assert threads.free_cores(8, 1) == 4  # 7 free: 4 (each count is a compiled graph of its own)
     assert threads.free_cores(8, 6) == 2
     assert threads.free_cores(8, 30) == 1  # never 0
@@ -39,23 +40,23 @@ def test_free_cores_are_a_power_of_two_within_the_start_count(monkeypatch):
 
 
 def test_the_count_follows_the_load_after_two_readings_a_second_apart(policy, monkeypatch):
-    load = {"others": 3}
-    monkeypatch.setattr(threads, "others_running", lambda: load["others"])
+    load = {"others": 3.1}
+    monkeypatch.setattr(policy.meter, "read", lambda: load["others"])
     assert policy.follow(now=0.0) is None  # one reading of 1 free core: not yet
     assert policy.follow(now=0.5) is None  # too soon to read again
     assert policy.follow(now=1.0) == 1 and policy.counts == [1]  # the second reading agrees
-    load["others"] = 0
+    load["others"] = 0.2
     assert policy.follow(now=2.0) is None
-    load["others"] = 3  # a moment's noise: the pending change is dropped
+    load["others"] = 2.9  # a burst elsewhere: the pending change is dropped
     assert policy.follow(now=3.0) is None
-    load["others"] = 0
+    load["others"] = 0.0
     assert policy.follow(now=4.0) is None
     assert policy.follow(now=5.0) == 4 and policy.counts == [1, 4]
     assert policy.changes == 2
 
 
 def test_a_pinned_count_is_set_once_for_the_whole_process_and_never_follows(policy, monkeypatch):
-    monkeypatch.setattr(threads, "others_running", lambda: 3)
+    monkeypatch.setattr(policy.meter, "read", lambda: 3.0)
     monkeypatch.setenv("SPLAT_THREADS", "2")
     assert policy.start() == 2 and policy.counts == [2]
     for t in range(5):
@@ -68,7 +69,7 @@ def test_a_pinned_count_is_set_once_for_the_whole_process_and_never_follows(poli
 def test_opencv_pool_follows_too(policy, monkeypatch):
     cv2 = pytest.importorskip("cv2")
     before = cv2.getNumThreads()
-    monkeypatch.setattr(threads, "others_running", lambda: 3)
+    monkeypatch.setattr(policy.meter, "read", lambda: 3.0)
     try:
         policy.follow(now=0.0)
         policy.follow(now=1.0)
@@ -96,10 +97,10 @@ def test_every_phase_and_every_cpu_render_let_the_count_follow(monkeypatch):
 def test_in_a_fresh_process_a_busy_machine_lowers_torch_threads():
     """torch itself (not a stand-in) runs fewer threads once every core is busy elsewhere."""
     code = (
-        "import time, torch; from splat_framework.runtime import threads as t\n"
-        "t.others_running = lambda: t.available_cores()\n"  # every core busy elsewhere
+        "import torch; from splat_framework.runtime import threads as t\n"
+        "t.POLICY.meter.read = lambda: float(t.available_cores())\n"  # every core busy elsewhere
         "torch.set_num_threads(2); t.POLICY.start()\n"
-        "for now in (0.0, 1.0): t.POLICY.follow(now=now)\n"
+        "for now in (10.0, 11.0): t.POLICY.follow(now=now)\n"
         "print(torch.get_num_threads())\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
@@ -109,9 +110,42 @@ def test_in_a_fresh_process_a_busy_machine_lowers_torch_threads():
 def test_a_count_set_by_the_caller_before_a_run_is_the_new_ceiling(policy, monkeypatch):
     """A sweep's in-process worker sets torch's count before each run: that count bounds "auto"."""
     monkeypatch.setattr(threads, "others_running", lambda: 0)
+    monkeypatch.setattr(policy.meter, "read", lambda: 0.0)
     torch.set_num_threads(2)  # the caller, not the policy
     policy.start()
     assert policy.most == 2
     policy.follow(now=0.0)
     policy.follow(now=1.0)
     assert torch.get_num_threads() == 2  # idle machine, yet never above the caller's 2
+
+
+def test_a_run_starts_with_the_cores_free_at_that_moment(policy, monkeypatch):
+    """No kernel is loaded yet at the start, so the first count needs no second reading."""
+    monkeypatch.setattr(threads, "others_running", lambda: 3)
+    assert policy.start() is None  # "auto": nothing pinned
+    assert policy.counts == [1]
+
+
+def test_the_cpu_meter_counts_other_processes_busy_cores_not_this_one():
+    """A busy loop in this process is not load from elsewhere; a busy child process is."""
+    import time
+
+    from splat_framework.runtime.resources import CpuMeter
+
+    meter = CpuMeter()
+    if meter.read() is None and meter.last is None:
+        pytest.skip("no /proc/stat on this system")
+    end = time.monotonic() + 0.6
+    while time.monotonic() < end:
+        pass
+    mine = meter.read()
+    child = subprocess.Popen([sys.executable, "-c", "import time\nend = time.monotonic() + 3\nwhile time.monotonic() < end: pass"])
+    try:
+        time.sleep(1.5)
+        meter.read()
+        time.sleep(1.0)
+        theirs = meter.read()
+    finally:
+        child.kill()
+        child.wait()
+    assert theirs - mine > 0.5  # the child's core shows (the rest of the machine's load is in both)

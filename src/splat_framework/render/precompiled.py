@@ -19,7 +19,7 @@ line.
 from __future__ import annotations
 
 import hashlib
-import os
+import sys
 import warnings
 from pathlib import Path
 from typing import Callable
@@ -43,7 +43,7 @@ def supported() -> bool:
 def build_tag() -> str:
     """What a saved graph depends on beside its arguments: torch, Python, and the kernels' source."""
     h = hashlib.sha256()
-    for part in (torch.__version__, os.sys.version, _SOURCE.read_bytes()):
+    for part in (torch.__version__, sys.version, _SOURCE.read_bytes()):
         h.update(part if isinstance(part, bytes) else part.encode())
     return h.hexdigest()[:16]
 
@@ -91,6 +91,8 @@ class Precompiled:
                 warnings.warn(f"saved rasterizer kernels unavailable ({type(exc).__name__}: {first}); "
                               "compiling in this process instead", stacklevel=2)
             else:
+                if hasattr(graph, "disable_guard_check"):  # its guards were just checked: once per call is enough
+                    graph.disable_guard_check()
                 self.graphs.append(graph)
                 return graph(*args)
         return self.fallback(*args)

@@ -82,3 +82,48 @@ def others_running() -> int | None:
         return max(running - own, 0)
     except (OSError, ValueError, IndexError):
         return None
+
+
+class CpuMeter:
+    """How many cores other processes kept busy between two readings, averaged over the interval.
+
+    Linux ``/proc/stat`` (busy and total time of the CPUs this process may run on, steal time
+    counted as busy) minus this process's own CPU time (``os.times``): unlike the runnable threads
+    at one instant (:func:`others_running`), a reading is not thrown by a thread that happened to be
+    asleep or awake at the moment it was taken."""
+
+    def __init__(self) -> None:
+        self.last: tuple[float, float, float] | None = None  # (busy s, wall s, own s)
+
+    def read(self) -> float | None:
+        """Cores busy elsewhere since the previous call (None on the first call or where unknown)."""
+        sample = _cpu_sample()
+        last, self.last = self.last, sample
+        if sample is None or last is None:
+            return None
+        wall = sample[1] - last[1]
+        if wall <= 0:
+            return None
+        return max(0.0, ((sample[0] - last[0]) - (sample[2] - last[2])) / wall)
+
+
+def _cpu_sample() -> tuple[float, float, float] | None:
+    """(busy seconds summed over this process's CPUs, wall seconds, this process's CPU seconds)."""
+    try:
+        cpus = os.sched_getaffinity(0)
+        tick = os.sysconf("SC_CLK_TCK")
+        busy = total = 0
+        with open("/proc/stat") as f:
+            for line in f:
+                name, *fields = line.split()
+                if not name.startswith("cpu") or name == "cpu" or int(name[3:]) not in cpus:
+                    continue
+                user, nice, system, idle, iowait, irq, softirq, steal = (int(v) for v in fields[:8])
+                busy += user + nice + system + irq + softirq + steal
+                total += user + nice + system + idle + iowait + irq + softirq + steal
+    except (OSError, ValueError, AttributeError):
+        return None
+    if not total:
+        return None
+    own = os.times()
+    return busy / tick, total / tick / len(cpus), own.user + own.system

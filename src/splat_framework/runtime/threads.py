@@ -8,13 +8,16 @@ warm-up, training, evaluation, rendering), because every phase runs through
 the same OpenMP pool (torch, the compiled kernels) and OpenCV's pool:
 
 ``SPLAT_THREADS``
-    "auto" (default): follow the cores that are free. :func:`follow_load` is
-    called at every training step, evaluated view, rendered frame and matched
-    pair; at most once a second it reads the runnable threads of other
-    processes (Linux ``/proc``) and sets torch's and OpenCV's thread count to
-    the free cores, rounded down to a power of two, at least 1, at most the
-    count the process started with. A change needs two readings in a row
-    that agree, so a moment's noise does not flip the count, and each count
+    "auto" (default): follow the cores that are free. A run starts with the
+    cores free at that instant (the runnable threads of other processes);
+    then :func:`follow_load`, called from every phase's progress (training
+    steps, matched pairs, warm-up iterations) and every CPU render, reads at
+    most once a second how many cores other processes kept busy since the
+    last reading (Linux ``/proc/stat`` minus this process's own CPU time) and
+    sets torch's and OpenCV's thread count to the free cores (rounded to the
+    nearest whole core, then down to a power of two), at least 1, at most the
+    count the run started with. A change needs two readings in a row that
+    agree, so a burst elsewhere does not flip the count, and each count
     has its own compiled kernel graph (saved once per machine,
     :mod:`splat_framework.render.precompiled`): at most log2(cores)+1 of them.
     An integer pins that many threads for the whole process.
@@ -32,7 +35,7 @@ import os
 import sys
 import time
 
-from .resources import available_cores, others_running
+from .resources import CpuMeter, available_cores, others_running
 
 #: Seconds between two readings of the machine's load.
 READ_EVERY_S = 1.0
@@ -47,11 +50,11 @@ def mode() -> int | str:
         return value or "auto"
 
 
-def free_cores(most: int, others: int | None) -> int | None:
-    """Threads to run when ``others`` threads of other processes are runnable: a power of two in [1, most]."""
+def free_cores(most: int, others: float | None) -> int | None:
+    """Threads to run when other processes keep ``others`` cores busy: a power of two in [1, most]."""
     if others is None:
         return None
-    n = max(1, min(most, available_cores() - others))
+    n = max(1, min(most, round(available_cores() - others)))
     return 1 << (n.bit_length() - 1) if n < most else n
 
 
@@ -64,6 +67,7 @@ class ThreadPolicy:
         self.pending: int | None = None  # a new count seen once, applied when seen again
         self.next_read = 0.0
         self.changes = 0
+        self.meter = CpuMeter()
 
     def start(self) -> int | None:
         """Apply a pinned count, or remember the ceiling for "auto"; returns the pinned count (else None)."""
@@ -78,6 +82,12 @@ class ThreadPolicy:
         current = torch.get_num_threads()
         if self.most is None or current != self.applied:  # set by someone else since: the new ceiling
             self.most = current
+        if value == "auto":  # the free cores now, before any kernel is loaded for a thread count
+            start = free_cores(self.most, others_running())
+            if start is not None:
+                self._set(start)
+            self.meter.read()
+            self.next_read, self.pending = time.monotonic() + READ_EVERY_S, None
         return None
 
     def follow(self, now: float | None = None) -> int | None:
@@ -92,7 +102,7 @@ class ThreadPolicy:
 
         if self.most is None:
             self.most = torch.get_num_threads()
-        want = free_cores(self.most, others_running())
+        want = free_cores(self.most, self.meter.read())
         if want is None or want == torch.get_num_threads():
             self.pending = None
             return None
