@@ -1,1 +1,1 @@
-"""What every layer of the framework uses: random state (rng), timing sections (profiling), the machine's free cores and memory (resources), atomic checksummed writes (io). Standard library, NumPy and torch only; imports nothing of the framework above it."""
+"""What every layer of the framework uses: random state (rng), timing sections (profiling), the machine's free cores and memory (resources), the process's thread policy (threads), atomic checksummed writes (io). Standard library, NumPy and torch only; imports nothing of the framework above it."""
