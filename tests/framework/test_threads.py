@@ -74,6 +74,10 @@ def test_opencv_pool_follows_too(policy, monkeypatch):
         policy.follow(now=0.0)
         policy.follow(now=1.0)
         assert cv2.getNumThreads() == 1
+        cv2.setNumThreads(before)  # OpenCV loaded after the count was set, under a pinned count
+        monkeypatch.setenv("SPLAT_THREADS", "1")
+        policy.follow(now=5.0)
+        assert cv2.getNumThreads() == torch.get_num_threads() == 1
     finally:
         cv2.setNumThreads(before)
 

@@ -91,8 +91,12 @@ class ThreadPolicy:
         return None
 
     def follow(self, now: float | None = None) -> int | None:
-        """Under "auto", re-read the load (at most every READ_EVERY_S) and apply the count; returns a new count."""
-        if mode() != "auto":
+        """Under "auto", re-read the load (at most every READ_EVERY_S) and apply the count; returns a new count.
+
+        Under any mode but "off", OpenCV's pool is also brought to torch's count (a phase may load
+        OpenCV after the count was set)."""
+        value = mode()
+        if value == "off":
             return None
         now = time.monotonic() if now is None else now
         if now < self.next_read:
@@ -100,6 +104,9 @@ class ThreadPolicy:
         self.next_read = now + READ_EVERY_S
         import torch
 
+        _match_opencv(torch.get_num_threads())
+        if value != "auto":
+            return None
         if self.most is None:
             self.most = torch.get_num_threads()
         want = free_cores(self.most, self.meter.read())
@@ -116,14 +123,19 @@ class ThreadPolicy:
     def _set(self, n: int) -> None:
         import torch
 
+        _match_opencv(n)
         if n == torch.get_num_threads():
             return
         torch.set_num_threads(n)
         self.applied = n
         self.changes += 1
-        cv2 = sys.modules.get("cv2")  # OpenCV's own pool, only when a phase loaded it
-        if cv2 is not None:
-            cv2.setNumThreads(n)
+
+
+def _match_opencv(n: int) -> None:
+    """OpenCV's own pool to ``n`` threads, when a phase has loaded OpenCV."""
+    cv2 = sys.modules.get("cv2")
+    if cv2 is not None and cv2.getNumThreads() != n:
+        cv2.setNumThreads(n)
 
 
 POLICY = ThreadPolicy()
