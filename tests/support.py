@@ -260,7 +260,7 @@ class HeadlessPage:
         with socket.socket() as s:
             s.bind(("127.0.0.1", 0))
             port = s.getsockname()[1]
-        self._profile = tempfile.TemporaryDirectory()
+        self._profile = tempfile.TemporaryDirectory(ignore_cleanup_errors=True)  # Chromium's helpers may still write
         self._proc = subprocess.Popen(
             [chromium_binary(), "--headless=new", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
              f"--window-size={self.size[0]},{self.size[1]}", f"--remote-debugging-port={port}",

@@ -106,3 +106,11 @@ def test_a_non_finite_loss_weight_on_the_command_line_names_the_field(value):
             tyro.cli(PARSER, args=["scgaussian", "--model.lambda-rg", value], prog="splat-train")
     line = format_validation_error(e.value.error, config_path(e.value.config_cls))  # as run_cli prints it
     assert line == "model.lambda_rg: Input should be a finite number"
+
+
+@pytest.mark.parametrize("kind", [[], {}, 3, None])
+def test_a_kind_that_is_not_a_name_is_named_as_unknown(kind):
+    """Found by the fuzzer: ``{"kind": []}`` raised TypeError (unhashable) from inside the kind switch."""
+    for method in ("3dgs", "octree-gs"):
+        with pytest.raises(ValueError, match="unknown initialisation kind"):
+            apply_overrides(DEFAULTS[method], {"model": {"init": {"kind": kind}}})

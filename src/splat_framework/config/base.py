@@ -158,7 +158,7 @@ def as_registered_kind(value: Any, kinds: dict[str, type], default_kind: str, wh
     among ``kinds`` (a missing kind in a dict: ``default_kind``); an unknown kind is a ValueError
     naming the registered ones."""
     kind = value.get("kind", default_kind) if isinstance(value, dict) else getattr(value, "kind", None)
-    if kind not in kinds:
+    if not isinstance(kind, str) or kind not in kinds:
         raise ValueError(f"unknown {what} kind {kind!r} (registered: {', '.join(repr(k) for k in kinds)})")
     cls = kinds[kind]
     return value if type(value) is cls else cls.model_validate(value if isinstance(value, dict) else value.model_dump())
