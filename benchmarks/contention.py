@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import statistics
 import subprocess
 import sys
@@ -175,18 +174,6 @@ def markdown(result: dict, command: str) -> str:
     return "\n".join(lines)
 
 
-def machine() -> str:
-    cpu = platform.processor() or "cpu"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}"
-
-
 def main(argv: list[str] | None = None) -> Path:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--method", default="3dgs")
@@ -203,6 +190,7 @@ def main(argv: list[str] | None = None) -> Path:
 
     sys.path.insert(0, str(Path(__file__).parent))
     from ablation import publish
+    from full_run import machine
 
     records = []
     with tempfile.TemporaryDirectory(prefix="splat-contention-") as tmp:
