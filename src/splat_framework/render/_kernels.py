@@ -299,11 +299,12 @@ def _bwd_static(args: tuple) -> tuple:
 
 
 def _compiled(name: str, fn, static, which: str):
-    """``fn`` compiled: loaded from (or saved to) the cache folder when there is one, else traced
-    in this process by ``torch.compile``."""
+    """``fn`` compiled: loaded from (or saved to) the cache folder when there is one and this torch
+    can save compiled graphs, else traced in this process by ``torch.compile`` (torch 2.11, say,
+    has no ``aot_compile`` on a compiled function: each process then compiles, without a warning)."""
     traced = torch.compile(fn, dynamic=True)
     folder = _SETTING["cache_dir"]
-    if folder is None:
+    if folder is None or not hasattr(traced, "aot_compile"):
         return traced
     return Precompiled(name, fn, static, Path(folder) / "precompiled", traced, which)
 

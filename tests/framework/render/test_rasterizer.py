@@ -550,3 +550,25 @@ def test_a_saved_kernel_graph_is_keyed_by_what_its_code_is_built_for(tmp_path):
     assert len({one, two, no_grad}) == 3
     assert kernel.stem_for((torch.zeros(5, 8),)) == kernel.stem_for(args)  # a varying size: the same graph
     assert kernel.stem_for((torch.zeros(3, 4),)) != kernel.stem_for(args)  # a specialised size: another
+
+
+def test_a_torch_that_cannot_save_compiled_graphs_compiles_each_process_without_a_warning(monkeypatch, tmp_path):
+    """torch 2.11 (seen on a CUDA machine) has the load API but no ``aot_compile`` on a compiled
+    function: the kernels are then plain ``torch.compile`` ones, shown as "compiling ... for this
+    process", with no warning that saved kernels are unavailable (there were two per run)."""
+    import warnings
+
+    from splat_framework.render import _kernels
+    from splat_framework.render.precompiled import Precompiled
+
+    def plain(x):
+        return x
+
+    monkeypatch.setattr(_kernels.torch, "compile", lambda fn, **kw: plain)  # a compiled function without aot_compile
+    monkeypatch.setitem(_kernels._SETTING, "cache_dir", tmp_path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        kernel = _kernels._compiled("fwd", lambda x: x, lambda args: (), "forward")
+    assert kernel is plain and not isinstance(kernel, Precompiled)
+    monkeypatch.setattr(_kernels.torch, "compile", lambda fn, **kw: type("F", (), {"aot_compile": 1, "__call__": plain})())
+    assert isinstance(_kernels._compiled("fwd", lambda x: x, lambda args: (), "forward"), Precompiled)
