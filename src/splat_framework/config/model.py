@@ -34,6 +34,8 @@ class RegularisersConfig(SplatConfig):
     """The scale ratio above which anisotropy_weight penalises a Gaussian."""
     drop_rate: Annotated[float, Field(ge=0, lt=1, allow_inf_nan=False)] = 0.0
     """DropGaussian (Park et al., CVPR 2025): each training step renders with every Gaussian dropped with this probability times the fraction of the run done (a ramp from 0), the kept ones' opacity divided by (1 - probability); evaluation renders all Gaussians; 0 = off."""
+    opacity_noise: NonNegative = 0.0
+    """Opacity noise (Co-Adaptation, Chen et al., NeurIPS 2025): each training step renders with every Gaussian's opacity multiplied by (1 + this x a standard normal draw), floored at 0, after DropGaussian's draw; evaluation renders the opacities as they are; 0 = off."""
 
 
 REGULARISER_FIELDS = tuple(RegularisersConfig.model_fields)

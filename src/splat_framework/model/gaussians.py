@@ -223,18 +223,26 @@ class GaussianModel(nn.Module):
         self.active_sh_degree = min(step // interval, self.config.model.sh_degree)
 
     def drop_opacities(self, opacities: Tensor, step: int | None) -> Tensor:
-        """[N] activated opacities as step ``step``'s training render draws them (DropGaussian,
-        ``model.reg.drop_rate``): each row zeroed with probability p = drop_rate * (fraction of the run
-        done), the others divided by (1 - p); the draw is a pure function of (seed, step), so a
-        resumed run repeats it. With ``step`` None (not a training render) or p = 0, ``opacities``
-        unchanged."""
+        """[N] activated opacities as step ``step``'s training render draws them: DropGaussian
+        (``model.reg.drop_rate``): each row zeroed with probability p = drop_rate * (fraction of the
+        run done), the others divided by (1 - p); then opacity noise (``model.reg.opacity_noise``):
+        each row multiplied by (1 + opacity_noise * a standard normal draw), floored at 0. The draws
+        are a pure function of (seed, step), so a resumed run repeats them. With ``step`` None (not
+        a training render) or both off, ``opacities`` unchanged."""
+        reg = self.config.model.reg
         if step is None:
             return opacities
-        rate = self.config.model.reg.drop_rate * min(step / max(self.config.total_steps, 1), 1.0)
-        if rate <= 0:
+        rate = reg.drop_rate * min(step / max(self.config.total_steps, 1), 1.0)
+        if rate <= 0 and reg.opacity_noise <= 0:
             return opacities
-        keep = torch.rand(opacities.shape[0], generator=keyed_generator(self.config.seed, step)) >= rate
-        return opacities * (keep.to(opacities) / (1.0 - rate))
+        draws = keyed_generator(self.config.seed, step)
+        if rate > 0:
+            keep = torch.rand(opacities.shape[0], generator=draws) >= rate
+            opacities = opacities * (keep.to(opacities) / (1.0 - rate))
+        if reg.opacity_noise > 0:
+            noise = torch.randn(opacities.shape[0], generator=draws).to(opacities)
+            opacities = (opacities * (1.0 + reg.opacity_noise * noise)).clamp(min=0.0)
+        return opacities
 
     def prepare_for_strategy(self) -> None:
         """Make ``params['means']`` hold every row's true position (subclasses with

@@ -18,13 +18,14 @@ def dm(tmp_path_factory):
     return DataManager(load_scene(root, views=3), device="cpu", seed=0)
 
 
-def _config(method: str, rate: float, seed: int = 0):
+def _config(method: str, rate: float, seed: int = 0, noise: float = 0.0):
     return apply_overrides(get_method(method).default_config(),
-                           {"steps": 100, "seed": seed, "model": {"reg": {"drop_rate": rate}, "init": {"num_points": 2000}}})
+                           {"steps": 100, "seed": seed, "model": {"reg": {"drop_rate": rate, "opacity_noise": noise},
+                                                                  "init": {"num_points": 2000}}})
 
 
-def _model(dm, rate: float, seed: int = 0) -> GaussianModel:
-    return GaussianModel.from_data(_config("3dgs", rate, seed), dm, torch.Generator().manual_seed(0))
+def _model(dm, rate: float, seed: int = 0, noise: float = 0.0) -> GaussianModel:
+    return GaussianModel.from_data(_config("3dgs", rate, seed, noise), dm, torch.Generator().manual_seed(0))
 
 
 def test_drop_rate_ramps_with_the_run_and_is_a_function_of_seed_and_step(dm):
@@ -59,6 +60,21 @@ def test_dropped_gaussians_get_no_gradient_and_evaluation_renders_all(dm):
     assert not torch.allclose(out.rgb, plain.get_outputs(cam, step=80).rgb)  # rate 0: the full model
     with torch.no_grad():
         assert torch.equal(model.get_outputs(cam).rgb, plain.get_outputs(cam).rgb)
+
+
+def test_opacity_noise_is_multiplicative_per_step_and_off_in_evaluation(dm):
+    """Co-Adaptation's opacity noise: o (1 + sigma eps), floored at 0, drawn per (seed, step) after
+    DropGaussian's draw; not applied where step is None."""
+    model = _model(dm, 0.0, noise=0.3)
+    half = torch.full((model.num_gaussians,), 0.5)
+    noisy = model.drop_opacities(half, 40)
+    assert torch.equal(model.drop_opacities(half, None), half)
+    assert torch.equal(noisy, model.drop_opacities(half, 40)) and not torch.equal(noisy, model.drop_opacities(half, 41))
+    factor = noisy / 0.5 - 1.0
+    assert noisy.min() >= 0 and factor.mean().abs() < 0.03 and factor.std().item() == pytest.approx(0.3, abs=0.03)
+    both = _model(dm, 0.4, noise=0.3).drop_opacities(half, 50)  # dropped rows stay dropped
+    dropped = _model(dm, 0.4).drop_opacities(half, 50) == 0
+    assert torch.all(both[dropped] == 0) and torch.all(both[~dropped] != half[~dropped])
 
 
 def test_anchor_models_drop_their_decoded_gaussians(dm):
