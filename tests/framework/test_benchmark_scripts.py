@@ -59,3 +59,37 @@ def test_contention_compares_pairs_with_back_to_back_and_the_busy_loop_with_one_
     table = contention.markdown(result, "python benchmarks/contention.py")
     assert "| two runs started together | default | 180 / 200 | 4.0 / 4.0 | 0.90 / 0.91x back to back |" in table
     assert "| beside a 1-thread busy loop | default | 160 / 147 | 4.0 / 4.0 | 1.07 / 1.05x alone-1 |" in table
+
+
+def test_coverage_counts_a_training_view_as_seen_wherever_it_rendered_something(tmp_path):
+    """benchmarks/coverage.py: a test camera that is a training camera sees exactly the pixels its
+    render covers; a camera turned away sees none of them; the photo is as sharp as itself and a
+    blurred copy is softer."""
+    import torch
+
+    from splat_framework.config import apply_overrides
+    from splat_framework.data import DataManager, load_scene
+    from splat_framework.data.synthetic import generate_scene
+    from splat_framework.model.gaussians import GaussianModel
+    from splat_framework.registry import get_method
+
+    coverage = load_script("coverage")
+    root = generate_scene("forward", tmp_path / "scene", width=48, height=36, n_views=4, seed=2)
+    dm = DataManager(load_scene(root, views=3), device="cpu", seed=0)
+    config = apply_overrides(get_method("3dgs").default_config(), {"steps": 10, "model": {"init": {"num_points": 2000}}})
+    model = GaussianModel.from_data(config, dm, torch.Generator().manual_seed(0))
+    background = torch.zeros(3)
+    with torch.no_grad():
+        training = [(cam, model.get_outputs(cam, background).depth[..., 0]) for cam, _ in dm.train_views()]
+        camera, depth = training[0]
+        covered = coverage.covered_pixels(camera, depth, training, 0.05)
+        assert torch.equal(covered, depth > 0) and covered.float().mean() > 0.5
+        far = [(cam, torch.full_like(d, 1e3)) for cam, d in training]  # every training view saw something far behind
+        assert not coverage.covered_pixels(camera, depth, far, 0.05).any()
+    photo = next(iter(dm.train_views()))[1]["image"]
+    everywhere = torch.ones(photo.shape[:2], dtype=torch.bool)
+    assert coverage.sharpness(photo, photo, everywhere) == 1.0
+    blurred = torch.nn.functional.avg_pool2d(photo.permute(2, 0, 1)[None], 3, 1, 1, count_include_pad=False)[0].permute(1, 2, 0)
+    assert coverage.sharpness(blurred, photo, everywhere) < 0.5
+    scores = coverage.split_scores(blurred, photo, covered)
+    assert scores["covered"]["share"] + scores["uncovered"]["share"] == 1.0 and scores["all"]["psnr"] > 20
