@@ -487,3 +487,34 @@ def test_existing_output_without_flags_exits_2(tmp_path):
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and "not a run folder" in lines[0]  # --overwrite would not replace it either
     assert sorted(p.name for p in out.iterdir()) == ["something"]
+
+
+def test_refined_training_cameras_resume_exactly_and_are_the_poses_a_reloaded_run_scores(tmp_path):
+    """--camera-refine.mode on: the training views' pose corrections travel through the checkpoint
+    (an interrupted and resumed run ends where a straight one does), the first view fixes the frame,
+    metrics.json reports how far each view moved, and a reloaded run's training cameras carry them."""
+    from splat_framework.engine.run import load_run
+
+    cfg_fn = lambda out, **kw: fixed_config("3dgs", out, camera_refine={"mode": "on"}, **kw)  # noqa: E731
+    straight = Trainer(cfg_fn(tmp_path / "a"))
+    ma = straight.train()
+    resumed, mb = interrupted_then_resumed(cfg_fn, tmp_path / "b", stop=15)
+    assert_same_params(straight.model, resumed.model)
+    for key, value in straight.camera_refiner.tensors().items():
+        assert torch.allclose(value, resumed.camera_refiner.tensors()[key], atol=1e-7, rtol=0), key
+    moved = [v["rotation_deg"] for v in mb["camera_refine"]]
+    assert moved[0] == 0.0 and all(d > 0 for d in moved[1:]), moved
+    assert mb["mean"]["psnr"] == pytest.approx(ma["mean"]["psnr"], abs=1e-6)
+    config, dm, _ = load_run(tmp_path / "b")
+    for position, cam in enumerate(dm.train_cameras):
+        trained_at = resumed.datamanager.train_cameras[position]
+        assert torch.allclose(cam.world_to_cam.float(), trained_at.world_to_cam.float(), atol=1e-6)
+    assert not torch.allclose(dm.train_cameras[1].world_to_cam, load_run_scene_camera(config, dm.train_indices[1]))
+    # the dataset's poses: auto leaves them alone
+    assert Trainer(fixed_config("3dgs", tmp_path / "c")).camera_refiner is None
+
+
+def load_run_scene_camera(config, index: int):
+    from splat_framework.data import load_config_scene
+
+    return load_config_scene(config).cameras[index].world_to_cam

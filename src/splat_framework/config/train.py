@@ -21,6 +21,17 @@ from .strategy import DensifyConfig, RegisteredStrategies
 from .address import LOOPBACK, Port
 
 
+class CameraRefineConfig(SplatConfig):
+    """Joint refinement of the training cameras' poses while the scene trains (nerfstudio's camera
+    optimizer, BARF's pose corrections): each training view but the first gets a rotation and a
+    translation correction of its own, optimised with the scene by Adam."""
+
+    mode: Literal["auto", "on", "off"] = "auto"
+    """auto: on where the training poses were estimated from the training photos themselves (--train-poses, or --data a folder of photos or a video), off for a dataset's poses; on / off: always / never."""
+    lr_rotation: Positive = 1e-3
+    """Adam's initial step of each view's rotation correction (radians); the translation's is this times the scene radius; both decay exponentially to 1 % over the run."""
+
+
 class TrainConfig(SplatConfig):
     """Options every training command accepts (the command-line contract)."""
 
@@ -40,6 +51,8 @@ class TrainConfig(SplatConfig):
     """Pose estimation when --data is a folder of photos or a video (cached in $SPLAT_CACHE/photos, keyed by the photos' contents and these options)."""
     resolved_data: Annotated[tyro.conf.Suppress[ResolvedData | None], RUN_OPTION] = None
     """The dataset as the run resolved it (absolute folder, train and test image names), recorded in config.json so that eval, render, view and export work from any folder and shell."""
+    camera_refine: CameraRefineConfig = Field(default_factory=CameraRefineConfig)
+    """Refine the training cameras' poses with the scene (on by default for poses estimated from the training photos)."""
     test_pose_steps: int = Field(0, ge=0, le=MAX_STEPS)
     """Fit each test camera's pose to its photo by this many Adam steps, the model frozen, before the final scores (pose-free methods' protocol, as splat-eval --test-pose-steps); 0 = score the test poses as given."""
     steps: Annotated[int, Field(ge=1, le=MAX_STEPS)] | None = None

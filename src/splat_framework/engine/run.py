@@ -42,6 +42,7 @@ def load_trained_model(run_dir: Path, device: str | None = None, scene_scale: fl
         try:
             model = spec.model_class().from_checkpoint(config, scene_scale, ck)
             _renders(model)
+            model.camera_refine_state = ck.get("camera_refine")  # the training views' pose corrections, if any
         except (KeyError, ValueError, TypeError, IndexError, RuntimeError) as e:  # e.g. wrong per-row shapes
             first = (str(e).splitlines() or [""])[0]
             raise CheckpointError(f"{path}: not a {method} model ({type(e).__name__}: {first})") from None
@@ -67,11 +68,14 @@ def _renders(model) -> None:
 def load_run(run_dir: Path, device: str | None = None, trust_edits: bool = False):
     """(config, datamanager, model) of ``run_dir``, the model holding the newest good checkpoint."""
     from ..data import DataManager, load_config_scene
+    from .camera_refine import refined_cameras
 
     config, model = load_trained_model(run_dir, device, trust_edits=trust_edits)
     scene = load_config_scene(config)
     model.scene_scale = float(scene.scene_radius)
-    return config, DataManager(scene, device=config.device, seed=config.seed), model
+    datamanager = DataManager(scene, device=config.device, seed=config.seed)
+    datamanager.cameras = refined_cameras(datamanager.cameras, datamanager.train_indices, getattr(model, "camera_refine_state", None))
+    return config, datamanager, model
 
 
 def background_for(scene, device) -> torch.Tensor:

@@ -29,5 +29,7 @@ def run_metrics(trainer, results: dict) -> dict:
     report = trainer.model.report(trainer.datamanager)
     if report is not None:
         metrics["model_report"] = report
+    if trainer.camera_refiner is not None:  # how far each training camera moved
+        metrics["camera_refine"] = trainer.camera_refiner.report(trainer.datamanager.train_cameras)
     atomic_write_json(trainer.run_dir / "metrics.json", metrics)  # OSError (disk full): one line in the CLI
     return metrics

@@ -51,6 +51,7 @@ class TrainState:
                 k: (v.detach().cpu() if torch.is_tensor(v) else v) for k, v in self.strategy_state.items()
             },
             "model_state": self.model.extra_state(),
+            "camera_refine": self.camera_refiner.state_dict() if self.camera_refiner is not None else None,
             **rng_state(self.generator, self.device),
             "lr_factor": self.lr_factor,
             "skipped_steps": self.skipped_steps,
@@ -68,6 +69,8 @@ class TrainState:
         self.strategy_state = {
             k: (v.to(dev) if torch.is_tensor(v) else v) for k, v in ck["strategy_state"].items()
         }
+        if self.camera_refiner is not None and ck.get("camera_refine"):
+            self.camera_refiner.load_state_dict(ck["camera_refine"])
         restore_rng_state(ck, self.generator, dev)
         self.lr_factor = float(ck.get("lr_factor", 1.0))
         self.start_step = int(ck["step"])

@@ -55,8 +55,10 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 import torch
+from torch import Tensor
 
 from ..files import run_lock
+from .camera_refine import CameraRefiner, refined_cameras
 from .checkpoint import save_checkpoint
 from ..config import TrainConfig, config_payload, resolve_steps, save_config
 from ..console import phase, print_summary, say, show_progress
@@ -176,6 +178,8 @@ class Trainer(TrainState):
             )
         self.strategy.check_sanity(self.model.params, self.optimizers)  # a model breaking the ops conventions fails here
         self.strategy_state = self.strategy.initialize_state(scene_scale=self.model.scene_scale)
+        self.camera_refiner = CameraRefiner.for_run(self.config, len(self.datamanager.train_indices),
+                                                    self.model.scene_scale, self.device)
         self.start_step = 0
         self.nonfinite_streak = 0
         self.skipped_steps = 0
@@ -231,6 +235,8 @@ class Trainer(TrainState):
         for k, o in self.optimizers.items():
             for g in o.param_groups:
                 g["lr"] = rates[k] * self.lr_factor
+        if self.camera_refiner is not None:
+            self.camera_refiner.set_learning_rates(step, self.lr_factor)
 
     def train_step(self, step: int) -> tuple[dict, float] | None:
         """One optimisation step; None when it was skipped (non-finite loss or gradients)."""
@@ -242,6 +248,8 @@ class Trainer(TrainState):
         model.on_step_start(step)
         self._set_learning_rates(step)
         camera, batch = self.datamanager.next_train(step)
+        if self.camera_refiner is not None:
+            camera = self.camera_refiner.apply(camera, batch["train_position"])
         with section("forward"):
             outputs = model.get_outputs(camera, self.background, step=step)
         with section("loss"):
@@ -260,7 +268,7 @@ class Trainer(TrainState):
         with section("backward"):
             loss.backward()
         with section("finiteness checks"):
-            bad = _first_nonfinite({k: p.grad for k, p in trainable_tensors(model)})
+            bad = _first_nonfinite({k: p.grad for k, p in self._trained_tensors()})
         if bad is not None:
             return self._fault(step, f"gradient of {bad}")
         with section("optimizer"):
@@ -269,8 +277,10 @@ class Trainer(TrainState):
                 if keys is None or k in keys:
                     opt.step()
                 opt.zero_grad(set_to_none=True)
+            if self.camera_refiner is not None:
+                self.camera_refiner.step()
         with section("finiteness checks"):
-            bad = _first_nonfinite({k: p.detach() for k, p in optimized_tensors(self.optimizers)})
+            bad = _first_nonfinite({k: p.detach() for k, p in self._optimized_tensors()})
         if bad is not None:
             return self._fault(step, f"parameter {bad}", corrupted=True)
         self.nonfinite_streak = 0
@@ -294,10 +304,21 @@ class Trainer(TrainState):
             train_psnr = float(psnr(outputs.rgb.detach().clamp(0, 1), batch["image"]))
             return {k: float(v.detach()) for k, v in losses.items()} | {"loss": float(loss.detach())}, train_psnr
 
+    def _trained_tensors(self) -> list[tuple[str, Tensor]]:
+        """The model's trainable tensors, then the camera corrections when they are refined."""
+        refined = self.camera_refiner.tensors().items() if self.camera_refiner is not None else []
+        return [*trainable_tensors(self.model), *refined]
+
+    def _optimized_tensors(self) -> list[tuple[str, Tensor]]:
+        refined = self.camera_refiner.tensors().items() if self.camera_refiner is not None else []
+        return [*optimized_tensors(self.optimizers), *refined]
+
     def _fault(self, step: int, what: str, corrupted: bool = False) -> None:
         """Count a skipped step; restore the last checkpoint (halved lr) when faults persist."""
         for opt in self.optimizers.values():
             opt.zero_grad(set_to_none=True)
+        if self.camera_refiner is not None:
+            self.camera_refiner.zero_grad()
         for _, p in trainable_tensors(self.model):
             p.grad = None
         self.skipped_steps += 1
@@ -350,6 +371,9 @@ class Trainer(TrainState):
             self._train_t0 = None
             self.timing["train_s"] = self._train_prior_s
             self.save(step)  # == total, unless resumed past a shortened --steps
+        if self.camera_refiner is not None:  # training views are scored at the poses they trained at
+            self.datamanager.cameras = refined_cameras(self.datamanager.cameras, self.datamanager.train_indices,
+                                                       self.camera_refiner.state_dict())
         t0 = time.perf_counter()
         results = evaluate(
             self.model, self.datamanager, self.background, self.run_dir / "renders" if cfg.save_renders else None,

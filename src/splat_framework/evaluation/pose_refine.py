@@ -22,7 +22,7 @@ from torch import Tensor
 from ..cameras import Camera
 
 
-def _correction(w: Tensor, v: Tensor) -> Tensor:
+def rigid_correction(w: Tensor, v: Tensor) -> Tensor:
     """[4, 4] rigid transform of rotation vector ``w`` [3] and translation ``v`` [3]."""
     from kornia.geometry.conversions import axis_angle_to_rotation_matrix
 
@@ -69,13 +69,13 @@ def refine_pose(model, camera: Camera, image: Tensor, background: Tensor, steps:
         for p in params:
             p.requires_grad_(True)
     with torch.no_grad():
-        return dataclasses.replace(camera, world_to_cam=(_correction(w, v) @ base).to(camera.world_to_cam.dtype))
+        return dataclasses.replace(camera, world_to_cam=(rigid_correction(w, v) @ base).to(camera.world_to_cam.dtype))
 
 
 def _fit(model, camera: Camera, base: Tensor, w: Tensor, v: Tensor, target: Tensor, weight: Tensor | None,
          background: Tensor, opt: torch.optim.Optimizer, sched, steps: int) -> None:
     for _ in range(steps):
-        cam = dataclasses.replace(camera, world_to_cam=_correction(w, v) @ base)
+        cam = dataclasses.replace(camera, world_to_cam=rigid_correction(w, v) @ base)
         err = (model.get_outputs(cam, background).rgb - target).abs()
         loss = err.mean() if weight is None else (err * weight).sum() / (3 * weight.sum()).clamp_min(1)
         opt.zero_grad(set_to_none=True)
