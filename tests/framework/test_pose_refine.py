@@ -94,7 +94,7 @@ def test_a_perturbed_training_camera_is_refined_back_while_training():
     off = rigid_correction(torch.tensor([0.012, -0.018, 0.008]), torch.tensor([0.05, -0.03, 0.04])) @ w2c
     start = dataclasses.replace(true, world_to_cam=off)
     refiner = CameraRefiner(2, 5e-3, 5e-3 * 4.5, total_steps=150)
-    assert refiner.apply(start, 0) is start
+    assert torch.equal(refiner.apply(start, 0).world_to_cam, start.world_to_cam)
     for step in range(150):
         refiner.set_learning_rates(step)
         (model.get_outputs(refiner.apply(start, 1), bg).rgb - photo).abs().mean().backward()
@@ -104,6 +104,17 @@ def test_a_perturbed_training_camera_is_refined_back_while_training():
     assert deg < 0.25 * deg0 and shift < 0.25 * shift0, (deg, shift, deg0, shift0)
     assert refiner.optimizer.param_groups[0]["lr"] == pytest.approx(5e-3 * 0.01 ** (149 / 150))
     assert refiner.rotation[0].abs().sum() == 0 and refiner.translation[0].abs().sum() == 0
+    # a focal length 4 % long, the pose exact: the shared focal factor comes back
+    long = dataclasses.replace(true, K=true.K * torch.tensor([[1.04, 1, 1], [1, 1.04, 1], [1, 1, 1]]))
+    refiner = CameraRefiner(1, 5e-3, 5e-3 * 4.5, total_steps=150, focal=True)
+    for step in range(150):
+        refiner.set_learning_rates(step)
+        (model.get_outputs(refiner.apply(long, 0), bg).rgb - photo).abs().mean().backward()
+        refiner.step()
+    fitted = refiner.apply(long, 0)
+    assert torch.equal(fitted.world_to_cam, true.world_to_cam)
+    assert fitted.K[0, 0].item() == pytest.approx(60.0, rel=0.01) and fitted.K[0, 2].item() == 40.0
+    assert refiner.report([long])[0]["focal_factor"] == pytest.approx(1 / 1.04, rel=0.01)
 
 
 def test_training_poses_count_as_estimated_for_a_pose_file_or_a_folder_of_photos(tmp_path):

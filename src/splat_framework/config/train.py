@@ -30,6 +30,8 @@ class CameraRefineConfig(SplatConfig):
     """auto: on where the training poses were estimated from the training photos themselves (--train-poses, or --data a folder of photos or a video), off for a dataset's poses; on / off: always / never."""
     lr_rotation: Positive = 1e-3
     """Adam's initial step of each view's rotation correction (radians); the translation's is this times the scene radius; both decay exponentially to 1 % over the run."""
+    focal: bool = True
+    """Also refine one focal-length factor shared by the training views (poses estimated from a few photos get the focal length a few per cent wrong: fern's 3 photos, 4 % long); its step is lr_rotation on the factor's logarithm."""
 
 
 class TrainConfig(SplatConfig):

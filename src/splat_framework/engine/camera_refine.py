@@ -59,13 +59,15 @@ class CameraRefiner:
     """
 
     def __init__(self, views: int, lr_rotation: float, lr_translation: float, total_steps: int,
-                 device: torch.device | str = "cpu"):
+                 device: torch.device | str = "cpu", focal: bool = False):
         self.rotation = torch.zeros(views, 3, device=device, requires_grad=True)
         self.translation = torch.zeros(views, 3, device=device, requires_grad=True)
-        self.base_lr = (lr_rotation, lr_translation)
+        self.log_focal = torch.zeros(1, device=device, requires_grad=focal)
+        self.base_lr = (lr_rotation, lr_translation, lr_rotation)
         self.total_steps = max(int(total_steps), 1)
         self.optimizer = torch.optim.Adam([{"params": [self.rotation], "lr": lr_rotation},
-                                           {"params": [self.translation], "lr": lr_translation}], eps=1e-15)
+                                           {"params": [self.translation], "lr": lr_translation},
+                                           {"params": [self.log_focal] if focal else [], "lr": lr_rotation}], eps=1e-15)
 
     @classmethod
     def for_run(cls, config, views: int, scene_scale: float, device) -> "CameraRefiner | None":
@@ -73,10 +75,11 @@ class CameraRefiner:
         if not refine_enabled(config) or views < 2:
             return None
         lr = config.camera_refine.lr_rotation
-        return cls(views, lr, lr * float(scene_scale), config.total_steps, device)
+        return cls(views, lr, lr * float(scene_scale), config.total_steps, device, focal=config.camera_refine.focal)
 
     def tensors(self) -> dict[str, Tensor]:
-        return {"camera_refine.rotation": self.rotation, "camera_refine.translation": self.translation}
+        return {"camera_refine.rotation": self.rotation, "camera_refine.translation": self.translation,
+                "camera_refine.log_focal": self.log_focal}
 
     def set_learning_rates(self, step: int, factor: float = 1.0) -> None:
         """Both steps at ``step`` (a pure function of it): exponential decay to 1 % over the run."""
@@ -86,7 +89,9 @@ class CameraRefiner:
 
     def apply(self, camera: Camera, position: int) -> Camera:
         """``camera`` (training view ``position``) with its correction; differentiable in it."""
-        return camera if position == 0 else corrected(camera, self.rotation[position], self.translation[position])
+        if position == 0:  # the first view fixes the frame: its focal length alone is refined
+            return corrected(camera, self.rotation.new_zeros(3), self.translation.new_zeros(3), self.log_focal)
+        return corrected(camera, self.rotation[position], self.translation[position], self.log_focal)
 
     def step(self) -> None:
         self.optimizer.step()
@@ -97,24 +102,30 @@ class CameraRefiner:
 
     def state_dict(self) -> dict:
         return {"rotation": self.rotation.detach().cpu(), "translation": self.translation.detach().cpu(),
-                "optimizer": self.optimizer.state_dict()}
+                "log_focal": self.log_focal.detach().cpu(), "optimizer": self.optimizer.state_dict()}
 
     def load_state_dict(self, state: dict) -> None:
         with torch.no_grad():
             self.rotation.copy_(state["rotation"])
             self.translation.copy_(state["translation"])
+            self.log_focal.copy_(state["log_focal"])
         self.optimizer.load_state_dict(state["optimizer"])
 
     def report(self, cameras: list[Camera]) -> list[dict]:
-        """Per training view: its name, the correction's rotation (degrees) and translation (scene units)."""
-        return [{"view": cam.name, "rotation_deg": math.degrees(float(w.norm())), "translation": float(v.norm())}
-                for cam, w, v in zip(cameras, self.rotation.detach(), self.translation.detach())]
+        """Per training view: its name, the correction's rotation (degrees), translation (scene units)
+        and focal-length factor."""
+        focal = math.exp(float(self.log_focal.detach()))
+        return [{"view": cam.name, "rotation_deg": math.degrees(float(w.norm())), "translation": float(v.norm()),
+                 "focal_factor": focal} for cam, w, v in zip(cameras, self.rotation.detach(), self.translation.detach())]
 
 
-def corrected(camera: Camera, rotation: Tensor, translation: Tensor) -> Camera:
-    """``camera`` moved by the correction of rotation vector ``rotation`` [3] and translation [3]."""
+def corrected(camera: Camera, rotation: Tensor, translation: Tensor, log_focal: Tensor) -> Camera:
+    """``camera`` moved by the correction of rotation vector ``rotation`` [3] and translation [3],
+    its focal lengths scaled by exp(``log_focal``) [1]."""
     correction = rigid_correction(rotation.float(), translation.float()).to(camera.world_to_cam)
-    return dataclasses.replace(camera, world_to_cam=correction @ camera.world_to_cam)
+    focal_entries = torch.diag(torch.tensor([1.0, 1.0, 0.0], dtype=camera.K.dtype, device=camera.K.device))
+    scale = 1.0 + (log_focal.exp().to(camera.K) - 1.0) * focal_entries  # fx, fy scaled; the principal point kept
+    return dataclasses.replace(camera, world_to_cam=correction @ camera.world_to_cam, K=scale * camera.K)
 
 
 def refined_cameras(cameras: list[Camera], train_indices: list[int], state: dict | None) -> list[Camera]:
@@ -125,7 +136,6 @@ def refined_cameras(cameras: list[Camera], train_indices: list[int], state: dict
     cameras = list(cameras)
     with torch.no_grad():
         for position, index in enumerate(train_indices):
-            if position == 0:
-                continue
-            cameras[index] = corrected(cameras[index], state["rotation"][position], state["translation"][position])
+            cameras[index] = corrected(cameras[index], state["rotation"][position], state["translation"][position],
+                                       state.get("log_focal", torch.zeros(1)))
     return cameras
