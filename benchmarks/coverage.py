@@ -10,7 +10,8 @@ prints, averaged over the test views, PSNR and SSIM (kornia, 11-pixel window) ov
 pixels, the uncovered ones and all of them, the covered share, and the *sharpness*: the mean
 squared Laplacian of the render's grey image over the covered pixels divided by the photo's (1 = as
 sharp as the photo; below 1, softer). On scenes scored with masks (DTU) every number is taken
-inside the object mask. A diagnostic: it reads the run's newest checkpoint and changes nothing.
+inside the object mask; on objects against white (Blender) inside the pixels where the render or
+the photo shows the object. A diagnostic: it reads the run's newest checkpoint and changes nothing.
 """
 
 from __future__ import annotations
@@ -86,7 +87,10 @@ def run_scores(run: Path, tolerance: float) -> dict:
         for camera, batch in datamanager.eval_views():
             out = model.get_outputs(camera, background)
             covered = covered_pixels(camera, out.depth[..., 0], training, tolerance)
-            views.append(split_scores(out.rgb.clamp(0, 1), batch["image"], covered, batch.get("mask") if masked else None))
+            mask = batch.get("mask") if masked else None
+            if datamanager.scene.white_background:  # an object on white: the object's pixels, rendered or photographed
+                mask = (out.alpha[..., 0] > 0.5) | (batch["image"] < 0.99).any(-1)
+            views.append(split_scores(out.rgb.clamp(0, 1), batch["image"], covered, mask))
     mean = {name: {key: sum(v[name][key] for v in views) / len(views) for key in views[0][name]}
             for name in ("covered", "uncovered", "all")}
     mean["sharpness"] = sum(v["sharpness"] for v in views) / len(views)
