@@ -26,8 +26,8 @@ class CameraRefineConfig(SplatConfig):
     optimizer, BARF's pose corrections): each training view but the first gets a rotation and a
     translation correction of its own, optimised with the scene by Adam."""
 
-    mode: Literal["auto", "on", "off"] = "auto"
-    """auto: on where the training poses were estimated from the training photos themselves (--train-poses, or --data a folder of photos or a video), off for a dataset's poses; on / off: always / never."""
+    mode: Literal["auto", "on", "off"] = "off"
+    """off (the default: on fern's estimated poses it gained nothing, see docs/decisions.md); auto: on where the training poses were estimated from the training photos themselves (--train-poses, or --data a folder of photos or a video); on: always."""
     lr_rotation: Positive = 1e-3
     """Adam's initial step of each view's rotation correction (radians); the translation's is this times the scene radius; both decay exponentially to 1 % over the run."""
     focal: bool = True
@@ -54,7 +54,7 @@ class TrainConfig(SplatConfig):
     resolved_data: Annotated[tyro.conf.Suppress[ResolvedData | None], RUN_OPTION] = None
     """The dataset as the run resolved it (absolute folder, train and test image names), recorded in config.json so that eval, render, view and export work from any folder and shell."""
     camera_refine: CameraRefineConfig = Field(default_factory=CameraRefineConfig)
-    """Refine the training cameras' poses with the scene (on by default for poses estimated from the training photos)."""
+    """Refine the training cameras' poses (and focal length) with the scene."""
     test_pose_steps: int = Field(0, ge=0, le=MAX_STEPS)
     """Fit each test camera's pose to its photo by this many Adam steps, the model frozen, before the final scores (pose-free methods' protocol, as splat-eval --test-pose-steps); 0 = score the test poses as given."""
     steps: Annotated[int, Field(ge=1, le=MAX_STEPS)] | None = None

@@ -7,7 +7,10 @@ training view but the first (which fixes the frame the test cameras were aligned
 correction of its own, ``exp([w, v]) @ world_to_cam`` (rotation vector ``w``, translation ``v`` in
 scene units, the correction of :mod:`splat_framework.evaluation.pose_refine`), zero at the start
 and optimised with the scene by Adam, its step decaying exponentially to 1 % over the run.
-``TrainConfig.camera_refine`` switches it (auto: on where the training poses were estimated).
+One focal-length factor shared by the training views is refined with them (``focal``).
+``TrainConfig.camera_refine`` switches it: off by default, because on fern's poses estimated from
+its 3 photos it gained nothing (docs/decisions.md); auto: on where the training poses were
+estimated.
 
 The corrections are saved in every checkpoint (``camera_refine``) and applied to the training
 cameras wherever a run is loaded (:func:`refined_cameras`), so a training view is scored at the

@@ -24,15 +24,16 @@ def w2c(cameras) -> np.ndarray:
     return np.stack([c.world_to_cam.double().numpy() for c in cameras])
 
 
-def shifted_payload(scene, half: bool = False) -> dict:
-    """Each training camera moved 0.1 along x and its focal length +10 %, optionally at half the image size."""
+def shifted_payload(scene, half: bool = False, focal=lambda position: 1.1) -> dict:
+    """Each training camera moved 0.1 along x and its focal length times ``focal(position)`` (+10 %),
+    optionally at half the image size."""
     cams = {}
-    for i in scene.train_indices:
+    for position, i in enumerate(scene.train_indices):
         c = scene.cameras[i].scaled(0.5) if half else scene.cameras[i]
         M = c.world_to_cam.clone()
         M[0, 3] += 0.1
         K = c.K.clone()
-        K[:2, :2] *= 1.1
+        K[:2, :2] *= focal(position)
         cams[i] = type(c)(K=K, world_to_cam=M, width=c.width, height=c.height, name=c.name)
     return pose_file_payload(cams, {"note": "test"})
 
@@ -47,10 +48,22 @@ def test_training_cameras_are_replaced_and_nothing_else(scene, tmp_path, half):
             assert float(b.world_to_cam[0, 3] - a.world_to_cam[0, 3]) == pytest.approx(0.1, abs=1e-6)
             assert float(b.K[0, 0] / a.K[0, 0]) == pytest.approx(1.1, rel=1e-5)  # rescaled to the scene's size
             assert (b.width, b.height, b.name, b.near, b.far) == (a.width, a.height, a.name, a.near, a.far)
+        elif i in scene.test_indices:  # photographed by the same camera: its estimated focal length, its own pose
+            assert float(b.K[0, 0] / a.K[0, 0]) == pytest.approx(1.1, rel=1e-5) and b.K[0, 2] == a.K[0, 2]
+            assert b.world_to_cam is a.world_to_cam and (b.width, b.name) == (a.width, a.name)
         else:
             assert b is a
     assert new.image_paths == scene.image_paths and new.scene_radius == scene.scene_radius
     assert new.extras["train_poses"] == str(path)
+
+
+def test_test_views_keep_their_focal_length_when_the_training_views_disagree(scene, tmp_path):
+    """Training cameras whose focal lengths changed by different factors are not one camera: the
+    test views keep the dataset's intrinsics."""
+    path = tmp_path / "poses.json"
+    path.write_text(json.dumps(shifted_payload(scene, focal=lambda position: 1.0 + 0.05 * position)))
+    new = apply_pose_file(scene, path)
+    assert all(new.cameras[i] is scene.cameras[i] for i in scene.test_indices)
 
 
 def test_bad_pose_files_are_one_line_errors_naming_the_file(scene, tmp_path):
@@ -92,7 +105,10 @@ def test_training_poses_from_their_photos_alone_match_the_truth(scene, tmp_path)
     train = scene.train_indices
     rot, shift = pose_differences(w2c([new.cameras[i] for i in train]), w2c([scene.cameras[i] for i in train]))
     assert rot.max() < 1.0 and rot.max() > 0  # the estimate, not the dataset's poses
-    assert all(new.cameras[i] is scene.cameras[i] for i in scene.test_indices)
+    for i in scene.test_indices:  # one camera: its estimated focal length, the dataset's pose
+        assert new.cameras[i].world_to_cam is scene.cameras[i].world_to_cam
+        ratio = float(new.cameras[i].K[0, 0] / scene.cameras[i].K[0, 0])
+        assert ratio == pytest.approx(info["focal_estimated"][0] / info["focal_dataset"][0], rel=1e-4)
 
 
 def test_a_run_on_a_pose_file_scores_test_views_before_and_after_the_pose_fit(scene, tmp_path):
