@@ -74,7 +74,8 @@ class CameraRefiner:
 
     @classmethod
     def for_run(cls, config, views: int, scene_scale: float, device) -> "CameraRefiner | None":
-        """The refiner ``config.camera_refine`` asks for (None when off)."""
+        """The refiner ``config.camera_refine`` asks for (None when off, or with a single training
+        view: the first view fixes the frame, so there is nothing to refine it against)."""
         if not refine_enabled(config) or views < 2:
             return None
         lr = config.camera_refine.lr_rotation
