@@ -101,14 +101,16 @@ def test_every_phase_and_every_cpu_render_let_the_count_follow(monkeypatch):
 def test_in_a_fresh_process_a_busy_machine_lowers_torch_threads():
     """torch itself (not a stand-in) runs fewer threads once every core is busy elsewhere."""
     code = (
-        "import torch; from splat_framework.runtime import threads as t\n"
-        "t.POLICY.meter.read = lambda: float(t.available_cores())\n"  # every core busy elsewhere
-        "torch.set_num_threads(2); t.POLICY.start()\n"
-        "for now in (10.0, 11.0): t.POLICY.follow(now=now)\n"
+        "import time, torch; from splat_framework.runtime import threads as t\n"
+        "t.others_running = lambda: 0\n"  # idle at the start, whatever this machine is doing
+        "t.POLICY.meter.read = lambda: float(t.available_cores())\n"  # then every core busy elsewhere
+        "torch.set_num_threads(2); t.POLICY.start(); print(torch.get_num_threads())\n"
+        "now = time.monotonic()\n"  # the readings a second apart, after the start's own
+        "for later in (1.5, 3.0): t.POLICY.follow(now=now + later)\n"
         "print(torch.get_num_threads())\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "1"
+    assert out.stdout.split() == ["2", "1"]
 
 
 def test_a_count_set_by_the_caller_before_a_run_is_the_new_ceiling(policy, monkeypatch):
