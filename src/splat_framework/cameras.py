@@ -73,6 +73,13 @@ class Camera:
             height=int(round(self.height * factor)),
         )
 
+    def with_focal_factor(self, factor: "float | Tensor") -> "Camera":
+        """The same camera with its focal lengths (fx, fy) times ``factor`` (a float, or a 0-d tensor
+        that gradients flow through); the principal point and the image size are kept."""
+        factor = torch.as_tensor(factor).to(self.K)
+        focal_entries = torch.diag(torch.tensor([1.0, 1.0, 0.0], dtype=self.K.dtype, device=self.K.device))
+        return replace(self, K=self.K * (1.0 + (factor - 1.0) * focal_entries))
+
     def shifted_sideways(self, shift: float) -> "Camera":
         """The camera moved by ``shift`` (world units) along its own x axis (image right): a stereo
         partner, in which a point at camera depth z appears ``K[0, 0] * shift / z`` pixels further left."""

@@ -134,3 +134,23 @@ def test_training_poses_count_as_estimated_for_a_pose_file_or_a_folder_of_photos
     assert poses_estimated(base.model_copy(update={"data": str(photos)}))
     on = base.model_copy(update={"camera_refine": base.camera_refine.model_copy(update={"mode": "on"})})
     assert refine_enabled(on) and not refine_enabled(base)
+
+
+def test_a_focal_factor_scales_fx_and_fy_only_and_passes_gradients():
+    cam = Camera(K=intrinsics(400.0, 380.0, 252.0, 189.0), world_to_cam=torch.eye(4), width=504, height=378)
+    scaled = cam.with_focal_factor(1.04)
+    assert scaled.K[0, 0].item() == pytest.approx(416.0) and scaled.K[1, 1].item() == pytest.approx(395.2)
+    assert torch.equal(scaled.K[:, 2], cam.K[:, 2]) and (scaled.width, scaled.height) == (504, 378)
+    log_focal = torch.zeros((), requires_grad=True)
+    cam.with_focal_factor(log_focal.exp()).K[0, 0].backward()
+    assert log_focal.grad.item() == pytest.approx(400.0)
+
+
+def test_a_refiner_without_focal_refinement_trains_and_saves_no_focal_factor():
+    from splat_framework.engine.camera_refine import CameraRefiner
+
+    plain = CameraRefiner(3, 1e-3, 1e-3, 100)
+    assert set(plain.tensors()) == {"camera_refine.rotation", "camera_refine.translation"}
+    assert all(group["params"] for group in plain.optimizer.param_groups)
+    with_focal = CameraRefiner(3, 1e-3, 1e-3, 100, focal=True)
+    assert "camera_refine.log_focal" in with_focal.tensors()

@@ -95,7 +95,7 @@ def apply_pose_file(scene: SceneData, path: Path | str) -> SceneData:
     factor = shared_focal_factor([scene.cameras[i] for i in scene.train_indices], [cameras[i] for i in scene.train_indices])
     if factor is not None:
         for i in scene.test_indices:
-            cameras[i] = replace(cameras[i], K=cameras[i].K * _focal_scale(factor, cameras[i].K))
+            cameras[i] = cameras[i].with_focal_factor(factor)
     return replace(scene, cameras=cameras, extras={**scene.extras, "train_poses": str(path)})
 
 
@@ -106,13 +106,6 @@ def shared_focal_factor(before: list[Camera], after: list[Camera], tolerance: fl
     if not factors or max(factors) > min(factors) * (1 + tolerance):
         return None
     return sum(factors) / len(factors)
-
-
-def _focal_scale(factor: float, like: torch.Tensor) -> torch.Tensor:
-    """[3, 3] multiplier of an intrinsics matrix that scales fx and fy by ``factor``."""
-    scale = torch.ones(3, 3, dtype=like.dtype, device=like.device)
-    scale[0, 0] = scale[1, 1] = factor
-    return scale
 
 
 __all__ = ["apply_pose_file", "pose_file_payload"]

@@ -66,11 +66,13 @@ class CameraRefiner:
         self.rotation = torch.zeros(views, 3, device=device, requires_grad=True)
         self.translation = torch.zeros(views, 3, device=device, requires_grad=True)
         self.log_focal = torch.zeros(1, device=device, requires_grad=focal)
-        self.base_lr = (lr_rotation, lr_translation, lr_rotation)
         self.total_steps = max(int(total_steps), 1)
-        self.optimizer = torch.optim.Adam([{"params": [self.rotation], "lr": lr_rotation},
-                                           {"params": [self.translation], "lr": lr_translation},
-                                           {"params": [self.log_focal] if focal else [], "lr": lr_rotation}], eps=1e-15)
+        groups = [("rotation", self.rotation, lr_rotation), ("translation", self.translation, lr_translation)]
+        if focal:
+            groups.append(("log_focal", self.log_focal, lr_rotation))
+        self._trained = {f"camera_refine.{name}": tensor for name, tensor, _ in groups}
+        self.base_lr = [lr for _, _, lr in groups]
+        self.optimizer = torch.optim.Adam([{"params": [tensor], "lr": lr} for _, tensor, lr in groups], eps=1e-15)
 
     @classmethod
     def for_run(cls, config, views: int, scene_scale: float, device) -> "CameraRefiner | None":
@@ -82,8 +84,8 @@ class CameraRefiner:
         return cls(views, lr, lr * float(scene_scale), config.total_steps, device, focal=config.camera_refine.focal)
 
     def tensors(self) -> dict[str, Tensor]:
-        return {"camera_refine.rotation": self.rotation, "camera_refine.translation": self.translation,
-                "camera_refine.log_focal": self.log_focal}
+        """The refined tensors by name (the focal factor only when it is refined)."""
+        return dict(self._trained)
 
     def set_learning_rates(self, step: int, factor: float = 1.0) -> None:
         """Both steps at ``step`` (a pure function of it): exponential decay to 1 % over the run."""
@@ -127,9 +129,8 @@ def corrected(camera: Camera, rotation: Tensor, translation: Tensor, log_focal: 
     """``camera`` moved by the correction of rotation vector ``rotation`` [3] and translation [3],
     its focal lengths scaled by exp(``log_focal``) [1]."""
     correction = rigid_correction(rotation.float(), translation.float()).to(camera.world_to_cam)
-    focal_entries = torch.diag(torch.tensor([1.0, 1.0, 0.0], dtype=camera.K.dtype, device=camera.K.device))
-    scale = 1.0 + (log_focal.exp().to(camera.K) - 1.0) * focal_entries  # fx, fy scaled; the principal point kept
-    return dataclasses.replace(camera, world_to_cam=correction @ camera.world_to_cam, K=scale * camera.K)
+    camera = camera.with_focal_factor(log_focal.exp().reshape(()))
+    return dataclasses.replace(camera, world_to_cam=correction @ camera.world_to_cam)
 
 
 def refined_cameras(cameras: list[Camera], train_indices: list[int], state: dict | None) -> list[Camera]:

@@ -22,6 +22,12 @@ def load_trained_model(run_dir: Path, device: str | None = None, scene_scale: fl
     ``scene_scale`` only scales learning rates, which rendering and exporting do not use;
     ``trust_edits``: accept a config.json without a valid checksum (see ``read_config_json``).
     """
+    config, model, _ = _load_checkpointed(run_dir, device, scene_scale, trust_edits)
+    return config, model
+
+
+def _load_checkpointed(run_dir: Path, device: str | None, scene_scale: float, trust_edits: bool):
+    """(config, model, the checkpoint's training-camera corrections or None): see ``load_trained_model``."""
     run_dir = Path(run_dir)
     cfg_path = run_dir / "config.json"
     if not cfg_path.is_file():
@@ -42,18 +48,17 @@ def load_trained_model(run_dir: Path, device: str | None = None, scene_scale: fl
         try:
             model = spec.model_class().from_checkpoint(config, scene_scale, ck)
             _renders(model)
-            model.camera_refine_state = ck.get("camera_refine")  # the training views' pose corrections, if any
         except (KeyError, ValueError, TypeError, IndexError, RuntimeError) as e:  # e.g. wrong per-row shapes
             first = (str(e).splitlines() or [""])[0]
             raise CheckpointError(f"{path}: not a {method} model ({type(e).__name__}: {first})") from None
-        return model
+        return model, ck.get("camera_refine")  # the training views' pose corrections, if any
 
     found = load_latest(run_dir / "checkpoints", accept=rebuild)
     if found is None:
         raise CheckpointError(f"{run_dir / 'checkpoints'}: no valid checkpoint")
-    model = found[1].to(config.device)
+    model, camera_refine = found[1]
     set_compile(config.compile, user_cache_dir())
-    return config, model
+    return config, model.to(config.device), camera_refine
 
 
 def _renders(model) -> None:
@@ -70,11 +75,11 @@ def load_run(run_dir: Path, device: str | None = None, trust_edits: bool = False
     from ..data import DataManager, load_config_scene
     from .camera_refine import refined_cameras
 
-    config, model = load_trained_model(run_dir, device, trust_edits=trust_edits)
+    config, model, camera_refine = _load_checkpointed(run_dir, device, 1.0, trust_edits)
     scene = load_config_scene(config)
     model.scene_scale = float(scene.scene_radius)
     datamanager = DataManager(scene, device=config.device, seed=config.seed)
-    datamanager.cameras = refined_cameras(datamanager.cameras, datamanager.train_indices, getattr(model, "camera_refine_state", None))
+    datamanager.cameras = refined_cameras(datamanager.cameras, datamanager.train_indices, camera_refine)
     return config, datamanager, model
 
 
