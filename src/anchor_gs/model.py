@@ -31,7 +31,7 @@ from splat_framework.losses import photometric_loss
 from splat_framework.model.gaussians import knn_scale, log_lerp, run_fraction
 from splat_framework.model.init import initial_points
 from splat_framework.model.regularisers import regulariser_terms
-from splat_framework.plugin import Camera, GaussianModel, RenderOutput, rasterize, rgb_to_sh
+from splat_framework.plugin import Camera, GaussianModel, RenderOutput, adam, rasterize, rgb_to_sh
 
 VIEW_MARGIN = 0.5
 """Anchors are decoded when they project within the image widened by this fraction on every side."""
@@ -125,7 +125,7 @@ class ScaffoldModel(GaussianModel):
         lrs = self.learning_rates(0)
         tensors = {k: [p] for k, p in self.params.items() if p.requires_grad}
         tensors |= {k: list(m.parameters()) for k, m in self.networks.items()}
-        return {k: torch.optim.Adam([{"params": ps, "lr": lrs[k], "name": k}], lr=lrs[k], eps=1e-15)
+        return {k: adam([{"params": ps, "lr": lrs[k], "name": k}], lr=lrs[k])
                 for k, ps in tensors.items()}
 
     def positions(self) -> Tensor:

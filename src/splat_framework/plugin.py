@@ -46,6 +46,7 @@ _EXPORTS: dict[str, str] = {
     "Strategy": "splat_framework.model.strategy",
     "DefaultStrategy": "splat_framework.model.strategy",
     "check_rows": "splat_framework.model.strategy",
+    "adam": "splat_framework.model.optim",
     "StartPoints": "splat_framework.model.init",
     "scene_box": "splat_framework.model.init",
     "Camera": "splat_framework.cameras",
@@ -70,6 +71,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .model.init import StartPoints, scene_box
     from .model import ops
     from .model.gaussians import GaussianModel
+    from .model.optim import adam
     from .model.strategy import DefaultStrategy, Strategy, check_rows
     from .registry import MethodSpec
     from .render import RenderOutput, quat_to_rotmat, rasterize, rgb_to_sh

@@ -256,6 +256,9 @@ def test_first_nonfinite_names_the_tensor():
     assert _first_nonfinite({"a": ok, "b": None}) is None
     assert _first_nonfinite({"a": ok, "b": torch.tensor([1.0, float("nan")]), "c": torch.tensor([float("inf")])}) == "b"
     assert _first_nonfinite({}) is None
+    big = torch.full((4,), 3e38)  # finite, but its sum overflows: the exact check names nothing
+    assert _first_nonfinite({"a": big, "b": ok}) is None
+    assert _first_nonfinite({"a": big, "b": torch.tensor([-float("inf"), float("inf")])}) == "b"
 
 
 def test_compile_setting_reaches_the_kernels_and_the_environment_wins(tmp_path, monkeypatch):

@@ -27,6 +27,7 @@ from torch import Tensor
 
 from ..cameras import Camera
 from ..evaluation.pose_refine import rigid_correction
+from ..model.optim import adam
 
 
 def poses_estimated(config) -> bool:
@@ -72,7 +73,7 @@ class CameraRefiner:
             groups.append(("log_focal", self.log_focal, lr_rotation))
         self._trained = {f"camera_refine.{name}": tensor for name, tensor, _ in groups}
         self.base_lr = [lr for _, _, lr in groups]
-        self.optimizer = torch.optim.Adam([{"params": [tensor], "lr": lr} for _, tensor, lr in groups], eps=1e-15)
+        self.optimizer = adam([{"params": [tensor], "lr": lr} for _, tensor, lr in groups], lr=lr_rotation)
 
     @classmethod
     def for_run(cls, config, views: int, scene_scale: float, device) -> "CameraRefiner | None":

@@ -34,6 +34,7 @@ from ..runtime.profiling import section
 from ..render import RenderOutput, rasterize, rgb_to_sh
 from ..runtime.rng import keyed_generator
 from .init import initial_points
+from .optim import adam
 from .regularisers import regulariser_terms
 
 def knn_scale(points: Tensor, k: int = 3) -> Tensor:
@@ -199,7 +200,7 @@ class GaussianModel(nn.Module):
         """One Adam per trainable parameter key."""
         lrs = self.learning_rates(0)
         return {
-            k: torch.optim.Adam([{"params": [p], "lr": lrs[k], "name": k}], lr=lrs[k], eps=1e-15)
+            k: adam([{"params": [p], "lr": lrs[k], "name": k}], lr=lrs[k])
             for k, p in self.params.items()
             if p.requires_grad and k in lrs
         }
@@ -282,7 +283,8 @@ class GaussianModel(nn.Module):
         (DropGaussian draws from it), None for evaluation, the viewer and exports."""
         p = self.params
         d = self.active_sh_degree
-        coeffs = torch.cat([p["sh0"], p["shN"]], dim=1)[:, : (d + 1) ** 2]
+        # only the active bands are copied; shN stays in the graph (its gradient is zero beyond them)
+        coeffs = torch.cat([p["sh0"], p["shN"][:, : (d + 1) ** 2 - 1]], dim=1)
         return rasterize(
             self.positions(),
             p["quats"],
