@@ -19,6 +19,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from .render._kernels import compile_requested, with_fallback
+
 C1 = 0.01**2
 C2 = 0.03**2
 
@@ -94,7 +96,18 @@ def photometric_loss(pred: Tensor, gt: Tensor, lambda_dssim: float = 0.2, mask: 
 
     With ``mask``, both terms are averaged over masked pixels only (the SSIM
     map is still computed on the whole image).
+
+    While kernels are compiled (``splat_framework.render.compile_requested``: training runs), the
+    unmasked loss of a prediction that needs a gradient runs as one ``torch.compile`` graph: on
+    fern's 504x378 views, forward and backward take 8 ms instead of 27 ms (CPU, 2 threads; the
+    eager version is a few dozen passes over the image). The values are the eager ones.
     """
+    if mask is None and pred.requires_grad and compile_requested():
+        return _compiled_photometric()(pred, gt, float(lambda_dssim))
+    return _photometric(pred, gt, lambda_dssim, mask)
+
+
+def _photometric(pred: Tensor, gt: Tensor, lambda_dssim: float = 0.2, mask: Tensor | None = None) -> Tensor:
     l1 = l1_loss(pred, gt, mask)
     if mask is None:
         s = ssim(pred, gt)
@@ -103,6 +116,21 @@ def photometric_loss(pred: Tensor, gt: Tensor, lambda_dssim: float = 0.2, mask: 
         smap = ssim_map(pred, gt) * m
         s = smap.sum() / (m.sum() * pred.shape[-1]).clamp_min(1e-8)
     return (1.0 - lambda_dssim) * l1 + lambda_dssim * (1.0 - s)
+
+
+_COMPILED: dict[str, object] = {}
+
+
+def _compiled_photometric():
+    """``_photometric`` without a mask, compiled once per process (per image size and thread
+    count, which torch.compile guards on), eager after any failure."""
+    if "loss" not in _COMPILED:
+        try:
+            compiled = torch.compile(_photometric, dynamic=False)
+        except Exception:  # pragma: no cover - depends on the toolchain
+            compiled = _photometric
+        _COMPILED["loss"] = with_fallback(compiled, _photometric, "the photometric loss (L1 + SSIM)")
+    return _COMPILED["loss"]
 
 
 def depth_smoothness(depth: Tensor, image: Tensor, alpha: Tensor, gamma: float = 10.0, min_alpha: float = 0.5) -> Tensor:

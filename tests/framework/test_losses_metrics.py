@@ -276,3 +276,41 @@ def test_scale_anisotropy_known_values_and_gradient():
     empty = torch.zeros(0, 3, requires_grad=True)
     out = scale_anisotropy(empty, 10.0)
     assert float(out) == 0.0 and out.requires_grad
+
+
+def test_the_compiled_photometric_loss_equals_the_eager_one(monkeypatch, tmp_path):
+    """While kernels are compiled (training runs) the loss and its gradient come from one compiled
+    graph; they equal the eager ones, and a toolchain that cannot compile falls back to them."""
+    import shutil
+    import warnings
+
+    from splat_framework import losses
+    from splat_framework.render import _kernels
+
+    a, b = images()
+
+    def loss_and_grad():
+        pred = a.clone().requires_grad_()
+        loss = photometric_loss(pred, b, 0.2)
+        loss.backward()
+        return loss.detach(), pred.grad
+
+    eager = loss_and_grad()
+    monkeypatch.delenv("SPLAT_COMPILE")
+    monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", str(tmp_path / "inductor"))
+    monkeypatch.setattr(losses, "_COMPILED", {})
+    from torch._dynamo.utils import counters
+
+    graphs = counters["stats"]["unique_graphs"]
+    _kernels.set_compile(True)
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            for _ in range(2):
+                for got, want in zip(loss_and_grad(), eager):
+                    torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-7)
+    finally:
+        _kernels.set_compile(False)
+    if shutil.which("c++") or shutil.which("g++"):  # with a compiler, the compiled graph really ran
+        assert not [str(w.message) for w in caught if "could not compile" in str(w.message)]
+        assert counters["stats"]["unique_graphs"] > graphs

@@ -328,19 +328,27 @@ def get_kernels():
 
 
 def _with_fallback(compiled, eager, active_arg: int, which: str):
-    """``compiled``, or ``eager`` after any failure and for single-tile rounds (a
-    size-1 dimension would make torch.compile specialise and compile again);
-    ``args[active_arg]`` is the round's [nA] active tiles. The first compiled call (the
-    compilation, or loading it from the inductor cache) runs as a phase of its own:
-    ``which`` names the kernel (forward, backward); a :class:`Precompiled` kernel names its own
-    phases (loading, or compiling once per machine)."""
-    state = {"ok": True, "compiled_once": isinstance(compiled, Precompiled)}
+    """The round kernels' :func:`with_fallback`: eager for single-tile rounds (a size-1 dimension
+    would make torch.compile specialise and compile again); ``args[active_arg]`` is the round's
+    [nA] active tiles, ``which`` the kernel (forward, backward)."""
+    return with_fallback(compiled, eager, f"the rasterizer kernels ({which})",
+                         eligible=lambda args: args[active_arg].shape[0] > 1,
+                         compiled_once=isinstance(compiled, Precompiled))
+
+
+def with_fallback(compiled, eager, what: str, eligible=None, compiled_once: bool = False):
+    """``compiled``, or ``eager`` after any failure (one warning line) and for the calls that
+    ``eligible(args)`` turns away. The first compiled call (the compilation, or loading it from
+    inductor's cache) runs as a phase of its own, "compiling ``what`` for this process", unless
+    ``compiled_once`` (a :class:`Precompiled` kernel names its own phases: loading, or compiling
+    once per machine)."""
+    state = {"ok": True, "compiled_once": compiled_once}
 
     def run(*args):
-        if state["ok"] and args[active_arg].shape[0] > 1:
+        if state["ok"] and (eligible is None or eligible(args)):
             try:
                 if not state["compiled_once"]:
-                    with phase(f"compiling the rasterizer kernels ({which}) for this process"):
+                    with phase(f"compiling {what} for this process"):
                         out = compiled(*args)
                     state["compiled_once"] = True
                     return out
@@ -348,7 +356,7 @@ def _with_fallback(compiled, eager, active_arg: int, which: str):
             except Exception as exc:  # pragma: no cover - depends on the toolchain
                 state["ok"] = False
                 first = (str(exc).strip().splitlines() or [""])[0][:200]
-                warnings.warn(f"compiled rasterizer kernels unavailable ({type(exc).__name__}: {first}); using eager")
+                warnings.warn(f"could not compile {what} ({type(exc).__name__}: {first}); using eager")
         return eager(*args)
 
     return run

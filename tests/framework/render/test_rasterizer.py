@@ -522,7 +522,7 @@ def test_compiled_kernels_match_eager_in_a_training_step(monkeypatch, tmp_path):
                 torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
     finally:
         _kernels.set_compile(False)
-    fell_back = [str(w.message) for w in caught if "unavailable" in str(w.message)]
+    fell_back = [str(w.message) for w in caught if "unavailable" in str(w.message) or "could not compile" in str(w.message)]
     if shutil.which("c++") or shutil.which("g++"):  # with a compiler, the compiled kernels really ran
         assert not fell_back, fell_back
         if supported():
