@@ -19,7 +19,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from .render._kernels import compile_requested, with_fallback
+from .render import compile_requested, with_fallback
 
 C1 = 0.01**2
 C2 = 0.03**2

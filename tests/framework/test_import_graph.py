@@ -171,3 +171,38 @@ def test_the_layer_rule_sees_an_upward_import():
     assert layer_of("splat_framework.config.train") < layer_of("splat_framework.viewer.serving")
     assert layer_of("splat_framework.matching.config") < layer_of("splat_framework.matching.pipeline")
     assert layer_of("splat_framework.export.ply") < layer_of("splat_framework.model.init") < layer_of("splat_framework.export.video")
+
+
+def test_every_module_imports_first_in_a_fresh_process():
+    """Importing a module first runs its parent packages' ``__init__`` too, an edge the graph above
+    does not draw: ``import splat_framework.matching`` as a process's first import once failed on a
+    half-built ``MatchConfig`` (matching -> config package -> config.init -> matching.config). Each
+    module is imported first in a child forked from a process that holds only third-party modules."""
+    import os
+    import subprocess
+    import sys
+
+    import pytest
+
+    if not hasattr(os, "fork"):
+        pytest.skip("needs os.fork")
+    names = sorted(n for n in _module_files()  # a __main__ module runs its command when imported
+                   if n.split(".")[0] in ("splat_framework", "scg_plugin", "anchor_gs") and not n.endswith("__main__"))
+    code = r'''
+import importlib, os, sys
+import cv2, kornia, numpy, pydantic, rich, torch, tyro  # noqa: F401  shared by the forks, imported once
+for name in sys.argv[1:]:
+    pid = os.fork()
+    if pid == 0:
+        try:
+            importlib.import_module(name)
+        except BaseException as e:
+            print(f"{name}: {type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}", flush=True)
+            os._exit(1)
+        os._exit(0)
+    os.waitpid(pid, 0)
+'''
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    out = subprocess.run([sys.executable, "-c", code, *names], capture_output=True, text=True, env=env, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "", out.stdout

@@ -51,6 +51,10 @@ ALIKED + LightGlue, weight lookup), ``registry`` (matchers by name, ``auto``),
 triangulated points), ``drawing``.
 """
 
+# MatchConfig builds on splat_framework.config, whose package imports this package's config
+# module (the triangulated start's matching): initialise that package first, so that importing
+# splat_framework.matching (or any of its modules) first of all does not meet it half-built
+from .. import config as _config  # noqa: F401  (import order)
 from .base import Matcher, Pts, no_matches, texture, to_gray_u8, to_hwc, to_uint8_rgb
 from .classical import DenseFlowMatcher, SiftMatcher, mutual_ratio_match
 from .guided import GuidedFlowMatcher

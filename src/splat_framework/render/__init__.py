@@ -1,6 +1,6 @@
 """Differentiable Gaussian rendering: the shared rasterizer and SH evaluation."""
 
-from ._kernels import compile_requested, set_compile
+from ._kernels import compile_requested, set_compile, with_fallback
 from ._project import quat_to_rotmat
 from .rasterizer import RenderOutput, rasterize
 from .sh import eval_sh, rgb_to_sh, sh_to_color, sh_to_rgb
@@ -15,4 +15,5 @@ __all__ = [
     "set_compile",
     "sh_to_color",
     "sh_to_rgb",
+    "with_fallback",
 ]
