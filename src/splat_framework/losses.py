@@ -122,11 +122,13 @@ _COMPILED: dict[str, object] = {}
 
 
 def _compiled_photometric():
-    """``_photometric`` without a mask, compiled once per process (per image size and thread
-    count, which torch.compile guards on), eager after any failure."""
+    """``_photometric`` without a mask, compiled once per process and thread count (which
+    torch.compile guards on; the thread policy uses powers of two), eager after any failure. The
+    first image size is compiled as it is; a second one (views of several sizes) recompiles once
+    with symbolic sizes (torch.compile's automatic dynamic shapes), not once per size."""
     if "loss" not in _COMPILED:
         try:
-            compiled = torch.compile(_photometric, dynamic=False)
+            compiled = torch.compile(_photometric)
         except Exception:  # pragma: no cover - depends on the toolchain
             compiled = _photometric
         _COMPILED["loss"] = with_fallback(compiled, _photometric, "the photometric loss (L1 + SSIM)")
