@@ -13,6 +13,7 @@ reproduce 3DGS numbers.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
@@ -118,21 +119,18 @@ def _photometric(pred: Tensor, gt: Tensor, lambda_dssim: float = 0.2, mask: Tens
     return (1.0 - lambda_dssim) * l1 + lambda_dssim * (1.0 - s)
 
 
-_COMPILED: dict[str, object] = {}
-
-
+@functools.cache
 def _compiled_photometric():
     """``_photometric`` without a mask, compiled once per process and thread count (which
-    torch.compile guards on; the thread policy uses powers of two), eager after any failure. The
-    first image size is compiled as it is; a second one (views of several sizes) recompiles once
-    with symbolic sizes (torch.compile's automatic dynamic shapes), not once per size."""
-    if "loss" not in _COMPILED:
-        try:
-            compiled = torch.compile(_photometric)
-        except Exception:  # pragma: no cover - depends on the toolchain
-            compiled = _photometric
-        _COMPILED["loss"] = with_fallback(compiled, _photometric, "the photometric loss (L1 + SSIM)")
-    return _COMPILED["loss"]
+    torch.compile guards on; the thread policy uses powers of two), eager after any failure (and
+    where this torch or Python has no torch.compile). The first image size is compiled as it is; a
+    second one (views of several sizes) recompiles once with symbolic sizes (torch.compile's
+    automatic dynamic shapes), not once per size."""
+    try:
+        compiled = torch.compile(_photometric)
+    except Exception:  # pragma: no cover - depends on the torch build and Python version
+        return _photometric
+    return with_fallback(compiled, _photometric, "the photometric loss (L1 + SSIM)")
 
 
 def depth_smoothness(depth: Tensor, image: Tensor, alpha: Tensor, gamma: float = 10.0, min_alpha: float = 0.5) -> Tensor:
