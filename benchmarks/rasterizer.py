@@ -18,7 +18,7 @@ subprocess per N; CUDA: torch.cuda.max_memory_allocated).
 
 Usage:
     python benchmarks/rasterizer.py [--device cpu|cuda] [--sizes 10000 50000 ...]
-        [--repeats 7] [--json PATH] [--md PATH] [--compile | --modes eager compiled]
+        [--repeats 7] [--json PATH] [--md PATH] [--compile | --modes eager compiled native]
         [--threads T]
 """
 
@@ -43,6 +43,12 @@ DEFAULT_SIZES = [10_000, 50_000, 100_000, 200_000]
 TRANSLUCENT_OPACITY_QUANTILES = [(0.0, 0.004), (0.05, 0.006), (0.25, 0.029), (0.5, 0.10), (0.75, 0.217),
                                  (0.95, 0.991), (1.0, 0.995)]
 SCENES = ("opaque", "translucent")
+#: the compositing kernels a mode runs
+KERNELS = {
+    "eager": "SPLAT_COMPILE=0: the eager per-round torch kernels",
+    "compiled": "SPLAT_COMPILE=1, native kernels off: the torch.compile'd per-round kernels",
+    "native": "SPLAT_COMPILE=1 on a CPU: the native C++ kernels",
+}
 
 
 def _translucent_opacities(u):
@@ -85,11 +91,18 @@ def _maxrss_bytes() -> int:
     return r if sys.platform == "darwin" else r * 1024
 
 
-def run_one(n: int, device: str, repeats: int, warmup: int, scene: str = "opaque") -> dict:
-    """Measure one size in this process (called in a fresh subprocess)."""
+def run_one(n: int, device: str, repeats: int, warmup: int, scene: str = "opaque", kernels: str = "eager") -> dict:
+    """Measure one size in this process (called in a fresh subprocess). ``kernels``: eager, compiled
+    (the torch.compile'd per-round kernels: CUDA's, and a CPU's that cannot build the native ones) or
+    native (the C++ kernels a CPU training run uses)."""
     import torch
 
-    from splat_framework.render import rasterize
+    from splat_framework.data.cache_dir import user_cache_dir
+    from splat_framework.render import rasterize, rasterizer, set_compile
+
+    set_compile(kernels != "eager", user_cache_dir())
+    if kernels == "compiled":
+        rasterizer.native_for = lambda device: None
 
     def sync():
         if device == "cuda":
@@ -211,10 +224,10 @@ def machine_info(device: str, threads: int | None) -> dict:
 
 
 def render_table(results: list[dict], info: dict, mode: str) -> str:
-    """``mode``: "eager" / "compiled" (opaque scene) or "eager translucent" / "compiled translucent"."""
+    """``mode``: "eager" / "compiled" / "native" (opaque scene), or the same + " translucent"."""
     scene = "translucent" if mode.endswith("translucent") else "opaque"
     lines = [
-        f"### {mode.split()[0]}, {scene} scene (SPLAT_COMPILE={'1' if mode.startswith('compiled') else '0'})",
+        f"### {mode.split()[0]}, {scene} scene ({KERNELS[mode.split()[0]]})",
         "",
         "| N | visible | mean alpha | render (no grad) median | forward median | fwd+bwd median"
         " | fwd+bwd min | peak memory | first call | busy |",
@@ -359,7 +372,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--warmup", type=int, default=2)
     ap.add_argument("--threads", type=int, default=None, help="torch.set_num_threads (default: torch's)")
     ap.add_argument("--compile", action="store_true", help="benchmark with SPLAT_COMPILE=1 (fused kernels)")
-    ap.add_argument("--modes", nargs="+", choices=["eager", "compiled"], default=None,
+    ap.add_argument("--modes", nargs="+", choices=list(KERNELS), default=None,
                     help="run several modes (default: eager, or compiled with --compile)")
     ap.add_argument("--scenes", nargs="+", choices=SCENES, default=list(SCENES),
                     help="opaque (early termination bounds the work) and/or translucent (training-like opacities)")
@@ -369,6 +382,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--from-json", type=str, default=None,
                     help="only re-render --md from a JSON file written by --json")
     ap.add_argument("--worker", type=int, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--kernels", choices=list(KERNELS), default="eager", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
 
     if args.from_json:
@@ -386,7 +400,7 @@ def main(argv: list[str] | None = None) -> None:
 
         if args.threads:
             torch.set_num_threads(args.threads)
-        print(json.dumps(run_one(args.worker, args.device, args.repeats, args.warmup, args.scene)))
+        print(json.dumps(run_one(args.worker, args.device, args.repeats, args.warmup, args.scene, args.kernels)))
         return
 
     import torch
@@ -398,11 +412,11 @@ def main(argv: list[str] | None = None) -> None:
     all_results: dict[str, list[dict]] = {}
     for mode, scene in [(m, sc) for sc in args.scenes for m in modes]:
         env = os.environ.copy()
-        env["SPLAT_COMPILE"] = "1" if mode == "compiled" else "0"
+        env["SPLAT_COMPILE"] = "0" if mode == "eager" else "1"
         results = []
         for n in args.sizes:
             cmd = [sys.executable, os.path.abspath(__file__), "--worker", str(n), "--device", args.device,
-                   "--repeats", str(args.repeats), "--warmup", str(args.warmup), "--scene", scene]
+                   "--repeats", str(args.repeats), "--warmup", str(args.warmup), "--scene", scene, "--kernels", mode]
             if args.threads:
                 cmd += ["--threads", str(args.threads)]
             proc = subprocess.run(cmd, capture_output=True, text=True, env=env)

@@ -10,9 +10,10 @@ VARIABLES: dict[str, str] = {
     "SPLAT_DATA": "Folder under which a relative `--data` name that does not exist is looked up "
                   "(`splat-train 3dgs --data llff/fern` with `SPLAT_DATA=../shared/data`).",
     "SPLAT_CACHE": "Where generated scenes, match caches and compiled kernels go (default `~/.cache/splat`); "
-                   "compiled rasterizer kernels are kept under `$SPLAT_CACHE/inductor`.",
-    "SPLAT_COMPILE": "`0` or `1`: compile the rasterizer's kernels with torch.compile or run them eagerly, "
-                     "whatever `--compile` says.",
+                   "the native rasterizer kernels are built under `$SPLAT_CACHE/native`, torch.compile's under "
+                   "`$SPLAT_CACHE/inductor`.",
+    "SPLAT_COMPILE": "`0` or `1`: compile the rasterizer's kernels (native C++ on a CPU, torch.compile elsewhere) "
+                     "or run them eagerly, whatever `--compile` says.",
     "SPLAT_THREADS": "CPU threads of the whole process (torch and OpenCV, every phase): `auto` (the default) "
                      "follows the cores other processes leave free, re-read every second; an integer pins the "
                      "count; `off` leaves it alone.",

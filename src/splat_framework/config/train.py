@@ -92,7 +92,7 @@ class TrainConfig(SplatConfig):
     viewer_every: Annotated[Interval, RUN_OPTION] = 100
     """Send the model to the training viewer every this many iterations."""
     compile: Annotated[bool, RUN_OPTION] = True
-    """Fuse the rasterizer's compositing kernels with torch.compile, for training and for rendering this run later (compiled once per machine and kept under $SPLAT_CACHE; eager fallback on any failure; SPLAT_COMPILE=0/1 overrides)."""
+    """Compile the rasterizer's compositing kernels, for training and for rendering this run later: on a CPU the native C++ kernels, elsewhere (or where they cannot be built) torch.compile'd ones (built once per machine and kept under $SPLAT_CACHE; eager fallback on any failure; SPLAT_COMPILE=0/1 overrides)."""
     model: GaussianModelConfig = Field(default_factory=GaussianModelConfig)
     """Model options."""
     strategy: RegisteredStrategies = Field(default_factory=DensifyConfig)

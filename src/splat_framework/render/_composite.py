@@ -245,7 +245,7 @@ def _chunk_pairs(fp: Footprints, sel: Tensor, grid: TileGrid, tile_done: Tensor)
 
 class _Composite(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, colors, depths, background, fp, grid, basis, block, chunk_pairs):  # type: ignore[override]
+    def forward(ctx, means2d, conics, opacities, colors, depths, background, fp, grid, basis, block, chunk_pairs, native):  # type: ignore[override]
         ctx.set_materialize_grads(False)
         device, dtype = means2d.device, means2d.dtype
         n = means2d.shape[0]
@@ -273,27 +273,17 @@ class _Composite(torch.autograd.Function):
             [(t_idx % grid.ntx) * grid.tile, (t_idx // grid.ntx) * grid.tile], dim=1
         ).to(dtype) + grid.tile / 2.0
 
-        fwd_round, _ = get_kernels()
         out = torch.zeros(n_tiles, f, npx, device=device, dtype=dtype)
         t_state = torch.ones(n_tiles, npx, device=device, dtype=dtype)  # 0 once a pixel stopped
         tile_done = torch.zeros(n_tiles, dtype=torch.bool, device=device)
         keep_rounds = any(ctx.needs_input_grad[:6])  # the backward replays the rounds
-        ar = torch.arange(block, device=device)
-        rounds = []
-        for gid_sorted, tile_count, tile_offset in _iter_chunks(fp, grid, chunk_pairs, tile_done):
-            gid_pad = torch.cat([gid_sorted, gid_sorted.new_full((1,), n)])
-            active = torch.nonzero(tile_count > 0).squeeze(1)
-            start = tile_offset.index_select(0, active)  # next pair of each active tile's list
-            end = start + tile_count.index_select(0, active)
-            while active.numel() > 0:
-                gid, t_carry, more = fwd_round(table, gid_pad, start, end, ar, tile_centers, active, basis,
-                                               t_state, out)
-                if keep_rounds:
-                    rounds.append((active, gid, t_carry))
-                more = torch.nonzero(more).squeeze(1)
-                active, start, end = _at(active, more), _at(start, more) + block, _at(end, more)
-            tile_done |= ~(t_state > 0).any(1)  # read by _iter_chunks before the next chunk
-        ctx.rounds = rounds
+        ctx.native = native
+        if native is not None:
+            ctx.rounds = _native_forward(native, table, fp, grid, chunk_pairs, tile_centers, t_state, out,
+                                         tile_done, keep_rounds)
+        else:
+            ctx.rounds = _round_forward(table, fp, grid, chunk_pairs, tile_centers, basis, t_state, out,
+                                        tile_done, keep_rounds, block)
         img = tiles_to_image(out, grid)  # [H, W, 5]
         alpha = img[..., 4:5]
         bg = background.detach()
@@ -327,14 +317,15 @@ class _Composite(torch.autograd.Function):
         prefix = torch.zeros_like(total)
         # [6 + F, N + 1]: Gaussians along the last dim, so adding a round's rows is one strided
         # index_add per column block (5-8 % less compositing backward than [N + 1, 6 + F] on CPU)
-        grads_t = torch.zeros(6 + f, n + 1, device=table.device, dtype=table.dtype)
-        _, bwd_round = get_kernels()
-        for active, gid, t_carry in ctx.rounds:
-            g_rows, new_prefix = bwd_round(table, gid, tile_centers, active, basis, t_carry, g_out, total, prefix)
-            prefix.index_copy_(0, active, new_prefix)
-            # eager: a Gaussian's pairs in several tiles add up (compiled, that needs atomics)
-            grads_t.index_add_(1, gid.reshape(-1), g_rows.reshape(-1, 6 + f).T)
-        grads = grads_t.T[:n]
+        if ctx.native is not None:
+            # one [N + 1, 6 + F] table per worker thread (no atomics), summed
+            slots = torch.zeros(max(torch.get_num_threads(), 1), n + 1, 6 + f, device=table.device, dtype=table.dtype)
+            for active, gid_sorted, tile_offset, t_entry, n_incl in ctx.rounds:
+                ctx.native.composite_backward(table, gid_sorted, tile_offset, active, tile_centers, t_entry, n_incl,
+                                              g_out, total, prefix, slots, grid.tile)
+            grads = slots.sum(0)[:n]
+        else:
+            grads = _round_backward(ctx.rounds, table, tile_centers, basis, g_out, total, prefix, n, f)
         d_opac = torch.where(opac > 0, grads[:, 5] / opac.clamp_min(1e-30), 0.0)
         return (
             grads[:, 0:2],
@@ -348,7 +339,61 @@ class _Composite(torch.autograd.Function):
             None,
             None,
             None,
+            None,
         )
+
+
+def _round_forward(table, fp, grid, chunk_pairs, tile_centers, basis, t_state, out, tile_done, keep_rounds, block):
+    """The chunks' per-round torch kernels (eager or torch.compile'd), state updated in place; the
+    rounds the backward replays: [(active tiles, Gaussian ids [nA, B], entry transmittance)]."""
+    fwd_round, _ = get_kernels()
+    n = table.shape[0] - 1
+    ar = torch.arange(block, device=table.device)
+    rounds = []
+    for gid_sorted, tile_count, tile_offset in _iter_chunks(fp, grid, chunk_pairs, tile_done):
+        gid_pad = torch.cat([gid_sorted, gid_sorted.new_full((1,), n)])
+        active = torch.nonzero(tile_count > 0).squeeze(1)
+        start = tile_offset.index_select(0, active)  # next pair of each active tile's list
+        end = start + tile_count.index_select(0, active)
+        while active.numel() > 0:
+            gid, t_carry, more = fwd_round(table, gid_pad, start, end, ar, tile_centers, active, basis,
+                                           t_state, out)
+            if keep_rounds:
+                rounds.append((active, gid, t_carry))
+            more = torch.nonzero(more).squeeze(1)
+            active, start, end = _at(active, more), _at(start, more) + block, _at(end, more)
+        tile_done |= ~(t_state > 0).any(1)  # read by _iter_chunks before the next chunk
+    return rounds
+
+
+def _round_backward(rounds, table, tile_centers, basis, g_out, total, prefix, n, f) -> Tensor:
+    """[N, 6 + F] gradients of the table rows, the rounds replayed front to back."""
+    # [6 + F, N + 1]: Gaussians along the last dim, so adding a round's rows is one strided
+    # index_add per column block (5-8 % less compositing backward than [N + 1, 6 + F] on CPU)
+    grads_t = torch.zeros(6 + f, n + 1, device=table.device, dtype=table.dtype)
+    _, bwd_round = get_kernels()
+    for active, gid, t_carry in rounds:
+        g_rows, new_prefix = bwd_round(table, gid, tile_centers, active, basis, t_carry, g_out, total, prefix)
+        prefix.index_copy_(0, active, new_prefix)
+        # eager: a Gaussian's pairs in several tiles add up (compiled, that needs atomics)
+        grads_t.index_add_(1, gid.reshape(-1), g_rows.reshape(-1, 6 + f).T)
+    return grads_t.T[:n]
+
+
+def _native_forward(native, table, fp, grid, chunk_pairs, tile_centers, t_state, out, tile_done, keep_rounds):
+    """The chunks composited by the native kernels, state updated in place; what the backward
+    replays: [(active tiles, the chunk's ids, tile offsets, entry transmittance [nA, npx],
+    pairs each pixel included [nA, npx])]."""
+    chunks = []
+    for gid_sorted, tile_count, tile_offset in _iter_chunks(fp, grid, chunk_pairs, tile_done):
+        active = torch.nonzero(tile_count > 0).squeeze(1)
+        t_entry = _at(t_state, active) if keep_rounds else None
+        n_incl = native.composite_forward(table, gid_sorted, tile_offset, tile_count, active, tile_centers,
+                                          t_state, out, grid.tile)
+        if keep_rounds:
+            chunks.append((active, gid_sorted, tile_offset, t_entry, n_incl))
+        tile_done |= ~(t_state > 0).any(1)  # read by _iter_chunks before the next chunk
+    return chunks
 
 
 def composite(
@@ -363,10 +408,14 @@ def composite(
     basis: Tensor,
     block: int,
     chunk_pairs: int,
+    native=None,
 ) -> tuple[Tensor, Tensor, Tensor]:
-    """(rgb [H, W, 3] with background, accumulated depth [H, W, 1], alpha [H, W, 1])."""
+    """(rgb [H, W, 3] with background, accumulated depth [H, W, 1], alpha [H, W, 1]).
+
+    ``native``: the native kernels (:func:`._native.native_kernels`) for CPU tensors, or None
+    for the per-round torch kernels (:func:`._kernels.get_kernels`)."""
     return _Composite.apply(
-        means2d, conics, opacities, colors, depths, background, fp, grid, basis, block, chunk_pairs
+        means2d, conics, opacities, colors, depths, background, fp, grid, basis, block, chunk_pairs, native
     )
 
 

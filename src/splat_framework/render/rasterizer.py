@@ -20,6 +20,7 @@ from torch import Tensor
 
 from ._composite import TileGrid, composite, pixel_basis, tile_footprints
 from ._kernels import compile_requested
+from ._native import native_for
 from ._project import ProjectFn, footprint, project_and_shade, reference_radii
 from ..runtime.profiling import section
 from ..runtime.threads import follow_load
@@ -258,7 +259,7 @@ def _rasterize(
     with section("compositing"):
         rgb, depth, alpha = composite(
             means2d, conics, opacities, rgb_g.to(dtype), depths, background, fp, grid, basis, block,
-            chunk_pairs,
+            chunk_pairs, native_for(device),
         )
     if depth_mode == "expected":
         depth = torch.where(alpha > 0, depth / alpha.clamp_min(1e-12), torch.zeros_like(depth))

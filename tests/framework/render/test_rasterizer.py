@@ -485,9 +485,12 @@ def test_all_culled_and_inference_mode():
 
 
 def test_compiled_kernels_match_eager_in_a_training_step(monkeypatch, tmp_path):
-    """torch.compile'd compositing (what compile="auto" turns on for long CPU runs) gives the eager
-    forward and gradients; any compile failure falls back to eager, so this also runs without a compiler."""
-    from splat_framework.render import _kernels
+    """torch.compile'd compositing (what training runs use on CUDA, and on a CPU where the native
+    kernels cannot be built) gives the eager forward and gradients; any compile failure falls back
+    to eager, so this also runs without a compiler."""
+    from splat_framework.render import _kernels, rasterizer
+
+    monkeypatch.setattr(rasterizer, "native_for", lambda device: None)
     from splat_framework.render.precompiled import Precompiled, supported
 
     width, height = 40, 30

@@ -1,0 +1,94 @@
+"""The native CPU compositing kernels (``native/composite.cpp``), built once per machine.
+
+While kernels are compiled (``compile_requested()``: training and rendering runs), CPU
+renders composite each depth chunk with these C++ kernels instead of the per-round
+``torch.compile`` ones: the same rules and backward, one pass over each tile's pairs with the
+transmittance in registers (`docs/rasterizer.md`). They are built with the C++ compiler that
+``torch.compile`` already needs (and ninja, a dependency, as ``torch.utils.cpp_extension`` builds), the first
+time on a machine, into ``$SPLAT_CACHE/native`` (or torch's extension folder); later processes
+load the built library in well under a second. Any failure to build or load (no compiler, no
+ninja) falls back to the ``torch.compile`` kernels with a one-line warning.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import warnings
+from pathlib import Path
+
+import torch
+
+from ..console import phase
+from ._kernels import _SETTING, compile_requested
+
+_SOURCE = Path(__file__).with_name("native") / "composite.cpp"
+_STATE: dict = {"module": None, "failed": False}
+
+
+def _flags() -> list[str]:
+    """Optimisation flags: the CPU's own vector instructions (the build folder is keyed by
+    torch's view of them, so a cache shared between machines never loads a wrong build)."""
+    flags = ["-O3", "-fopenmp-simd", "-fno-math-errno", "-fno-trapping-math"]
+    if os.uname().machine in ("x86_64", "AMD64", "aarch64", "arm64"):
+        flags.append("-march=native")
+    return flags
+
+
+def _build_dir(cache_dir: Path | None) -> Path | None:
+    if cache_dir is None:
+        return None
+    key = hashlib.sha256(
+        _SOURCE.read_bytes() + " ".join(_flags()).encode() + torch.__version__.encode()
+        + torch.backends.cpu.get_cpu_capability().encode() + os.uname().machine.encode()
+    ).hexdigest()[:16]
+    return Path(cache_dir) / "native" / f"composite-{key}"
+
+
+def _ninja_on_path() -> None:
+    """torch's extension builder runs ``ninja`` from PATH: add the ninja package's (a dependency)
+    where no ninja is found, e.g. a virtual environment's tools run without activating it."""
+    if shutil.which("ninja") is None:
+        try:
+            import ninja
+        except ImportError:
+            return
+        os.environ["PATH"] = os.pathsep.join([ninja.BIN_DIR, os.environ.get("PATH", "")])
+
+
+def native_kernels(cache_dir: Path | None = None):
+    """The loaded extension (``composite_forward``, ``composite_backward``), built when missing;
+    None when it cannot be built on this machine (warned once)."""
+    if _STATE["module"] is not None or _STATE["failed"]:
+        return _STATE["module"]
+    from torch.utils import cpp_extension
+
+    _ninja_on_path()
+    build = _build_dir(cache_dir)
+    ready = build is not None and any(build.glob("*.so"))
+    try:
+        if build is not None:
+            build.mkdir(parents=True, exist_ok=True)
+        what = "loading" if ready else "building"
+        with phase(f"{what} the native compositing kernels" + ("" if ready else " (once per machine)")):
+            _STATE["module"] = cpp_extension.load(
+                name="splat_composite", sources=[str(_SOURCE)], extra_cflags=_flags(),
+                build_directory=str(build) if build is not None else None, verbose=False,
+            )
+    except Exception as exc:  # depends on the toolchain
+        _STATE["failed"] = True
+        first = (str(exc).strip().splitlines() or [""])[0][:200]
+        warnings.warn(f"could not build the native compositing kernels ({type(exc).__name__}: {first}); "
+                      "using the torch.compile ones")
+    return _STATE["module"]
+
+
+def native_for(device: torch.device):
+    """The native kernels for renders on ``device`` while kernels are compiled, else None."""
+    if device.type != "cpu" or not compile_requested():
+        return None
+    return native_kernels(_SETTING["cache_dir"])
+
+
+__all__ = ["native_for", "native_kernels"]

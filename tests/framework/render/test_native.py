@@ -1,0 +1,122 @@
+"""The native CPU compositing kernels (render/native/composite.cpp) against the brute-force
+reference of test_rasterizer: forward, gradients, float64 gradcheck, early termination, clamped
+alphas; and how they are chosen, built and given up on."""
+
+from __future__ import annotations
+
+import shutil
+import warnings
+
+import pytest
+import torch
+
+import test_rasterizer as ref
+from splat_framework.render import _native, rasterizer
+
+HAVE_TOOLCHAIN = bool((shutil.which("c++") or shutil.which("g++")) and shutil.which("ninja"))
+
+
+@pytest.fixture(scope="module")
+def native_module(tmp_path_factory):
+    if not HAVE_TOOLCHAIN:
+        pytest.skip("no C++ compiler or ninja on this machine: the native kernels cannot be built here")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        module = _native.native_kernels(tmp_path_factory.mktemp("native-cache"))
+    assert module is not None, [str(w.message) for w in caught]  # with a toolchain the build must work
+    return module
+
+
+@pytest.fixture
+def native(native_module, monkeypatch):
+    """Every rasterize() of the test composites with the native kernels."""
+    monkeypatch.setattr(rasterizer, "native_for", lambda device: native_module if device.type == "cpu" else None)
+    return native_module
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_native_matches_bruteforce_float64(native, seed):
+    ref._compare(40, seed, 37, 29, torch.float64)
+
+
+def test_native_matches_bruteforce_small_tiles_many_chunks(native):
+    # termination across depth chunks: each chunk starts from the transmittance the last one left
+    ref._compare(60, 3, 33, 26, torch.float64, tile_size=8, block=4, chunk_pairs=16)
+
+
+def test_native_matches_bruteforce_float32(native):
+    # float32 uses the kernels' own exp (range reduction and a polynomial)
+    ref._compare(40, 5, 37, 29, torch.float32, grad_rtol=2e-3)
+
+
+@pytest.mark.parametrize("deg", [0, 3])
+def test_native_matches_bruteforce_sh(native, deg):
+    ref._compare(30, 10 + deg, 27, 21, torch.float64, sh_k=16, sh_degree=deg)
+
+
+def test_native_off_centre_tiles_and_settings(native):
+    ref.test_non_square_off_centre_principal_point()
+    ref.test_tile_and_block_settings_agree()
+
+
+def test_native_early_termination_and_clamped_alpha(native):
+    ref.test_early_termination_dense_opaque_scene()
+    ref.test_clamped_alpha_opacity_one()
+
+
+def test_native_gradcheck(native):
+    ref.test_gradcheck_tiny_scene()
+
+
+def test_native_float32_exp_is_accurate(native):
+    # one Gaussian per pixel grid: the rendered alpha is o exp(-q/2) itself, from the kernels' exp
+    width, height = 16, 16
+    viewmat, K = ref.make_camera(width, height, dtype=torch.float32)
+    params = ref.random_scene(1, 0, dtype=torch.float32, spread=0.0, scale=(0.0, 0.0))
+    out = rasterizer._rasterize(*params, viewmat, K, width, height, sh_degree=None, background=None,
+                                near_plane=0.01, far_plane=1e10, depth_mode="accumulated", eps2d=0.3,
+                                tile_size=8, block=None, chunk_pairs=None)
+    p64 = [p.double() for p in params]
+    _, _, alpha = ref.reference_render(*p64, viewmat.double(), K.double(), width, height)
+    assert alpha.max() > 0.1
+    torch.testing.assert_close(out.alpha.double(), alpha, atol=2e-7, rtol=2e-6)
+
+
+def test_native_kernels_are_chosen_for_cpu_renders_while_compiling(native_module, monkeypatch):
+    monkeypatch.setattr(_native, "native_kernels", lambda cache_dir=None: native_module)
+    monkeypatch.setenv("SPLAT_COMPILE", "1")
+    assert _native.native_for(torch.device("cpu")) is native_module
+    assert _native.native_for(torch.device("meta")) is None  # another device: the torch kernels
+    monkeypatch.setenv("SPLAT_COMPILE", "0")
+    assert _native.native_for(torch.device("cpu")) is None  # eager: the torch kernels
+
+
+def test_a_failed_build_warns_once_and_falls_back(monkeypatch, tmp_path):
+    from torch.utils import cpp_extension
+
+    calls = []
+
+    def broken(**kwargs):
+        calls.append(kwargs)
+        raise RuntimeError("Ninja is required to load C++ extensions\nmore detail")
+
+    monkeypatch.setattr(cpp_extension, "load", broken)
+    monkeypatch.setattr(_native, "_STATE", {"module": None, "failed": False})
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert _native.native_kernels(tmp_path) is None
+        assert _native.native_kernels(tmp_path) is None  # not tried again in this process
+    assert len(calls) == 1
+    messages = [str(w.message) for w in caught]
+    assert messages == ["could not build the native compositing kernels (RuntimeError: Ninja is required to load "
+                        "C++ extensions); using the torch.compile ones"]
+    monkeypatch.setenv("SPLAT_COMPILE", "1")
+    assert _native.native_for(torch.device("cpu")) is None  # renders take the torch.compile kernels
+
+
+def test_build_folder_is_keyed_by_source_flags_and_cpu(tmp_path, monkeypatch):
+    a = _native._build_dir(tmp_path)
+    assert a.parent == tmp_path / "native"
+    monkeypatch.setattr(torch.backends.cpu, "get_cpu_capability", lambda: "SOMETHING-ELSE")
+    assert _native._build_dir(tmp_path) != a  # a cache shared with another CPU never loads this build
+    assert _native._build_dir(None) is None
