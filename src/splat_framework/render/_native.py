@@ -30,7 +30,7 @@ _STATE: dict = {"module": None, "failed": False}
 def _flags() -> list[str]:
     """Optimisation flags: the CPU's own vector instructions (the build folder is keyed by
     torch's view of them, so a cache shared between machines never loads a wrong build)."""
-    flags = ["-O3", "-fopenmp-simd", "-fno-math-errno", "-fno-trapping-math"]
+    flags = ["-O3", "-fopenmp", "-fno-math-errno", "-fno-trapping-math"]
     if os.uname().machine in ("x86_64", "AMD64", "aarch64", "arm64"):
         flags.append("-march=native")
     return flags
@@ -73,7 +73,7 @@ def native_kernels(cache_dir: Path | None = None):
         what = "loading" if ready else "building"
         with phase(f"{what} the native compositing kernels" + ("" if ready else " (once per machine)")):
             _STATE["module"] = cpp_extension.load(
-                name="splat_composite", sources=[str(_SOURCE)], extra_cflags=_flags(),
+                name="splat_composite", sources=[str(_SOURCE)], extra_cflags=_flags(), extra_ldflags=["-fopenmp"],
                 build_directory=str(build) if build is not None else None, verbose=False,
             )
     except Exception as exc:  # depends on the toolchain

@@ -141,15 +141,18 @@ def rasterize(
         block: pairs per tile evaluated per compositing round (performance
             only; early termination drops finished tiles between rounds).
             None: 8 with the compiled kernels, 4 with the eager ones (each
-            measured fastest on real fern training steps).
+            measured fastest on real fern training steps); the native CPU
+            kernels walk each tile's whole list and do not use it.
         chunk_pairs: (tile, Gaussian) pairs binned per depth chunk
             (performance only; None: 128 per tile). Tiles finished by nearer
             chunks are skipped by farther ones.
 
     Environment:
-        SPLAT_COMPILE=0/1: eager or torch.compile'd per-round compositing
-            kernels (default: what ``set_compile`` chose, eager until called;
-            eager fallback on any compile failure).
+        SPLAT_COMPILE=0/1: eager per-round compositing kernels, or compiled
+            ones: the native C++ kernels for CPU tensors (:mod:`._native`),
+            torch.compile'd per-round kernels on other devices or where the
+            native ones cannot be built (default: what ``set_compile`` chose,
+            eager until called; eager fallback on any compile failure).
         SPLAT_THREADS: the process's CPU threads (:mod:`splat_framework.runtime.threads`);
             each CPU call lets the "auto" count follow the machine's load.
 

@@ -21,11 +21,10 @@
 //   out       [T, F, P]   sum of w f; updated in place
 //   n_incl    [A, P]      (returned) pairs of the tile's list each pixel included
 #include <torch/extension.h>
-#include <ATen/Parallel.h>  // at::get_num_threads
+#include <ATen/Parallel.h>
 
 #include <algorithm>
 #include <atomic>
-#include <thread>
 #include <cmath>
 #include <cstdint>
 #include <vector>
@@ -78,23 +77,23 @@ std::vector<scalar_t> local_coords(int tile, bool y) {
   return c;
 }
 
-// Run work(tile_index_in_active, slot) for every active tile on ``slots`` threads (this one and
-// slots - 1 more), tiles handed out one at a time; ``slot`` is the worker's number. Plain
-// threads, not an OpenMP region: the extension must not bring a second OpenMP runtime beside
-// torch's; the count is torch's intra-op thread count, which the process's thread policy sets.
+// Run work(tile_index_in_active, slot) for every active tile on torch's intra-op threads (the
+// count the process's thread policy sets), tiles handed out one at a time; ``slot`` < slots
+// is unique among the concurrent workers. Built with -fopenmp, the extension's OpenMP calls go
+// to the libgomp that torch already loaded (same soname): one thread pool, no second runtime.
 template <typename Fn>
 void for_each_tile(int64_t n_active, int64_t slots, const Fn& work) {
   std::atomic<int64_t> next{0};
-  auto worker = [&](int64_t slot) {
-    for (int64_t i = next.fetch_add(1); i < n_active; i = next.fetch_add(1)) work(i, slot);
-  };
   slots = std::max<int64_t>(1, std::min<int64_t>(slots, n_active / 4 + 1));  // small chunks: fewer threads
-  std::vector<std::thread> pool;
-  for (int64_t s = 1; s < slots; ++s) pool.emplace_back(worker, s);
-  worker(0);
-  for (auto& th : pool) th.join();
+  at::parallel_for(0, slots, 1, [&](int64_t begin, int64_t end) {
+    for (int64_t slot = begin; slot < end; ++slot)
+      for (int64_t i = next.fetch_add(1); i < n_active; i = next.fetch_add(1)) work(i, slot);
+  });
 }
 
+// One pair against a tile's P pixels: alpha, inclusion, the weighted features added to acc
+// [F, P], T updated (0 once a pixel stops), inc counting included pairs; returns the number of
+// pixels that included it (0: every pixel of the tile has stopped).
 template <typename scalar_t>
 int forward_pair(const scalar_t* row, const scalar_t* __restrict px, const scalar_t* __restrict py,
                  scalar_t* __restrict T, scalar_t* __restrict acc, int32_t* __restrict inc, const int P,
