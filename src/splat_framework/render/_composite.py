@@ -318,7 +318,8 @@ class _Composite(torch.autograd.Function):
         # [6 + F, N + 1]: Gaussians along the last dim, so adding a round's rows is one strided
         # index_add per column block (5-8 % less compositing backward than [N + 1, 6 + F] on CPU)
         if ctx.native is not None:
-            # one [N + 1, 6 + F] table per worker thread (no atomics), summed
+            # one [N + 1, 6 + F] table per worker thread (no atomics), summed; each thread's tiles are
+            # a fixed interleave, so the gradients are the same bits run after run (exact resume)
             slots = torch.zeros(max(torch.get_num_threads(), 1), n + 1, 6 + f, device=table.device, dtype=table.dtype)
             for active, gid_sorted, tile_offset, t_entry, n_incl in ctx.rounds:
                 ctx.native.composite_backward(table, gid_sorted, tile_offset, active, tile_centers, t_entry, n_incl,

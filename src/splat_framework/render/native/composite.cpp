@@ -78,16 +78,23 @@ std::vector<scalar_t> local_coords(int tile, bool y) {
 }
 
 // Run work(tile_index_in_active, slot) for every active tile on torch's intra-op threads (the
-// count the process's thread policy sets), tiles handed out one at a time; ``slot`` < slots
-// is unique among the concurrent workers. Built with -fopenmp, the extension's OpenMP calls go
-// to the libgomp that torch already loaded (same soname): one thread pool, no second runtime.
+// count the process's thread policy sets); ``slot`` < slots is unique among the concurrent
+// workers. Dynamic: tiles handed out one at a time (tiles differ a lot in work). Fixed: slot s
+// takes tiles s, s + slots, ... (neighbouring tiles cost about the same), so what each slot adds
+// up, and in which order, does not depend on timing: the backward's sums are deterministic.
+// Built with -fopenmp, the extension's OpenMP calls go to the libgomp that torch already loaded
+// (same soname): one thread pool, no second runtime.
 template <typename Fn>
-void for_each_tile(int64_t n_active, int64_t slots, const Fn& work) {
+void for_each_tile(int64_t n_active, int64_t slots, bool fixed, const Fn& work) {
   std::atomic<int64_t> next{0};
-  slots = std::max<int64_t>(1, std::min<int64_t>(slots, n_active / 4 + 1));  // small chunks: fewer threads
   at::parallel_for(0, slots, 1, [&](int64_t begin, int64_t end) {
-    for (int64_t slot = begin; slot < end; ++slot)
-      for (int64_t i = next.fetch_add(1); i < n_active; i = next.fetch_add(1)) work(i, slot);
+    for (int64_t slot = begin; slot < end; ++slot) {
+      if (fixed) {
+        for (int64_t i = slot; i < n_active; i += slots) work(i, slot);
+      } else {
+        for (int64_t i = next.fetch_add(1); i < n_active; i = next.fetch_add(1)) work(i, slot);
+      }
+    }
   });
 }
 
@@ -145,7 +152,8 @@ void forward_impl(const torch::Tensor& table, const torch::Tensor& gid, const to
   const auto lx = local_coords<scalar_t>(tile, false);
   const auto ly = local_coords<scalar_t>(tile, true);
   const scalar_t amin = scalar_t(ALPHA_MIN), lmax = std::log(scalar_t(ALPHA_MAX)), tmin = scalar_t(T_MIN);
-  for_each_tile(active.size(0), at::get_num_threads(), [&](int64_t ai, int64_t) {
+  const int64_t slots = std::max<int64_t>(1, std::min<int64_t>(at::get_num_threads(), active.size(0) / 4 + 1));
+  for_each_tile(active.size(0), slots, false, [&](int64_t ai, int64_t) {
     const int64_t t = act[ai];
     std::vector<scalar_t> px(P), py(P), acc(F * P);
     std::vector<int32_t> inc(P, 0);
@@ -244,7 +252,8 @@ void backward_impl(const torch::Tensor& table, const torch::Tensor& gid, const t
   const auto lx = local_coords<scalar_t>(tile, false);
   const auto ly = local_coords<scalar_t>(tile, true);
   const scalar_t amin = scalar_t(ALPHA_MIN), lmax = std::log(scalar_t(ALPHA_MAX));
-  for_each_tile(active.size(0), grads.size(0), [&](int64_t ai, int64_t slot) {
+  // every slot of grads is used, whatever the chunk's size: the sums depend only on the slot count
+  for_each_tile(active.size(0), grads.size(0), true, [&](int64_t ai, int64_t slot) {
     const int64_t t = act[ai];
     std::vector<scalar_t> px(P), py(P), T(P), cs(P), gv(F * P), tt(P);
     std::vector<int32_t> inc(P);
