@@ -281,6 +281,11 @@ def set_compile(enabled: bool, cache_dir: Path | None = None) -> None:
         os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", str(Path(cache_dir) / "inductor"))
 
 
+def kernel_cache_dir() -> Path | None:
+    """The folder ``set_compile`` was given for compiled kernels (None: none given)."""
+    return _SETTING["cache_dir"]
+
+
 def compile_requested() -> bool:
     env = os.environ.get("SPLAT_COMPILE", "").strip().lower()
     if env:

@@ -21,7 +21,7 @@ from pathlib import Path
 import torch
 
 from ..console import phase
-from ._kernels import _SETTING, compile_requested
+from ._kernels import compile_requested, kernel_cache_dir
 
 _SOURCE = Path(__file__).with_name("native") / "composite.cpp"
 _STATE: dict = {"module": None, "failed": False}
@@ -88,7 +88,7 @@ def native_for(device: torch.device):
     """The native kernels for renders on ``device`` while kernels are compiled, else None."""
     if device.type != "cpu" or not compile_requested():
         return None
-    return native_kernels(_SETTING["cache_dir"])
+    return native_kernels(kernel_cache_dir())
 
 
 __all__ = ["native_for", "native_kernels"]
