@@ -202,11 +202,17 @@ def measure(method: str, args: argparse.Namespace) -> list[dict]:
         compiled = os.environ.get("SPLAT_COMPILE", "0") == "1"
     else:
         compiled = compile_requested()
+    try:
+        from splat_framework.render._native import native_for
+    except ImportError:  # older code: no native kernels
+        kernels = "compiled" if compiled else "eager"
+    else:
+        kernels = "native" if native_for(trainer.device) is not None else ("compiled" if compiled else "eager")
     records = []
     for at, path in sorted(snaps.items()):
         load_snapshot(trainer, path)
         n = trainer.model.num_gaussians
-        rec = {"method": method, "at": at, "num_gaussians": n, "compiled": compiled,
+        rec = {"method": method, "at": at, "num_gaussians": n, "compiled": compiled, "kernels": kernels,
                **time_steps(trainer, at, args.steps, args.warmup, trainer.device)}
         if not args.no_torch_profiler:
             load_snapshot(trainer, path)
@@ -217,9 +223,13 @@ def measure(method: str, args: argparse.Namespace) -> list[dict]:
     return records
 
 
+def _kernels_label(record: dict) -> str:
+    """The compositing kernels a record ran (records older than the native kernels: compiled or eager)."""
+    return record.get("kernels") or ("compiled" if record.get("compiled") else "eager")
+
+
 def markdown(records: list[dict], info: dict, command: str) -> str:
-    cols = [f"`{r['method']}` @ {r['at']} ({r['num_gaussians']:,} G{', compiled' if r.get('compiled') else ''})"
-            for r in records]
+    cols = [f"`{r['method']}` @ {r['at']} ({r['num_gaussians']:,} G, {_kernels_label(r)})" for r in records]
     lines = ["| ms per step | " + " | ".join(cols) + " |", "|---|" + "--:|" * len(cols)]
     for label, _ in PHASES:
         vals = [r["phases_s"][label] * 1e3 for r in records]
