@@ -15,12 +15,13 @@ from __future__ import annotations
 import hashlib
 import os
 import shutil
+import time
 import warnings
 from pathlib import Path
 
 import torch
 
-from ..console import phase
+from ..console import phase, say
 from ._kernels import compile_requested, kernel_cache_dir
 
 _SOURCE = Path(__file__).with_name("native") / "composite.cpp"
@@ -57,6 +58,23 @@ def _ninja_on_path() -> None:
         os.environ["PATH"] = os.pathsep.join([ninja.BIN_DIR, os.environ.get("PATH", "")])
 
 
+#: a build lock older than this was left by a build that was killed (a build takes under a minute)
+STALE_LOCK_S = 600.0
+
+
+def _clear_stale_lock(build: Path) -> None:
+    """Remove the build folder's lock when a killed build left it: torch's extension builder would
+    otherwise wait for it forever, without a word."""
+    lock = build / "lock"
+    try:
+        age = time.time() - lock.stat().st_mtime
+    except FileNotFoundError:
+        return
+    if age > STALE_LOCK_S:
+        say(f"note: {lock}: removed a build lock left {age / 60:.0f} min ago by a build that did not finish")
+        lock.unlink(missing_ok=True)
+
+
 def native_kernels(cache_dir: Path | None = None):
     """The loaded extension (``composite_forward``, ``composite_backward``), built when missing;
     None when it cannot be built on this machine (warned once)."""
@@ -70,6 +88,7 @@ def native_kernels(cache_dir: Path | None = None):
     try:
         if build is not None:
             build.mkdir(parents=True, exist_ok=True)
+            _clear_stale_lock(build)
         what = "loading" if ready else "building"
         with phase(f"{what} the native compositing kernels" + ("" if ready else " (once per machine)")):
             _STATE["module"] = cpp_extension.load(

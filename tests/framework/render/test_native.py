@@ -135,6 +135,23 @@ def test_a_failed_build_warns_once_and_falls_back(monkeypatch, tmp_path):
     assert _native.native_for(torch.device("cpu")) is None  # renders take the torch.compile kernels
 
 
+def test_a_lock_left_by_a_killed_build_is_removed_and_a_fresh_one_kept(tmp_path, capsys):
+    import os
+    import time
+
+    build = tmp_path / "build"
+    build.mkdir()
+    lock = build / "lock"
+    lock.touch()
+    _native._clear_stale_lock(build)
+    assert lock.exists()  # a build may be running in another process
+    old = time.time() - _native.STALE_LOCK_S - 60
+    os.utime(lock, (old, old))
+    _native._clear_stale_lock(build)
+    assert not lock.exists()  # torch's builder would have waited for it forever
+    assert "removed a build lock" in capsys.readouterr().err
+
+
 def test_build_folder_is_keyed_by_source_flags_and_cpu(tmp_path, monkeypatch):
     a = _native._build_dir(tmp_path)
     assert a.parent == tmp_path / "native"
