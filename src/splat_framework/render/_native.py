@@ -89,8 +89,8 @@ def native_kernels(cache_dir: Path | None = None):
         if build is not None:
             build.mkdir(parents=True, exist_ok=True)
             _clear_stale_lock(build)
-        what = "loading" if ready else "building"
-        with phase(f"{what} the native compositing kernels" + ("" if ready else " (once per machine)")):
+        with phase("loading the native compositing kernels" if ready
+                   else "building the native compositing kernels (once per machine)"):
             _STATE["module"] = cpp_extension.load(
                 name="splat_composite", sources=[str(_SOURCE)], extra_cflags=_flags(), extra_ldflags=["-fopenmp"],
                 build_directory=str(build) if build is not None else None, verbose=False,

@@ -152,6 +152,20 @@ def test_a_lock_left_by_a_killed_build_is_removed_and_a_fresh_one_kept(tmp_path,
     assert "removed a build lock" in capsys.readouterr().err
 
 
+def test_the_ninja_package_goes_on_path_only_where_no_ninja_is_found(monkeypatch):
+    import os
+
+    ninja = pytest.importorskip("ninja")
+    monkeypatch.setenv("PATH", "/nowhere")
+    monkeypatch.setattr(shutil, "which", lambda name: None)  # e.g. a venv's tools run without activating it
+    _native._ninja_on_path()
+    assert os.environ["PATH"].split(os.pathsep) == [ninja.BIN_DIR, "/nowhere"]
+    monkeypatch.setenv("PATH", "/nowhere")
+    monkeypatch.setattr(shutil, "which", lambda name: "/usr/bin/ninja")
+    _native._ninja_on_path()
+    assert os.environ["PATH"] == "/nowhere"  # a ninja on PATH is left alone
+
+
 def test_build_folder_is_keyed_by_source_flags_and_cpu(tmp_path, monkeypatch):
     a = _native._build_dir(tmp_path)
     assert a.parent == tmp_path / "native"

@@ -66,15 +66,25 @@ inline float exp_neg(float x) {
 
 inline double exp_neg(double x) { return std::exp(x); }
 
-// Pixel-local coordinates of a tile's pixels relative to its centre (row-major).
+// log(o G) and alpha of the Gaussian (u, v, a, b, c, log o) at the pixel offset (dx, dy) from its
+// mean: alpha = min(o G, 0.99), 0 below 1/255. Forward and backward call this one function, so
+// they agree on every alpha.
 template <typename scalar_t>
-std::vector<scalar_t> local_coords(int tile, bool y) {
-  std::vector<scalar_t> c(tile * tile);
+inline scalar_t pixel_alpha(scalar_t dx, scalar_t dy, scalar_t a, scalar_t b, scalar_t c, scalar_t lo,
+                            scalar_t amin, scalar_t lmax, scalar_t& logit) {
+  logit = lo - scalar_t(0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy;
+  const scalar_t alpha = exp_neg(std::min(logit, lmax));
+  return alpha < amin ? scalar_t(0) : alpha;
+}
+
+// Pixel centres (px, py) [P] of tile t, row-major, from the tile centres [T, 2].
+template <typename scalar_t>
+void tile_pixels(const scalar_t* centers, int64_t t, int tile, scalar_t* px, scalar_t* py) {
+  const scalar_t half = scalar_t(tile) / scalar_t(2) - scalar_t(0.5);
   for (int i = 0; i < tile * tile; ++i) {
-    const int k = y ? i / tile : i % tile;
-    c[i] = scalar_t(k) + scalar_t(0.5) - scalar_t(tile) / scalar_t(2);
+    px[i] = centers[2 * t] + scalar_t(i % tile) - half;
+    py[i] = centers[2 * t + 1] + scalar_t(i / tile) - half;
   }
-  return c;
 }
 
 // Run work(tile_index_in_active, slot) for every active tile on torch's intra-op threads (the
@@ -116,9 +126,8 @@ int forward_pair(const scalar_t* row, const scalar_t* __restrict px, const scala
 #pragma omp simd reduction(+ : alive)
   for (int i = 0; i < P; ++i) {
     const scalar_t dx = px[i] - u, dy = py[i] - v;
-    const scalar_t logit = lo - scalar_t(0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy;
-    scalar_t alpha = exp_neg(std::min(logit, lmax));
-    alpha = alpha < amin ? scalar_t(0) : alpha;
+    scalar_t logit;
+    const scalar_t alpha = pixel_alpha(dx, dy, a, b, c, lo, amin, lmax, logit);
     const scalar_t tb = T[i];
     const scalar_t ta = tb * (scalar_t(1) - alpha);
     const int in = ta >= tmin ? 1 : 0;
@@ -149,8 +158,6 @@ void forward_impl(const torch::Tensor& table, const torch::Tensor& gid, const to
   scalar_t* ts = t_state.data_ptr<scalar_t>();
   scalar_t* o = out.data_ptr<scalar_t>();
   int32_t* ninc = n_incl.data_ptr<int32_t>();
-  const auto lx = local_coords<scalar_t>(tile, false);
-  const auto ly = local_coords<scalar_t>(tile, true);
   const scalar_t amin = scalar_t(ALPHA_MIN), lmax = std::log(scalar_t(ALPHA_MAX)), tmin = scalar_t(T_MIN);
   const int64_t slots = std::max<int64_t>(1, std::min<int64_t>(at::get_num_threads(), active.size(0) / 4 + 1));
   for_each_tile(active.size(0), slots, false, [&](int64_t ai, int64_t) {
@@ -158,10 +165,7 @@ void forward_impl(const torch::Tensor& table, const torch::Tensor& gid, const to
     std::vector<scalar_t> px(P), py(P), acc(F * P);
     std::vector<int32_t> inc(P, 0);
     scalar_t* T = ts + t * P;
-    for (int i = 0; i < P; ++i) {
-      px[i] = ctr[2 * t] + lx[i];
-      py[i] = ctr[2 * t + 1] + ly[i];
-    }
+    tile_pixels(ctr, t, tile, px.data(), py.data());
     std::copy(o + t * F * P, o + (t + 1) * F * P, acc.begin());
     const int64_t* list = g + off[t];
     for (int64_t k = 0; k < cnt[t]; ++k) {
@@ -193,9 +197,8 @@ void backward_pair(const scalar_t* row, const int32_t k, const scalar_t* __restr
 #pragma omp simd reduction(+ : s_lo, s_a, s_b, s_c, s_u, s_v, w0, w1, w2, w3, w4)
   for (int i = 0; i < P; ++i) {
     const scalar_t dx = px[i] - u, dy = py[i] - v;
-    const scalar_t logit = lo - scalar_t(0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy;
-    scalar_t alpha = exp_neg(std::min(logit, lmax));
-    alpha = alpha < amin ? scalar_t(0) : alpha;
+    scalar_t logit;
+    const scalar_t alpha = pixel_alpha(dx, dy, a, b, c, lo, amin, lmax, logit);
     const scalar_t om = scalar_t(1) - alpha;
     const scalar_t tb = T[i];
     const bool in = k < inc[i];
@@ -249,8 +252,6 @@ void backward_impl(const torch::Tensor& table, const torch::Tensor& gid, const t
   const scalar_t* tot = total.data_ptr<scalar_t>();
   scalar_t* pre = prefix.data_ptr<scalar_t>();
   scalar_t* gr = grads.data_ptr<scalar_t>();
-  const auto lx = local_coords<scalar_t>(tile, false);
-  const auto ly = local_coords<scalar_t>(tile, true);
   const scalar_t amin = scalar_t(ALPHA_MIN), lmax = std::log(scalar_t(ALPHA_MAX));
   // every slot of grads is used, whatever the chunk's size: the sums depend only on the slot count
   for_each_tile(active.size(0), grads.size(0), true, [&](int64_t ai, int64_t slot) {
@@ -258,9 +259,8 @@ void backward_impl(const torch::Tensor& table, const torch::Tensor& gid, const t
     std::vector<scalar_t> px(P), py(P), T(P), cs(P), gv(F * P), tt(P);
     std::vector<int32_t> inc(P);
     int32_t n_max = 0;
+    tile_pixels(ctr, t, tile, px.data(), py.data());
     for (int i = 0; i < P; ++i) {
-      px[i] = ctr[2 * t] + lx[i];
-      py[i] = ctr[2 * t + 1] + ly[i];
       T[i] = te[ai * P + i];
       cs[i] = pre[t * P + i];
       tt[i] = tot[t * P + i];
