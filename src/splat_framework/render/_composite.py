@@ -20,6 +20,11 @@ Gaussian ids and entry transmittance) and uses the closed form
 
 where ``total = sum_j w_j h_j`` is read off the forward output, so nothing of
 size [pairs, pixels] is kept between forward and backward.
+
+On a CPU while kernels are compiled, each chunk is composited by the native kernels instead of
+rounds (:mod:`._native`, ``native/composite.cpp``): every pair of a tile's list against the tile's
+pixels, the same rules and the same closed form; the backward replays each chunk from its entry
+transmittance and the number of pairs each pixel included.
 """
 
 from __future__ import annotations
@@ -315,8 +320,6 @@ class _Composite(torch.autograd.Function):
         g_out = image_to_tiles(torch.cat([g_rgb, g_depth, g_a], -1), grid)  # [n_tiles, F, npx]
         total = (out * g_out).sum(1)  # [n_tiles, npx]
         prefix = torch.zeros_like(total)
-        # [6 + F, N + 1]: Gaussians along the last dim, so adding a round's rows is one strided
-        # index_add per column block (5-8 % less compositing backward than [N + 1, 6 + F] on CPU)
         if ctx.native is not None:
             # one [N + 1, 6 + F] table per worker thread (no atomics), summed; each thread's tiles are
             # a fixed interleave, so the gradients are the same bits run after run (exact resume)
