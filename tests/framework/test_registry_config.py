@@ -177,7 +177,10 @@ def test_variants_survive_a_wheel_install(tmp_path):
     where = subprocess.run([str(py), "-c", "import scg_plugin, splat_configs; print(scg_plugin.__file__, splat_configs.__file__)"],
                            cwd=tmp_path, env=env, capture_output=True, text=True, check=True).stdout.split()
     assert all(w.startswith(str(fresh_site)) for w in where), where  # really the wheel's copy, not the checkout
-    assert (fresh_site / "splat_framework" / "render" / "native" / "composite.cpp").is_file()  # the native kernels' source
+    from splat_framework.render import _native
+
+    native_dir = fresh_site / "splat_framework" / "render" / "native"
+    assert all((native_dir / name).is_file() for name in _native._SOURCES + _native._HEADERS)  # the native kernels' sources
     out = subprocess.run([str(env_dir / "bin" / "splat-train"), "--help"], cwd=tmp_path, env=env,
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr

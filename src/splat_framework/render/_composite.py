@@ -142,34 +142,50 @@ def _alive_counts(tile_done: Tensor, fp: Footprints, pos: int, grid: TileGrid) -
     return _at(flat, ty1 * w1 + tx1) - _at(flat, ty0 * w1 + tx1) - _at(flat, ty1 * w1 + tx0) + _at(flat, ty0 * w1 + tx0)
 
 
-def _iter_chunks(fp: Footprints, grid: TileGrid, chunk_pairs: int, tile_done: Tensor):
+def _iter_chunks(fp: Footprints, grid: TileGrid, chunk_pairs: int, tile_done: Tensor, native=None):
     """Yield per-chunk (gid_sorted, tile_count, tile_offset), front to back.
 
     Chunks hold ~chunk_pairs pairs with unfinished tiles; ``tile_done`` is read
     (it is updated by the caller between chunks): Gaussians whose rectangle holds
     only finished tiles are skipped, and iteration stops once every tile is done.
+    ``native``: the native kernels bin each chunk (the same pairs in the same order), else torch ops.
     """
     v = fp.ids.numel()
     pos = 0
     first = True
     while pos < v:
         with section("binning"):
-            if first:
-                cnt = (fp.tx1 - fp.tx0 + 1) * (fp.ty1 - fp.ty0 + 1)
+            if not first and bool(tile_done.all()):
+                return
+            if native is not None:
+                gid_sorted, tile_count, tile_offset, pos = native.bin_chunk(
+                    fp.ids, fp.tx0, fp.tx1, fp.ty0, fp.ty1, fp.ell, tile_done, pos, chunk_pairs, grid.tile,
+                    grid.ntx, grid.nty, grid.width, grid.height)
+                if gid_sorted.numel() == 0:
+                    continue
+                chunk = gid_sorted, tile_count, tile_offset
             else:
-                if bool(tile_done.all()):
-                    return
-                cnt = _alive_counts(tile_done, fp, pos, grid)
-            cum = torch.cumsum(cnt, 0)
-            limit = torch.tensor([chunk_pairs], device=cum.device, dtype=cum.dtype)
-            take = max(int(torch.searchsorted(cum, limit, right=True)), 1)
-            sel = pos + torch.nonzero(cnt[:take] > 0).squeeze(1)
-            pos += take
-            if sel.numel() == 0:
-                continue
-            chunk = _chunk_pairs(fp, sel, grid, tile_done)
+                chunk, pos = _torch_chunk(fp, grid, chunk_pairs, tile_done, pos, first)
+                if chunk is None:
+                    continue
         yield chunk
         first = False
+
+
+def _torch_chunk(fp: Footprints, grid: TileGrid, chunk_pairs: int, tile_done: Tensor, pos: int, first: bool):
+    """The chunk starting at ``pos`` binned with torch ops: ((gid_sorted, tile_count, tile_offset) or
+    None when it holds no pair, the position after it)."""
+    if first:
+        cnt = (fp.tx1 - fp.tx0 + 1) * (fp.ty1 - fp.ty0 + 1)
+    else:
+        cnt = _alive_counts(tile_done, fp, pos, grid)
+    cum = torch.cumsum(cnt, 0)
+    limit = torch.tensor([chunk_pairs], device=cum.device, dtype=cum.dtype)
+    take = max(int(torch.searchsorted(cum, limit, right=True)), 1)
+    sel = pos + torch.nonzero(cnt[:take] > 0).squeeze(1)
+    if sel.numel() == 0:
+        return None, pos + take
+    return _chunk_pairs(fp, sel, grid, tile_done), pos + take
 
 
 def _row_columns(ell: Tensor, row: Tensor, grid: TileGrid) -> tuple[Tensor, Tensor]:
@@ -389,7 +405,7 @@ def _native_forward(native, table, fp, grid, chunk_pairs, tile_centers, t_state,
     replays: [(active tiles, the chunk's ids, tile offsets, entry transmittance [nA, npx],
     pairs each pixel included [nA, npx])]."""
     chunks = []
-    for gid_sorted, tile_count, tile_offset in _iter_chunks(fp, grid, chunk_pairs, tile_done):
+    for gid_sorted, tile_count, tile_offset in _iter_chunks(fp, grid, chunk_pairs, tile_done, native):
         active = torch.nonzero(tile_count > 0).squeeze(1)
         t_entry = _at(t_state, active) if keep_rounds else None
         n_incl = native.composite_forward(table, gid_sorted, tile_offset, tile_count, active, tile_centers,

@@ -1,9 +1,9 @@
-"""The native CPU compositing kernels (``native/composite.cpp``), built once per machine.
+"""The native CPU binning and compositing kernels (``native/*.cpp``), built once per machine.
 
 While kernels are compiled (``compile_requested()``: training and rendering runs), CPU
-renders composite each depth chunk with these C++ kernels instead of the per-round
-``torch.compile`` ones: the same rules and backward, one pass over each tile's pairs with the
-transmittance in registers (`docs/rasterizer.md`). They are built with the C++ compiler that
+renders bin and composite each depth chunk with these C++ kernels instead of the torch binning
+and the per-round ``torch.compile`` kernels: the same rules and backward, one pass over each
+tile's pairs with the transmittance in registers (`docs/rasterizer.md`). They are built with the C++ compiler that
 ``torch.compile`` already needs (and ninja, a dependency, as ``torch.utils.cpp_extension`` builds), the first
 time on a machine, into ``$SPLAT_CACHE/native`` (or torch's extension folder); later processes
 load the built library in well under a second. Any failure to build or load (no compiler, no
@@ -24,7 +24,9 @@ import torch
 from ..console import phase, say
 from ._kernels import compile_requested, kernel_cache_dir
 
-_SOURCE = Path(__file__).with_name("native") / "composite.cpp"
+_FOLDER = Path(__file__).with_name("native")
+_SOURCES = ("composite.cpp", "binning.cpp", "module.cpp")  # module.cpp: the Python bindings
+_HEADERS = ("native.h",)
 _STATE: dict = {"module": None, "failed": False}
 
 
@@ -41,10 +43,10 @@ def _build_dir(cache_dir: Path | None) -> Path | None:
     if cache_dir is None:
         return None
     key = hashlib.sha256(
-        _SOURCE.read_bytes() + " ".join(_flags()).encode() + torch.__version__.encode()
+        b"".join((_FOLDER / name).read_bytes() for name in _SOURCES + _HEADERS) + " ".join(_flags()).encode() + torch.__version__.encode()
         + torch.backends.cpu.get_cpu_capability().encode() + os.uname().machine.encode()
     ).hexdigest()[:16]
-    return Path(cache_dir) / "native" / f"composite-{key}"
+    return Path(cache_dir) / "native" / f"kernels-{key}"
 
 
 def _ninja_on_path() -> None:
@@ -76,7 +78,7 @@ def _clear_stale_lock(build: Path) -> None:
 
 
 def native_kernels(cache_dir: Path | None = None):
-    """The loaded extension (``composite_forward``, ``composite_backward``), built when missing;
+    """The loaded extension (``composite_forward``, ``composite_backward``, ``bin_chunk``), built when missing;
     None when it cannot be built on this machine (warned once)."""
     if _STATE["module"] is not None or _STATE["failed"]:
         return _STATE["module"]
@@ -89,17 +91,17 @@ def native_kernels(cache_dir: Path | None = None):
         if build is not None:
             build.mkdir(parents=True, exist_ok=True)
             _clear_stale_lock(build)
-        with phase("loading the native compositing kernels" if ready
-                   else "building the native compositing kernels (once per machine)"):
+        with phase("loading the native rasterizer kernels" if ready
+                   else "building the native rasterizer kernels (once per machine)"):
             _STATE["module"] = cpp_extension.load(
-                name="splat_composite", sources=[str(_SOURCE)], extra_cflags=_flags(), extra_ldflags=["-fopenmp"],
+                name="splat_native", sources=[str(_FOLDER / name) for name in _SOURCES], extra_cflags=_flags(), extra_ldflags=["-fopenmp"],
                 build_directory=str(build) if build is not None else None, verbose=False,
             )
     except Exception as exc:  # depends on the toolchain
         _STATE["failed"] = True
         first = (str(exc).strip().splitlines() or [""])[0][:200]
-        warnings.warn(f"could not build the native compositing kernels ({type(exc).__name__}: {first}); "
-                      "using the torch.compile ones")
+        warnings.warn(f"could not build the native rasterizer kernels ({type(exc).__name__}: {first}); "
+                      "using the torch ones")
     return _STATE["module"]
 
 

@@ -1,6 +1,6 @@
-"""The native CPU compositing kernels (render/native/composite.cpp) against the brute-force
-reference of test_rasterizer: forward, gradients, float64 gradcheck, early termination, clamped
-alphas; and how they are chosen, built and given up on."""
+"""The native CPU kernels (render/native/*.cpp) against the brute-force reference of
+test_rasterizer: forward, gradients, float64 gradcheck, early termination, clamped alphas; their
+binning against the torch binning; and how they are chosen, built and given up on."""
 
 from __future__ import annotations
 
@@ -103,6 +103,41 @@ def test_native_float32_exp_is_accurate(native):
     torch.testing.assert_close(out.alpha.double(), alpha, atol=2e-7, rtol=2e-6)
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_native_binning_gives_the_torch_binnings_pairs_in_the_same_order(native, dtype):
+    # the same chunks, the same (tile, Gaussian) pairs sorted by (tile, depth), with and without
+    # finished tiles, for chunks that start at the first Gaussian and further on
+    from splat_framework.render import _composite as comp
+    from splat_framework.render._project import footprint, project_and_shade
+
+    width, height = 90, 70
+    viewmat, K = ref.make_camera(width, height, dtype=dtype)
+    means, quats, scales, opac, colors = ref.random_scene(600, 4, dtype=dtype)
+    means2d, _, cov2d, depths, valid, _ = project_and_shade(means, quats, scales, colors, viewmat, K, width, height,
+                                                            0.01, 1e10, 0.3, None)
+    ext_x, ext_y, ok, qmax = footprint(cov2d, opac, valid)
+    grid = comp.TileGrid(tile=8, ntx=12, nty=9, width=width, height=height)
+    fp = comp.tile_footprints(means2d, ext_x, ext_y, ok, depths, cov2d, qmax, grid)
+    done = torch.rand(grid.n_tiles, generator=torch.Generator().manual_seed(1)) < 0.4
+    checked = 0
+    for chunk_pairs in (64, 700, 100_000):
+        for tile_done, pos in ((torch.zeros_like(done), 0), (done, 0), (done, 150)):
+            first = not bool(tile_done.any())
+            expected, next_pos = comp._torch_chunk(fp, grid, chunk_pairs, tile_done, pos, first)
+            gid, count, offset, native_next = native.bin_chunk(fp.ids, fp.tx0, fp.tx1, fp.ty0, fp.ty1, fp.ell,
+                                                               tile_done, pos, chunk_pairs, grid.tile, grid.ntx,
+                                                               grid.nty, grid.width, grid.height)
+            assert native_next == next_pos
+            if expected is None:
+                assert gid.numel() == 0
+                continue
+            for a, b in zip(expected, (gid, count, offset)):
+                assert torch.equal(a, b)
+            assert not bool(count[tile_done].any())  # finished tiles get no pair
+            checked += gid.numel()
+    assert checked > 5000
+
+
 def test_native_kernels_are_chosen_for_cpu_renders_while_compiling(native_module, monkeypatch):
     monkeypatch.setattr(_native, "native_kernels", lambda cache_dir=None: native_module)
     monkeypatch.setenv("SPLAT_COMPILE", "1")
@@ -129,8 +164,8 @@ def test_a_failed_build_warns_once_and_falls_back(monkeypatch, tmp_path):
         assert _native.native_kernels(tmp_path) is None  # not tried again in this process
     assert len(calls) == 1
     messages = [str(w.message) for w in caught]
-    assert messages == ["could not build the native compositing kernels (RuntimeError: Ninja is required to load "
-                        "C++ extensions); using the torch.compile ones"]
+    assert messages == ["could not build the native rasterizer kernels (RuntimeError: Ninja is required to load "
+                        "C++ extensions); using the torch ones"]
     monkeypatch.setenv("SPLAT_COMPILE", "1")
     assert _native.native_for(torch.device("cpu")) is None  # renders take the torch.compile kernels
 

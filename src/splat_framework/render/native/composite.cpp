@@ -20,7 +20,8 @@
 //   t_state   [T, P]      transmittance (0 = the pixel stopped); updated in place
 //   out       [T, F, P]   sum of w f; updated in place
 //   n_incl    [A, P]      (returned) pairs of the tile's list each pixel included
-#include <torch/extension.h>
+#include "native.h"
+
 #include <ATen/Parallel.h>
 
 #include <algorithm>
@@ -313,9 +314,4 @@ void composite_backward(torch::Tensor table, torch::Tensor gid, torch::Tensor of
                             centers.contiguous(), t_entry.contiguous(), n_incl.contiguous(), g_out.contiguous(),
                             total.contiguous(), prefix, grads, int(tile));
   });
-}
-
-PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-  m.def("composite_forward", &composite_forward, "one depth chunk's compositing, forward");
-  m.def("composite_backward", &composite_backward, "one depth chunk's compositing, backward");
 }

@@ -1,0 +1,166 @@
+// Native CPU binning of one depth chunk: the same rules as _composite.py's torch binning
+// (_iter_chunks, _chunk_pairs, _row_columns), in one pass and a counting sort instead of a
+// few dozen small tensor ops.
+//
+// Shapes (V visible Gaussians, front to back; T = ntx * nty tiles):
+//   ids        [V]     Gaussian indices, sorted by depth
+//   tx0 .. ty1 [V]     their tile rectangles (inclusive)
+//   ell        [V, 6]  (u, v, cov_xx, cov_xy, cov_yy, qmax): the ellipse where alpha >= 1/255
+//   tile_done  [T]     bool, every pixel of the tile has stopped
+#include "native.h"
+
+#include <ATen/Parallel.h>
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+namespace {
+
+// Tile columns [c0, c1] that the ellipse d^T cov^-1 d <= qmax reaches within tile row `row`
+// (conservative: the whole band between the row's first and last pixel-centre lines);
+// c1 < c0 when it reaches none. The same arithmetic as _row_columns.
+template <typename S>
+void row_columns(const S* e, int64_t row, int64_t tile, int64_t width, int64_t height, int64_t& c0, int64_t& c1) {
+  const S u = e[0], v = e[1], sxy = e[3], q = e[5];
+  const S sxx = std::max(e[2], S(1e-12)), syy = std::max(e[4], S(1e-12));
+  const S top = S(row) * S(tile);
+  const S ey = std::sqrt(q * syy);
+  const S dyl = std::max(top + S(0.5) - v, -ey);
+  S dyh = std::min(std::min(top + (S(tile) - S(0.5)), S(height) - S(0.5)) - v, ey);
+  const bool empty = dyl > dyh;
+  dyh = std::max(dyh, dyl);
+  const S k = sxy / syy;
+  const S w2 = std::max(sxx - sxy * k, S(0)) / syy;
+  const S d_star = sxy * std::sqrt(q / sxx);  // dy of the rightmost point (leftmost: -d_star)
+  const auto half = [&](S dy) { return std::sqrt(std::max(q * syy - dy * dy, S(0)) * w2); };
+  const S dr = std::min(std::max(d_star, dyl), dyh);
+  const S dl = std::min(std::max(-d_star, dyl), dyh);
+  const S x_hi = u + k * dr + half(dr);
+  const S x_lo = u + k * dl - half(dl);
+  const S margin = S(1e-3) + S(1e-5) * (std::abs(x_hi) + std::abs(x_lo));
+  const S big = S(width + tile);
+  const S p_lo = std::ceil(std::clamp(x_lo - S(0.5) - margin, -big, big));
+  const S p_hi = std::floor(std::clamp(x_hi - S(0.5) + margin, -big, big));
+  if (!(p_lo == p_lo) || !(p_hi == p_hi)) {  // NaN: reaches nothing
+    c0 = 0;
+    c1 = -1;
+    return;
+  }
+  c0 = int64_t(std::clamp(p_lo, S(0), S(width - 1))) / tile;
+  c1 = int64_t(std::clamp(p_hi, S(0), S(width - 1))) / tile;
+  if (empty || p_hi < 0 || p_lo > S(width - 1) || p_lo > p_hi) c1 = c0 - 1;
+}
+
+template <typename S>
+std::tuple<torch::Tensor, torch::Tensor, torch::Tensor, int64_t> bin_impl(
+    const torch::Tensor& ids, const torch::Tensor& tx0, const torch::Tensor& tx1, const torch::Tensor& ty0,
+    const torch::Tensor& ty1, const torch::Tensor& ell, const torch::Tensor& tile_done, int64_t pos,
+    int64_t chunk_pairs, int64_t tile, int64_t ntx, int64_t nty, int64_t width, int64_t height) {
+  const int64_t n_tiles = ntx * nty, n_vis = ids.size(0);
+  const int64_t* id = ids.data_ptr<int64_t>();
+  const int64_t *x0 = tx0.data_ptr<int64_t>(), *x1 = tx1.data_ptr<int64_t>();
+  const int64_t *y0 = ty0.data_ptr<int64_t>(), *y1 = ty1.data_ptr<int64_t>();
+  const S* el = ell.data_ptr<S>();
+  const bool* done = tile_done.data_ptr<bool>();
+
+  // summed-area table of the unfinished tiles: each rectangle's count in four reads
+  const int64_t w1 = ntx + 1;
+  std::vector<int64_t> sat((nty + 1) * w1, 0);
+  for (int64_t y = 0; y < nty; ++y)
+    for (int64_t x = 0; x < ntx; ++x)
+      sat[(y + 1) * w1 + x + 1] = int64_t(!done[y * ntx + x]) + sat[y * w1 + x + 1] + sat[(y + 1) * w1 + x] - sat[y * w1 + x];
+  const auto alive_in = [&](int64_t j) {
+    const int64_t a = y0[j] * w1, b = (y1[j] + 1) * w1, l = x0[j], r = x1[j] + 1;
+    return sat[b + r] - sat[a + r] - sat[b + l] + sat[a + l];
+  };
+
+  // the chunk: the longest run from pos whose rectangles hold at most chunk_pairs unfinished
+  // tiles in all (at least one Gaussian)
+  int64_t end = pos, cum = 0;
+  while (end < n_vis) {
+    const int64_t c = alive_in(end);
+    if (end > pos && cum + c > chunk_pairs) break;
+    cum += c;
+    ++end;
+  }
+
+  // pairs (unfinished tile, Gaussian) in depth order, per (Gaussian, tile row) over the columns the
+  // ellipse reaches, on torch's intra-op threads: slice s of the chunk's Gaussians lists its pairs
+  // and counts them per tile; a stable counting sort by tile then keeps the depth order within each
+  // tile (slice s's pairs of a tile come after those of slices < s).
+  const int64_t slices = std::max<int64_t>(1, std::min<int64_t>(at::get_num_threads(), cum / 16384 + 1));
+  std::vector<std::vector<int64_t>> pair_tile(slices), pair_gid(slices);
+  std::vector<std::vector<int64_t>> slice_cnt(slices, std::vector<int64_t>(n_tiles, 0));
+  const int64_t len = end - pos;
+  at::parallel_for(0, slices, 1, [&](int64_t s0, int64_t s1) {
+    for (int64_t s = s0; s < s1; ++s) {
+      std::vector<int64_t>& tiles = pair_tile[s];
+      std::vector<int64_t>& gids = pair_gid[s];
+      int64_t* cnt = slice_cnt[s].data();
+      tiles.reserve(cum / slices + 1024);
+      gids.reserve(cum / slices + 1024);
+      for (int64_t j = pos + len * s / slices; j < pos + len * (s + 1) / slices; ++j) {
+        if (alive_in(j) == 0) continue;
+        for (int64_t row = y0[j]; row <= y1[j]; ++row) {
+          int64_t c0, c1;
+          row_columns(el + j * 6, row, tile, width, height, c0, c1);
+          c0 = std::max(c0, x0[j]);
+          c1 = std::min(c1, x1[j]);
+          for (int64_t c = c0; c <= c1; ++c) {
+            const int64_t t = row * ntx + c;
+            if (done[t]) continue;
+            tiles.push_back(t);
+            gids.push_back(id[j]);
+            ++cnt[t];
+          }
+        }
+      }
+    }
+  });
+  auto count = torch::zeros({n_tiles}, ids.options());
+  auto offset = torch::empty({n_tiles}, ids.options());
+  int64_t* cnt = count.data_ptr<int64_t>();
+  int64_t* off = offset.data_ptr<int64_t>();
+  int64_t run = 0;
+  for (int64_t t = 0; t < n_tiles; ++t) {
+    off[t] = run;
+    for (int64_t s = 0; s < slices; ++s) {
+      const int64_t c = slice_cnt[s][t];
+      slice_cnt[s][t] = run;  // now: where slice s's pairs of tile t begin
+      run += c;
+    }
+    cnt[t] = run - off[t];
+  }
+  auto gid = torch::empty({run}, ids.options());
+  int64_t* g = gid.data_ptr<int64_t>();
+  at::parallel_for(0, slices, 1, [&](int64_t s0, int64_t s1) {
+    for (int64_t s = s0; s < s1; ++s) {
+      int64_t* cursor = slice_cnt[s].data();
+      const std::vector<int64_t>& tiles = pair_tile[s];
+      const std::vector<int64_t>& gids = pair_gid[s];
+      for (size_t p = 0; p < tiles.size(); ++p) g[cursor[tiles[p]]++] = gids[p];
+    }
+  });
+  return {gid, count, offset, end};
+}
+
+}  // namespace
+
+std::tuple<torch::Tensor, torch::Tensor, torch::Tensor, int64_t> bin_chunk(
+    torch::Tensor ids, torch::Tensor tx0, torch::Tensor tx1, torch::Tensor ty0, torch::Tensor ty1, torch::Tensor ell,
+    torch::Tensor tile_done, int64_t pos, int64_t chunk_pairs, int64_t tile, int64_t ntx, int64_t nty, int64_t width,
+    int64_t height) {
+  TORCH_CHECK(ids.device().is_cpu() && ell.device().is_cpu(), "native binning runs on CPU tensors");
+  TORCH_CHECK(ids.scalar_type() == torch::kInt64 && tx0.scalar_type() == torch::kInt64, "ids and rectangles must be int64");
+  TORCH_CHECK(tile_done.scalar_type() == torch::kBool && tile_done.numel() == ntx * nty, "tile_done must be [ntx * nty] bool");
+  TORCH_CHECK(ell.dim() == 2 && ell.size(1) == 6 && ell.size(0) == ids.size(0), "ell must be [V, 6]");
+  TORCH_CHECK(tile > 0 && pos >= 0 && pos <= ids.size(0), "bad tile size or position");
+  std::tuple<torch::Tensor, torch::Tensor, torch::Tensor, int64_t> result;
+  AT_DISPATCH_FLOATING_TYPES(ell.scalar_type(), "bin_chunk", [&] {
+    result = bin_impl<scalar_t>(ids.contiguous(), tx0.contiguous(), tx1.contiguous(), ty0.contiguous(),
+                                ty1.contiguous(), ell.contiguous(), tile_done.contiguous(), pos, chunk_pairs, tile,
+                                ntx, nty, width, height);
+  });
+  return result;
+}

@@ -1,0 +1,8 @@
+// Python bindings of the native CPU kernels (render/_native.py loads them).
+#include "native.h"
+
+PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+  m.def("composite_forward", &composite_forward, "one depth chunk's compositing, forward");
+  m.def("composite_backward", &composite_backward, "one depth chunk's compositing, backward");
+  m.def("bin_chunk", &bin_chunk, "the next depth chunk's (tile, Gaussian) pairs, sorted by (tile, depth)");
+}
