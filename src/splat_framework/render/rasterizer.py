@@ -1,12 +1,13 @@
-"""The shared differentiable Gaussian rasterizer (pure PyTorch, device-agnostic).
+"""The shared differentiable Gaussian rasterizer (PyTorch, device-agnostic).
 
 See ``rasterize`` for the full contract. Implementation: EWA projection with
 plain autograd (``_project.py``); tile binning with an opacity-aware footprint,
 depth chunks and front-to-back compositing in rounds with a hand-written
 backward (``_composite.py``); the per-round kernels (``_kernels.py``) run eagerly
-by default, or fused by ``torch.compile`` when the environment variable
-``SPLAT_COMPILE=1`` is set (about 2x less CPU time per call after a one-off
-compile of ~15-30 s; worth it for training runs, not for tests).
+by default. While kernels are compiled (training and rendering runs, or
+``SPLAT_COMPILE=1``), the projection is compiled by ``torch.compile``, and the
+binning and compositing run as native C++ kernels on a CPU (``_native.py``) or
+as ``torch.compile``'d rounds elsewhere.
 """
 
 from __future__ import annotations
