@@ -292,8 +292,8 @@ machine), "wall" is with 2 threads.
    On an idle machine (busy = 0) eager fwd+bwd measured 231 / 246 / 268 ms at
    10k / 50k / 100k (2 threads).
 
-8. **Native CPU kernels** (`render/native/composite.cpp`, what a CPU run uses while kernels
-   are compiled; "native" here): per depth chunk, each tile's pairs are walked in depth order
+8. **Native CPU kernels** (`render/native/`, what a CPU run uses while kernels are compiled;
+   "native" here; since 2026-11-26 evening they bin each chunk too: `binning.cpp`): per depth chunk, each tile's pairs are walked in depth order
    against its 64 pixels, transmittance in registers, the tile dropped once all pixels
    stopped; the backward replays each tile front to back with item 5's closed form and adds
    each pair's 11 gradients into one table per thread (tiles a fixed interleave per thread:

@@ -25,8 +25,7 @@ from ..console import phase, say
 from ._kernels import compile_requested, kernel_cache_dir
 
 _FOLDER = Path(__file__).with_name("native")
-_SOURCES = ("composite.cpp", "binning.cpp", "module.cpp")  # module.cpp: the Python bindings
-_HEADERS = ("native.h",)
+_SOURCES = ("module.cpp", "binning.cpp", "composite.cpp")  # module.cpp includes the others: one unit
 _STATE: dict = {"module": None, "failed": False}
 
 
@@ -43,7 +42,7 @@ def _build_dir(cache_dir: Path | None) -> Path | None:
     if cache_dir is None:
         return None
     key = hashlib.sha256(
-        b"".join((_FOLDER / name).read_bytes() for name in _SOURCES + _HEADERS) + " ".join(_flags()).encode() + torch.__version__.encode()
+        b"".join((_FOLDER / name).read_bytes() for name in _SOURCES) + " ".join(_flags()).encode() + torch.__version__.encode()
         + torch.backends.cpu.get_cpu_capability().encode() + os.uname().machine.encode()
     ).hexdigest()[:16]
     return Path(cache_dir) / "native" / f"kernels-{key}"
@@ -94,7 +93,7 @@ def native_kernels(cache_dir: Path | None = None):
         with phase("loading the native rasterizer kernels" if ready
                    else "building the native rasterizer kernels (once per machine)"):
             _STATE["module"] = cpp_extension.load(
-                name="splat_native", sources=[str(_FOLDER / name) for name in _SOURCES], extra_cflags=_flags(), extra_ldflags=["-fopenmp"],
+                name="splat_native", sources=[str(_FOLDER / _SOURCES[0])], extra_cflags=_flags(), extra_ldflags=["-fopenmp"],
                 build_directory=str(build) if build is not None else None, verbose=False,
             )
     except Exception as exc:  # depends on the toolchain

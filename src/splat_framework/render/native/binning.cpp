@@ -7,7 +7,7 @@
 //   tx0 .. ty1 [V]     their tile rectangles (inclusive)
 //   ell        [V, 6]  (u, v, cov_xx, cov_xy, cov_yy, qmax): the ellipse where alpha >= 1/255
 //   tile_done  [T]     bool, every pixel of the tile has stopped
-#include "native.h"
+#include <torch/extension.h>
 
 #include <ATen/Parallel.h>
 

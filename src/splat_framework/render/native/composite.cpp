@@ -20,7 +20,7 @@
 //   t_state   [T, P]      transmittance (0 = the pixel stopped); updated in place
 //   out       [T, F, P]   sum of w f; updated in place
 //   n_incl    [A, P]      (returned) pairs of the tile's list each pixel included
-#include "native.h"
+#include <torch/extension.h>
 
 #include <ATen/Parallel.h>
 

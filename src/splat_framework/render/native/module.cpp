@@ -1,5 +1,7 @@
-// Python bindings of the native CPU kernels (render/_native.py loads them).
-#include "native.h"
+// The native CPU kernels and their Python bindings (render/_native.py builds and loads them).
+// One translation unit: torch's headers are compiled once, which halves the first build.
+#include "binning.cpp"
+#include "composite.cpp"
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("composite_forward", &composite_forward, "one depth chunk's compositing, forward");
