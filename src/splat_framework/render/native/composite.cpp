@@ -169,7 +169,9 @@ void forward_impl(const torch::Tensor& table, const torch::Tensor& gid, const to
     tile_pixels(ctr, t, tile, px.data(), py.data());
     std::copy(o + t * F * P, o + (t + 1) * F * P, acc.begin());
     const int64_t* list = g + off[t];
-    for (int64_t k = 0; k < cnt[t]; ++k) {
+    const int64_t n = cnt[t];
+    for (int64_t k = 0; k < n; ++k) {
+      if (k + 4 < n) __builtin_prefetch(tab + list[k + 4] * R);  // rows are in depth order, not memory order
       const scalar_t* row = tab + list[k] * R;
       if (forward_pair(row, px.data(), py.data(), T, acc.data(), inc.data(), P, amin, lmax, tmin) == 0) break;
     }
@@ -272,6 +274,10 @@ void backward_impl(const torch::Tensor& table, const torch::Tensor& gid, const t
     scalar_t* slot_grads = gr + slot * rows * R;
     const int64_t* list = g + off[t];
     for (int32_t k = 0; k < n_max; ++k) {
+      if (k + 4 < n_max) {
+        __builtin_prefetch(tab + list[k + 4] * R);
+        __builtin_prefetch(slot_grads + list[k + 4] * R, 1);
+      }
       const int64_t id = list[k];
       const scalar_t* row = tab + id * R;
       backward_pair(row, k, px.data(), py.data(), T.data(), cs.data(), tt.data(), inc.data(), gv.data(), P, amin, lmax,
