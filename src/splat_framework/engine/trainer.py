@@ -72,6 +72,7 @@ from ..model.strategy import Strategy
 from .numerics import first_nonfinite as _first_nonfinite, optimized_tensors, trainable_tensors
 from ..runtime.profiling import section
 from ..render import set_compile
+from ..runtime.allocator import keep_freed_memory
 from ..runtime.threads import apply_process_threads
 from ..registry import MethodSpec, get_method
 from .resume_check import check_saved_config
@@ -154,6 +155,7 @@ class Trainer(TrainState):
         with phase("loading data"):
             scene = load_config_scene(self.config)
             apply_process_threads()
+            keep_freed_memory()
             budget = plan_memory(scene, self.config, image_memory_budget())
             self.datamanager = DataManager(
                 scene, device=self.device, seed=self.config.seed, memory_budget_bytes=budget,
