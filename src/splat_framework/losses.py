@@ -20,7 +20,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from .render import compile_requested, with_fallback
+from .render import compile_requested, compiled_or_eager
 
 C1 = 0.01**2
 C2 = 0.03**2
@@ -126,11 +126,7 @@ def _compiled_photometric():
     where this torch or Python has no torch.compile). The first image size is compiled as it is; a
     second one (views of several sizes) recompiles once with symbolic sizes (torch.compile's
     automatic dynamic shapes), not once per size."""
-    try:
-        compiled = torch.compile(_photometric)
-    except Exception:  # pragma: no cover - depends on the torch build and Python version
-        return _photometric
-    return with_fallback(compiled, _photometric, "the photometric loss (L1 + SSIM)")
+    return compiled_or_eager(_photometric, "the photometric loss (L1 + SSIM)")
 
 
 def depth_smoothness(depth: Tensor, image: Tensor, alpha: Tensor, gamma: float = 10.0, min_alpha: float = 0.5) -> Tensor:

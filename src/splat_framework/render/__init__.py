@@ -1,6 +1,6 @@
 """Differentiable Gaussian rendering: the shared rasterizer and SH evaluation."""
 
-from ._kernels import compile_requested, set_compile, with_fallback
+from ._kernels import compile_requested, compiled_or_eager, set_compile
 from ._project import quat_to_rotmat
 from .rasterizer import RenderOutput, rasterize
 from .sh import eval_sh, rgb_to_sh, sh_to_color, sh_to_rgb
@@ -8,6 +8,7 @@ from .sh import eval_sh, rgb_to_sh, sh_to_color, sh_to_rgb
 __all__ = [
     "RenderOutput",
     "compile_requested",
+    "compiled_or_eager",
     "eval_sh",
     "quat_to_rotmat",
     "rasterize",
@@ -15,5 +16,4 @@ __all__ = [
     "set_compile",
     "sh_to_color",
     "sh_to_rgb",
-    "with_fallback",
 ]

@@ -21,8 +21,10 @@ Gaussian ids and entry transmittance) and uses the closed form
 where ``total = sum_j w_j h_j`` is read off the forward output, so nothing of
 size [pairs, pixels] is kept between forward and backward.
 
-On a CPU while kernels are compiled, each chunk is composited by the native kernels instead of
-rounds (:mod:`._native`, ``native/composite.cpp``): every pair of a tile's list against the tile's
+On a CPU while kernels are compiled, the native kernels (:mod:`._native`) take both steps: each
+chunk's pairs are binned by ``native/binning.cpp`` (one pass over the chunk's Gaussians, then a
+stable counting sort by tile: the same pairs in the same order as the torch binning) and composited
+by ``native/composite.cpp`` instead of rounds: every pair of a tile's list against the tile's
 pixels, the same rules and the same closed form; the backward replays each chunk from its entry
 transmittance and the number of pairs each pixel included.
 """

@@ -341,6 +341,25 @@ def _with_fallback(compiled, eager, active_arg: int, which: str):
                          compiled_once=isinstance(compiled, Precompiled))
 
 
+def compiled_or_eager(fn, what: str, context=None, **compile_kwargs):
+    """``fn`` compiled by ``torch.compile(fn, **compile_kwargs)`` behind :func:`with_fallback`
+    (eager after any failure, one warning line), each call inside ``context()`` when given; ``fn``
+    itself where this torch or Python has no torch.compile. Callers hold the result in a
+    ``functools.cache`` so a process compiles once."""
+    try:
+        compiled = torch.compile(fn, **compile_kwargs)
+    except Exception:  # pragma: no cover - depends on the torch build and Python version
+        return fn
+    if context is not None:
+        inner = compiled
+
+        def compiled(*args):
+            with context():
+                return inner(*args)
+
+    return with_fallback(compiled, fn, what)
+
+
 def with_fallback(compiled, eager, what: str, eligible=None, compiled_once: bool = False):
     """``compiled``, or ``eager`` after any failure (one warning line) and for the calls that
     ``eligible(args)`` turns away. The first compiled call (the compilation, or loading it from

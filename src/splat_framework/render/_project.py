@@ -18,7 +18,7 @@ import torch
 from torch import Tensor
 
 from ._kernels import ALPHA_MIN  # a pixel receives a Gaussian only if alpha >= 1/255
-from ._kernels import compile_requested, with_fallback
+from ._kernels import compile_requested, compiled_or_eager
 from ..runtime.profiling import section
 from .sh import sh_to_color
 
@@ -148,16 +148,7 @@ def project_and_shade(
 @functools.cache
 def _compiled_projection():
     """``project_and_shade`` compiled once per process (dynamic sizes), eager after any failure."""
-    try:
-        compiled = torch.compile(project_and_shade, dynamic=True)
-    except Exception:  # pragma: no cover - depends on the torch build and Python version
-        return project_and_shade
-
-    def run(*args):
-        with _no_donated_buffers():
-            return compiled(*args)
-
-    return with_fallback(run, project_and_shade, "the projection")
+    return compiled_or_eager(project_and_shade, "the projection", context=_no_donated_buffers, dynamic=True)
 
 
 def _no_donated_buffers():
@@ -181,7 +172,9 @@ class ProjectFn(torch.autograd.Function):
     def forward(ctx, means, quats, scales, colors, viewmat, K, cfg):  # type: ignore[override]
         ctx.set_materialize_grads(False)
         inputs = (means, quats, scales, colors, viewmat, K)
-        project = _compiled_projection() if compile_requested() else project_and_shade
+        # compiled where it is measured and tested: on a CPU, beside the native kernels
+        compiled = compile_requested() and means.device.type == "cpu"
+        project = _compiled_projection() if compiled else project_and_shade
         with torch.enable_grad():
             leaves = tuple(
                 t.detach().requires_grad_(bool(need)) for t, need in zip(inputs, ctx.needs_input_grad)
