@@ -9,6 +9,7 @@ the Gaussians become a few fused loops, forward and backward (on fern's 48k Gaus
 
 from __future__ import annotations
 
+import contextlib
 import functools
 from dataclasses import dataclass
 
@@ -175,6 +176,7 @@ class ProjectFn(torch.autograd.Function):
         # compiled where it is measured and tested: on a CPU, beside the native kernels
         compiled = compile_requested() and means.device.type == "cpu"
         project = _compiled_projection() if compiled else project_and_shade
+        ctx.compiled = compiled
         with torch.enable_grad():
             leaves = tuple(
                 t.detach().requires_grad_(bool(need)) for t, need in zip(inputs, ctx.needs_input_grad)
@@ -197,7 +199,7 @@ class ProjectFn(torch.autograd.Function):
             result = [None] * (len(ctx.leaves) + 1)
             if not pairs or not wanted:
                 return tuple(result)
-            with _no_donated_buffers():
+            with _no_donated_buffers() if ctx.compiled else contextlib.nullcontext():
                 got = torch.autograd.grad(
                     [o for o, _ in pairs],
                     [ctx.leaves[i] for i in wanted],
