@@ -33,6 +33,7 @@ _EXPORTS: dict[str, str] = {
     "Period": "splat_framework.config",
     "OptionalPeriod": "splat_framework.config",
     "RampPeriod": "splat_framework.config",
+    "StepFactor": "splat_framework.config",
     "Interval": "splat_framework.config",
     "Fraction": "splat_framework.config",
     "LearningRate": "splat_framework.config",
@@ -65,7 +66,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .config import (
         MAX_GAUSSIANS, MAX_MATCHES, RUN_OPTION, DensifyConfig, Fraction, GaussianModelConfig, Interval, LearningRate,
         ModelConfig, NonNegative, OptimConfig, OptionalPeriod, Period, Positive, RampPeriod, RegularisersConfig,
-        SplatConfig, StartSteps, Steps,
+        SplatConfig, StartSteps, StepFactor, Steps,
         StrategyConfig, TrainConfig, strategy_field, InitConfig, init_field,
     )
     from .model.init import StartPoints, scene_box

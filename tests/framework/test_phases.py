@@ -154,17 +154,18 @@ def test_failed_starts_leave_no_run_folder_and_suggest_the_name(tmp_path, monkey
             watch=[work], cwd=work, env=cli_env(SPLAT_DATA=str(data_root), SPLAT_COMPILE="0"))
 
 
-def test_resume_refusal_names_only_the_fields_the_user_changed(tmp_path):
+@pytest.mark.parametrize("method", ["3dgs", "scgaussian"])
+def test_resume_refusal_names_only_the_fields_the_user_changed(tmp_path, method):
     """--resume with another --steps and --seed: the refusal names steps and seed, not the internal
-    default_steps nor the schedule fields --steps rescales."""
+    default_steps nor the schedule fields --steps rescales (scgaussian's opacity decay among them)."""
     from splat_framework.config import resolve_steps, save_config
     from splat_framework.registry import get_method
 
     run = tmp_path / "run"
     run.mkdir()
-    cfg = get_method("3dgs").default_config().model_copy(update={"steps": 20, "data": "synthetic/forward-tiny"})
+    cfg = get_method(method).default_config().model_copy(update={"steps": 20, "data": "synthetic/forward-tiny"})
     save_config(resolve_steps(cfg), run / "config.json")
-    res = run_cli("train", "3dgs", "--data", "synthetic/forward-tiny", "--output", run, "--resume",
+    res = run_cli("train", method, "--data", "synthetic/forward-tiny", "--output", run, "--resume",
                   "--steps", "30", "--seed", "1", code=2, match="--resume cannot change the experiment",
                   watch=[run], env=cli_env(SPLAT_COMPILE="0"))
     changed = res.message.split("experiment: ")[1].split(" (resume with")[0]

@@ -242,6 +242,8 @@ def test_steps_rescale_the_whole_schedule():
     assert with_reset.strategy.reset_every == 60  # an optional period rescales like any other
     assert c.model.warmup_steps == 600 and c.model.sh_degree_interval == 300
     assert c.checkpoint_every == 300
+    # a per-step factor (StepFactor) keeps its product over the run: 0.99 per step over 1000 is 0.99^(10/3) over 300
+    assert c.strategy.opacity_decay == pytest.approx(0.99 ** (1000 / 300))
     same = resolve_steps(TrainConfig())
     assert same.strategy.refine_stop_iter == DensifyConfig().refine_stop_iter
 
@@ -260,6 +262,7 @@ def test_more_views_than_the_schedule_is_written_for_scale_it():
     assert eight.strategy.reset_every is None and eight.model.warmup_steps == 4000
     assert eight.strategy.refine_start_iter == 500  # a start (StartSteps) does not grow with the run
     assert eight.model.sh_degree_interval == 1000  # nor the SH degree's period (RampPeriod): degree 1 from 1000
+    assert eight.strategy.opacity_decay == pytest.approx(0.99 ** 0.5)  # half the decay per step over twice the steps
     assert eight == resolve_steps(base.model_copy(update={"views": 8, "steps": 2000}))
     assert resolve_steps(eight) == eight  # a resumed run resolves to the same schedule
     assert resolve_steps(base.model_copy(update={"views": 6})).total_steps == 1500
@@ -282,6 +285,10 @@ def test_start_steps_shrink_with_a_shorter_run_and_stay_with_a_longer_one():
     assert (long.strategy.refine_start_iter, long.strategy.refine_stop_iter) == (500, 7500)
     assert (short.model.sh_degree_interval, long.model.sh_degree_interval) == (250, 500)  # RampPeriod
     assert resolve_steps(base.model_copy(update={"steps": 6000})).strategy.refine_start_iter == 500
+    decaying = base.model_copy(update={"strategy": base.strategy.model_copy(update={"opacity_decay": 0.9})})
+    assert scale_schedule(decaying, 0.5).strategy.opacity_decay == pytest.approx(0.81)  # StepFactor: a power
+    assert scale_schedule(decaying, 2.0).strategy.opacity_decay == pytest.approx(0.9 ** 0.5)
+    assert scale_schedule(base, 2.0).strategy.opacity_decay == 1.0  # off stays off
 
 
 def test_config_json_roundtrip_with_schema_version(tmp_path):

@@ -9,7 +9,7 @@ flag's help). Every name is importable from here; the modules say what each is:
 - :mod:`.model`: what every model reads (:class:`ModelConfig`), the opt-in regularisers
   (``model.reg``), the 3DGS model and its learning rates,
 - :mod:`.train`: :class:`TrainConfig`, the command-line contract, and the experiment's fields,
-- :mod:`.schedule`: ``--steps`` rescaling the schedule (:data:`Steps` fields),
+- :mod:`.schedule`: ``--steps`` rescaling the schedule (:data:`Steps` and :data:`StepFactor` fields),
 - :mod:`.merge`: overrides of variants and sweeps (:func:`apply_overrides`),
 - :mod:`.persist`: ``config.json`` (save, read, upgrade old layouts).
 
@@ -26,6 +26,7 @@ from .base import (
     MAX_SCHEDULE,
     MAX_STEPS,
     MAX_VIEWS,
+    PER_STEP_MARKER,
     RUN_OPTION,
     SHORTEN_ONLY,
     STEPS_MARKER,
@@ -43,6 +44,7 @@ from .base import (
     RampPeriod,
     SplatConfig,
     StartSteps,
+    StepFactor,
     Steps,
     cli_parsing,
 )
@@ -71,11 +73,11 @@ from .train import TrainConfig, experiment_fields
 
 __all__ = [
     "DEVICE_MARKER", "MAX_GAUSSIANS", "MAX_MATCHES", "MAX_SCHEDULE", "MAX_STEPS", "MAX_VIEWS", "MOVED_FIELDS",
-    "REGULARISER_FIELDS", "RUN_OPTION", "SCHEMA_VERSION", "SHORTEN_ONLY", "STEPS_MARKER",
+    "PER_STEP_MARKER", "REGULARISER_FIELDS", "RUN_OPTION", "SCHEMA_VERSION", "SHORTEN_ONLY", "STEPS_MARKER",
     "DensifyConfig", "Device", "Finite", "Fraction", "GaussianModelConfig", "InitConfig", "InitKinds", "Interval",
     "InvalidArguments", "LearningRate", "Marker", "ModelConfig", "NonNegative", "OptimConfig", "OptionalPeriod",
     "Period", "Positive", "RampPeriod", "RandomInitConfig", "RegisteredStrategies", "RegularisersConfig",
-    "SplatConfig", "StartSteps", "Steps", "StrategyConfig", "TrainConfig",
+    "SplatConfig", "StartSteps", "StepFactor", "Steps", "StrategyConfig", "TrainConfig",
     "apply_overrides", "cli_parsing", "config_payload", "deep_merge", "experiment_fields", "init_field", "init_kinds", "read_config_json",
     "regroup_fields", "resolve_steps", "save_config", "scale_schedule", "strategy_field", "strategy_kinds",
     "upgrade_init_layout", "upgrade_reg_layout", "upgrade_saved_config",

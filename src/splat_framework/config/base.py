@@ -33,6 +33,11 @@ RUN_OPTION = Marker(
     "device, progress bar, resume, ...) may differ between a run and its ``--resume``; every other "
     "field is the experiment and must not (see :func:`experiment_fields`).",
 )
+PER_STEP_MARKER = Marker(
+    "PerStep",
+    "This float field is a factor applied at every iteration (a decay): a schedule rescaled by f takes "
+    "it to the power 1/f, so that what it does over the whole run is unchanged (see :func:`scale_schedule`).",
+)
 SHORTEN_ONLY = Marker(
     "ShortenOnly",
     "This Steps field (a start after a warm-up, a period after which something steps up) follows a "
@@ -62,6 +67,10 @@ OptionalPeriod = Annotated[Annotated[int, Field(ge=1, le=MAX_SCHEDULE)] | None, 
 RampPeriod = Annotated[int, STEPS_MARKER, SHORTEN_ONLY, Field(ge=1, le=MAX_SCHEDULE)]
 """An interval (>= 1) after which something steps up once more (the SH degree): as a start, a
 compressed schedule compresses it and a longer one keeps it."""
+StepFactor = Annotated[float, PER_STEP_MARKER, Field(gt=0, le=1, allow_inf_nan=False)]
+"""A factor in (0, 1] applied at every iteration (1 = off), written for the method's own schedule:
+a run f times as long applies its f-th root each step (``--steps``, or more views than the schedule
+is written for), so that the product over the run stays the same."""
 Interval = Annotated[int, Field(ge=1, le=MAX_SCHEDULE)]
 """An interval in iterations (>= 1) that ``--steps`` does not rescale."""
 DEVICE_MARKER = Marker(

@@ -1,11 +1,12 @@
 """Schedule arithmetic: ``--steps`` (or more views than a method's schedule is written for)
-rescales every :data:`~splat_framework.config.base.Steps` field of a config. Torch-free."""
+rescales every :data:`~splat_framework.config.base.Steps` field of a config, and every per-step
+factor (:data:`~splat_framework.config.base.StepFactor`) with it. Torch-free."""
 
 from __future__ import annotations
 
 from typing import Any
 
-from .base import SHORTEN_ONLY, STEPS_MARKER, Marker, SplatConfig
+from .base import PER_STEP_MARKER, SHORTEN_ONLY, STEPS_MARKER, Marker, SplatConfig
 from .train import TrainConfig
 
 
@@ -16,7 +17,8 @@ def _has_marker(info, marker: Marker) -> bool:
 def scale_schedule(config: SplatConfig, factor: float) -> SplatConfig:
     """A copy of ``config`` with every :data:`Steps` field multiplied by ``factor`` (recursively),
     except that a :data:`StartSteps` or :data:`RampPeriod` field is only ever shortened (times
-    ``min(factor, 1)``).
+    ``min(factor, 1)``), and every :data:`StepFactor` field (a decay applied each iteration) is
+    raised to the power ``1 / factor``, so that its product over the run stays the same.
 
     The rule for starts follows the public 3DGS and SCGaussian code, which begin densification
     at iteration 500 whatever the run's length, and keep the SH degree's interval at 1000; the
@@ -30,6 +32,8 @@ def scale_schedule(config: SplatConfig, factor: float) -> SplatConfig:
         elif _has_marker(info, STEPS_MARKER) and isinstance(value, int) and value > 0:
             f = min(factor, 1.0) if _has_marker(info, SHORTEN_ONLY) else factor
             updates[name] = max(1, int(round(value * f)))
+        elif _has_marker(info, PER_STEP_MARKER) and isinstance(value, float):
+            updates[name] = value ** (1.0 / factor)
     return config.model_copy(update=updates)
 
 

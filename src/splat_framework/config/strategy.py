@@ -11,7 +11,7 @@ import tyro
 from pydantic import BeforeValidator, Field, SerializeAsAny
 
 from .base import (
-    Interval, NonNegative, OptionalPeriod, Positive, SplatConfig, StartSteps, Steps, as_registered_kind, registered_kinds,
+    Interval, NonNegative, OptionalPeriod, Positive, SplatConfig, StartSteps, StepFactor, Steps, as_registered_kind, registered_kinds,
 )
 
 
@@ -100,8 +100,8 @@ class DensifyConfig(StrategyConfig):
     """Last iteration at which densification runs."""
     reset_every: OptionalPeriod = 3000
     """Reset opacities to 2*prune_opa every this many iterations (None: never; the 3D-size pruning, which starts after the first reset, then never runs either)."""
-    opacity_decay: Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)] = 1.0
-    """Multiply every opacity by this after each step from refine_start_iter on (Binocular3DGS, Han et al. NeurIPS 2024: 0.995, with no reset), so only Gaussians the views keep asking for stay opaque (1 = off)."""
+    opacity_decay: StepFactor = 1.0
+    """Multiply every opacity by this after each step from refine_start_iter on (Binocular3DGS, Han et al. NeurIPS 2024: 0.995, with no reset), so only Gaussians the views keep asking for stay opaque (1 = off). Written for the method's own schedule: a run f times as long (--steps, more views) applies its f-th root each step."""
     refine_every: Interval = 100
     """Densify every this many iterations (not rescaled by --steps, so short runs do not densify more often)."""
     pause_refine_after_reset: Steps = 0

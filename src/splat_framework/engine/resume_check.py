@@ -8,7 +8,7 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
-from ..config import STEPS_MARKER, TrainConfig, config_payload, experiment_fields, read_config_json, upgrade_saved_config
+from ..config import PER_STEP_MARKER, STEPS_MARKER, TrainConfig, config_payload, experiment_fields, read_config_json, upgrade_saved_config
 from ..data import DataError
 from ..registry import MethodSpec
 from .checkpoint import list_checkpoints
@@ -102,14 +102,14 @@ def _total_steps(payload: dict):
 
 
 def steps_fields(config: BaseModel, prefix: str = "") -> set[str]:
-    """Dotted names of the fields of ``config`` (nested configs included) that count iterations
-    (``Steps`` and its kin: what ``--steps`` rescales)."""
+    """Dotted names of the fields of ``config`` (nested configs included) that ``--steps`` rescales:
+    those that count iterations (``Steps`` and its kin) and the per-step factors (``StepFactor``)."""
     out = set()
     for name, info in type(config).model_fields.items():
         value = getattr(config, name)
         if isinstance(value, BaseModel):
             out |= steps_fields(value, f"{prefix}{name}.")
-        elif any(m is STEPS_MARKER for m in info.metadata):
+        elif any(m is STEPS_MARKER or m is PER_STEP_MARKER for m in info.metadata):
             out.add(f"{prefix}{name}")
     return out
 
