@@ -67,7 +67,7 @@ from .persist import (
     save_config,
     upgrade_saved_config,
 )
-from .schedule import resolve_steps, scale_schedule
+from .schedule import follows_schedule, resolve_steps, scale_schedule
 from .strategy import DensifyConfig, RegisteredStrategies, StrategyConfig, strategy_field, strategy_kinds
 from .train import TrainConfig, experiment_fields
 
@@ -79,6 +79,6 @@ __all__ = [
     "Period", "Positive", "RampPeriod", "RandomInitConfig", "RegisteredStrategies", "RegularisersConfig",
     "SplatConfig", "StartSteps", "StepFactor", "Steps", "StrategyConfig", "TrainConfig",
     "apply_overrides", "cli_parsing", "config_payload", "deep_merge", "experiment_fields", "init_field", "init_kinds", "read_config_json",
-    "regroup_fields", "resolve_steps", "save_config", "scale_schedule", "strategy_field", "strategy_kinds",
+    "follows_schedule", "regroup_fields", "resolve_steps", "save_config", "scale_schedule", "strategy_field", "strategy_kinds",
     "upgrade_init_layout", "upgrade_reg_layout", "upgrade_saved_config",
 ]

@@ -14,6 +14,12 @@ def _has_marker(info, marker: Marker) -> bool:
     return any(m is marker for m in info.metadata)
 
 
+def follows_schedule(info) -> bool:
+    """Whether a field (its pydantic ``FieldInfo``) is rescaled with the schedule: it counts
+    iterations (:data:`Steps` and its kin) or is a per-step factor (:data:`StepFactor`)."""
+    return _has_marker(info, STEPS_MARKER) or _has_marker(info, PER_STEP_MARKER)
+
+
 def scale_schedule(config: SplatConfig, factor: float) -> SplatConfig:
     """A copy of ``config`` with every :data:`Steps` field multiplied by ``factor`` (recursively),
     except that a :data:`StartSteps` or :data:`RampPeriod` field is only ever shortened (times

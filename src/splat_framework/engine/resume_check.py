@@ -8,7 +8,7 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
-from ..config import PER_STEP_MARKER, STEPS_MARKER, TrainConfig, config_payload, experiment_fields, read_config_json, upgrade_saved_config
+from ..config import TrainConfig, config_payload, follows_schedule, experiment_fields, read_config_json, upgrade_saved_config
 from ..data import DataError
 from ..registry import MethodSpec
 from .checkpoint import list_checkpoints
@@ -109,7 +109,7 @@ def steps_fields(config: BaseModel, prefix: str = "") -> set[str]:
         value = getattr(config, name)
         if isinstance(value, BaseModel):
             out |= steps_fields(value, f"{prefix}{name}.")
-        elif any(m is STEPS_MARKER or m is PER_STEP_MARKER for m in info.metadata):
+        elif follows_schedule(info):
             out.add(f"{prefix}{name}")
     return out
 
