@@ -107,7 +107,7 @@ class DensifyConfig(StrategyConfig):
     pause_refine_after_reset: Steps = 0
     """Skip densification for this many iterations after an opacity reset."""
     absgrad: bool = False
-    """Use the absolute-gradient criterion (AbsGS); raise grow_grad2d accordingly."""
+    """Grow by the absolute-gradient criterion (AbsGS, Ye et al. 2024): each Gaussian's sum over pixels of |per-pixel screen gradient|, in which the opposite pixel gradients of a large Gaussian over fine detail do not cancel; it is larger than the plain gradient, so raise grow_grad2d with it (gsplat uses 4x its threshold)."""
     revised_opacity: bool = False
     """Use the revised opacity for cloned/split Gaussians (Rota Bulo et al. 2024)."""
 

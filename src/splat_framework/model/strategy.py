@@ -34,6 +34,7 @@ from torch import Tensor
 
 from splat_framework.config import DensifyConfig
 from splat_framework.model.ops import decay_opa, duplicate, remove, reset_opa, split
+from splat_framework.render import request_absgrad
 
 __all__ = ["DefaultStrategy", "DensifyConfig", "Strategy", "check_rows"]
 
@@ -174,10 +175,13 @@ class DefaultStrategy(Strategy):
         step: int,
         info: Mapping[str, Any],
     ) -> None:
-        """Ask autograd to keep the gradient of ``info["means2d"]``."""
+        """Ask autograd to keep the gradient of ``info["means2d"]`` (with ``absgrad``, also its
+        sums of absolute per-pixel gradients: :func:`~splat_framework.render.request_absgrad`)."""
         means2d = info["means2d"]
         if means2d.requires_grad:
             means2d.retain_grad()
+            if self.config.absgrad:
+                request_absgrad(means2d)
 
     def step_post_backward(
         self,

@@ -2,7 +2,7 @@
 
 from ._kernels import compile_requested, compiled_or_eager, set_compile
 from ._project import quat_to_rotmat
-from .rasterizer import RenderOutput, rasterize
+from .rasterizer import RenderOutput, rasterize, request_absgrad
 from .sh import eval_sh, rgb_to_sh, sh_to_color, sh_to_rgb
 
 __all__ = [
@@ -12,6 +12,7 @@ __all__ = [
     "eval_sh",
     "quat_to_rotmat",
     "rasterize",
+    "request_absgrad",
     "rgb_to_sh",
     "set_compile",
     "sh_to_color",

@@ -32,14 +32,18 @@ transmittance and the number of pairs each pixel included.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import torch
 from torch import Tensor
 from torch.autograd.function import once_differentiable
 
-from ._kernels import ALPHA_MAX, T_MIN, get_kernels
+from ._kernels import ALPHA_MAX, T_MIN, gathering_bwd, get_kernels
+from ._kernels import bwd_round as bwd_round_eager
 from ..runtime.profiling import section
 _DUMMY_LOGIT = -1.0e4  # exp() == 0 in float32 and float64
+ABSGRAD_REQUEST = "absgrad_requested"
+"""The attribute :func:`~splat_framework.render.rasterizer.request_absgrad` sets on a render's means2d."""
 
 
 def _at(x: Tensor, i: Tensor) -> Tensor:
@@ -312,6 +316,7 @@ class _Composite(torch.autograd.Function):
         bg = background.detach()
         rgb = img[..., 0:3] + (1.0 - alpha) * bg
         ctx.save_for_backward(table, tile_centers, basis, out, opacities.detach(), bg, alpha)
+        ctx.means2d = means2d  # an input: read by the backward for request_absgrad, no reference cycle
         ctx.nf = (n, f)
         ctx.grid = grid
         return rgb, img[..., 3:4].contiguous(), alpha.contiguous()
@@ -338,16 +343,20 @@ class _Composite(torch.autograd.Function):
         g_out = image_to_tiles(torch.cat([g_rgb, g_depth, g_a], -1), grid)  # [n_tiles, F, npx]
         total = (out * g_out).sum(1)  # [n_tiles, npx]
         prefix = torch.zeros_like(total)
+        absgrad = getattr(ctx.means2d, ABSGRAD_REQUEST, False)
+        width = 6 + f + (2 if absgrad else 0)  # the table's columns, then |dL/du|, |dL/dv| summed over pixels
         if ctx.native is not None:
-            # one [N + 1, 6 + F] table per worker thread (no atomics), summed; each thread's tiles are
+            # one [N + 1, width] table per worker thread (no atomics), summed; each thread's tiles are
             # a fixed interleave, so the gradients are the same bits run after run (exact resume)
-            slots = torch.zeros(max(torch.get_num_threads(), 1), n + 1, 6 + f, device=table.device, dtype=table.dtype)
+            slots = torch.zeros(max(torch.get_num_threads(), 1), n + 1, width, device=table.device, dtype=table.dtype)
             for active, gid_sorted, tile_offset, t_entry, n_incl in ctx.rounds:
                 ctx.native.composite_backward(table, gid_sorted, tile_offset, active, tile_centers, t_entry, n_incl,
                                               g_out, total, prefix, slots, grid.tile)
             grads = slots.sum(0)[:n]
         else:
-            grads = _round_backward(ctx.rounds, table, tile_centers, basis, g_out, total, prefix, n, f)
+            grads = _round_backward(ctx.rounds, table, tile_centers, basis, g_out, total, prefix, n, width, absgrad)
+        if absgrad:
+            ctx.means2d.absgrad = grads[:, 6 + f:]
         d_opac = torch.where(opac > 0, grads[:, 5] / opac.clamp_min(1e-30), 0.0)
         return (
             grads[:, 0:2],
@@ -388,17 +397,19 @@ def _round_forward(table, fp, grid, chunk_pairs, tile_centers, basis, t_state, o
     return rounds
 
 
-def _round_backward(rounds, table, tile_centers, basis, g_out, total, prefix, n, f) -> Tensor:
-    """[N, 6 + F] gradients of the table rows, the rounds replayed front to back."""
-    # [6 + F, N + 1]: Gaussians along the last dim, so adding a round's rows is one strided
-    # index_add per column block (5-8 % less compositing backward than [N + 1, 6 + F] on CPU)
-    grads_t = torch.zeros(6 + f, n + 1, device=table.device, dtype=table.dtype)
-    _, bwd_round = get_kernels()
+def _round_backward(rounds, table, tile_centers, basis, g_out, total, prefix, n, width, absgrad) -> Tensor:
+    """[N, width] gradients of the table rows (width 6 + F), with ``absgrad`` two more columns
+    (:func:`._kernels.abs_means_grads`), the rounds replayed front to back. The absolute sums are
+    taken by the eager kernel (the compiled one does not compute them)."""
+    # [width, N + 1]: Gaussians along the last dim, so adding a round's rows is one strided
+    # index_add per column block (5-8 % less compositing backward than [N + 1, width] on CPU)
+    grads_t = torch.zeros(width, n + 1, device=table.device, dtype=table.dtype)
+    bwd_round = gathering_bwd(partial(bwd_round_eager, absgrad=True)) if absgrad else get_kernels()[1]
     for active, gid, t_carry in rounds:
         g_rows, new_prefix = bwd_round(table, gid, tile_centers, active, basis, t_carry, g_out, total, prefix)
         prefix.index_copy_(0, active, new_prefix)
         # eager: a Gaussian's pairs in several tiles add up (compiled, that needs atomics)
-        grads_t.index_add_(1, gid.reshape(-1), g_rows.reshape(-1, 6 + f).T)
+        grads_t.index_add_(1, gid.reshape(-1), g_rows.reshape(-1, width).T)
     return grads_t.T[:n]
 
 

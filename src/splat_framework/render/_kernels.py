@@ -111,13 +111,15 @@ def bwd_round(
     g_t: Tensor,
     total: Tensor,
     prefix: Tensor,
+    absgrad: bool = False,
 ) -> tuple[Tensor, Tensor]:
     """Backward of one round.
 
     g_t: [nA, F, npx] output gradient; total: [nA, npx] sum_j w_j (f_j . g) over
     the whole pixel list; prefix: [nA, npx] the same sum over earlier rounds.
 
-    Returns (grads [nA, B, 6 + F] w.r.t. rows, new prefix [nA, npx]).
+    Returns (grads [nA, B, 6 + F] w.r.t. rows, new prefix [nA, npx]); with ``absgrad``
+    the grads have two more columns: :func:`abs_means_grads`.
 
     With h_i = f_i . g and S_i = sum_{j>i} w_j h_j = total - prefix_i:
     dL/dlogit_i = alpha_i dL/dalpha_i = alpha_i (T_i h_i - S_i / (1 - alpha_i)),
@@ -140,7 +142,18 @@ def bwd_round(
     gc = torch.mm(dp.reshape(na * b, npx), basis.T).reshape(na, b, 6)
     g_feat = torch.bmm(g_t, w.transpose(1, 2)).transpose(1, 2)  # [nA, B, F]
     g_rows = torch.cat([coefficients_backward(gp, tc, coef, gc), g_feat], dim=-1)
+    if absgrad:
+        g_rows = torch.cat([g_rows, abs_means_grads(dp, gp, tc, basis)], dim=-1)
     return g_rows, cs[:, -1, :]
+
+
+def abs_means_grads(dp: Tensor, gp: Tensor, tc: Tensor, basis: Tensor) -> Tensor:
+    """[nA, B, 2] sums over the tile's pixels of |dL/du| and |dL/dv| of each pixel (AbsGS's
+    densification criterion), from dp [nA, B, npx] = dL/dlogit per pixel and gp [nA, B, 6]."""
+    dx = (tc[:, None, 0] - gp[..., 0])[..., None] + basis[1]  # pixel centre - u: [nA, B, npx]
+    dy = (tc[:, None, 1] - gp[..., 1])[..., None] + basis[2]
+    a, b, c = gp[..., 2, None], gp[..., 3, None], gp[..., 4, None]
+    return torch.stack([(dp * (a * dx + b * dy)).abs().sum(-1), (dp * (b * dx + c * dy)).abs().sum(-1)], dim=-1)
 
 
 # --------------------------------------------------------------------------- fused

@@ -19,7 +19,7 @@ from typing import Literal
 import torch
 from torch import Tensor
 
-from ._composite import TileGrid, composite, pixel_basis, tile_footprints
+from ._composite import ABSGRAD_REQUEST, TileGrid, composite, pixel_basis, tile_footprints
 from ._kernels import compile_requested
 from ._native import native_for
 from ._project import ProjectFn, footprint, project_and_shade, reference_radii
@@ -167,7 +167,9 @@ def rasterize(
                     the graph, ``retain_grad()`` is called on it when grad is
                     enabled, so after backward ``meta["means2d"].grad`` is the
                     screen-space positional gradient (pixel units), summed over
-                    all pixels (zero for Gaussians that were not rendered).
+                    all pixels (zero for Gaussians that were not rendered);
+                    :func:`request_absgrad` on it before backward also leaves
+                    ``meta["means2d"].absgrad``.
                 "radii": [N] int32, ceil(3 sqrt(largest eigenvalue of the 2D
                     covariance)) like the 3DGS reference for rendered
                     Gaussians, 0 for culled ones.
@@ -186,6 +188,16 @@ def rasterize(
         far_plane=far_plane, depth_mode=depth_mode, eps2d=eps2d, tile_size=tile_size,
         block=block, chunk_pairs=chunk_pairs,
     )
+
+
+def request_absgrad(means2d: Tensor) -> None:
+    """Ask the backward of the render whose ``meta["means2d"]`` this is to also leave
+    ``means2d.absgrad`` [N, 2]: per Gaussian, the sums over the pixels of each pixel's
+    |dL/du| and |dL/dv| (pixel units), the criterion of AbsGS (Ye et al. 2024; gsplat's
+    ``absgrad``): unlike ``means2d.grad``, opposite pixel gradients of a large Gaussian do
+    not cancel. Call it before backward; the native CPU kernels and the eager torch kernels
+    compute it (a compiled torch backward runs eager while it is requested)."""
+    setattr(means2d, ABSGRAD_REQUEST, True)
 
 
 def _rasterize(

@@ -274,6 +274,35 @@ def test_clone_split_prune_counts():
     assert state["count"].abs().sum() == 0
 
 
+def test_absgrad_grows_a_gaussian_whose_pixel_gradients_cancel():
+    """An isotropic Gaussian centred in the image over a uniform error: its pixels' gradients cancel
+    in means2d.grad, so the standard criterion never grows it, but not in their absolute sums, so
+    with absgrad (AbsGS) it is split."""
+    from splat_framework.cameras import intrinsics, look_at
+    from splat_framework.render import rasterize
+
+    viewmat = look_at(torch.tensor([0.0, 0.0, -4.0]), torch.zeros(3), torch.tensor([0.0, -1.0, 0.0]))
+    K = intrinsics(40.0, 40.0, 16.0, 16.0)
+    for absgrad in (False, True):
+        params, opts = make_params(1)
+        with torch.no_grad():
+            params["means"].zero_()
+            params["scales"].fill_(math.log(0.3))
+            params["sh0"].fill_(0.8)
+        strat = DefaultStrategy(cfg(absgrad=absgrad, grow_grad2d=0.0008 if absgrad else 0.0002))
+        state = strat.initialize_state(scene_scale=1.0)
+        out = rasterize(params["means"], params["quats"], params["scales"].exp(), torch.sigmoid(params["opacities"]),
+                        params["sh0"][:, 0], viewmat, K, 32, 32)
+        strat.step_pre_backward(params, opts, state, 10, out.meta)
+        (out.rgb - 0.2).abs().mean().backward()
+        m2d = out.meta["means2d"]
+        assert m2d.grad.abs().max() < 1e-6  # the symmetric pixels cancel
+        counts = strat.step_post_backward(params, opts, state, 10, out.meta)
+        assert counts["n_split"] == int(absgrad), (absgrad, counts)
+        if absgrad:
+            assert m2d.absgrad.min() > 1e-3
+
+
 def test_invisible_rows_do_not_accumulate():
     params, opts = make_params(3)
     strat = DefaultStrategy(cfg())

@@ -54,6 +54,10 @@ def test_native_matches_bruteforce_sh(native, deg):
     ref._compare(30, 10 + deg, 27, 21, torch.float64, sh_k=16, sh_degree=deg)
 
 
+def test_native_absgrad_matches_bruteforce(native):
+    ref.check_absgrad()
+
+
 def test_native_off_centre_tiles_and_settings(native):
     ref.test_non_square_off_centre_principal_point()
     ref.test_tile_and_block_settings_agree()

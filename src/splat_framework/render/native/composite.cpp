@@ -182,8 +182,9 @@ void forward_impl(const torch::Tensor& table, const torch::Tensor& gid, const to
 
 // The backward of one pair (the k-th of its tile's list) against the tile's P pixels, front
 // to back: T and the running sum cs = prefix + sum w h move past the pair; the pair's
-// gradients (u, v, a, b, c, log o | features) are added to dst [R].
-template <typename scalar_t>
+// gradients (u, v, a, b, c, log o | features) are added to dst [R], and with ABS also the sums
+// over the pixels of each pixel's |dL/du|, |dL/dv| to dst[R], dst[R + 1] (AbsGS's criterion).
+template <typename scalar_t, bool ABS>
 void backward_pair(const scalar_t* row, const int32_t k, const scalar_t* __restrict px,
                    const scalar_t* __restrict py, scalar_t* __restrict T, scalar_t* __restrict cs,
                    const scalar_t* __restrict tt, const int32_t* __restrict inc, const scalar_t* __restrict gv,
@@ -196,8 +197,8 @@ void backward_pair(const scalar_t* row, const int32_t k, const scalar_t* __restr
   const scalar_t* __restrict g3 = gv + 3 * P;
   const scalar_t* __restrict g4 = gv + 4 * P;
   scalar_t s_lo = 0, s_a = 0, s_b = 0, s_c = 0, s_u = 0, s_v = 0;
-  scalar_t w0 = 0, w1 = 0, w2 = 0, w3 = 0, w4 = 0;
-#pragma omp simd reduction(+ : s_lo, s_a, s_b, s_c, s_u, s_v, w0, w1, w2, w3, w4)
+  scalar_t w0 = 0, w1 = 0, w2 = 0, w3 = 0, w4 = 0, abs_u = 0, abs_v = 0;
+#pragma omp simd reduction(+ : s_lo, s_a, s_b, s_c, s_u, s_v, w0, w1, w2, w3, w4, abs_u, abs_v)
   for (int i = 0; i < P; ++i) {
     const scalar_t dx = px[i] - u, dy = py[i] - v;
     scalar_t logit;
@@ -216,8 +217,13 @@ void backward_pair(const scalar_t* row, const int32_t k, const scalar_t* __restr
     s_a += dp * dx * dx;
     s_b += dp * dx * dy;
     s_c += dp * dy * dy;
-    s_u += dp * (a * dx + b * dy);
-    s_v += dp * (b * dx + c * dy);
+    const scalar_t du = dp * (a * dx + b * dy), dv = dp * (b * dx + c * dy);
+    s_u += du;
+    s_v += dv;
+    if (ABS) {
+      abs_u += std::abs(du);
+      abs_v += std::abs(dv);
+    }
     w0 += w * g0[i];
     w1 += w * g1[i];
     w2 += w * g2[i];
@@ -235,6 +241,10 @@ void backward_pair(const scalar_t* row, const int32_t k, const scalar_t* __restr
   dst[8] += w2;
   dst[9] += w3;
   dst[10] += w4;
+  if (ABS) {
+    dst[R] += abs_u;
+    dst[R + 1] += abs_v;
+  }
 }
 
 template <typename scalar_t>
@@ -256,6 +266,8 @@ void backward_impl(const torch::Tensor& table, const torch::Tensor& gid, const t
   scalar_t* pre = prefix.data_ptr<scalar_t>();
   scalar_t* gr = grads.data_ptr<scalar_t>();
   const scalar_t amin = scalar_t(ALPHA_MIN), lmax = std::log(scalar_t(ALPHA_MAX));
+  const int64_t W = grads.size(2);  // R, or R + 2 with the absolute-gradient sums
+  const bool with_abs = W == R + 2;
   // every slot of grads is used, whatever the chunk's size: the sums depend only on the slot count
   for_each_tile(active.size(0), grads.size(0), true, [&](int64_t ai, int64_t slot) {
     const int64_t t = act[ai];
@@ -271,17 +283,21 @@ void backward_impl(const torch::Tensor& table, const torch::Tensor& gid, const t
       n_max = std::max(n_max, inc[i]);
     }
     std::copy(go + t * F * P, go + (t + 1) * F * P, gv.begin());
-    scalar_t* slot_grads = gr + slot * rows * R;
+    scalar_t* slot_grads = gr + slot * rows * W;
     const int64_t* list = g + off[t];
     for (int32_t k = 0; k < n_max; ++k) {
       if (k + 4 < n_max) {
         __builtin_prefetch(tab + list[k + 4] * R);
-        __builtin_prefetch(slot_grads + list[k + 4] * R, 1);
+        __builtin_prefetch(slot_grads + list[k + 4] * W, 1);
       }
       const int64_t id = list[k];
       const scalar_t* row = tab + id * R;
-      backward_pair(row, k, px.data(), py.data(), T.data(), cs.data(), tt.data(), inc.data(), gv.data(), P, amin, lmax,
-                    slot_grads + id * R);
+      if (with_abs)
+        backward_pair<scalar_t, true>(row, k, px.data(), py.data(), T.data(), cs.data(), tt.data(), inc.data(),
+                                      gv.data(), P, amin, lmax, slot_grads + id * W);
+      else
+        backward_pair<scalar_t, false>(row, k, px.data(), py.data(), T.data(), cs.data(), tt.data(), inc.data(),
+                                       gv.data(), P, amin, lmax, slot_grads + id * W);
     }
     for (int i = 0; i < P; ++i) pre[t * P + i] = cs[i];
   });
@@ -309,12 +325,15 @@ torch::Tensor composite_forward(torch::Tensor table, torch::Tensor gid, torch::T
   return n_incl;
 }
 
-// (prefix [T, P] and grads [slots, N + 1, R] updated in place)
+// (prefix [T, P] and grads [slots, N + 1, R] or [slots, N + 1, R + 2] updated in place; the two extra
+// columns: per Gaussian, the sums over pixels of |dL/du| and |dL/dv|)
 void composite_backward(torch::Tensor table, torch::Tensor gid, torch::Tensor offset, torch::Tensor active,
                         torch::Tensor centers, torch::Tensor t_entry, torch::Tensor n_incl, torch::Tensor g_out,
                         torch::Tensor total, torch::Tensor prefix, torch::Tensor grads, int64_t tile) {
   check(table, tile);
   TORCH_CHECK(prefix.is_contiguous() && grads.is_contiguous(), "prefix and grads must be contiguous");
+  TORCH_CHECK(grads.dim() == 3 && (grads.size(2) == R || grads.size(2) == R + 2),
+              "grads must be [slots, N + 1, ", R, "] or, with the absolute-gradient sums, [slots, N + 1, ", R + 2, "]");
   AT_DISPATCH_FLOATING_TYPES(table.scalar_type(), "composite_backward", [&] {
     backward_impl<scalar_t>(table.contiguous(), gid.contiguous(), offset.contiguous(), active.contiguous(),
                             centers.contiguous(), t_entry.contiguous(), n_incl.contiguous(), g_out.contiguous(),
