@@ -18,7 +18,7 @@ from cli_harness import cli_env, run_cli
 from splat_framework.cli.common import ArgumentsError
 from splat_framework.errors import DataError
 from splat_framework.files.run_lock import LOCK_NAME
-from splat_framework.files.work_folder import make_work_folder, remove_stale_work_folders, remove_work_folder
+from splat_framework.files.work_folder import make_work_folder, remove_stale_work_folders, remove_work_folder, scratch
 
 
 def noise_photos(folder: Path, n: int, w: int, h: int, ext: str = ".jpg") -> list[Path]:
@@ -33,6 +33,35 @@ def noise_photos(folder: Path, n: int, w: int, h: int, ext: str = ".jpg") -> lis
 def truncate(path: Path, fraction: float = 0.5) -> None:
     data = path.read_bytes()
     path.write_bytes(data[: int(len(data) * fraction)])
+
+
+@pytest.mark.bad_input("`splat-process` killed with kill -9", "its hidden work folder is removed by the next run (folders in use are kept)")
+def test_a_scratch_folder_is_removed_at_the_end_even_by_an_error_and_after_a_kill(tmp_path):
+    """Intermediate files (a video's frames) live in a work folder beside the output, not in /tmp,
+    so a run killed with kill -9 leaves nothing that the next run for that output does not remove."""
+    out = tmp_path / "scene"
+    stale, _ = _work_folder_of_another_process(out, stay=False)
+    with pytest.raises(RuntimeError, match="stop"), scratch(out) as work:
+        assert not stale.exists() and work.is_dir() and work.parent == tmp_path
+        raise RuntimeError("stop")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_videos_frames_are_picked_into_a_work_folder_beside_out(tmp_path, monkeypatch):
+    import splat_framework.sfm as sfm
+    from splat_framework.cli import process
+
+    seen = []
+
+    def pick(video, frames, folder):
+        seen.append(Path(folder))
+        raise DataError(f"{video}: stop")
+
+    monkeypatch.setattr(sfm, "pick_video_frames", pick)
+    with pytest.raises(DataError, match="stop"):
+        process.main(process.VideoArgs(video=tmp_path / "v.mp4", out=tmp_path / "scene"))
+    assert seen[0].parent.parent == tmp_path and seen[0].parent.name.startswith(".scene.work-")
+    assert list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.bad_input("a truncated JPEG given to `splat-process`", "exit 2, one line naming the photo (not a half-grey photo in the scene)")

@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Literal, Union
@@ -53,10 +52,11 @@ def main(args: ImagesArgs | VideoArgs):
     source = args.video if isinstance(args, VideoArgs) else args.folder
     check_output(args.out, PROCESSED_SCENE, overwrite=args.overwrite, inputs=[source])  # before any work
 
+    from ..files.work_folder import scratch
     from ..sfm import estimate_scene, list_images, pick_video_frames
     if isinstance(args, VideoArgs):
-        with tempfile.TemporaryDirectory(prefix="splat-frames-") as tmp:
-            photos = pick_video_frames(args.video, args.frames, Path(tmp) / "frames")
+        with scratch(args.out) as work:  # beside --out: a killed run's frames are removed by the next
+            photos = pick_video_frames(args.video, args.frames, work / "frames")
             summary = estimate_scene(photos, args.out, mapper=args.mapper, overwrite=args.overwrite, matcher=args.matcher)
     else:
         photos = list_images(args.folder)

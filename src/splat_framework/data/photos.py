@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import tempfile
 from pathlib import Path
 from typing import Literal
 
@@ -55,6 +54,7 @@ def posed_photos(path: Path, kind: PhotoSource, options: PhotoPosesConfig | None
     """The posed scene folder (COLMAP layout) of the photos in folder ``path`` or of the video ``path``:
     read from the cache, or estimated now (one line before, the summary after) and cached."""
     from ..console import say
+    from ..files.work_folder import scratch
     from ..runtime.io import atomic_write_json, read_json
     from ..sfm.photos import list_images as list_photos
     from ..sfm.reconstruct import estimate_scene
@@ -73,8 +73,8 @@ def posed_photos(path: Path, kind: PhotoSource, options: PhotoPosesConfig | None
         f"cached for the next run in {entry}")
     kwargs = {"mapper": options.mapper, "matcher": options.matcher, "overwrite": True}
     if kind == "video":
-        with tempfile.TemporaryDirectory(prefix="splat-frames-") as tmp:
-            frames = pick_video_frames(path, options.frames, Path(tmp) / "frames")
+        with scratch(scene) as work:  # beside the scene: a killed run's frames are removed by the next
+            frames = pick_video_frames(path, options.frames, work / "frames")
             summary = estimate_scene(frames, scene, **kwargs)
     else:
         summary = estimate_scene(files, scene, **kwargs)

@@ -8,7 +8,7 @@ its process with the run-folder lock (:mod:`splat_framework.files.run_lock`: an 
 the next run for the same output removes every work folder of that output whose lock
 nobody holds. A folder that is locked (a run in progress), has no lock file (not ours,
 or not yet locked), or is a symlink is left alone. :func:`building` wraps the whole
-cycle. Torch-free.
+cycle; :func:`scratch` is the same for intermediate files only. Torch-free.
 """
 
 from __future__ import annotations
@@ -66,6 +66,21 @@ def remove_work_folder(work: Path) -> None:
 
 
 @contextmanager
+def scratch(out: Path) -> Iterator[Path]:
+    """A fresh work folder beside ``out`` for a run's intermediate files (yielded), removed at the
+    end, success or not; after a crash (``kill -9``) the next :func:`scratch` or :func:`building` of
+    the same output removes it (a temporary folder in /tmp would stay there)."""
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_work_folders(out)
+    work = make_work_folder(out)
+    try:
+        yield work
+    finally:
+        remove_work_folder(work)
+
+
+@contextmanager
 def building(out: Path, install: Callable[[Path, Path], object]) -> Iterator[Path]:
     """Build the folder ``out`` in a fresh work folder beside it (yielded), then ``install(work, out)``.
 
@@ -74,16 +89,10 @@ def building(out: Path, install: Callable[[Path, Path], object]) -> Iterator[Pat
     folder gets and no lock file. On any failure or interruption (Ctrl-C) the work folder is
     removed and ``out`` is untouched; after a crash (``kill -9``) the next :func:`building` of
     the same output removes it."""
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    remove_stale_work_folders(out)
-    work = make_work_folder(out)
-    try:
+    with scratch(out) as work:
         yield work
         run_lock.release(work)  # deletes the lock file: it is not part of the output
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(work, 0o777 & ~umask)  # a folder as mkdir makes it, not mkdtemp's private 0700
         install(work, out)
-    finally:
-        remove_work_folder(work)

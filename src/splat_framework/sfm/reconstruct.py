@@ -27,7 +27,7 @@ from pathlib import Path
 from ..console import phase
 from ..errors import DataError
 from ..files.output_paths import PROCESSED_SCENE, check_output, install_output
-from ..files.work_folder import make_work_folder, remove_stale_work_folders, remove_work_folder
+from ..files.work_folder import scratch
 from .colmap import load_pycolmap, verified_pair_counts, write_matches
 from .photo_matchers import AUTO_MATCHER, AUTO_PREFERRED, choose_matcher, photo_matchers
 from .photos import stage_images
@@ -96,10 +96,7 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
     check_output(out, PROCESSED_SCENE, overwrite=overwrite, inputs={Path(p).parent for p in images})
     pycolmap = load_pycolmap()
     t0 = time.perf_counter()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    remove_stale_work_folders(out)  # left by a run that crashed or was killed
-    work = make_work_folder(out)
-    try:
+    with scratch(out) as work:  # removes those left by a run that crashed or was killed
         stage_images(images, work / "input")
         staged = [f"{Path(p).stem}.png" for p in images]
         original = dict(zip(staged, (Path(p).name for p in images)))
@@ -166,5 +163,3 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
         )
         install_output(scene, out, PROCESSED_SCENE)
         return summary
-    finally:
-        remove_work_folder(work)
