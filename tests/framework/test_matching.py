@@ -380,8 +380,11 @@ def _plane_pair(plane_scene):
 def test_auto_without_learned_weights_keeps_dense_with_one_line_notice(no_weights, plane_scene, monkeypatch):
     imgs, cams, ids = _plane_pair(plane_scene)
     with warnings.catch_warnings():
-        warnings.simplefilter("error")  # plentiful dense matches: the learned matcher is never needed
-        ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_min_matches=100))
+        warnings.simplefilter("error")  # plentiful dense matches, no guided flow: the learned matcher is never needed
+        ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_min_matches=100, auto_guided_flow_max_views=0))
+    assert ms.meta["pair_matchers"] == {"0-1": "dense"} and ms.count(0, 1) >= 100
+    with pytest.warns(UserWarning, match=r"matcher auto: pair \(0, 1\) would take guided flow \(2 views\).*not installed"):
+        ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_min_matches=100))  # few views: guided flow
     assert ms.meta["pair_matchers"] == {"0-1": "dense"} and ms.count(0, 1) >= 100
     monkeypatch.setattr(M.DenseFlowMatcher, "match", lambda self, a, b: M.no_matches())  # a pair dense flow loses
     with pytest.warns(UserWarning, match="matcher auto: .*not installed") as rec:
@@ -392,7 +395,8 @@ def test_auto_without_learned_weights_keeps_dense_with_one_line_notice(no_weight
 
 
 def test_auto_picks_the_matcher_by_view_angle(plane_scene, monkeypatch):
-    """auto: dense flow on narrow pairs, the learned matcher alone on pairs wider than auto_flow_max_angle."""
+    """auto with more views than auto_guided_flow_max_views: dense flow on narrow pairs, the learned matcher
+    alone on pairs wider than auto_flow_max_angle; with at most that many, guided flow on every pair."""
     imgs, cams, ids = _plane_pair(plane_scene)  # optical axes 7 degrees apart
     assert 6.0 < M.view_angle(*cams) < 8.0
     assert M.view_angle(cams[0], cams[0]) == pytest.approx(0.0, abs=1e-4)
@@ -409,10 +413,12 @@ def test_auto_picks_the_matcher_by_view_angle(plane_scene, monkeypatch):
 
     monkeypatch.setitem(MATCHERS, M.AUTO_LEARNED, FakeLearned)
     monkeypatch.setattr(M.registry, "learned_available", lambda config: True)
-    ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_min_matches=100))
+    ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_min_matches=100, auto_guided_flow_max_views=0))
     assert ms.meta["pair_matchers"] == {"0-1": "dense"} and calls == []
     ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_flow_max_angle=5.0, auto_guided_flow_max_views=0))
     assert ms.meta["pair_matchers"] == {"0-1": M.AUTO_LEARNED} and calls == ["learned"] and ms.count(0, 1) >= 100
+    ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False))  # 2 views: the narrow pair too is guided
+    assert ms.meta["pair_matchers"] == {"0-1": M.AUTO_GUIDED} and calls == ["learned"] * 2 and ms.count(0, 1) >= 100
     monkeypatch.setattr(M.registry, "learned_available", lambda config: False)  # wide pair, no weights: dense + one notice
     with pytest.warns(UserWarning, match=r"matcher auto: pair \(0, 1\) is wide \(7 degrees\).*not installed"):
         ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_flow_max_angle=5.0))
@@ -489,7 +495,7 @@ def test_weights_found_in_installed_package():
 def test_auto_adds_the_learned_matcher_where_dense_flow_is_thin(plane_scene, monkeypatch):
     imgs, cams, ids = _plane_pair(plane_scene)
     monkeypatch.setattr(M.DenseFlowMatcher, "match", lambda self, a, b: M.no_matches())
-    cfg = MatchConfig(cache=False, max_keypoints=1024, learned_resize=480)
+    cfg = MatchConfig(cache=False, max_keypoints=1024, learned_resize=480, auto_guided_flow_max_views=0)
     ms = compute_matches(imgs, cams, ids, cfg)
     assert ms.meta["pair_matchers"] == {"0-1": M.AUTO_LEARNED} and ms.count(0, 1) >= 200
 

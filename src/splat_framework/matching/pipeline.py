@@ -175,6 +175,7 @@ def _match_all_pairs(ids: list[int], imgs: list[np.ndarray], cams, fg: list, con
                               f"({WEIGHTS_INSTALL}); using dense matches", stacklevel=3)
         return learned
 
+    guided = config.matcher == AUTO and len(ids) <= config.auto_guided_flow_max_views
     for a in range(len(ids)):
         for b in range(a + 1, len(ids)):
             pair = (ids[a], ids[b])
@@ -183,11 +184,12 @@ def _match_all_pairs(ids: list[int], imgs: list[np.ndarray], cams, fg: list, con
             name = AUTO_DENSE if config.matcher == AUTO else config.matcher
             angle = view_angle(cams[a], cams[b]) if cams is not None else 0.0
             wide = config.matcher == AUTO and config.auto_flow_max_angle > 0 and angle >= config.auto_flow_max_angle
-            if wide and auto_learned(pair, f"is wide ({angle:.0f} degrees)") is not None:
-                wide_matcher, name = learned, AUTO_LEARNED
-                if len(ids) <= config.auto_guided_flow_max_views:
-                    wide_matcher, name = GuidedFlowMatcher(learned, matcher), AUTO_GUIDED
-                pa, pb, counts, warn = _verified(wide_matcher, imgs[a], imgs[b], F_known, config, seed, pair_masks)
+            why = f"is wide ({angle:.0f} degrees)" if wide else f"would take guided flow ({len(ids)} views)"
+            if (wide or guided) and auto_learned(pair, why) is not None:
+                learned_matcher, name = learned, AUTO_LEARNED
+                if guided:
+                    learned_matcher, name = GuidedFlowMatcher(learned, matcher), AUTO_GUIDED
+                pa, pb, counts, warn = _verified(learned_matcher, imgs[a], imgs[b], F_known, config, seed, pair_masks)
             else:
                 pa, pb, counts, warn = _verified(matcher, imgs[a], imgs[b], F_known, config, seed, pair_masks)
                 if (config.matcher == AUTO and counts["final"] < config.auto_min_matches
