@@ -47,6 +47,18 @@ def test_a_scratch_folder_is_removed_at_the_end_even_by_an_error_and_after_a_kil
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_scratch_folder_outlives_a_nested_one_of_the_same_output(tmp_path):
+    """A video's frames (one scratch folder of --out) stay while estimate_scene, which opens its own
+    scratch folder of --out and removes the stale ones first, runs: a live folder is never stale."""
+    out = tmp_path / "scene"
+    with scratch(out) as frames:
+        (frames / "f.png").write_bytes(b"x")
+        with scratch(out) as inner:
+            assert (frames / "f.png").is_file() and inner != frames
+        assert (frames / "f.png").is_file() and not inner.exists()
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_a_videos_frames_are_picked_into_a_work_folder_beside_out(tmp_path, monkeypatch):
     import splat_framework.sfm as sfm
     from splat_framework.cli import process

@@ -11,10 +11,12 @@ from __future__ import annotations
 
 import pytest
 import torch
+from pydantic import BaseModel
 
 from splat_framework.config import apply_overrides
 from splat_framework.data import DataManager, load_scene
 from splat_framework.data.synthetic import ensure_scene
+from splat_framework.matching.config import MatchConfig
 from splat_framework.registry import get_method
 
 BEFORE = {
@@ -36,20 +38,25 @@ BEFORE = {
 
 PRIOR_OF_BEFORE = {"dense_upscale": 1.0, "auto_guided_flow_max_views": 0}
 """The matching settings of the recorded runs (their pairs are narrow: guided flow applied to none)."""
-MATCHING_AT = {"scgaussian": ("model", "matching"), "3dgs-triang": ("model", "init", "matching"),
-               "scaffold-gs-triang": ("model", "init", "matching"), "octree-gs-triang": ("model", "init", "matching")}
+
+
+def with_prior_of_before(config) -> dict:
+    """Overrides (nested, as apply_overrides takes them) that set :data:`PRIOR_OF_BEFORE` in every
+    matching config of ``config``, wherever the method keeps it (``model.matching``, ``model.init.matching``)."""
+    def walk(node) -> dict:
+        if isinstance(node, MatchConfig):
+            return dict(PRIOR_OF_BEFORE)
+        if not isinstance(node, BaseModel):
+            return {}
+        return {name: sub for name in type(node).model_fields if (sub := walk(getattr(node, name)))}
+    return walk(config)
 
 
 @pytest.mark.parametrize("method", sorted(BEFORE))
 def test_initial_model_is_the_one_from_before(method):
     spec = get_method(method)
     dm = DataManager(load_scene(ensure_scene("forward-tiny"), views=3), device="cpu", seed=0)
-    overrides = {"data": "synthetic/forward-tiny"}
-    if method in MATCHING_AT:
-        nested = dict(PRIOR_OF_BEFORE)
-        for key in reversed(MATCHING_AT[method]):
-            nested = {key: nested}
-        overrides |= nested
+    overrides = {"data": "synthetic/forward-tiny"} | with_prior_of_before(spec.default_config())
     cfg = apply_overrides(spec.default_config(), overrides)
     torch.manual_seed(0)
     model = spec.model_class().from_data(cfg, dm, torch.Generator().manual_seed(0))

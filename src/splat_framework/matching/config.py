@@ -46,7 +46,7 @@ class MatchConfig(SplatConfig):
     """Dense: OpenCV DIS optical flow preset."""
 
     dense_upscale: float = Field(4.0, ge=1.0, le=8.0)
-    """Dense: the flow is computed on the grey images upsampled by this factor (bicubic), then averaged back to the image's pixels, so that DIS (whose preset stops at half its input's resolution, with 8-pixel patches) follows fine structure: fronds, petals, edges (1 = the images as they are; the flow's time grows with the square, about a second per pair at 504x378 and 4x)."""
+    """Dense: the flow is computed on the grey images upsampled by this factor (bicubic), then averaged back to the image's pixels, so that DIS (whose preset stops at half its input's resolution, with 8-pixel patches) follows fine structure: fronds, petals, edges (1 = the images as they are; the flow's time grows with the square: 0.02 s per pair, both ways, at 504x378 and 1x, 0.35 s at 4x on 2 cores)."""
 
     fb_threshold: float = Field(1.0, gt=0.0)
     """Dense: forward-backward consistency threshold in pixels."""
