@@ -3,7 +3,8 @@ on the built-in forward-tiny scene. `3dgs-triang` and `scgaussian` were recorded
 commit 55d1791 (before the triangulated initialisation moved from `scg_plugin` into the framework,
 issue 18); the others with commit c1c664c, before `model.init` became a tagged union and the
 `-triang` methods TOML variants (issue 41). The matching prior's own rules changed on purpose on
-2026-11-27 (guided flow on every pair with up to 4 views, flow on images upsampled 4x); the matched
+2026-11-27 (guided flow on every pair with up to 4 views, flow on images upsampled 4x, 12,000
+matches per pair instead of 4,000); the matched
 methods run here with the rules of before (:data:`PRIOR_OF_BEFORE`), so that what this test guards,
 the path from matches to the initial model, is compared with what was recorded."""
 
@@ -36,7 +37,7 @@ BEFORE = {
 }
 
 
-PRIOR_OF_BEFORE = {"dense_upscale": 1.0, "auto_guided_flow_max_views": 0}
+PRIOR_OF_BEFORE = {"dense_upscale": 1.0, "auto_guided_flow_max_views": 0, "max_matches": 4000}
 """The matching settings of the recorded runs (their pairs are narrow: guided flow applied to none)."""
 
 
