@@ -30,6 +30,27 @@ def leaf_fields(config: SplatConfig, prefix: tuple = ()) -> list[tuple[tuple, ty
     return out
 
 
+def sub_configs(config: SplatConfig, kind: type[SplatConfig]) -> list[SplatConfig]:
+    """Every sub-config of ``config`` (itself included) of type ``kind``."""
+    if isinstance(config, kind):
+        return [config]
+    if not isinstance(config, SplatConfig):
+        return []
+    return [c for name in type(config).model_fields for c in sub_configs(getattr(config, name), kind)]
+
+
+def overrides_in_every(config: SplatConfig, kind: type[SplatConfig], values: dict) -> dict:
+    """Overrides (nested, as apply_overrides takes them) that set ``values`` in every sub-config of
+    ``config`` of type ``kind``, wherever the method keeps it (e.g. a MatchConfig under
+    ``model.matching`` or ``model.init.matching``)."""
+    if isinstance(config, kind):
+        return dict(values)
+    if not isinstance(config, SplatConfig):
+        return {}
+    return {name: sub for name in type(config).model_fields
+            if (sub := overrides_in_every(getattr(config, name), kind, values))}
+
+
 def nested(path: tuple, value) -> dict:
     out = value
     for key in reversed(path):

@@ -11,8 +11,10 @@ from pathlib import Path
 
 import pytest
 
+from config_walk import overrides_in_every, sub_configs
 from splat_framework.config import apply_overrides, experiment_fields, read_config_json, resolve_steps, upgrade_saved_config
 from splat_framework.runtime.io import atomic_write_json, read_json
+from splat_framework.matching.config import MatchConfig
 from splat_framework.registry import get_method
 from splat_framework.engine.run import load_trained_model
 from splat_framework.engine.trainer import Trainer, TrainingInterrupted
@@ -39,6 +41,9 @@ def test_old_config_json_is_todays_experiment(name):
     # rescaled with the schedule since then; these files hold it unscaled)
     later = {k: raw["strategy"][k] for k in ("grow_grad2d", "opacity_decay") if k in raw["strategy"]}
     now = apply_overrides(now, {"strategy": later})
+    # and the matching prior's cap on matches per pair (12,000 since 2026-11-27; these files hold 4,000)
+    for cap in {m.max_matches for m in sub_configs(old, MatchConfig)}:
+        now = apply_overrides(now, overrides_in_every(now, MatchConfig, {"max_matches": cap}))
     keep = experiment_fields(type(now))
     assert old.model_dump(include=keep) == now.model_dump(include=keep)
     rates = type(old.optim).model_fields

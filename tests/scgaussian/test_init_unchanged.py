@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import pytest
 import torch
-from pydantic import BaseModel
 
+from config_walk import overrides_in_every
 from splat_framework.config import apply_overrides
 from splat_framework.data import DataManager, load_scene
 from splat_framework.data.synthetic import ensure_scene
@@ -42,15 +42,8 @@ PRIOR_OF_BEFORE = {"dense_upscale": 1.0, "auto_guided_flow_max_views": 0, "max_m
 
 
 def with_prior_of_before(config) -> dict:
-    """Overrides (nested, as apply_overrides takes them) that set :data:`PRIOR_OF_BEFORE` in every
-    matching config of ``config``, wherever the method keeps it (``model.matching``, ``model.init.matching``)."""
-    def walk(node) -> dict:
-        if isinstance(node, MatchConfig):
-            return dict(PRIOR_OF_BEFORE)
-        if not isinstance(node, BaseModel):
-            return {}
-        return {name: sub for name in type(node).model_fields if (sub := walk(getattr(node, name)))}
-    return walk(config)
+    """Overrides that set :data:`PRIOR_OF_BEFORE` in every matching config of ``config``."""
+    return overrides_in_every(config, MatchConfig, PRIOR_OF_BEFORE)
 
 
 @pytest.mark.parametrize("method", sorted(BEFORE))
