@@ -28,7 +28,7 @@ class MatchConfig(SplatConfig):
     """Matcher "auto" with at most this many training views (0 = never): every pair, narrow or wide, is matched by guided flow: its aliked-lightglue matches, plus dense flow between the first image and the second warped onto it by their homography (GuidedFlowMatcher), verified as one set. With few views the prior carries the geometry (LLFF fern's 3 views: +0.4 dB over plain flow on its 2-7 degree pairs; DTU's wide pairs: +0.7 dB over the learned matches alone); with many, photometry already pins it (lego's 8 views measured worse)."""
 
     max_matches: int = Field(12000, ge=0, le=MAX_MATCHES)
-    """Cap on verified matches per pair, reached by spatially balanced sampling (0 = no cap). Each match becomes a Gaussian of the prior, so the cap sets how densely the geometry starts: 12,000 against 4,000 gave +0.14 dB on LLFF fern and flower (3 views, seeds 0-2) for about a third more training time; views with fewer verified matches keep them all."""
+    """Cap on verified matches per pair, reached by spatially balanced sampling (0 = no cap). Each match becomes a Gaussian of the prior, so the cap sets how densely the geometry starts: 12,000 against 4,000 gave +0.15 / +0.14 / +0.26 dB on LLFF fern / flower / DTU scan37 (3 views, seeds 0-2) for about 1.4x the training time (fern alone on 2 cores: 119-128 s against 86 s); a pair with fewer verified matches keeps them all."""
 
     grid_cell: int = Field(16, ge=1, le=4096)
     """Side in pixels of the grid cells of the balanced sampler (at most a quota of matches per cell)."""
