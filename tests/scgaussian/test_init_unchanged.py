@@ -38,19 +38,15 @@ BEFORE = {
 
 
 PRIOR_OF_BEFORE = {"dense_upscale": 1.0, "auto_guided_flow_max_views": 0, "max_matches": 4000}
-"""The matching settings of the recorded runs (their pairs are narrow: guided flow applied to none)."""
-
-
-def with_prior_of_before(config) -> dict:
-    """Overrides that set :data:`PRIOR_OF_BEFORE` in every matching config of ``config``."""
-    return overrides_in_every(config, MatchConfig, PRIOR_OF_BEFORE)
+"""The matching settings of the recorded runs (their pairs are narrow: guided flow applied to none),
+set in every matching config of a method, wherever it keeps one."""
 
 
 @pytest.mark.parametrize("method", sorted(BEFORE))
 def test_initial_model_is_the_one_from_before(method):
     spec = get_method(method)
     dm = DataManager(load_scene(ensure_scene("forward-tiny"), views=3), device="cpu", seed=0)
-    overrides = {"data": "synthetic/forward-tiny"} | with_prior_of_before(spec.default_config())
+    overrides = {"data": "synthetic/forward-tiny"} | overrides_in_every(spec.default_config(), MatchConfig, PRIOR_OF_BEFORE)
     cfg = apply_overrides(spec.default_config(), overrides)
     torch.manual_seed(0)
     model = spec.model_class().from_data(cfg, dm, torch.Generator().manual_seed(0))

@@ -186,10 +186,8 @@ def _match_all_pairs(ids: list[int], imgs: list[np.ndarray], cams, fg: list, con
             wide = config.matcher == AUTO and config.auto_flow_max_angle > 0 and angle >= config.auto_flow_max_angle
             why = f"is wide ({angle:.0f} degrees)" if wide else f"would take guided flow ({len(ids)} views)"
             if (wide or guided) and auto_learned(pair, why) is not None:
-                learned_matcher, name = learned, AUTO_LEARNED
-                if guided:
-                    learned_matcher, name = GuidedFlowMatcher(learned, matcher), AUTO_GUIDED
-                pa, pb, counts, warn = _verified(learned_matcher, imgs[a], imgs[b], F_known, config, seed, pair_masks)
+                chosen, name = (GuidedFlowMatcher(learned, matcher), AUTO_GUIDED) if guided else (learned, AUTO_LEARNED)
+                pa, pb, counts, warn = _verified(chosen, imgs[a], imgs[b], F_known, config, seed, pair_masks)
             else:
                 pa, pb, counts, warn = _verified(matcher, imgs[a], imgs[b], F_known, config, seed, pair_masks)
                 if (config.matcher == AUTO and counts["final"] < config.auto_min_matches
