@@ -146,6 +146,18 @@ def project_and_shade(
     return p.means2d, p.conics, p.cov2d, p.depths, p.valid, rgb
 
 
+def all_sh_bands(colors: Tensor, sh_degree: int | None) -> tuple[Tensor, int | None]:
+    """SH coefficients [N, K, 3] of degree ``sh_degree`` as degree 3: the active bands followed by zeros
+    ([N, 16, 3]), so that the compiled projection sees one shape and one degree whatever the degree
+    (3DGS raises it during training). The colour is the same: an absent band adds exact zeros, and
+    the inactive coefficients' gradient is zero, as when they are left out. [N, 3] colours pass."""
+    if colors.dim() != 3:
+        return colors, sh_degree
+    degree = int(math.isqrt(colors.shape[1])) - 1 if sh_degree is None else int(sh_degree)
+    used = colors[:, : (degree + 1) ** 2]
+    return torch.nn.functional.pad(used, (0, 0, 0, 16 - used.shape[1])), 3
+
+
 @functools.cache
 def _compiled_projection():
     """``project_and_shade`` compiled once per process (dynamic sizes), eager after any failure."""
@@ -181,7 +193,11 @@ class ProjectFn(torch.autograd.Function):
             leaves = tuple(
                 t.detach().requires_grad_(bool(need)) for t, need in zip(inputs, ctx.needs_input_grad)
             )
-            outs = project(*leaves, *cfg)
+            if compiled:  # one graph for every SH degree: a new degree mid-run would compile again
+                colors, degree = all_sh_bands(leaves[3], cfg[-1])
+                outs = project(*leaves[:3], colors, *leaves[4:], *cfg[:-1], degree)
+            else:
+                outs = project(*leaves, *cfg)
         ctx.leaves = leaves
         ctx.outs = outs
         # rgb may be the colours input itself: return a copy, never an input
