@@ -104,8 +104,40 @@ def photometric_loss(pred: Tensor, gt: Tensor, lambda_dssim: float = 0.2, mask: 
     eager version is a few dozen passes over the image). The values are the eager ones.
     """
     if mask is None and pred.requires_grad and compile_requested():
+        native = _native_loss(pred, gt)
+        if native is not None:
+            return _NativePhotometric.apply(pred, gt, float(lambda_dssim), native)
         return _compiled_photometric()(pred, gt, float(lambda_dssim))
     return _photometric(pred, gt, lambda_dssim, mask)
+
+
+def _native_loss(pred: Tensor, gt: Tensor):
+    """The native kernels (``photometric_forward`` / ``photometric_backward``, render/native/loss.cpp) for
+    one [H, W, C] prediction on a CPU against a constant photo, where they could be built; else None."""
+    if pred.dim() != 3 or pred.shape != gt.shape or gt.requires_grad or pred.dtype != gt.dtype:
+        return None
+    from .render._native import native_for
+
+    native = native_for(pred.device)
+    return native if native is not None and hasattr(native, "photometric_forward") else None
+
+
+class _NativePhotometric(torch.autograd.Function):
+    """The unmasked photometric loss by the native kernels: the same value as ``_photometric`` up to
+    rounding, no tracing, and the same result for any thread count (sums in a fixed order)."""
+
+    @staticmethod
+    def forward(ctx, pred, gt, lambda_dssim, native):  # type: ignore[override]
+        taps = _gaussian_1d(11, 1.5, pred)
+        loss, stats = native.photometric_forward(pred, gt, taps, lambda_dssim)
+        ctx.save_for_backward(pred, gt, taps, stats)
+        ctx.lambda_dssim, ctx.native = lambda_dssim, native
+        return loss
+
+    @staticmethod
+    def backward(ctx, grad):  # type: ignore[override]
+        pred, gt, taps, stats = ctx.saved_tensors
+        return ctx.native.photometric_backward(pred, gt, taps, ctx.lambda_dssim, stats, grad), None, None, None
 
 
 def _photometric(pred: Tensor, gt: Tensor, lambda_dssim: float = 0.2, mask: Tensor | None = None) -> Tensor:

@@ -186,3 +186,21 @@ def test_default_output_and_bad_run_dir(run_dir, tmp_path, monkeypatch, capsys):
     err = capsys.readouterr().err.strip()
     assert err.startswith("error:") and "a_dir" in err and "is a folder" in err and "\n" not in err
     assert not any((tmp_path / "a_dir").iterdir())
+
+
+def test_loading_a_run_checks_every_row_but_composites_nothing(run_dir, monkeypatch):
+    """Loading a run (export, render, view, eval) renders once to check the parameters fit the
+    rasterizer, from a camera every Gaussian is behind: every row is projected and none composited
+    (a camera inside fern's 106k Gaussians composited for 51 s before each export)."""
+    from splat_framework.engine.run import load_trained_model
+    from splat_framework.render import rasterizer
+
+    real, seen = rasterizer.composite, []
+
+    def spy(means2d, conics, opacities, rgb, depths, background, fp, *rest):
+        seen.append((means2d.shape[0], int(fp.hit.sum())))
+        return real(means2d, conics, opacities, rgb, depths, background, fp, *rest)
+
+    monkeypatch.setattr(rasterizer, "composite", spy)
+    _, model = load_trained_model(run_dir, "cpu")
+    assert seen == [(model.num_gaussians, 0)] and model.num_gaussians > 1000

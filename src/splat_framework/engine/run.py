@@ -62,10 +62,14 @@ def _load_checkpointed(run_dir: Path, device: str | None, scene_scale: float, tr
 
 
 def _renders(model) -> None:
-    """Render a 4x4 image of ``model`` (raises if its parameters do not fit the rasterizer)."""
+    """Render a 4x4 image of ``model`` (raises if its parameters do not fit the rasterizer) with a
+    camera that every Gaussian at a finite position is behind: the projection checks every row,
+    and nothing is composited (a camera inside the scene composited 106k Gaussians for 51 s)."""
     from ..cameras import Camera, intrinsics
 
-    cam = Camera(K=intrinsics(4.0, 4.0, 2.0, 2.0), world_to_cam=torch.eye(4), width=4, height=4)
+    away = torch.eye(4)
+    away[2, 3] = -1e30  # camera z of every point: about -1e30, behind the near plane
+    cam = Camera(K=intrinsics(4.0, 4.0, 2.0, 2.0), world_to_cam=away, width=4, height=4)
     with torch.no_grad():
         model.get_outputs(cam)
 

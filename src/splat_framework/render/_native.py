@@ -25,7 +25,7 @@ from ..console import phase, say
 from ._kernels import compile_requested, kernel_cache_dir
 
 _FOLDER = Path(__file__).with_name("native")
-_SOURCES = ("module.cpp", "binning.cpp", "composite.cpp")  # module.cpp includes the others: one unit
+_SOURCES = ("module.cpp", "binning.cpp", "composite.cpp", "project.cpp", "loss.cpp")  # module.cpp includes the others: one unit
 _STATE: dict = {"module": None, "failed": False}
 
 

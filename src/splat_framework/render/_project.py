@@ -1,16 +1,15 @@
 """EWA projection of 3D Gaussians to screen space (differentiable, plain torch autograd).
 
-While kernels are compiled (``compile_requested()``: training runs), a render that needs
-gradients projects with ``project_and_shade`` compiled by ``torch.compile`` (dynamic sizes: one
-graph whatever the number of Gaussians): the projection and SH colours' few dozen passes over
-the Gaussians become a few fused loops, forward and backward (on fern's 48k Gaussians,
-2 CPU threads, 21 -> 11 ms per step). The values are the eager ones.
+While kernels are compiled (``compile_requested()``: training and rendering runs), a CPU render
+projects with the native kernels (``native/project.cpp``, built once per machine with the
+compositing kernels): one loop over the Gaussians forward and one backward, for any number of
+Gaussians and any SH degree, with nothing traced or compiled in the process (100k Gaussians at SH
+degree 3, 2 threads: 6 + 15 ms against 52 + 160 ms eager). Elsewhere ``project_and_shade`` runs in
+torch (the reference the native kernels are tested against).
 """
 
 from __future__ import annotations
 
-import contextlib
-import functools
 from dataclasses import dataclass
 
 import math
@@ -19,7 +18,6 @@ import torch
 from torch import Tensor
 
 from ._kernels import ALPHA_MIN  # a pixel receives a Gaussian only if alpha >= 1/255
-from ._kernels import compile_requested, compiled_or_eager
 from ..runtime.profiling import section
 from .sh import sh_to_color
 
@@ -146,58 +144,58 @@ def project_and_shade(
     return p.means2d, p.conics, p.cov2d, p.depths, p.valid, rgb
 
 
-def all_sh_bands(colors: Tensor, sh_degree: int | None) -> tuple[Tensor, int | None]:
-    """SH coefficients [N, K, 3] of degree ``sh_degree`` as degree 3: the active bands followed by zeros
-    ([N, 16, 3]), so that the compiled projection sees one shape and one degree whatever the degree
-    (3DGS raises it during training). The colour is the same: an absent band adds exact zeros, and
-    the inactive coefficients' gradient is zero, as when they are left out. [N, 3] colours pass."""
+def native_projection(device: torch.device):
+    """The native kernels' projection (``project_forward`` / ``project_backward``, native/project.cpp:
+    no tracing, any number of Gaussians and SH degree, the same result for any thread count) while
+    kernels are compiled on a CPU where they could be built; else None."""
+    from ._native import native_for
+
+    native = native_for(device)
+    return native if native is not None and hasattr(native, "project_forward") else None
+
+
+def native_cfg(colors: Tensor, cfg: tuple) -> tuple:
+    """``cfg`` = (width, height, near, far, eps2d, sh_degree) as the native projection takes it: the SH
+    degree resolved (-1 for [N, 3] colours)."""
+    *head, sh_degree = cfg
     if colors.dim() != 3:
-        return colors, sh_degree
-    degree = int(math.isqrt(colors.shape[1])) - 1 if sh_degree is None else int(sh_degree)
-    used = colors[:, : (degree + 1) ** 2]
-    return torch.nn.functional.pad(used, (0, 0, 0, 16 - used.shape[1])), 3
+        return (*head, -1)
+    return (*head, int(math.isqrt(colors.shape[1])) - 1 if sh_degree is None else int(sh_degree))
 
 
-@functools.cache
-def _compiled_projection():
-    """``project_and_shade`` compiled once per process (dynamic sizes), eager after any failure."""
-    return compiled_or_eager(project_and_shade, "the projection", context=_no_donated_buffers, dynamic=True)
-
-
-def _no_donated_buffers():
-    """ProjectFn's backward keeps the graph (a caller may backpropagate twice), which a compiled
-    backward allows only without donated buffers; it is compiled at its first call, so the forward
-    and the backward both run under this."""
-    import torch._functorch.config as functorch_config
-
-    return functorch_config.patch(donated_buffer=False)
+def project(means: Tensor, quats: Tensor, scales: Tensor, colors: Tensor, viewmat: Tensor, K: Tensor,
+            cfg: tuple) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor]:
+    """``project_and_shade(*inputs, *cfg)`` without gradients: by the native kernels where they run."""
+    native = native_projection(means.device)
+    if native is not None:
+        return native.project_forward(means, quats, scales, colors, viewmat, K, *native_cfg(colors, cfg))
+    return project_and_shade(means, quats, scales, colors, viewmat, K, *cfg)
 
 
 class ProjectFn(torch.autograd.Function):
-    """``project_and_shade`` as one autograd node.
+    """``project_and_shade`` as one autograd node, its backward one timed section.
 
-    Forward records the projection's graph internally (the compiled projection while kernels are
-    compiled); backward replays it with ``torch.autograd.grad`` inside the rasterizer's CPU thread
-    policy, so the projection backward also runs with the thread count chosen for the rasterizer
-    (see ``threads``), as one timed section."""
+    By the native kernels (:func:`native_projection`) where they run and the camera is a constant;
+    otherwise forward records the eager projection's graph and backward replays it with
+    ``torch.autograd.grad``."""
 
     @staticmethod
     def forward(ctx, means, quats, scales, colors, viewmat, K, cfg):  # type: ignore[override]
         ctx.set_materialize_grads(False)
         inputs = (means, quats, scales, colors, viewmat, K)
-        # compiled where it is measured and tested: on a CPU, beside the native kernels
-        compiled = compile_requested() and means.device.type == "cpu"
-        project = _compiled_projection() if compiled else project_and_shade
-        ctx.compiled = compiled
+        # the native kernels take the camera as a constant: a refined pose or intrinsics use torch
+        ctx.native = None if any(ctx.needs_input_grad[4:6]) else native_projection(means.device)
+        if ctx.native is not None:
+            ctx.cfg = native_cfg(colors, cfg)
+            ctx.save_for_backward(*inputs)
+            outs = ctx.native.project_forward(*inputs, *ctx.cfg)
+            ctx.mark_non_differentiable(outs[4])
+            return outs
         with torch.enable_grad():
             leaves = tuple(
                 t.detach().requires_grad_(bool(need)) for t, need in zip(inputs, ctx.needs_input_grad)
             )
-            if compiled:  # one graph for every SH degree: a new degree mid-run would compile again
-                colors, degree = all_sh_bands(leaves[3], cfg[-1])
-                outs = project(*leaves[:3], colors, *leaves[4:], *cfg[:-1], degree)
-            else:
-                outs = project(*leaves, *cfg)
+            outs = project_and_shade(*leaves, *cfg)
         ctx.leaves = leaves
         ctx.outs = outs
         # rgb may be the colours input itself: return a copy, never an input
@@ -208,6 +206,13 @@ class ProjectFn(torch.autograd.Function):
     @staticmethod
     def backward(ctx, *grads):  # type: ignore[override]
         with section("projection backward"):
+            if ctx.native is not None:
+                inputs = ctx.saved_tensors
+                n = inputs[0].shape[0]
+                shapes = [(n, 2), (n, 3), (n, 3), (n,), None, (n, 3)]  # valid [N] has no gradient
+                grads = [g if g is not None else inputs[0].new_zeros(shape) for g, shape in zip(grads, shapes) if shape]
+                got = ctx.native.project_backward(*inputs, *ctx.cfg, *grads)
+                return (*(g if need else None for g, need in zip(got, ctx.needs_input_grad)), None, None, None)
             pairs = [
                 (o, g) for o, g in zip(ctx.outs, grads) if g is not None and o.requires_grad
             ]
@@ -215,14 +220,13 @@ class ProjectFn(torch.autograd.Function):
             result = [None] * (len(ctx.leaves) + 1)
             if not pairs or not wanted:
                 return tuple(result)
-            with _no_donated_buffers() if ctx.compiled else contextlib.nullcontext():
-                got = torch.autograd.grad(
-                    [o for o, _ in pairs],
-                    [ctx.leaves[i] for i in wanted],
-                    [g for _, g in pairs],
-                    allow_unused=True,
-                    retain_graph=True,
-                )
+            got = torch.autograd.grad(
+                [o for o, _ in pairs],
+                [ctx.leaves[i] for i in wanted],
+                [g for _, g in pairs],
+                allow_unused=True,
+                retain_graph=True,
+            )
             for i, g in zip(wanted, got):
                 result[i] = g
             return tuple(result)
@@ -270,6 +274,7 @@ __all__ = [
     "Projected",
     "ProjectFn",
     "footprint",
+    "project",
     "project_and_shade",
     "project_gaussians",
     "quat_to_rotmat",

@@ -22,7 +22,7 @@ from torch import Tensor
 from ._composite import ABSGRAD_REQUEST, TileGrid, composite, pixel_basis, tile_footprints
 from ._kernels import compile_requested
 from ._native import native_for
-from ._project import ProjectFn, footprint, project_and_shade, reference_radii
+from ._project import ProjectFn, footprint, project, reference_radii
 from ..runtime.profiling import section
 from ..runtime.threads import follow_load
 
@@ -254,7 +254,7 @@ def _rasterize(
             if means2d.requires_grad:
                 means2d.retain_grad()
         else:
-            means2d, conics, cov2d, depths, valid, rgb_g = project_and_shade(*proj_inputs, *cfg)
+            means2d, conics, cov2d, depths, valid, rgb_g = project(*proj_inputs, cfg)
         ext_x, ext_y, ok, qmax = footprint(cov2d, opacities, valid)
     grid = TileGrid(
         tile=tile_size,

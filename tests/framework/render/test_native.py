@@ -13,20 +13,6 @@ import torch
 import test_rasterizer as ref
 from splat_framework.render import _native, rasterizer
 
-HAVE_TOOLCHAIN = bool((shutil.which("c++") or shutil.which("g++")) and shutil.which("ninja"))
-
-
-@pytest.fixture(scope="module")
-def native_module(tmp_path_factory):
-    if not HAVE_TOOLCHAIN:
-        pytest.skip("no C++ compiler or ninja on this machine: the native kernels cannot be built here")
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        module = _native.native_kernels(tmp_path_factory.mktemp("native-cache"))
-    assert module is not None, [str(w.message) for w in caught]  # with a toolchain the build must work
-    return module
-
-
 @pytest.fixture
 def native(native_module, monkeypatch):
     """Every rasterize() of the test composites with the native kernels."""

@@ -530,6 +530,7 @@ def test_compiled_kernels_match_eager_in_a_training_step(monkeypatch, tmp_path):
     from splat_framework.render import _kernels, rasterizer
 
     monkeypatch.setattr(rasterizer, "native_for", lambda device: None)
+    monkeypatch.setattr("splat_framework.render._project.native_projection", lambda device: None)
     from splat_framework.render.precompiled import Precompiled, supported
 
     width, height = 40, 30
