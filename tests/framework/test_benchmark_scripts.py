@@ -93,3 +93,21 @@ def test_coverage_counts_a_training_view_as_seen_wherever_it_rendered_something(
     assert coverage.sharpness(blurred, photo, everywhere) < 0.5
     scores = coverage.split_scores(blurred, photo, covered)
     assert scores["covered"]["share"] + scores["uncovered"]["share"] == 1.0 and scores["all"]["psnr"] > 20
+
+
+def test_first_hour_finds_the_longest_silence_and_tables_each_job(tmp_path):
+    first_hour = load_script("first_hour")
+    assert first_hour.longest_gap([1.0, 7.5, 8.0], 9.0) == 6.5  # between two lines
+    assert first_hour.longest_gap([], 3.0) == 3.0  # a silent command: launch to exit
+    assert first_hour.longest_gap([0.5], 12.0) == 11.5  # the last line to exit
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "metrics.json").write_text(json.dumps({"timing": {"train_s": 81.04, "eval_s": 2.96, "other": 1}}))
+    assert first_hour.phases_of(run) == {"train_s": 81.0, "eval_s": 3.0}
+    assert first_hour.phases_of(tmp_path / "none") == {}
+    records = [{"job": "fern", "wall_s": 95.04, "longest_silence_s": 2.5, "phases": {"train_s": 81.0},
+                "load_before": 0.1, "exit": 0},
+               {"job": "export", "wall_s": 3.2, "longest_silence_s": 3.2, "phases": {}, "load_before": 0.2, "exit": 0}]
+    table = first_hour.markdown(records, "cpu, 2 cores", "2026-11-27 14:00 UTC")
+    assert "| fern | 95.0 | 2.5 | train 81 | 0.10 | 0 |" in table
+    assert "| export | 3.2 | 3.2 | - | 0.20 | 0 |" in table and "cpu, 2 cores; 2026-11-27 14:00 UTC" in table

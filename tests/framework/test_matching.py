@@ -645,3 +645,37 @@ def test_matcher_names_are_the_registered_matchers_and_validate_configs():
     with pytest.raises(ValueError, match="unknown matcher 'nope'"):
         MatchConfig(matcher="nope")
     assert MatchConfig(matcher=AUTO).matcher == AUTO
+
+
+def test_posing_matches_round_trip_scale_to_the_trained_size_and_are_refused_when_anything_differs(tmp_path):
+    """pose_matches.npz: a training pair's matches come back in the views' own coordinates (here
+    trained at half the stored size), in view-id order whichever way the file lists the pair; other
+    matcher options, a changed image or an unreadable file mean matching again, said in one line."""
+    from splat_framework.matching.pose_matches import (POSE_MATCHES, KnownMatches, known_sparse_matches,
+                                                       matcher_options, reused_matcher, save_pose_matches)
+
+    files = {}
+    for name in ("a.png", "b.png", "c.png"):
+        files[name] = (tmp_path / name, (200, 100))
+        (tmp_path / name).write_bytes(name.encode())
+    pa, pb = np.array([[10.0, 20.0], [100.0, 50.0]]), np.array([[12.0, 22.0], [90.0, 40.0]])
+    cfg = MatchConfig()
+    save_pose_matches(tmp_path / POSE_MATCHES, "aliked-lightglue", matcher_options(cfg), files, {("c.png", "a.png"): (pa, pb)})
+    paths = [tmp_path / "a.png", tmp_path / "c.png"]
+    known, line = known_sparse_matches(tmp_path, paths, [(100, 50), (100, 50)], [7, 3], "aliked-lightglue", cfg)
+    assert list(known) == [(3, 7)] and "sparse matches of 1 training pairs from the posing" in line
+    got_c, got_a = known[(3, 7)]  # view 3 is c.png, view 7 is a.png
+    np.testing.assert_allclose(got_c, pa / 2)
+    np.testing.assert_allclose(got_a, pb / 2)
+    assert KnownMatches(got_c, got_a).match(None, None)[0] is got_c
+    assert reused_matcher(cfg) == "aliked-lightglue" and reused_matcher(MatchConfig(matcher="dense")) is None
+
+    other = cfg.model_copy(update={"max_keypoints": 1024})
+    assert known_sparse_matches(tmp_path, paths, [(100, 50)] * 2, [7, 3], "aliked-lightglue", other)[0] == {}
+    (tmp_path / "c.png").write_bytes(b"edited")
+    known, line = known_sparse_matches(tmp_path, paths, [(100, 50)] * 2, [7, 3], "aliked-lightglue", cfg)
+    assert known == {} and line == f"{tmp_path / POSE_MATCHES}: {tmp_path / 'c.png'} changed since the posing; every pair is matched again"
+    (tmp_path / POSE_MATCHES).write_bytes(b"not an npz")
+    known, line = known_sparse_matches(tmp_path, paths, [(100, 50)] * 2, [7, 3], "aliked-lightglue", cfg)
+    assert known == {} and line.startswith(f"{tmp_path / POSE_MATCHES}: unreadable") and "\n" not in line
+    assert known_sparse_matches(tmp_path / "none", paths, [(100, 50)] * 2, [7, 3], "aliked-lightglue", cfg) == ({}, "")

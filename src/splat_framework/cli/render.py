@@ -73,8 +73,8 @@ def render_run(args: RenderArgs, replace: bool, check_video) -> Path:
     """Load the run and write what ``args`` asks for (its targets already checked, or checked by
     ``check_video`` once ``--path auto`` names the video)."""
     import torch
-    from rich.progress import track
 
+    from ..console import track
     from ..evaluation.held_out import scored_views, view_name
     from ..evaluation.pictures import colorize_depth, to_uint8, write_png
     from ..files.output_paths import RENDER_FOLDER, claim_output
@@ -87,7 +87,7 @@ def render_run(args: RenderArgs, replace: bool, check_video) -> Path:
         claim_output(out, RENDER_FOLDER, overwrite=replace)
         views, split = scored_views(dm)
         with torch.no_grad():
-            for cam, batch in track(views, description=f"rendering {split} views"):
+            for cam, batch in track(views, f"rendering {split} views", unit="views"):
                 o = model.get_outputs(cam, bg)
                 name = view_name(dm, cam, batch["index"])
                 write_png(out / f"{name}_render.png", to_uint8(o.rgb))
@@ -115,8 +115,8 @@ def write_video(model, cams, bg, out: Path, fps: int, depth: bool) -> Path:
     import os
 
     import torch
-    from rich.progress import track
 
+    from ..console import track
     from ..evaluation.pictures import colorize_depth, to_uint8
     from ..export.video import open_video
 
@@ -131,7 +131,7 @@ def write_video(model, cams, bg, out: Path, fps: int, depth: bool) -> Path:
         for t in tmps:
             writers.append(open_video(t, fps, w, h))
         with torch.no_grad():
-            for cam in track(cams, description=f"rendering {out.name}"):
+            for cam in track(cams, f"rendering {out.name}", unit="frames"):
                 o = model.get_outputs(cam.to(bg.device), bg)
                 writers[0].write(to_uint8(o.rgb))
                 if depth:

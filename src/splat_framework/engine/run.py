@@ -76,14 +76,17 @@ def _renders(model) -> None:
 
 def load_run(run_dir: Path, device: str | None = None, trust_edits: bool = False):
     """(config, datamanager, model) of ``run_dir``, the model holding the newest good checkpoint."""
+    from ..console import phase
     from ..data import DataManager, load_config_scene
     from .camera_refine import refined_cameras
 
-    config, model, camera_refine = _load_checkpointed(run_dir, device, 1.0, trust_edits)
-    scene = load_config_scene(config)
-    model.scene_scale = float(scene.scene_radius)
-    datamanager = DataManager(scene, device=config.device, seed=config.seed)
-    datamanager.cameras = refined_cameras(datamanager.cameras, datamanager.train_indices, camera_refine)
+    with phase(f"loading {run_dir}: its newest checkpoint"):
+        config, model, camera_refine = _load_checkpointed(run_dir, device, 1.0, trust_edits)
+    with phase(f"loading {run_dir}: its dataset's cameras ({config.data})"):
+        scene = load_config_scene(config)
+        model.scene_scale = float(scene.scene_radius)
+        datamanager = DataManager(scene, device=config.device, seed=config.seed)
+        datamanager.cameras = refined_cameras(datamanager.cameras, datamanager.train_indices, camera_refine)
     return config, datamanager, model
 
 

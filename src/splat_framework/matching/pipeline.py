@@ -19,6 +19,7 @@ from .guided import GuidedFlowMatcher
 from .geometry import as_numpy, fundamental_from_cameras, verify_pair, view_angle
 from .learned import WEIGHTS_INSTALL
 from .matchset import CACHE_VERSION, MatchSet, Pair
+from .pose_matches import KnownMatches
 from .registry import AUTO, AUTO_DENSE, AUTO_GUIDED, AUTO_LEARNED, MATCHERS, build_matcher
 from .sampling import balanced_sample
 
@@ -31,9 +32,11 @@ def cache_key(
     view_ids: list[int],
     config: MatchConfig,
     masks: list[np.ndarray | None] | None = None,
+    known: dict[Pair, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> str:
-    """sha1 over (pipeline version, config, view ids, image bytes, camera matrices, foreground masks); for
-    "auto" also whether the learned weights are installed (its result depends on it)."""
+    """sha1 over (pipeline version, config, view ids, image bytes, camera matrices, foreground masks,
+    sparse matches given by a posing); for "auto" also whether the learned weights are installed (its
+    result depends on it)."""
     h = hashlib.sha1()
     head = {"version": CACHE_VERSION, "config": config.model_dump(mode="json"), "view_ids": [int(v) for v in view_ids]}
     if config.matcher == AUTO:
@@ -53,6 +56,10 @@ def cache_key(
     for k, m in enumerate(masks or []):  # views without a mask leave the key as before masks existed
         if m is not None:
             h.update(f"mask{k}".encode() + hashlib.sha1(np.ascontiguousarray(m, np.float32).tobytes()).digest())
+    for pair in sorted(known or {}):  # none given: the key as before posing matches existed
+        h.update(f"posing{pair}".encode())
+        for pts in known[pair]:
+            h.update(hashlib.sha1(np.ascontiguousarray(pts, np.float32).tobytes()).digest())
     return h.hexdigest()
 
 
@@ -87,6 +94,7 @@ def compute_matches(
     config: MatchConfig | None = None,
     cache_dir: Path | str | None = None,
     masks: list[np.ndarray | None] | None = None,
+    known: dict[Pair, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> MatchSet:
     """Verified matches between every pair of the given views.
 
@@ -99,6 +107,9 @@ def compute_matches(
         cache_dir: folder for the on-disk cache (None = no cache).
         masks: per view, a foreground mask [H, W] (the image's alpha, 0 =
             background) or None; used when ``config.alpha_mask`` is on.
+        known: {(view id a, view id b): (pts_a, pts_b)}, a < b: a pair's sparse learned matches
+            already computed (by the posing of the photos, :mod:`.pose_matches`), taken instead
+            of running the learned matcher on that pair; verified like any other matches.
 
     Returns:
         MatchSet over all pairs (i, j), i < j, of ``view_ids``.
@@ -124,7 +135,8 @@ def compute_matches(
             if (cam.width, cam.height) != (im.shape[1], im.shape[0]):
                 raise ValueError(f"view {v}: camera is {cam.width}x{cam.height} but image is {im.shape[1]}x{im.shape[0]}")
 
-    key = cache_key(imgs, cams, ids, config, fg)
+    known = known or {}
+    key = cache_key(imgs, cams, ids, config, fg, known)
     cache_path = None
     if cache_dir is not None:
         cache_path = Path(cache_dir) / f"matches-{key[:24]}.npz"
@@ -143,7 +155,7 @@ def compute_matches(
     n_pairs = len(ids) * (len(ids) - 1) // 2
     # a learned matcher's random init must not move the run's random state
     with rng_untouched(), phase("matching", n_pairs, unit="pairs") as progress:
-        ms = _match_all_pairs(ids, imgs, cams, fg, config, key, progress)
+        ms = _match_all_pairs(ids, imgs, cams, fg, config, key, progress, known)
     if cache_path is not None:
         ms.save(cache_path)
     ms.meta["cache_hit"] = False
@@ -151,9 +163,9 @@ def compute_matches(
 
 
 def _match_all_pairs(ids: list[int], imgs: list[np.ndarray], cams, fg: list, config: MatchConfig, key: str,
-                     progress: Phase) -> MatchSet:
+                     progress: Phase, known: dict[Pair, tuple[np.ndarray, np.ndarray]]) -> MatchSet:
     """The MatchSet of every pair (i, j), i < j, of ``ids`` (:func:`compute_matches` after its cache missed);
-    ``progress`` advances by one per pair."""
+    ``progress`` advances by one per pair; ``known`` pairs take their sparse matches from there."""
     t0 = time.perf_counter()
     matcher = build_matcher(config)
     learned: Matcher | None = None
@@ -175,6 +187,10 @@ def _match_all_pairs(ids: list[int], imgs: list[np.ndarray], cams, fg: list, con
                               f"({WEIGHTS_INSTALL}); using dense matches", stacklevel=3)
         return learned
 
+    def sparse_for(pair: Pair, why: str) -> Matcher | None:
+        """The pair's learned matches: those the posing kept, else the learned matcher of "auto"."""
+        return KnownMatches(*known[pair]) if pair in known else auto_learned(pair, why)
+
     guided = config.matcher == AUTO and len(ids) <= config.auto_guided_flow_max_views
     for a in range(len(ids)):
         for b in range(a + 1, len(ids)):
@@ -185,14 +201,16 @@ def _match_all_pairs(ids: list[int], imgs: list[np.ndarray], cams, fg: list, con
             angle = view_angle(cams[a], cams[b]) if cams is not None else 0.0
             wide = config.matcher == AUTO and config.auto_flow_max_angle > 0 and angle >= config.auto_flow_max_angle
             why = f"is wide ({angle:.0f} degrees)" if wide else f"would take guided flow ({len(ids)} views)"
-            if (wide or guided) and auto_learned(pair, why) is not None:
-                chosen, name = (GuidedFlowMatcher(learned, matcher), AUTO_GUIDED) if guided else (learned, AUTO_LEARNED)
+            sparse = sparse_for(pair, why) if wide or guided else None
+            if sparse is not None:
+                chosen, name = (GuidedFlowMatcher(sparse, matcher), AUTO_GUIDED) if guided else (sparse, AUTO_LEARNED)
                 pa, pb, counts, warn = _verified(chosen, imgs[a], imgs[b], F_known, config, seed, pair_masks)
             else:
-                pa, pb, counts, warn = _verified(matcher, imgs[a], imgs[b], F_known, config, seed, pair_masks)
+                own = KnownMatches(*known[pair]) if config.matcher != AUTO and pair in known else matcher
+                pa, pb, counts, warn = _verified(own, imgs[a], imgs[b], F_known, config, seed, pair_masks)
                 if (config.matcher == AUTO and counts["final"] < config.auto_min_matches
-                        and auto_learned(pair, f"keeps only {counts['final']} dense matches") is not None):
-                    alt = _verified(learned, imgs[a], imgs[b], F_known, config, seed, pair_masks)
+                        and (sparse := sparse_for(pair, f"keeps only {counts['final']} dense matches")) is not None):
+                    alt = _verified(sparse, imgs[a], imgs[b], F_known, config, seed, pair_masks)
                     if alt[2]["final"] > counts["final"]:
                         (pa, pb, counts, warn), name = alt, AUTO_LEARNED
             matches[pair] = (pa.astype(np.float32), pb.astype(np.float32))
@@ -209,6 +227,6 @@ def _match_all_pairs(ids: list[int], imgs: list[np.ndarray], cams, fg: list, con
         warnings=warns,
         stats=stats,
         meta={"config": config.model_dump(mode="json"), "cache_key": key, "seconds": time.perf_counter() - t0,
-              "pair_matchers": used},
+              "pair_matchers": used, "posing_pairs": [f"{a}-{b}" for a, b in sorted(known)]},
     )
     return ms

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import time
 import warnings
+from pathlib import Path
 from typing import Iterator
 
 import numpy as np
@@ -16,6 +17,7 @@ import torch
 from torch import Tensor
 
 from ..cameras import Camera
+from ..console import say
 from ..data.cache_dir import user_cache_dir
 from .config import MatchConfig
 from .matchset import MatchSet
@@ -31,9 +33,26 @@ def compute_match_set(matching: MatchConfig, datamanager) -> MatchSet:
     ids = [int(b["index"]) for _, b in views]
     cache_dir = user_cache_dir() / "matches" if matching.cache else None
     masks = [datamanager.alpha(i) for i in ids] if matching.alpha_mask else None
-    match_set = compute_matches(images, cameras, ids, matching, cache_dir, masks)
+    known, origin = posing_matches(matching, datamanager, ids, cameras)
+    match_set = compute_matches(images, cameras, ids, matching, cache_dir, masks, known=known)
+    if origin and not (known and match_set.meta.get("cache_hit")):
+        (say if known else warnings.warn)(origin)
     warn_unmatched(match_set, {i: c.name for i, c in zip(ids, cameras)})
     return match_set
+
+
+def posing_matches(matching: MatchConfig, datamanager, ids: list[int], cameras: list[Camera]):
+    """The training pairs' sparse matches kept by the posing of the data manager's scene (photos posed
+    by splat-process or ``--data PHOTOS``), for the learned matcher ``matching`` would run, with a
+    line saying where they came from or why none were taken (:mod:`.pose_matches`)."""
+    from .pose_matches import known_sparse_matches, reused_matcher
+
+    learned = reused_matcher(matching)
+    scene = datamanager.scene
+    if learned is None:
+        return {}, ""
+    paths = [Path(scene.image_paths[i]) for i in ids]
+    return known_sparse_matches(Path(scene.root), paths, [(c.width, c.height) for c in cameras], ids, learned, matching)
 
 
 def warn_unmatched(match_set: MatchSet, names: dict[int, str]) -> None:

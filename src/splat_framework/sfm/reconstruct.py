@@ -156,6 +156,8 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
         for extra in ("stereo", "run-colmap-geometric.sh", "run-colmap-photometric.sh"):
             p = scene / extra
             shutil.rmtree(p) if p.is_dir() else p.unlink(missing_ok=True)
+        if matcher != "sift":  # the prior of a run on this scene takes its training pairs from here
+            keep_pose_matches(pycolmap, best, sparse0, scene / "images", staged, found, matcher)
         summary = SfmSummary(
             images=len(images), registered=[Path(n).stem for n in staged if n in set(registered)],
             points=best.num_points3D(), reprojection_px=float(best.compute_mean_reprojection_error()),
@@ -163,3 +165,41 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
         )
         install_output(scene, out, PROCESSED_SCENE)
         return summary
+
+
+def keep_pose_matches(pycolmap, model, sparse0: Path, images: Path, staged: list[str],
+                      found: dict[tuple[int, int], tuple], matcher: str) -> None:
+    """Write the photo matcher's verified matches ``found`` ({(i, j): (pts_i, pts_j)} over ``staged``,
+    in the photos' pixel coordinates) between registered photos into the scene folder (beside
+    ``images``, the undistorted images), moved into the undistorted images' coordinates through
+    ``model``'s cameras and the undistorted ones in ``sparse0``; only for a matcher the matching
+    prior can take them from (:mod:`splat_framework.matching.pose_matches`)."""
+    import numpy as np
+
+    from ..matching.config import MatchConfig
+    from ..matching.pose_matches import POSE_MATCHES, REUSABLE, matcher_options, save_pose_matches
+
+    if matcher not in REUSABLE:
+        return
+    distorted = {model.images[i].name: model.cameras[model.images[i].camera_id] for i in model.reg_image_ids()}
+    undistorted = pycolmap.Reconstruction(sparse0)
+    pinhole = {im.name: undistorted.cameras[im.camera_id] for im in undistorted.images.values()}
+
+    def moved(name: str, pts) -> np.ndarray:
+        cam, new = distorted[name], pinhole[name]
+        normalised = np.asarray(cam.cam_from_img(np.asarray(pts, np.float64).reshape(-1, 2)), np.float64)
+        return np.asarray(new.img_from_cam(np.hstack([normalised, np.ones((len(normalised), 1))])), np.float64)
+
+    pairs = {}
+    for (i, j), (pa, pb) in found.items():
+        a, b = staged[i], staged[j]
+        if a not in pinhole or b not in pinhole or len(pa) == 0:
+            continue
+        ua, ub = moved(a, pa), moved(b, pb)
+        inside = np.ones(len(ua), bool)
+        for name, u in ((a, ua), (b, ub)):
+            cam = pinhole[name]
+            inside &= np.isfinite(u).all(1) & (u[:, 0] >= 0) & (u[:, 0] <= cam.width) & (u[:, 1] >= 0) & (u[:, 1] <= cam.height)
+        pairs[(a, b)] = (ua[inside], ub[inside])
+    kept = {name: (images / name, (cam.width, cam.height)) for name, cam in pinhole.items()}
+    save_pose_matches(images.parent / POSE_MATCHES, matcher, matcher_options(MatchConfig(matcher=matcher)), kept, pairs)
