@@ -651,8 +651,9 @@ def test_posing_matches_round_trip_scale_to_the_trained_size_and_are_refused_whe
     """pose_matches.npz: a training pair's matches come back in the views' own coordinates (here
     trained at half the stored size), in view-id order whichever way the file lists the pair; other
     matcher options, a changed image or an unreadable file mean matching again, said in one line."""
-    from splat_framework.matching.pose_matches import (POSE_MATCHES, KnownMatches, known_sparse_matches,
-                                                       matcher_options, reused_matcher, save_pose_matches)
+    from splat_framework.matching.base import KnownMatches
+    from splat_framework.sfm.pose_matches import (POSE_MATCHES, known_sparse_matches, matcher_options, reused_matcher,
+                                                  save_pose_matches)
 
     files = {}
     for name in ("a.png", "b.png", "c.png"):

@@ -207,7 +207,7 @@ def test_the_prior_takes_the_posing_matches_instead_of_matching_the_pairs_again(
     from splat_framework.data import DataManager
     from splat_framework.matching import learned
     from splat_framework.matching.config import MatchConfig
-    from splat_framework.matching.pose_matches import POSE_MATCHES, known_sparse_matches
+    from splat_framework.sfm.pose_matches import POSE_MATCHES, known_sparse_matches
     from splat_framework.matching.prior import compute_match_set
 
     photos = three_photos(forward, tmp_path)

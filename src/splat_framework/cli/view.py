@@ -26,10 +26,9 @@ class ViewArgs:
 
 
 def main(args: ViewArgs, serve: bool = True):
-    from ..console import say
     from ..viewer.scene_viewer import view_run
 
-    say(f"{args.run_dir}: loading the newest checkpoint and the cameras, then serving the viewer")
+    print(f"{args.run_dir}: loading the newest checkpoint and the cameras, then serving the viewer", flush=True)
     viewer = view_run(args.run_dir, args.port, args.host, args.device, args.trust_edited_config)
     print(f"viewer of {args.run_dir} ({viewer.num_splats:,} Gaussians) at {viewer.url}  (Ctrl-C to stop)", flush=True)
     if not serve:

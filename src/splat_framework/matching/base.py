@@ -66,3 +66,16 @@ def inside_mask(pts: np.ndarray, mask: np.ndarray) -> np.ndarray:
     ok = (x >= 0) & (x < w) & (y >= 0) & (y < h)
     ok[ok] = mask[y[ok], x[ok]] > 0
     return ok
+
+
+class KnownMatches:
+    """A matcher that returns one pair's matches computed earlier (by the posing of the photos,
+    :mod:`splat_framework.sfm.pose_matches`), whatever the images."""
+
+    name = "posing"
+
+    def __init__(self, pts_a: np.ndarray, pts_b: np.ndarray) -> None:
+        self.pts = (pts_a, pts_b)
+
+    def match(self, img_a: np.ndarray, img_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.pts

@@ -13,13 +13,12 @@ import numpy as np
 
 from ..console import Phase, phase
 from . import registry
-from .base import Matcher, Pts, inside_mask, to_hwc
+from .base import KnownMatches, Matcher, Pts, inside_mask, to_hwc
 from .config import MatchConfig
 from .guided import GuidedFlowMatcher
 from .geometry import as_numpy, fundamental_from_cameras, verify_pair, view_angle
 from .learned import WEIGHTS_INSTALL
 from .matchset import CACHE_VERSION, MatchSet, Pair
-from .pose_matches import KnownMatches
 from .registry import AUTO, AUTO_DENSE, AUTO_GUIDED, AUTO_LEARNED, MATCHERS, build_matcher
 from .sampling import balanced_sample
 
@@ -108,7 +107,7 @@ def compute_matches(
         masks: per view, a foreground mask [H, W] (the image's alpha, 0 =
             background) or None; used when ``config.alpha_mask`` is on.
         known: {(view id a, view id b): (pts_a, pts_b)}, a < b: a pair's sparse learned matches
-            already computed (by the posing of the photos, :mod:`.pose_matches`), taken instead
+            already computed (by the posing of the photos, :mod:`splat_framework.sfm.pose_matches`), taken instead
             of running the learned matcher on that pair; verified like any other matches.
 
     Returns:

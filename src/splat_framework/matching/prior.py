@@ -44,8 +44,8 @@ def compute_match_set(matching: MatchConfig, datamanager) -> MatchSet:
 def posing_matches(matching: MatchConfig, datamanager, ids: list[int], cameras: list[Camera]):
     """The training pairs' sparse matches kept by the posing of the data manager's scene (photos posed
     by splat-process or ``--data PHOTOS``), for the learned matcher ``matching`` would run, with a
-    line saying where they came from or why none were taken (:mod:`.pose_matches`)."""
-    from .pose_matches import known_sparse_matches, reused_matcher
+    line saying where they came from or why none were taken (:mod:`splat_framework.sfm.pose_matches`)."""
+    from ..sfm.pose_matches import known_sparse_matches, reused_matcher
 
     learned = reused_matcher(matching)
     scene = datamanager.scene

@@ -173,11 +173,11 @@ def keep_pose_matches(pycolmap, model, sparse0: Path, images: Path, staged: list
     in the photos' pixel coordinates) between registered photos into the scene folder (beside
     ``images``, the undistorted images), moved into the undistorted images' coordinates through
     ``model``'s cameras and the undistorted ones in ``sparse0``; only for a matcher the matching
-    prior can take them from (:mod:`splat_framework.matching.pose_matches`)."""
+    prior can take them from (:mod:`.pose_matches`)."""
     import numpy as np
 
     from ..matching.config import MatchConfig
-    from ..matching.pose_matches import POSE_MATCHES, REUSABLE, matcher_options, save_pose_matches
+    from .pose_matches import POSE_MATCHES, REUSABLE, matcher_options, save_pose_matches
 
     if matcher not in REUSABLE:
         return

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import MatchConfig
+from ..matching.config import MatchConfig
 
 REUSABLE = ("aliked-lightglue", "disk-lightglue")
 """Learned matchers whose posing matches the prior takes (its own photo matchers)."""
@@ -31,22 +31,10 @@ VERSION = 1
 Pair = tuple[str, str]
 
 
-class KnownMatches:
-    """A matcher that returns one pair's matches kept by the posing, whatever the images."""
-
-    name = "posing"
-
-    def __init__(self, pts_a: np.ndarray, pts_b: np.ndarray) -> None:
-        self.pts = (pts_a, pts_b)
-
-    def match(self, img_a: np.ndarray, img_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return self.pts
-
-
 def reused_matcher(config: MatchConfig) -> str | None:
     """The learned matcher whose pairs the prior of ``config`` may take from a posing ("auto": its
     learned matcher), or None (dense, SIFT, LoFTR: matched as configured)."""
-    from .names import AUTO, AUTO_LEARNED
+    from ..matching.names import AUTO, AUTO_LEARNED
 
     name = AUTO_LEARNED if config.matcher == AUTO else config.matcher
     return name if name in REUSABLE else None
