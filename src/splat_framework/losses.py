@@ -13,14 +13,13 @@ reproduce 3DGS numbers.
 
 from __future__ import annotations
 
-import functools
 import math
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from .render import compile_requested, compiled_or_eager
+from .render import compile_requested
 
 C1 = 0.01**2
 C2 = 0.03**2
@@ -99,15 +98,15 @@ def photometric_loss(pred: Tensor, gt: Tensor, lambda_dssim: float = 0.2, mask: 
     map is still computed on the whole image).
 
     While kernels are compiled (``splat_framework.render.compile_requested``: training runs), the
-    unmasked loss of a prediction that needs a gradient runs as one ``torch.compile`` graph: on
-    fern's 504x378 views, forward and backward take 8 ms instead of 27 ms (CPU, 2 threads; the
-    eager version is a few dozen passes over the image). The values are the eager ones.
+    unmasked loss of a prediction on the CPU that needs a gradient runs in the native kernels
+    (render/native/loss.cpp): on fern's 504x378 views, forward and backward in a few ms instead of
+    27 ms eager (2 threads). Elsewhere (CUDA) it runs eagerly: torch.compile would save 0.9 ms a
+    step on an H200 but cost 60 s of compiling in every process (docs/rasterizer.md#on-cuda).
     """
     if mask is None and pred.requires_grad and compile_requested():
         native = _native_loss(pred, gt)
         if native is not None:
             return _NativePhotometric.apply(pred, gt, float(lambda_dssim), native)
-        return _compiled_photometric()(pred, gt, float(lambda_dssim))
     return _photometric(pred, gt, lambda_dssim, mask)
 
 
@@ -149,16 +148,6 @@ def _photometric(pred: Tensor, gt: Tensor, lambda_dssim: float = 0.2, mask: Tens
         smap = ssim_map(pred, gt) * m
         s = smap.sum() / (m.sum() * pred.shape[-1]).clamp_min(1e-8)
     return (1.0 - lambda_dssim) * l1 + lambda_dssim * (1.0 - s)
-
-
-@functools.cache
-def _compiled_photometric():
-    """``_photometric`` without a mask, compiled once per process and thread count (which
-    torch.compile guards on; the thread policy uses powers of two), eager after any failure (and
-    where this torch or Python has no torch.compile). The first image size is compiled as it is; a
-    second one (views of several sizes) recompiles once with symbolic sizes (torch.compile's
-    automatic dynamic shapes), not once per size."""
-    return compiled_or_eager(_photometric, "the photometric loss (L1 + SSIM)")
 
 
 def depth_smoothness(depth: Tensor, image: Tensor, alpha: Tensor, gamma: float = 10.0, min_alpha: float = 0.5) -> Tensor:

@@ -278,12 +278,12 @@ def test_scale_anisotropy_known_values_and_gradient():
     assert float(out) == 0.0 and out.requires_grad
 
 
-def test_the_compiled_photometric_loss_equals_the_eager_one(monkeypatch, tmp_path):
-    """While kernels are compiled (training runs) and the native loss cannot run (CUDA, no ninja), the
-    loss and its gradient come from one compiled graph; they equal the eager ones, and a toolchain that
-    cannot compile falls back to them. (The native loss has its own tests: render/test_projection.py.)"""
-    import shutil
-    import warnings
+def test_where_the_native_loss_cannot_run_the_loss_is_eager_and_nothing_is_traced(monkeypatch):
+    """While kernels are compiled (training runs) and the native loss cannot run (CUDA, no
+    toolchain), the loss runs eagerly: compiling it would cost a minute in every process to save
+    about a millisecond a step (an H200's numbers, docs/rasterizer.md#on-cuda). (The native loss
+    has its own tests: render/test_projection.py.)"""
+    from torch._dynamo.utils import counters
 
     from splat_framework import losses
     from splat_framework.render import _kernels
@@ -299,21 +299,11 @@ def test_the_compiled_photometric_loss_equals_the_eager_one(monkeypatch, tmp_pat
     eager = loss_and_grad()
     monkeypatch.setattr(losses, "_native_loss", lambda pred, gt: None)
     monkeypatch.delenv("SPLAT_COMPILE")
-    monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", str(tmp_path / "inductor"))
-    losses._compiled_photometric.cache_clear()  # this process's compiled loss, made afresh
-    from torch._dynamo.utils import counters
-
-    graphs = counters["stats"]["unique_graphs"]
+    frames = counters["stats"]["unique_graphs"]
     _kernels.set_compile(True)
     try:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            for _ in range(2):
-                for got, want in zip(loss_and_grad(), eager):
-                    torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-7)
+        for got, want in zip(loss_and_grad(), eager):
+            assert torch.equal(got, want)
     finally:
         _kernels.set_compile(False)
-        losses._compiled_photometric.cache_clear()
-    if shutil.which("c++") or shutil.which("g++"):  # with a compiler, the compiled graph really ran
-        assert not [str(w.message) for w in caught if "could not compile" in str(w.message)]
-        assert counters["stats"]["unique_graphs"] > graphs
+    assert counters["stats"]["unique_graphs"] == frames

@@ -101,6 +101,65 @@ def test_the_same_photos_are_posed_once_and_a_changed_photo_again(photo_run, tmp
     assert photo_source(tmp_path / "clip.mp4") == "video" and photo_source(tmp_path / "notes.txt") is None
 
 
+@pytest.mark.bad_input("a photo-pose cache entry edited by hand (a pose, an image painted or emptied, a file added)",
+                       "posed again, with one warning line naming the file")
+@pytest.mark.parametrize("tamper", ["pose", "image", "emptied", "added"])
+def test_an_edited_cache_entry_is_posed_again_with_one_line_naming_the_file(photo_run, tmp_path, monkeypatch,
+                                                                          capsys, tamper):
+    """Issue 60: the cached entry's manifest covers poses, images and matches; an entry edited by
+    hand (a moved pose, a painted or emptied image, an added file) is posed again, never used."""
+    from splat_framework.data.photos import posed_photos
+
+    _, _, photos, env = photo_run
+    cache = tmp_path / "cache"
+    shutil.copytree(env["SPLAT_CACHE"], cache)
+    monkeypatch.setenv("SPLAT_CACHE", str(cache))
+    (entry,) = (cache / "photos").iterdir()
+    scene = entry / "scene"
+    edited = {"pose": scene / "sparse" / "0" / "images.bin", "image": scene / "images" / "IMG_27.png",
+              "emptied": scene / "images" / "IMG_18.png", "added": scene / "sparse" / "0" / "points3D.txt"}[tamper]
+    if tamper == "pose":
+        data = bytearray(edited.read_bytes())
+        data[-20] ^= 0x40  # one byte of the sparse model (poses and their points)
+        edited.write_bytes(bytes(data))
+    elif tamper == "image":
+        import cv2
+
+        img = cv2.imread(str(edited))
+        img[:] = (0, 0, 255)
+        cv2.imwrite(str(edited), img)
+    else:
+        edited.write_bytes(b"")
+    capsys.readouterr()
+    with pytest.warns(UserWarning) as caught:
+        posed_photos(photos, "photos", PhotoPosesConfig(matcher="sift"))
+    err = capsys.readouterr().err
+    (line,) = [str(w.message) for w in caught if "cached poses not used" in str(w.message)]
+    assert line.startswith(f"{photos}: cached poses not used ({edited}: ") and line.endswith("estimating them again")
+    assert "poses from the cache" not in err and f"poses cached for the next run in {entry}" in err
+    assert posed_photos(photos, "photos", PhotoPosesConfig(matcher="sift")) == scene  # whole again: used
+    assert "poses from the cache" in capsys.readouterr().err
+
+
+def test_a_failed_posing_leaves_no_entry_and_does_not_say_cached(photo_run, tmp_path, monkeypatch, capsys):
+    import splat_framework.sfm.reconstruct as reconstruct
+    from splat_framework.data.photos import posed_photos
+    from splat_framework.errors import DataError
+
+    _, _, photos, _ = photo_run
+    monkeypatch.setenv("SPLAT_CACHE", str(tmp_path / "cache"))
+
+    def fail(images, out, **kwargs):
+        (Path(out) / "sparse").mkdir(parents=True)  # half a scene, then the failure
+        raise DataError("photos: only 1 of 4 images registered")
+
+    monkeypatch.setattr(reconstruct, "estimate_scene", fail)
+    with pytest.raises(DataError):
+        posed_photos(photos, "photos", PhotoPosesConfig(matcher="sift"))
+    assert "cached" not in capsys.readouterr().err
+    assert [p for p in (tmp_path / "cache" / "photos").rglob("*")] == []
+
+
 def test_a_run_folder_from_before_the_record_evaluates_and_resumes(photo_run, tmp_path, monkeypatch):
     """config.json as written before it recorded the dataset (no ``resolved_data``, no ``photos``): the
     run resolves ``data`` under $SPLAT_DATA as it did then, evaluates and resumes."""

@@ -4,17 +4,24 @@ A folder that holds images and no dataset marker (see :func:`~.parsers.marked_fo
 video file, is posed as ``splat-process`` would pose it (:func:`splat_framework.sfm.estimate_scene`)
 and the posed scene folder is kept in ``$SPLAT_CACHE/photos/<key>/scene``, where ``key`` hashes
 the photos' names and bytes and the pose options: the next run on the same photos reads it
-back, a changed, added or removed photo poses them again.
+back, a changed, added or removed photo poses them again. An entry is written whole or not at all
+(built beside its place, then renamed), with a manifest of every file's sha256 (poses, images, the
+posing's matches); an entry whose files do not match it (edited, emptied, added, unreadable) is
+posed again, with one warning naming the file.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import os
+import shutil
+import warnings
 from pathlib import Path
 from typing import Literal
 
 from ..config.data import PhotoPosesConfig
+from ..runtime.trusted import folder_mismatch, private_folder, write_folder_manifest
 from .cache_dir import user_cache_dir
 from .images import list_images
 from .parsers import marked_format
@@ -54,7 +61,7 @@ def posed_photos(path: Path, kind: PhotoSource, options: PhotoPosesConfig | None
     """The posed scene folder (COLMAP layout) of the photos in folder ``path`` or of the video ``path``:
     read from the cache, or estimated now (one line before, the summary after) and cached."""
     from ..console import say
-    from ..files.work_folder import scratch
+    from ..files.work_folder import building
     from ..runtime.io import atomic_write_json, read_json
     from ..sfm.photos import list_images as list_photos
     from ..sfm.reconstruct import estimate_scene
@@ -63,29 +70,43 @@ def posed_photos(path: Path, kind: PhotoSource, options: PhotoPosesConfig | None
     options = options or PhotoPosesConfig()
     path = Path(path)
     files = list_photos(path) if kind == "photos" else [path]
-    entry = user_cache_dir() / "photos" / photos_key(files, kind, options)[:24]
+    root = user_cache_dir()
+    entry = root / "photos" / photos_key(files, kind, options)[:24]
     scene = entry / "scene"
-    if (entry / SUMMARY).is_file() and (scene / "sparse" / "0").is_dir():
-        say(f"{path}: poses from the cache ({read_json(entry / SUMMARY)['line']}; {scene})")
-        return scene
+    if entry.exists():
+        reason = folder_mismatch(entry, root)
+        if reason is None:
+            say(f"{path}: poses from the cache ({read_json(entry / SUMMARY)['line']}; {scene})")
+            return scene
+        warnings.warn(f"{path}: cached poses not used ({reason}); estimating them again", stacklevel=2)
+        shutil.rmtree(entry, ignore_errors=True)
     what = f"{len(files)} photos" if kind == "photos" else f"{options.frames} frames of the video"
-    say(f"{path}: estimating the poses of {what} (pycolmap, {options.mapper} mapper, {options.matcher} matches); "
-        f"cached for the next run in {entry}")
+    say(f"{path}: estimating the poses of {what} (pycolmap, {options.mapper} mapper, {options.matcher} matches)")
     kwargs = {"mapper": options.mapper, "matcher": options.matcher, "overwrite": True}
-    if kind == "video":
-        with scratch(scene) as work:  # beside the scene: a killed run's frames are removed by the next
+    private_folder(entry.parent)
+    with building(entry, _install_private) as work:
+        if kind == "video":
             frames = pick_video_frames(path, options.frames, work / "frames")
-            summary = estimate_scene(frames, scene, **kwargs)
-    else:
-        summary = estimate_scene(files, scene, **kwargs)
-    line = summary.line(path)
-    left_out = [f.stem for f in files if f.stem not in set(summary.registered)] if kind == "photos" else []
-    atomic_write_json(entry / SUMMARY, {"line": line.removeprefix(f"{path}: "), "registered": summary.registered,
-                                        "not_registered": left_out})
+            summary = estimate_scene(frames, work / "scene", **kwargs)
+            shutil.rmtree(work / "frames")
+        else:
+            summary = estimate_scene(files, work / "scene", **kwargs)
+        line = summary.line(path)
+        left_out = [f.stem for f in files if f.stem not in set(summary.registered)] if kind == "photos" else []
+        atomic_write_json(work / SUMMARY, {"line": line.removeprefix(f"{path}: "), "registered": summary.registered,
+                                           "not_registered": left_out})
     say(line)
+    say(f"poses cached for the next run in {entry}")
     if summary.unregistered:
         say(f"not registered (left out of the scene): {', '.join(left_out) or summary.unregistered}", "yellow")
     return scene
+
+
+def _install_private(work: Path, entry: Path) -> None:
+    """Move a finished cache entry into place, readable by the user alone, with the manifest of its files."""
+    write_folder_manifest(work)
+    os.chmod(work, 0o700)
+    os.replace(work, entry)
 
 
 def is_own_photos(path: Path) -> bool:

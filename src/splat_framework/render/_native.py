@@ -15,6 +15,7 @@ from __future__ import annotations
 import hashlib
 import os
 import shutil
+import tempfile
 import time
 import warnings
 from pathlib import Path
@@ -22,6 +23,7 @@ from pathlib import Path
 import torch
 
 from ..console import phase, say
+from ..runtime.trusted import manifest_mismatch, private_folder, write_manifest
 from ._kernels import compile_requested, kernel_cache_dir
 
 _FOLDER = Path(__file__).with_name("native")
@@ -76,26 +78,52 @@ def _clear_stale_lock(build: Path) -> None:
         lock.unlink(missing_ok=True)
 
 
+def _checked_build(build: Path, root: Path) -> Path:
+    """``build`` when it holds no library or a library its manifest vouches for; else (one warning
+    naming the file and why) ``build`` emptied for a new build, or a fresh private folder when it
+    cannot be emptied. Nothing in a folder that fails the check is loaded."""
+    libraries = sorted(p.name for p in build.glob("*.so"))
+    if not libraries:
+        return build
+    reason = manifest_mismatch(build, libraries, root)
+    if reason is None:
+        return build
+    warnings.warn(f"native rasterizer kernels not loaded: {reason}; building them again")
+    try:
+        shutil.rmtree(build)
+        private_folder(build)
+        return build
+    except OSError:
+        return Path(tempfile.mkdtemp(prefix="splat-native-"))
+
+
 def native_kernels(cache_dir: Path | None = None):
-    """The loaded extension (``composite_forward``, ``composite_backward``, ``bin_chunk``), built when missing;
-    None when it cannot be built on this machine (warned once)."""
+    """The loaded extension (``composite_forward``, ``composite_backward``, ``bin_chunk``, ...), built
+    when missing; None when it cannot be built on this machine (warned once).
+
+    A library in the cache is loaded only when it and its folders belong to the user, nobody else
+    may write them, and its sha256 is the one recorded in the folder's manifest when it was built
+    (:mod:`splat_framework.runtime.trusted`); otherwise it is built again."""
     if _STATE["module"] is not None or _STATE["failed"]:
         return _STATE["module"]
     from torch.utils import cpp_extension
 
     _ninja_on_path()
     build = _build_dir(cache_dir)
-    ready = build is not None and any(build.glob("*.so"))
     try:
         if build is not None:
-            build.mkdir(parents=True, exist_ok=True)
+            private_folder(build)
+            build = _checked_build(build, Path(cache_dir))
             _clear_stale_lock(build)
+        ready = build is not None and any(build.glob("*.so"))
         with phase("loading the native rasterizer kernels" if ready
                    else "building the native rasterizer kernels (once per machine)"):
             _STATE["module"] = cpp_extension.load(
                 name="splat_native", sources=[str(_FOLDER / _SOURCES[0])], extra_cflags=_flags(), extra_ldflags=["-fopenmp"],
                 build_directory=str(build) if build is not None else None, verbose=False,
             )
+        if build is not None:  # what was checked above, or what ninja (re)built now
+            write_manifest(build, sorted(p.name for p in build.glob("*.so")))
     except Exception as exc:  # depends on the toolchain
         _STATE["failed"] = True
         first = (str(exc).strip().splitlines() or [""])[0][:200]

@@ -28,6 +28,7 @@ import torch
 from torch import Tensor
 
 from ..console import phase
+from ..runtime.trusted import manifest_mismatch, private_folder, write_manifest
 
 _SOURCE = Path(__file__).with_name("_kernels.py")
 GRAPHS_PER_SIGNATURE = 4
@@ -99,20 +100,32 @@ class Precompiled:
 
     def _load_or_compile(self, args: tuple):
         """A saved graph of ``args``' signature whose guards accept them, else a new one, saved
-        beside the others (at most :data:`GRAPHS_PER_SIGNATURE`; the last is then replaced)."""
+        beside the others (at most :data:`GRAPHS_PER_SIGNATURE`; the last is then replaced).
+
+        A saved graph is unpickled only when it and its folder belong to the user, nobody else may
+        write them and its sha256 is the one the folder's manifest recorded when it was saved;
+        any other file, and any failure to load, is reported in one line and compiled again."""
         stem = self.stem_for(args)
         saved = sorted(self.folder.glob(f"{stem}-*.bin")) if self.folder.is_dir() else []
         for path in saved:
+            reason = manifest_mismatch(self.folder, [path.name])
+            if reason is not None:
+                warnings.warn(f"compiled rasterizer kernels not loaded: {reason}; compiling them again", stacklevel=3)
+                path.unlink(missing_ok=True)  # never loaded, so never asked again
+                continue
             try:
                 with phase(f"loading the compiled rasterizer kernels ({self.which})"), open(path, "rb") as f:
                     graph = torch.compiler.load_compiled_function(f)
                 if graph.guard_check(*args):
                     return graph
-            except Exception:  # a file from an interrupted or foreign build: compile it again
-                pass
+            except Exception as exc:  # a graph of another torch build: compile it again
+                first = (str(exc).strip().splitlines() or [""])[0][:200]
+                warnings.warn(f"{path}: compiled rasterizer kernels not loaded ({type(exc).__name__}: {first}); "
+                              "compiling them again", stacklevel=3)
         with phase(f"compiling the rasterizer kernels ({self.which}): once per machine, later runs load them"):
             graph = self._compile(args)
-        self._save(graph, self.folder / f"{stem}-{min(len(saved), GRAPHS_PER_SIGNATURE - 1)}.bin")
+        kept = [p for p in saved if p.exists()]
+        self._save(graph, self.folder / f"{stem}-{min(len(kept), GRAPHS_PER_SIGNATURE - 1)}.bin")
         return graph
 
     def _compile(self, args: tuple):
@@ -127,8 +140,9 @@ class Precompiled:
         """Keep the graph (torch writes it atomically, so a process writing the same file beside
         this one is harmless); a failure to write costs only the next process the compilation."""
         try:
-            path.parent.mkdir(parents=True, exist_ok=True)
+            private_folder(path.parent)
             graph.save_compiled_function(str(path))
+            write_manifest(path.parent, [path.name])
         except Exception as exc:  # a full disk, or a graph torch cannot serialise: only the next start pays
             reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else (str(exc).splitlines() or [""])[0]
             warnings.warn(f"{path.parent}: cannot keep the compiled rasterizer kernels ({reason[:200]})", stacklevel=3)

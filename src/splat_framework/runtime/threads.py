@@ -102,8 +102,9 @@ class ThreadPolicy:
         if now < self.next_read:
             return None
         self.next_read = now + READ_EVERY_S
-        import torch
-
+        torch = sys.modules.get("torch")
+        if torch is None:  # a torch-free command (or phase): nothing to follow, nothing to import
+            return None
         _match_opencv(torch.get_num_threads())
         if value != "auto":
             return None

@@ -14,13 +14,13 @@ as before, with one line saying why. The file holds arrays only (``np.load`` wit
 
 from __future__ import annotations
 
-import hashlib
 import json
 from pathlib import Path
 
 import numpy as np
 
 from ..matching.config import MatchConfig
+from ..runtime.trusted import sha256_file
 
 REUSABLE = ("aliked-lightglue", "disk-lightglue")
 """Learned matchers whose posing matches the prior takes (its own photo matchers)."""
@@ -48,15 +48,6 @@ def matcher_options(config: MatchConfig) -> dict:
             "weights": None if config.weights is None else str(config.weights)}
 
 
-def file_digest(path: Path) -> str:
-    """sha256 of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def save_pose_matches(path: Path, matcher: str, options: dict, images: dict[str, tuple[Path, tuple[int, int]]],
                       pairs: dict[Pair, tuple[np.ndarray, np.ndarray]]) -> None:
     """Write ``pairs`` ({(image name a, image name b): (pts_a [M, 2], pts_b [M, 2])}, in the pixel
@@ -69,7 +60,7 @@ def save_pose_matches(path: Path, matcher: str, options: dict, images: dict[str,
                                              np.asarray(pb, np.float32).reshape(-1, 2)], axis=1)
         listed.append([index[a], index[b]])
     meta = {"version": VERSION, "matcher": matcher, "options": options, "names": names,
-            "sha256": [file_digest(images[n][0]) for n in names], "sizes": [list(images[n][1]) for n in names],
+            "sha256": [sha256_file(images[n][0]) for n in names], "sizes": [list(images[n][1]) for n in names],
             "pairs": listed}
     arrays["meta"] = np.frombuffer(json.dumps(meta, sort_keys=True).encode(), np.uint8)
     tmp = path.with_name(path.name + ".tmp")
@@ -117,7 +108,7 @@ def known_sparse_matches(scene_root: Path, image_paths: list[Path], sizes: list[
     for name, p in zip(names, image_paths):
         if name not in digests:
             return {}, f"{path}: has no matches of {name}; every pair is matched again"
-        if file_digest(Path(p)) != digests[name]:
+        if sha256_file(Path(p)) != digests[name]:
             return {}, f"{path}: {p} changed since the posing; every pair is matched again"
     known = {}
     for k, name_a in enumerate(names):

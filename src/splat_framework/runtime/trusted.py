@@ -1,0 +1,176 @@
+"""What may be loaded from a cache: folders and files only the user can change, checked against
+the sha256 recorded when they were written (torch-free; the threat model is in docs/reliability.md).
+
+Two rules, as ssh applies to its key files:
+
+- **Ownership and permissions**: a cache folder, every folder below it on the way to a file, and
+  the file itself must belong to the current user (or root) and be writable by nobody else.
+  :func:`untrusted_reason` says why a path fails; :func:`private_folder` creates folders that pass
+  (mode 0700, whatever the umask) and :func:`make_private` removes the group's and others' write
+  permission from a file the user just wrote (a umask of 002 would otherwise leave it open).
+- **Manifests**: whatever the project builds or saves and later *executes or unpickles* (the
+  native kernels' library, saved compiled graphs) is recorded with its sha256 in a manifest
+  written at build time (:func:`write_manifest`); :func:`manifest_mismatch` says why files do not
+  match it (missing manifest, another digest, an unreadable file). A mismatch means: build again,
+  never load.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import stat
+from pathlib import Path
+
+MANIFEST = "manifest.json"
+"""The file, beside the artefacts it records, that maps each artefact's name to its sha256."""
+_FORMAT = "splat-manifest-1"
+
+
+def _owner_ok(uid: int) -> bool:
+    return uid in (os.geteuid(), 0)
+
+
+def untrusted_reason(path: Path, root: Path | None = None) -> str | None:
+    """Why ``path`` (and each folder from ``root`` down to it) may not be trusted, else None.
+
+    A path fails when it belongs to another user (root excepted) or when its group or others may
+    write it. ``root`` must be ``path`` or a folder above it; folders above ``root`` are not checked
+    (``/tmp`` may hold a private cache). Where the platform has no owners (Windows), nothing fails.
+    """
+    if not hasattr(os, "geteuid"):
+        return None
+    path = Path(path)
+    chain = [path]
+    if root is not None:
+        root = Path(root)
+        chain = [root, *[root.joinpath(*path.relative_to(root).parts[:i]) for i in range(1, len(path.relative_to(root).parts) + 1)]]
+    for p in chain:
+        try:
+            st = p.stat()
+        except OSError as exc:
+            return f"{p}: cannot be read ({exc.strerror or type(exc).__name__})"
+        if not _owner_ok(st.st_uid):
+            return f"{p}: belongs to another user (uid {st.st_uid})"
+        if st.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+            return f"{p}: writable by {'others' if st.st_mode & stat.S_IWOTH else 'its group'} (mode {stat.S_IMODE(st.st_mode):o})"
+    return None
+
+
+def private_folder(path: Path) -> Path:
+    """``path`` created (with its missing parents) readable and writable by the user alone."""
+    path = Path(path)
+    missing = []
+    p = path
+    while not p.exists() and p != p.parent:
+        missing.append(p)
+        p = p.parent
+    for p in reversed(missing):
+        try:
+            p.mkdir(mode=0o700)
+        except FileExistsError:  # another process made it meanwhile
+            pass
+        else:
+            os.chmod(p, 0o700)  # mkdir's mode is masked by the umask
+    return path
+
+
+def make_private(path: Path) -> None:
+    """Remove the group's and others' write permission from a file or folder the user owns."""
+    mode = stat.S_IMODE(os.stat(path).st_mode)
+    if mode & (stat.S_IWGRP | stat.S_IWOTH):
+        os.chmod(path, mode & ~(stat.S_IWGRP | stat.S_IWOTH))
+
+
+def sha256_file(path: Path) -> str:
+    """Hex sha256 of a file's bytes."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def write_manifest(folder: Path, names: list[str]) -> None:
+    """Record the sha256 of ``folder/name`` for each name in ``folder/manifest.json`` (atomically;
+    an existing manifest's other entries are kept), and make the files and the manifest private."""
+    from .io import atomic_write_json
+
+    folder = Path(folder)
+    entries = _read_entries(folder) or {}
+    for name in names:
+        make_private(folder / name)
+        entries[name] = sha256_file(folder / name)
+    atomic_write_json(folder / MANIFEST, {"format": _FORMAT, "files": entries})
+    make_private(folder / MANIFEST)
+
+
+def _read_entries(folder: Path) -> dict[str, str] | None:
+    from .io import read_json
+
+    try:
+        data = read_json(Path(folder) / MANIFEST, require_checksum=True)
+    except Exception:
+        return None
+    files = data.get("files") if data.get("format") == _FORMAT else None
+    return files if isinstance(files, dict) else None
+
+
+def manifest_mismatch(folder: Path, names: list[str], root: Path | None = None) -> str | None:
+    """Why the files ``folder/name`` may not be loaded, else None: a file or folder fails
+    :func:`untrusted_reason` (checked from ``root``), the manifest is missing or unreadable, it does
+    not list a file, or a file's sha256 differs from the one recorded."""
+    folder = Path(folder)
+    entries = _read_entries(folder)
+    if entries is None:
+        return f"{folder / MANIFEST}: missing or unreadable (the files were not written by this version)"
+    for name in names:
+        reason = untrusted_reason(folder / name, root if root is not None else folder)
+        if reason:
+            return reason
+        if name not in entries:
+            return f"{folder / name}: not in {MANIFEST}"
+        try:
+            digest = sha256_file(folder / name)
+        except OSError as exc:
+            return f"{folder / name}: cannot be read ({exc.strerror or type(exc).__name__})"
+        if digest != entries[name]:
+            return f"{folder / name}: its content differs from the one recorded in {MANIFEST} when it was built"
+    return None
+
+
+def _files_under(folder: Path) -> list[str]:
+    """Every file below ``folder`` (links included, not followed) but its manifest, as relative
+    POSIX paths."""
+    out = []
+    for parent, dirs, files in os.walk(folder):
+        for name in files + [d for d in dirs if os.path.islink(os.path.join(parent, d))]:
+            rel = Path(parent, name).relative_to(folder).as_posix()
+            if rel != MANIFEST:
+                out.append(rel)
+    return sorted(out)
+
+
+def write_folder_manifest(folder: Path) -> None:
+    """Record every file below ``folder`` in its manifest (see :func:`write_manifest`)."""
+    write_manifest(folder, _files_under(folder))
+
+
+def folder_mismatch(folder: Path, root: Path | None = None) -> str | None:
+    """Why the files below ``folder`` may not be used, else None: what :func:`manifest_mismatch`
+    finds, a file the manifest does not list or lists but is gone, or a symbolic link."""
+    folder = Path(folder)
+    entries = _read_entries(folder)
+    if entries is None:
+        return f"{folder / MANIFEST}: missing or unreadable (the folder was not written by this version)"
+    present = _files_under(folder)
+    for name in present:
+        if (folder / name).is_symlink():
+            return f"{folder / name}: a symbolic link"
+    for name in sorted(set(entries) - set(present)):
+        return f"{folder / name}: missing"
+    return manifest_mismatch(folder, present, root)
+
+
+__all__ = ["MANIFEST", "folder_mismatch", "make_private", "manifest_mismatch", "private_folder",
+           "sha256_file", "untrusted_reason", "write_folder_manifest", "write_manifest"]

@@ -1,0 +1,217 @@
+"""Nothing runs from a file the user did not write (issue 60): a cache folder others may write is
+refused, and a native library or a saved compiled graph planted in the cache (each of which would
+touch a marker file when loaded) is never loaded; what the project itself built is."""
+
+from __future__ import annotations
+
+import os
+import pickle
+import shutil
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import pytest
+import torch
+
+from splat_framework.runtime.trusted import (MANIFEST, folder_mismatch, manifest_mismatch, private_folder,
+                                             untrusted_reason, write_folder_manifest, write_manifest)
+
+needs_owners = pytest.mark.skipif(not hasattr(os, "geteuid"), reason="file owners and modes are POSIX")
+
+
+@needs_owners
+def test_a_folder_or_file_others_may_write_is_not_trusted(tmp_path):
+    folder = private_folder(tmp_path / "cache" / "native")
+    assert (folder.stat().st_mode & 0o777) == 0o700 and untrusted_reason(folder, tmp_path / "cache") is None
+    (folder / "lib.so").write_bytes(b"x")
+    os.chmod(folder / "lib.so", 0o666)
+    assert untrusted_reason(folder / "lib.so", tmp_path / "cache") == f"{folder / 'lib.so'}: writable by others (mode 666)"
+    os.chmod(folder / "lib.so", 0o600)
+    os.chmod(folder, 0o770)
+    assert untrusted_reason(folder / "lib.so", tmp_path / "cache") == f"{folder}: writable by its group (mode 770)"
+
+
+def test_a_manifest_vouches_for_exactly_the_bytes_it_recorded(tmp_path):
+    folder = private_folder(tmp_path / "f")
+    (folder / "a.bin").write_bytes(b"one")
+    assert "missing or unreadable" in manifest_mismatch(folder, ["a.bin"])
+    write_manifest(folder, ["a.bin"])
+    assert manifest_mismatch(folder, ["a.bin"]) is None
+    (folder / "a.bin").write_bytes(b"two")
+    assert manifest_mismatch(folder, ["a.bin"]) == (
+        f"{folder / 'a.bin'}: its content differs from the one recorded in {MANIFEST} when it was built")
+    (folder / "b.bin").write_bytes(b"new")
+    assert manifest_mismatch(folder, ["b.bin"]) == f"{folder / 'b.bin'}: not in {MANIFEST}"
+    (folder / MANIFEST).write_text((folder / MANIFEST).read_text().replace("a.bin", "b.bin"))  # edited by hand
+    assert "missing or unreadable" in manifest_mismatch(folder, ["b.bin"])
+
+
+def test_a_folder_manifest_sees_added_removed_and_linked_files(tmp_path):
+    folder = private_folder(tmp_path / "entry")
+    (folder / "sub").mkdir()
+    (folder / "sub" / "x.txt").write_text("x")
+    write_folder_manifest(folder)
+    assert folder_mismatch(folder) is None
+    (folder / "sub" / "y.txt").write_text("y")
+    assert folder_mismatch(folder) == f"{folder / 'sub' / 'y.txt'}: not in {MANIFEST}"
+    (folder / "sub" / "y.txt").unlink()
+    (folder / "sub" / "x.txt").rename(folder / "sub" / "z.txt")
+    assert folder_mismatch(folder) == f"{folder / 'sub' / 'x.txt'}: missing"
+    (folder / "sub" / "z.txt").rename(folder / "sub" / "x.txt")
+    (folder / "link").symlink_to(tmp_path)
+    assert folder_mismatch(folder) == f"{folder / 'link'}: a symbolic link"
+
+
+@needs_owners
+@pytest.mark.bad_input("`$SPLAT_CACHE` (or `~/.cache/splat`) belonging to another user or writable by others",
+                       "one warning line naming the folder and why; a private folder under the temporary folder is used")
+def test_a_cache_folder_others_may_write_is_refused_in_one_line_and_another_used(tmp_path, monkeypatch):
+    from splat_framework.data import cache_dir
+
+    shared = tmp_path / "shared-cache"
+    shared.mkdir()
+    os.chmod(shared, 0o777)
+    monkeypatch.setenv("SPLAT_CACHE", str(shared))
+    monkeypatch.setattr(cache_dir, "_REFUSED", {})
+    with pytest.warns(UserWarning) as caught:
+        used = cache_dir.user_cache_dir()
+    (message,) = [str(w.message) for w in caught]
+    assert message == f"cache folder refused: {shared}: writable by others (mode 777); using {used} instead"
+    assert used != shared and untrusted_reason(used) is None
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert cache_dir.user_cache_dir() == used  # warned once per process
+    os.chmod(shared, 0o700)
+    monkeypatch.setattr(cache_dir, "_REFUSED", {})
+    assert cache_dir.user_cache_dir() == shared
+
+
+def _planted_library(path: Path, marker: Path) -> None:
+    """A shared library whose constructor creates ``marker`` when anything loads it."""
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        pytest.skip("needs a C compiler to build the planted library")
+    src = path.with_suffix(".c")
+    src.write_text('#include <stdio.h>\n__attribute__((constructor)) static void planted(void) '
+                   f'{{ FILE *f = fopen("{marker}", "w"); if (f) fclose(f); }}\n')
+    subprocess.run([cc, "-shared", "-fPIC", "-o", str(path), str(src)], check=True)
+    src.unlink()
+
+
+@needs_owners
+@pytest.mark.bad_input("a native kernels library in the cache that the project did not build (planted, swapped or edited)",
+                       "never loaded: one warning line naming the file, the kernels built again")
+def test_a_planted_native_library_is_never_loaded_and_the_kernels_are_built_again(tmp_path, monkeypatch):
+    import ctypes
+
+    from torch.utils import cpp_extension
+
+    from splat_framework.render import _native
+
+    cache, marker = private_folder(tmp_path / "cache"), tmp_path / "marker"
+    build = _native._build_dir(cache)
+    private_folder(build)
+    _planted_library(build / "splat_native.so", marker)
+    built = []
+
+    def fake_load(name, sources, build_directory, **kwargs):  # torch loads every library it finds there
+        libraries = sorted(Path(build_directory).glob("*.so"))
+        for lib in libraries:
+            ctypes.CDLL(str(lib))
+        if not libraries:  # a build: what the real builder leaves
+            (Path(build_directory) / "splat_native.so").write_bytes(b"built here")
+            built.append(build_directory)
+        return "module"
+
+    monkeypatch.setattr(cpp_extension, "load", fake_load)
+    monkeypatch.setattr(_native, "_STATE", {"module": None, "failed": False})
+    with pytest.warns(UserWarning) as caught:
+        assert _native.native_kernels(cache) == "module"
+    assert not marker.exists()
+    (message,) = [str(w.message) for w in caught]
+    assert message.startswith(f"native rasterizer kernels not loaded: {build / MANIFEST}: missing") and message.endswith(
+        "building them again")
+    assert built == [str(build)] and manifest_mismatch(build, ["splat_native.so"], cache) is None
+
+    # what was built here is loaded without a word; the same library swapped afterwards is not
+    monkeypatch.setattr(_native, "_STATE", {"module": None, "failed": False})
+    monkeypatch.setattr(cpp_extension, "load", lambda **kw: "loaded")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert _native.native_kernels(cache) == "loaded"
+    _planted_library(build / "splat_native.so", marker)
+    monkeypatch.setattr(_native, "_STATE", {"module": None, "failed": False})
+    monkeypatch.setattr(cpp_extension, "load", fake_load)
+    with pytest.warns(UserWarning, match="its content differs from the one recorded"):
+        _native.native_kernels(cache)
+    assert not marker.exists()
+
+
+class _Planted:
+    """Unpickling this creates the marker file (what a hostile pickle would do instead)."""
+
+    def __init__(self, marker: str):
+        self.marker = marker
+
+    def __reduce__(self):
+        return (open, (self.marker, "w"))
+
+
+class _FakeGraph:
+    def __init__(self, tag: str):
+        self.tag = tag
+
+    def guard_check(self, *args):
+        return True
+
+    def __call__(self, *args):
+        return self.tag
+
+    def save_compiled_function(self, path: str) -> None:
+        Path(path).write_bytes(pickle.dumps(self.tag))
+
+
+@pytest.mark.bad_input("a saved compiled graph in the cache that the project did not save, or one that fails to load",
+                       "never unpickled: one warning line naming the file, compiled again")
+def test_a_planted_compiled_graph_is_never_unpickled_and_a_saved_one_is_loaded(tmp_path, monkeypatch):
+    from splat_framework.render.precompiled import Precompiled
+
+    marker, folder = tmp_path / "marker", tmp_path / "cache" / "precompiled"
+    kernel = Precompiled("fwd", lambda x: x, lambda args: (), folder, fallback=lambda *a: "fallback")
+    args = (torch.zeros(2),)
+    stem = kernel.stem_for(args)
+    private_folder(folder)
+    (folder / f"{stem}-0.bin").write_bytes(pickle.dumps(_Planted(str(marker))))
+    compiled = []
+    monkeypatch.setattr(kernel, "_compile", lambda a: compiled.append(1) or _FakeGraph("compiled here"))
+    monkeypatch.setattr(torch.compiler, "load_compiled_function", lambda f: _FakeGraph(pickle.load(f)), raising=False)
+    with pytest.warns(UserWarning) as caught:
+        graph = kernel._load_or_compile(args)
+    assert not marker.exists() and graph() == "compiled here" and compiled == [1]
+    (message,) = [str(w.message) for w in caught]
+    assert message.startswith(f"compiled rasterizer kernels not loaded: {folder / MANIFEST}: missing")
+    assert sorted(p.name for p in folder.glob("*.bin")) == [f"{stem}-0.bin"]  # the planted file is gone
+    # the graph saved just now loads, without a word
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert kernel._load_or_compile(args)() == "compiled here" and compiled == [1]
+    # a load that fails is reported, not swallowed
+    monkeypatch.setattr(torch.compiler, "load_compiled_function", lambda f: 1 / 0, raising=False)
+    with pytest.warns(UserWarning) as caught:
+        kernel._load_or_compile(args)
+    assert [str(w.message) for w in caught][0] == (
+        f"{folder / (stem + '-0.bin')}: compiled rasterizer kernels not loaded (ZeroDivisionError: division by zero); "
+        "compiling them again")
+
+
+def test_the_planted_pickle_would_have_run_without_the_check(tmp_path):
+    """The test above's pickle is a real threat: unpickled, it creates its marker."""
+    marker = tmp_path / "marker"
+    pickle.loads(pickle.dumps(_Planted(str(marker))))
+    assert marker.exists()
+
+
+if sys.platform == "win32":  # pragma: no cover
+    pytestmark = pytest.mark.skip(reason="POSIX file modes")
