@@ -1,10 +1,18 @@
 """Every ``SPLAT_*`` environment variable the project reads, with what it does (torch-free).
 
 The one list: the CLI reference (``docs/cli.md``) is generated from it, and a test fails when
-code under ``src/`` names a ``SPLAT_*`` variable that is not here.
+code under ``src/`` names a ``SPLAT_*`` variable that is not here. :func:`check_environment`
+validates every variable that is set (every command calls it first: one line, exit 2), with the
+same parsing functions their readers use.
 """
 
 from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+from .errors import DataError
 
 VARIABLES: dict[str, str] = {
     "SPLAT_DATA": "Folder under which a relative `--data` name that does not exist is looked up "
@@ -15,7 +23,7 @@ VARIABLES: dict[str, str] = {
     "SPLAT_COMPILE": "`0` or `1`: compile the rasterizer's kernels (native C++ on a CPU, torch.compile elsewhere) "
                      "or run them eagerly, whatever `--compile` says.",
     "SPLAT_THREADS": "CPU threads of the whole process (torch and OpenCV, every phase): `auto` (the default) "
-                     "follows the cores other processes leave free, re-read every second; an integer pins the "
+                     "follows the cores other processes leave free, re-read every second; a whole number (1 or more) pins the "
                      "count; `off` leaves it alone.",
     "SPLAT_IMAGE_MEMORY_BUDGET": "Bytes of decoded training images kept in memory (suffixes K, M, G; unset: no "
                                 "limit); images beyond it are decoded again when needed.",
@@ -23,3 +31,72 @@ VARIABLES: dict[str, str] = {
                          "packages' variants.",
 }
 """Variable -> one line on what it does."""
+
+
+_SIZE = re.compile(r"\s*(\d+(?:\.\d*)?|\.\d+)\s*([kKmMgGtT]?)(?:i?[bB])?\s*")
+_UNITS = {"": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}
+_SWITCH = {"1": True, "true": True, "yes": True, "on": True, "0": False, "false": False, "no": False, "off": False}
+
+
+def _bad(name: str, value: str, expected: str) -> DataError:
+    return DataError(f"{name}={value!r}: {expected}")
+
+
+def size_bytes(name: str, value: str) -> int:
+    """``"123"``, ``"512K"``, ``"2G"``, ``"1.5GiB"`` -> bytes (binary units); one line naming ``name`` else."""
+    m = _SIZE.fullmatch(value)
+    if m is None:
+        raise _bad(name, value, "not a size (examples: 800000000, 512M, 2G)")
+    n = int(float(m.group(1)) * _UNITS[m.group(2).upper()])
+    if n < 1:
+        raise _bad(name, value, "a size of at least one byte")
+    return n
+
+
+def threads_setting(value: str | None) -> int | str:
+    """``SPLAT_THREADS``: a whole number of threads >= 1, or "auto" (also when unset or empty) or "off"."""
+    text = (value or "").strip().lower() or "auto"
+    if text in ("auto", "off"):
+        return text
+    if text.isdigit() and int(text) >= 1:
+        return int(text)
+    raise _bad("SPLAT_THREADS", value or "", "expected auto, off or a whole number of threads (1 or more)")
+
+
+def compile_setting(value: str | None) -> bool | None:
+    """``SPLAT_COMPILE``: True / False from 1, true, yes, on / 0, false, no, off; None when unset or empty."""
+    text = (value or "").strip().lower()
+    if not text:
+        return None
+    if text not in _SWITCH:
+        raise _bad("SPLAT_COMPILE", value or "", "expected 1 or 0 (also true/false, yes/no, on/off)")
+    return _SWITCH[text]
+
+
+def _folder(name: str, value: str, must_exist: bool) -> None:
+    for part in value.split(os.pathsep) if name == "SPLAT_CONFIG_PATH" else [value]:
+        if not part:
+            continue
+        path = Path(part).expanduser()
+        if path.exists() and not path.is_dir():
+            raise _bad(name, value, f"{path} is not a folder")
+        if must_exist and not path.is_dir():
+            raise _bad(name, value, f"no folder {path}")
+
+
+def check_environment(environ=None) -> None:
+    """Check every ``SPLAT_*`` variable that is set (one :class:`~.errors.DataError` line naming the
+    first invalid one and what it takes); the CLIs call it before anything else, and each reader
+    parses its variable with the same function."""
+    env = os.environ if environ is None else environ
+    checks = {
+        "SPLAT_THREADS": threads_setting,
+        "SPLAT_COMPILE": compile_setting,
+        "SPLAT_IMAGE_MEMORY_BUDGET": lambda v: v.strip() and size_bytes("SPLAT_IMAGE_MEMORY_BUDGET", v),
+        "SPLAT_CACHE": lambda v: _folder("SPLAT_CACHE", v, must_exist=False),
+        "SPLAT_DATA": lambda v: _folder("SPLAT_DATA", v, must_exist=False),
+        "SPLAT_CONFIG_PATH": lambda v: _folder("SPLAT_CONFIG_PATH", v, must_exist=True),
+    }
+    for name, check in checks.items():
+        if name in env:
+            check(env[name])

@@ -532,3 +532,21 @@ def test_splat_process_without_pycolmap_names_the_extra(monkeypatch, tmp_path):
     with pytest.raises(DataError, match=r'pip install "splat\[process\]"'):
         estimate_scene(photos, tmp_path / "out")
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.bad_input("`--downscale 1e308`, `--model.init-scale 1e308`, `--load-config` naming a FIFO",
+                       "exit 2, one line naming the flag (and the image or file)")
+def test_errors_caused_by_a_flag_name_the_flag(tmp_path):
+    import os
+
+    from cli_harness import run_cli
+
+    base = ("3dgs", "--data", "synthetic/forward-tiny", "--steps", "2", "--output", tmp_path / "run")
+    res = run_cli("train", *base, "--downscale", "1e308", code=2, match="error: --downscale 1e+308: ")
+    assert "would be decoded to 1x1 pixels; at most 6 for this dataset" in res.stderr
+    run_cli("train", *base, "--model.init-scale", "1e308", code=2,
+            match="error: invalid config: model.init_scale: Input should be less than or equal to 1000")
+    os.mkfifo(tmp_path / "fifo")
+    run_cli("train", "3dgs", "--load-config", tmp_path / "fifo", code=2,
+            match=f"error: {tmp_path / 'fifo'}: not a regular file (--load-config takes a run's config.json)")
+    assert not (tmp_path / "run").exists()

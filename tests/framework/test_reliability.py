@@ -343,6 +343,20 @@ def test_repeated_nan_restores_last_checkpoint_with_lower_lr(tmp_path, monkeypat
     assert all(torch.isfinite(p).all() for p in trainer.model.params.values())
 
 
+@pytest.mark.bad_input("a weight so large that every step's loss is non-finite (`--model.reg.depth-smoothness 1e308`)",
+                       "exit 1, one line naming the flag; no metrics, no checkpoint")
+def test_a_run_whose_every_step_was_skipped_fails_naming_the_flag_and_writes_no_metrics(tmp_path, capsys):
+    out = tmp_path / "run"
+    trainer = Trainer(fixed_config("3dgs", out, default_steps=3, model={"reg": {"depth_smoothness": 1e308}}))
+    with pytest.raises(SystemExit) as info:
+        run_cli(trainer.train)
+    assert info.value.code == 1
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert last == ("error: training diverged: every step of this run (3) had a non-finite loss or gradient and was "
+                    "skipped; nothing was evaluated or saved (check --model.reg.depth-smoothness 1e+308)")
+    assert not (out / "metrics.json").exists() and list_checkpoints(out / "checkpoints") == []
+
+
 def test_persistent_nan_stops_with_clear_message_and_no_nan_on_disk(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(trainer_mod, "MAX_NONFINITE", 2)
     nan_loss_on_calls(monkeypatch, set(range(7, 1000)))

@@ -156,6 +156,7 @@ def run_cli(main: Callable[[], object]) -> None:
     from pydantic import ValidationError
 
     from ..config import InvalidArguments
+    from ..environment import check_environment
     from ..errors import CheckpointError, DataError
 
     warnings.showwarning = _one_line_warning
@@ -164,6 +165,7 @@ def run_cli(main: Callable[[], object]) -> None:
     except ValueError:  # not the main thread
         pass
     try:
+        check_environment()
         main()
     except InvalidArguments as e:
         print(f"error: invalid config: {format_validation_error(e.error, config_path(e.config_cls))}", file=sys.stderr)

@@ -85,7 +85,8 @@ def load_saved_experiment(path: str, methods: dict):
 
     file = Path(path)
     if not file.is_file():
-        raise DataError(f"{file}: no such file (--load-config takes a run's config.json)")
+        what = "not a regular file" if file.exists() else "no such file"
+        raise DataError(f"{file}: {what} (--load-config takes a run's config.json)")
     try:
         method, raw = read_config_json(file)
     except (UnicodeDecodeError, ValueError) as e:

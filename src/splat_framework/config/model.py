@@ -66,8 +66,8 @@ class GaussianModelConfig(ModelConfig):
 
     init_opacity: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = 0.1
     """Initial opacity of every Gaussian."""
-    init_scale: Positive = 1.0
-    """Multiplier of the initial scale (mean distance to the 3 nearest neighbours)."""
+    init_scale: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] = 1.0
+    """Multiplier of the initial scale (mean distance to the 3 nearest neighbours), at most 1000."""
     sh_degree: int = Field(3, ge=0, le=3)
     """Highest spherical-harmonics degree."""
     sh_degree_interval: RampPeriod = 500

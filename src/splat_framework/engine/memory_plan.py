@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import os
-import re
 
 from ..config import TrainConfig
 from ..console import say
+from ..environment import size_bytes
 from ..data import DataError
 from ..data.datamanager import estimate_image_bytes
 from ..runtime.resources import available_memory_bytes, physical_memory_bytes
@@ -19,17 +19,10 @@ gradients, two Adam moments, strategy statistics and projection intermediates.""
 DENSIFY_GROWTH = 3
 """Assumed growth of the Gaussian count through densification (memory estimate only)."""
 
-_UNITS = {"": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}
-
 
 def parse_bytes(text: str | int) -> int:
     """``"123"``, ``"512K"``, ``"2G"``, ``"1.5GiB"``, ``"3GB"`` -> bytes (binary units)."""
-    if isinstance(text, int):
-        return text
-    m = re.fullmatch(r"\s*(\d+(?:\.\d*)?|\.\d+)\s*([kKmMgGtT]?)(?:i?[bB])?\s*", str(text))
-    if m is None:
-        raise DataError(f"{MEMORY_ENV}={text!r}: not a size (examples: 800000000, 512M, 2G)")
-    return int(float(m.group(1)) * _UNITS[m.group(2).upper()])
+    return text if isinstance(text, int) else size_bytes(MEMORY_ENV, str(text))
 
 
 def image_memory_budget() -> int | None:

@@ -104,6 +104,22 @@ class TrainingDiverged(RuntimeError):
     cli_prefix = "error"
 
 
+def extreme_values_hint(config) -> str:
+    """``" (check --model.reg.depth-smoothness 1e+308)"``: the config's numbers so large (>= 1e30) or
+    non-finite that they likely made every loss non-finite, as flags; "" when there are none."""
+    found = []
+
+    def walk(value, path: str) -> None:
+        if isinstance(value, dict):
+            for k, v in value.items():
+                walk(v, f"{path}.{k}" if path else str(k))
+        elif isinstance(value, float) and not (abs(value) < 1e30):
+            found.append(f"--{path.replace('_', '-')} {value:g}")
+
+    walk(config.model_dump(mode="python"), "")
+    return f" (check {', '.join(found)})" if found else " (check the loss weights and learning rates)"
+
+
 class _Restart(Exception):
     """Internal: a checkpoint was restored; continue the loop from ``Trainer.start_step``."""
 
@@ -364,11 +380,16 @@ class Trainer(TrainState):
         with stop_signals(self), phase(
             "training", total, completed=self.start_step, unit="steps", info=self._step_info(None), quiet_s=0
         ) as progress:
+            first = self.start_step
             try:
                 step = self._loop(progress)
             except KeyboardInterrupt:  # a second Ctrl-C: stopped within a step, before its checkpoint
                 raise TrainingInterrupted(
                     abandoned_message(self.stop_reason, progress.completed, total, self.checkpoint_dir)) from None
+            if step > first and self.nonfinite_streak >= step - first:
+                raise TrainingDiverged(
+                    f"training diverged: every step of this run ({step - first}) had a non-finite loss or gradient "
+                    f"and was skipped; nothing was evaluated or saved{extreme_values_hint(cfg)}")
             self._train_prior_s = self._train_seconds()
             self._train_t0 = None
             self.timing["train_s"] = self._train_prior_s

@@ -25,6 +25,7 @@ import torch
 from torch import Tensor
 
 from ..console import phase
+from ..environment import compile_setting
 from .precompiled import Precompiled
 
 ALPHA_MIN = 1.0 / 255.0
@@ -300,10 +301,8 @@ def kernel_cache_dir() -> Path | None:
 
 
 def compile_requested() -> bool:
-    env = os.environ.get("SPLAT_COMPILE", "").strip().lower()
-    if env:
-        return env in ("1", "true", "yes", "on")
-    return bool(_SETTING["compile"])
+    env = compile_setting(os.environ.get("SPLAT_COMPILE"))
+    return bool(_SETTING["compile"]) if env is None else env
 
 
 def _fwd_static(args: tuple) -> tuple:

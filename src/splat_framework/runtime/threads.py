@@ -35,6 +35,7 @@ import os
 import sys
 import time
 
+from ..environment import threads_setting
 from .resources import CpuMeter, available_cores, others_running
 
 #: Seconds between two readings of the machine's load.
@@ -42,12 +43,8 @@ READ_EVERY_S = 1.0
 
 
 def mode() -> int | str:
-    """``SPLAT_THREADS``: an int, or the lower-cased word ("auto" when unset)."""
-    value = os.environ.get("SPLAT_THREADS", "auto").strip().lower()
-    try:
-        return int(value)
-    except ValueError:
-        return value or "auto"
+    """``SPLAT_THREADS``: a whole number >= 1, "auto" (when unset) or "off"; one line (DataError) else."""
+    return threads_setting(os.environ.get("SPLAT_THREADS"))
 
 
 def free_cores(most: int, others: float | None) -> int | None:
@@ -75,8 +72,6 @@ class ThreadPolicy:
 
         value = mode()
         if isinstance(value, int):
-            if value < 1:
-                return None
             self._set(value)
             return value
         current = torch.get_num_threads()

@@ -24,9 +24,9 @@ def check_downscale(downscale: float | None, where: Path) -> float | None:
     try:
         f = float(downscale)
     except (TypeError, ValueError):
-        raise DataError(f"{where}: downscale must be a number, got {downscale!r}") from None
+        raise DataError(f"{where}: --downscale must be a number, got {downscale!r}") from None
     if not (math.isfinite(f) and f > 0):
-        raise DataError(f"{where}: downscale must be a positive number, got {downscale!r}")
+        raise DataError(f"{where}: --downscale must be a positive number, got {downscale!r}")
     return f
 
 
@@ -68,7 +68,26 @@ def choose_image_dir(
             f"{root}: downscale {f:g} needs '{prefix}/' or '{prefix}_N/' with N <= {f:g} (found {names})"
         )
     g = max(usable)
+    check_decoded_size(folders[g], g, f)
     return folders[g], g / f, f
+
+
+MIN_DECODED_SIDE = 8
+"""Pixels: the shortest side an image may be decoded to (a smaller one has nothing to train on)."""
+
+
+def check_decoded_size(folder: Path, stored: float, downscale: float) -> None:
+    """One line naming ``--downscale`` when it would decode ``folder``'s images (stored at factor
+    ``stored``) to fewer than :data:`MIN_DECODED_SIDE` pixels a side (the first image's header)."""
+    images = list_images(folder)
+    if not images or downscale <= stored:
+        return
+    w, h = read_image_size(images[0])
+    sw, sh = scaled_size(w, h, stored / downscale)
+    if min(sw, sh) < MIN_DECODED_SIDE:
+        most = min(w, h) * stored / MIN_DECODED_SIDE
+        raise DataError(f"--downscale {downscale:g}: {images[0]} ({w}x{h}) would be decoded to {sw}x{sh} pixels; "
+                        f"at most {most:g} for this dataset")
 
 
 def check_same_size(paths: Sequence[Path]) -> tuple[int, int]:
