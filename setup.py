@@ -7,6 +7,6 @@ name; everything else lives in pyproject.toml.)
 from setuptools import find_packages, setup
 
 setup(
-    packages=[*find_packages("src"), "splat_configs"],
+    packages=[*find_packages("src"), "splat_framework.render.native", "splat_configs"],  # native: the C++ sources
     package_dir={"": "src", "splat_configs": "configs"},
 )

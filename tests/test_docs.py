@@ -38,3 +38,19 @@ def test_the_site_builds_strictly(tmp_path):
                          capture_output=True, text=True, cwd=ROOT)
     assert out.returncode == 0, out.stdout + out.stderr
     assert (tmp_path / "site" / "cli" / "index.html").is_file()
+
+
+def test_the_project_has_a_licence_a_free_name_and_a_citation():
+    """Issue 61: a LICENSE named in pyproject, the distribution name used by every hint (``splat``
+    is another project's on PyPI; ``splat-framework`` was free on 2026-11-27), a CITATION.cff."""
+    tomllib = pytest.importorskip("tomllib", reason="tomllib is Python 3.11+")
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    assert project["name"] == "splat-framework" and project["license"] == "Apache-2.0"
+    assert (ROOT / "LICENSE").read_text().lstrip().startswith("Apache License")
+    cff = (ROOT / "CITATION.cff").read_text()
+    assert cff.startswith("cff-version: 1.2.0") and "license: Apache-2.0" in cff
+    assert "Structure Consistent Gaussian Splatting with Matching Prior" in cff.split("references:")[0]
+    stale = [f"{p.relative_to(ROOT)}" for base in ("src", "docs", "tests", "examples") for p in (ROOT / base).rglob("*")
+             if p.suffix in (".py", ".md", ".toml") and p.name != "test_docs.py"
+             and re.search(r"""pip install ["']?splat\[""", p.read_text())]
+    assert stale == [] and 'pip install "splat[' not in (ROOT / "README.md").read_text()

@@ -39,7 +39,7 @@ def write_photos(folder: Path, scene: Path) -> Path:
 @pytest.fixture(scope="module")
 def photo_run(tmp_path_factory):
     """``splat-train 3dgs --data photos`` (a relative path) on 4 photos: (its result, run folder, photos folder)."""
-    pytest.importorskip("pycolmap", reason='posing photos needs pycolmap (pip install "splat[process]")')
+    pytest.importorskip("pycolmap", reason='posing photos needs pycolmap (pip install "splat-framework[process]")')
     from splat_framework.data.synthetic.generate import generate_scene
 
     root = tmp_path_factory.mktemp("own")

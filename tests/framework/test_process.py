@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-pytest.importorskip("pycolmap", reason='splat-process needs pycolmap (pip install "splat[process]")')
+pytest.importorskip("pycolmap", reason='splat-process needs pycolmap (pip install "splat-framework[process]")')
 
 from splat_framework.data.parsers.colmap import load_colmap  # noqa: E402
 from splat_framework.data.parsers.llff import load_llff  # noqa: E402

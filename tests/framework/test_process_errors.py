@@ -129,7 +129,7 @@ def test_stale_work_folders_are_removed_and_live_or_foreign_ones_kept(tmp_path):
 @pytest.mark.bad_input("a truncated JPEG given to `splat-process`", "exit 2, one line naming the photo (not a half-grey photo in the scene)")
 @pytest.mark.bad_input("`splat-process` killed with kill -9", "its hidden work folder is removed by the next run (folders in use are kept)")
 def test_a_killed_process_leaves_a_work_folder_that_the_next_run_removes_then_a_truncated_jpeg_is_refused(tmp_path):
-    pytest.importorskip("pycolmap", reason='splat-process needs pycolmap (pip install "splat[process]")')
+    pytest.importorskip("pycolmap", reason='splat-process needs pycolmap (pip install "splat-framework[process]")')
     noise_photos(tmp_path / "photos", 4, 640, 480)  # SIFT on noise: seconds of work to be killed in
     out = tmp_path / "scene"
     proc = subprocess.Popen(

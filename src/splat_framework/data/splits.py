@@ -1,6 +1,6 @@
 """Few-shot train/test split rules, exactly as the published protocols use them.
 
-See ``../shared/data/README.md``. All functions return ``(train, test)`` as
+See ``docs/data.md``. All functions return ``(train, test)`` as
 sorted-as-specified lists of indices into the parser's camera list.
 
 - LLFF / COLMAP / synthetic forward scenes (images sorted by name): test =

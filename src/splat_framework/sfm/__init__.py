@@ -10,7 +10,7 @@
   posed from their own photos alone).
 
 pycolmap (PyPI; it ships COLMAP, runs on the CPU, downloads nothing) is an optional
-dependency: ``pip install "splat[process]"``.
+dependency: ``pip install "splat-framework[process]"``.
 """
 
 from ..cameras import camera_centers

@@ -16,7 +16,7 @@ def load_pycolmap():
     try:
         import pycolmap
     except ImportError:
-        raise DataError('pose estimation needs pycolmap: pip install "splat[process]"') from None
+        raise DataError('pose estimation needs pycolmap: pip install "splat-framework[process]"') from None
     pycolmap.logging.minloglevel = int(pycolmap.logging.Level.FATAL.value)
     return pycolmap
 

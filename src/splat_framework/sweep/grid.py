@@ -26,7 +26,7 @@ GRID_KEYS = {
 }
 """Keys a grid file (TOML or JSON) may hold."""
 DEFAULT_MEM_PER_RUN_GB = 2.0
-RAY_HINT = "--backend ray needs Ray, which is not installed: pip install splat[ray]"
+RAY_HINT = "--backend ray needs Ray, which is not installed: pip install \"splat-framework[ray]\""
 
 
 class SweepError(DataError):

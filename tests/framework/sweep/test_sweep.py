@@ -221,7 +221,7 @@ def test_local_backend_end_to_end_and_resume(tmp_path, monkeypatch, capsys):
 
 
 def test_ray_backend_two_tiny_runs(tmp_path):
-    ray = pytest.importorskip("ray", reason="ray is not installed (pip install splat[ray])")
+    ray = pytest.importorskip("ray", reason="ray is not installed (pip install splat-framework[ray])")
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
         res = run_sweep(Grid(["3dgs"], ["synthetic/forward-tiny"], [3], [0, 1], steps=10, overrides=TINY),
@@ -235,7 +235,7 @@ def test_ray_backend_two_tiny_runs(tmp_path):
 
 def test_ray_missing_gives_install_hint(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray -> ImportError
-    with pytest.raises(SweepError, match=r"pip install splat\[ray\]"):
+    with pytest.raises(SweepError, match=r"pip install \"splat-framework\[ray\]\""):
         run_sweep(Grid(["3dgs"], ["x"]), tmp_path, backend="ray")
 
 
