@@ -1,10 +1,12 @@
 """Servers listen on 127.0.0.1 unless told otherwise, with real sockets: the machine's other address
 is refused; an explicit host opens it with a one-line warning; a taken port moves to the next free
 one and says so; an invalid port is one line and exit 2 at parse time; malformed websocket messages
-print no traceback (issue 40)."""
+print no traceback (issue 40); a page of another web site or a DNS-rebinding name gets 403 for the page
+and the websocket (issue 60)."""
 
 import asyncio
 import contextlib
+import http.client
 import socket
 import subprocess
 import sys
@@ -204,7 +206,7 @@ def _send_malformed(port: int, gui_uuids: list[str]) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.bad_input("malformed websocket messages; a page of another web site (or a DNS-rebinding page) opening the viewer's websocket", "nothing printed and the viewer keeps serving; the foreign page's socket is closed before anything is sent")
+@pytest.mark.bad_input("malformed websocket messages", "nothing printed and the viewer keeps serving")
 def test_malformed_websocket_messages_print_no_traceback(run_dir, capfd, recwarn):
     """Before: "connection handler failed" and a traceback on the viewer's stderr for each."""
     from splat_framework.cli.view import ViewArgs, main
@@ -224,36 +226,125 @@ def test_malformed_websocket_messages_print_no_traceback(run_dir, capfd, recwarn
         viewer.close()
 
 
-@pytest.mark.bad_input("malformed websocket messages; a page of another web site (or a DNS-rebinding page) opening the viewer's websocket", "nothing printed and the viewer keeps serving; the foreign page's socket is closed before anything is sent")
-def test_pages_of_other_sites_cannot_use_the_viewer():
-    """Loopback stops other machines, not other web sites: a page the user opens elsewhere (its
-    Origin), or one that rebinds its domain to 127.0.0.1 (its Host), is closed before any message."""
-    import viser
-    from websockets.asyncio.client import connect
-    from websockets.exceptions import ConnectionClosed
+def _get(port: int, headers: list[tuple[str, str]], path: str = "/", address: str = "127.0.0.1") -> tuple[int, bytes]:
+    """Status and body of a GET of ``path`` at ``address:port`` sent with exactly ``headers`` (Host among them)."""
+    conn = http.client.HTTPConnection(address, port, timeout=10)
+    try:
+        conn.putrequest("GET", path, skip_host=True, skip_accept_encoding=True)
+        for name, value in headers:
+            conn.putheader(name, value)
+        conn.endheaders()
+        response = conn.getresponse()
+        return response.status, response.read()
+    finally:
+        conn.close()
 
+
+def _upgrade(port: int, headers: list[tuple[str, str]]) -> tuple[str, bytes]:
+    """The status line answering a websocket upgrade request (viser's subprotocol, then ``headers``)
+    sent on a raw socket, and what follows the answer's head until the server closes (nothing read
+    after a 101)."""
+    import viser
+
+    head = ["GET / HTTP/1.1", "Upgrade: websocket", "Connection: Upgrade", "Sec-WebSocket-Version: 13",
+            "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==", f"Sec-WebSocket-Protocol: viser-v{viser.__version__}"]
+    request = "\r\n".join(head + [f"{name}: {value}" for name, value in headers]) + "\r\n\r\n"
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
+        s.sendall(request.encode())
+        received = b""
+        while b"\r\n\r\n" not in received and (chunk := s.recv(65536)):
+            received += chunk
+        answer, _, rest = received.partition(b"\r\n\r\n")
+        status = answer.split(b"\r\n")[0].decode()
+        while " 101 " not in status and (chunk := s.recv(65536)):
+            rest += chunk
+    return status, rest
+
+
+@pytest.mark.bad_input("a web page of another site (foreign Origin) or a DNS-rebinding name (foreign Host) reaching the local viewer", "403 for the websocket and every HTTP request; nothing served")
+def test_pages_of_other_sites_and_rebinding_names_get_403_for_the_socket_and_every_request():
+    """Loopback stops other machines, not other web sites. Before: with Origin http://evil.example
+    the websocket handshake got 101 (the check ran in viser's connect callbacks, after it), and a GET
+    with Host evil.example:PORT (a DNS-rebinding page, its domain now resolving to 127.0.0.1) got
+    the page. Now every request on the viewer's socket is checked before anything is answered."""
     from splat_framework.viewer.scene_viewer import Viewer
+    from splat_framework.viewer.viser_clients import REFUSED
 
     v = Viewer(port=0)
+    try:
+        port, own, refused = v.port, f"127.0.0.1:{v.port}", (403, REFUSED.encode())
+        status, page = _get(port, [("Host", own)])  # not a browser (no Origin), a loopback name: served
+        assert status == 200 and b"<html" in page.lower()
+        assert _get(port, [("Host", f"localhost:{port}"), ("Origin", f"http://localhost:{port}")], "/index.html") == (200, page)
+        assert _get(port, [("Host", own)], "/nosuch.js")[0] == 404
+        for headers in ([("Host", f"evil.example:{port}")],
+                        [("Host", f"evil.example:{port}"), ("Origin", f"http://evil.example:{port}")],
+                        [("Host", own), ("Origin", "http://evil.example")], [("Host", own), ("Origin", "null")],
+                        [("Host", own), ("Origin", "http://[")], [("Host", "[")],
+                        [("Host", own), ("Origin", f"http://127.0.0.1:{port + 1}")],  # another local server's page
+                        [("Host", own), ("Host", "evil.example")], []):
+            for path in ("/", "/index.html", "/nosuch.js"):  # viser's client is one page; other paths: 404
+                assert _get(port, headers, path) == refused, (headers, path)
+            assert _upgrade(port, headers) == ("HTTP/1.1 403 Forbidden", REFUSED.encode()), headers
+        assert _upgrade(port, [("Host", own), ("Origin", f"http://{own}")])[0] == "HTTP/1.1 101 Switching Protocols"
+        assert _upgrade(port, [("Host", f"[::1]:{port}")])[0] == "HTTP/1.1 101 Switching Protocols"
+        assert _viser_client(port, f"http://localhost:{port}") == "message"  # viser's own client gets the scene
+        assert _viser_client(port, "http://evil.example") == 403
+    finally:
+        v.close()
 
-    async def first_message(uri: str, origin: str | None) -> int | str:
-        """The close code, or "message" when the server sends the scene."""
-        sock = socket.create_connection(("127.0.0.1", v.port))
-        async with connect(uri, origin=origin, sock=sock, subprotocols=[f"viser-v{viser.__version__}"],
-                           max_size=None) as ws:
-            try:
+
+def _viser_client(port: int, origin: str) -> int | str:
+    """What a viser client connecting from a page of ``origin`` gets first: "message" (the scene),
+    or the HTTP status refusing its handshake."""
+    import viser
+    from websockets.asyncio.client import connect
+    from websockets.exceptions import InvalidStatus
+
+    async def first() -> int | str:
+        try:
+            async with connect(f"ws://localhost:{port}", origin=origin, subprotocols=[f"viser-v{viser.__version__}"],
+                               max_size=None) as ws:
                 await asyncio.wait_for(ws.recv(), 10)
                 return "message"
-            except ConnectionClosed as e:
-                return e.rcvd.code
+        except InvalidStatus as e:
+            return e.response.status_code
 
+    return asyncio.run(first())
+
+
+def test_a_viser_that_bypasses_the_check_is_not_served(monkeypatch):
+    """Should viser start its server otherwise than through ``websockets.asyncio.server.serve``, the
+    check would not apply: then no viewer is started (RuntimeError, its server stopped)."""
+    import websockets.asyncio.server as ws
+
+    from splat_framework.viewer import viser_clients
+    from splat_framework.viewer.scene_viewer import Viewer
+    from splat_framework.viewer.serving import free_port
+
+    monkeypatch.setattr(viser_clients, "_install_check", lambda: None)
+    monkeypatch.setattr(ws, "serve", getattr(ws.serve, "__wrapped__", ws.serve))
+    port = free_port("127.0.0.1", 0)
+    with pytest.raises(RuntimeError, match="could not refuse the pages of other web sites"):
+        Viewer(port=port)
+    time.sleep(0.5)  # the server's thread closes its socket
+    assert not answers("127.0.0.1", port)
+
+
+@needs_other
+@pytest.mark.bad_input("a web page of another site (foreign Origin) or a DNS-rebinding name (foreign Host) reaching the local viewer", "403 for the websocket and every HTTP request; nothing served")
+def test_an_opened_viewer_serves_its_own_address_and_refuses_other_sites():
+    """``--host ADDRESS`` opens the viewer to ADDRESS: the page is served under it, with or without its
+    Origin; a page of another site still gets 403."""
+    from splat_framework.viewer.serving import ServingWarning
+    from splat_framework.viewer.scene_viewer import Viewer
+
+    with pytest.warns(ServingWarning):
+        v = Viewer(port=0, host=OTHER)
     try:
-        own = f"http://localhost:{v.port}"
-        assert asyncio.run(first_message(f"ws://localhost:{v.port}", own)) == "message"
-        numeric = f"http://127.0.0.1:{v.port}"  # the page opened by its address (headless Chromium's in test_viewer)
-        assert asyncio.run(first_message(f"ws://127.0.0.1:{v.port}", numeric)) == "message"
-        assert asyncio.run(first_message(f"ws://127.0.0.1:{v.port}", None)) == "message"  # not a browser
-        assert asyncio.run(first_message(f"ws://localhost:{v.port}", "http://evil.example")) == 1008
-        assert asyncio.run(first_message(f"ws://evil.example:{v.port}", f"http://evil.example:{v.port}")) == 1008
+        opened = f"{OTHER}:{v.port}"
+        assert _get(v.port, [("Host", opened)], address=OTHER)[0] == 200
+        assert _get(v.port, [("Host", opened), ("Origin", f"http://{opened}")], address=OTHER)[0] == 200
+        assert _get(v.port, [("Host", opened), ("Origin", "http://evil.example")], address=OTHER)[0] == 403
     finally:
         v.close()

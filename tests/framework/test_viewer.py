@@ -1,8 +1,11 @@
 """splat-view: the viser viewer of a trained run serves its page, shows every Gaussian and the
 cameras, renders a chosen camera with splat's rasterizer; in a real browser when Chromium is installed."""
 
+import logging
+import threading
 import time
 import urllib.request
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import numpy as np
 import pytest
@@ -156,6 +159,52 @@ def test_the_first_frame_shows_the_scene_in_headless_chromium(viewer):
     drawn = (np.abs(shot - 1).max(-1) > 0.06).mean()  # not the page's white background
     assert shot.shape[:2] == expect.shape[:2] and drawn > 0.5
     assert np.corrcoef(shot.mean(-1).ravel(), expect.mean(-1).ravel())[0, 1] > 0.5
+
+
+def _serving_page(html: str) -> ThreadingHTTPServer:
+    """A server on a free port of 127.0.0.1 answering every GET with the page ``html`` (another local
+    site, to a browser); stopped with ``shutdown()``."""
+
+    class Page(BaseHTTPRequestHandler):
+        def do_GET(self) -> None:  # noqa: N802 - http.server's name
+            body = html.encode()
+            self.send_response(200)
+            self.send_header("Content-Type", "text/html; charset=utf-8")
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+
+        def log_message(self, *args) -> None:
+            pass
+
+    server = ThreadingHTTPServer(("127.0.0.1", 0), Page)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    return server
+
+
+@pytest.mark.skipif(chromium_binary() is None,
+                    reason="Chromium is not installed (Debian: apt-get install -y chromium); the browser test needs it")
+@pytest.mark.bad_input("a web page of another site (foreign Origin) or a DNS-rebinding name (foreign Host) reaching the local viewer", "403 for the websocket and every HTTP request; nothing served")
+def test_a_page_of_another_local_port_cannot_open_the_viewers_socket_in_headless_chromium(viewer, caplog):
+    """A page served from another port of this machine (another web site, to the browser) opens a
+    websocket to the viewer as viser's own client does: the handshake is refused (403: the socket
+    never opens, the browser reports 1006), and the viewer logged the refusal of that page's Origin."""
+    import viser
+
+    caplog.set_level(logging.DEBUG, logger="splat_framework.viewer.viser_clients")
+    page = _serving_page(f"""<!doctype html><body>tried:<script>
+        const ws = new WebSocket("ws://127.0.0.1:{viewer.port}", "viser-v{viser.__version__}");
+        ws.onopen = () => document.body.append(" socket opened");
+        ws.onclose = (e) => document.body.append(` socket closed ${{e.code}}`);
+        </script></body>""")
+    try:
+        origin = f"http://127.0.0.1:{page.server_address[1]}"
+        with HeadlessPage(f"{origin}/") as browser:
+            text = browser.wait_for_text("socket closed", timeout=60)
+    finally:
+        page.shutdown()
+    assert "socket closed 1006" in text and "opened" not in text, text
+    assert any(f"Origin [{origin!r}]" in r.getMessage() for r in caplog.records), [r.getMessage() for r in caplog.records]
 
 
 def test_training_viewer_follows_the_model(tmp_path):

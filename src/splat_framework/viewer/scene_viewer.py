@@ -22,8 +22,9 @@ Cameras are OpenCV-convention in both this project and viser (x right, y down,
 z forward), so poses pass through unchanged.
 
 Where it listens (127.0.0.1 unless a host is given, a free port, the true URL) is
-:mod:`splat_framework.viewer.serving`'s; what its clients may do (no traceback from a malformed
-message, no share tunnel, no page of another web site) is :mod:`splat_framework.viewer.viser_clients`'.
+:mod:`splat_framework.viewer.serving`'s; what its clients may do (no page of another web site nor a
+DNS-rebinding name: 403 for the page and the websocket; no traceback from a malformed message, no share
+tunnel) is :mod:`splat_framework.viewer.viser_clients`'.
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ import numpy as np
 import torch
 
 from .serving import LOOPBACK, InvalidAddress, ServingWarning, check_port, exposure_warning, free_port, server_url
-from .viser_clients import from_client, guard_clients
+from .viser_clients import from_client, guard_clients, start_checked
 
 __all__ = ["Viewer", "frustum_depth", "panel_camera", "splat_arrays"]
 
@@ -167,7 +168,9 @@ def _start_server(host: str, port: int, timeout: float | None = None):
     """A ``viser.ViserServer`` listening on ``host``:``port``, or :class:`InvalidAddress` when it has
     not started within ``timeout`` seconds (default :data:`STARTUP_S`): viser's constructor waits,
     without a timeout, for a server thread that may have died (then the command never ended).
-    Viser's banner is swallowed (its URL says localhost whatever the host; ours is :attr:`Viewer.url`)."""
+    Viser's banner is swallowed (its URL says localhost whatever the host; ours is :attr:`Viewer.url`).
+    Every request it answers is checked first (:func:`~splat_framework.viewer.viser_clients.start_checked`):
+    pages of other web sites and DNS-rebinding names get 403."""
     import viser
 
     started: dict = {}
@@ -175,7 +178,7 @@ def _start_server(host: str, port: int, timeout: float | None = None):
     def start() -> None:
         try:
             with contextlib.redirect_stdout(io.StringIO()):
-                started["server"] = viser.ViserServer(host=host, port=port, verbose=False)
+                started["server"] = start_checked(lambda: viser.ViserServer(host=host, port=port, verbose=False), host)
         except BaseException as e:  # noqa: BLE001 - re-raised in the caller's thread
             started["error"] = e
 
@@ -209,7 +212,7 @@ class Viewer:
         exposed = exposure_warning(host, self.port)
         if exposed:
             warnings.warn(exposed, ServingWarning, stacklevel=2)
-        guard_clients(self.server, host)
+        guard_clients(self.server)
         self._lock = threading.Lock()  # the model is read by viser's GUI thread and written by training
         self._model = None
         self._background = None

@@ -10,7 +10,10 @@ One mechanism for everything this project serves (``splat-view``, ``splat-train 
   server thread that would die on it and leave the command waiting forever;
 - a port in use is said in one line and the next free one is used (:func:`free_port`);
 - the URL printed is the one that works (:func:`server_url`);
-- a browser page of another site cannot use it, even on loopback (:func:`client_allowed`).
+- a browser page of another site cannot use it, even on loopback, nor can a DNS-rebinding name:
+  :func:`client_allowed` decides from each request's ``Host`` and ``Origin``, and
+  :func:`~splat_framework.viewer.viser_clients.start_checked` answers 403 to the page, its assets
+  and the websocket handshake it refuses.
 
 Torch-free and cheap to import; the config values (:data:`Port`, :data:`LOOPBACK`) live in
 :mod:`splat_framework.config.address`.
@@ -117,24 +120,39 @@ def exposure_warning(host: str, port: int) -> str | None:
 
 
 def client_allowed(bound_host: str, request_host: str | None, origin: str | None) -> bool:
-    """Whether a websocket client of a server listening on ``bound_host`` may connect, from its
-    handshake's ``Host`` and ``Origin`` headers.
+    """Whether a request to a server listening on ``bound_host`` (for the page, an asset, or the
+    websocket handshake) may be answered, from its ``Host`` and ``Origin`` headers.
 
     Listening on loopback stops other machines, not other web sites: any page the user opens can
-    script a websocket to ``ws://localhost:PORT``. So a browser's connection (it always sends
-    ``Origin``) is accepted only from a page this server served (Origin = its Host), and on loopback
-    only under a loopback name (a DNS-rebinding page connects under its own domain, which then
-    resolves to 127.0.0.1). Clients that are not browsers send no Origin and are accepted."""
+    script a websocket to ``ws://localhost:PORT``. So a request carrying ``Origin`` (a browser's
+    websocket always does, as do its scripts' fetches) is accepted only from a page this server
+    served (Origin = its Host), and on loopback every request only under a loopback name (a
+    DNS-rebinding page connects under its own domain, which then resolves to 127.0.0.1). Requests
+    without Origin (clients that are not browsers, a browser opening the URL) are accepted under
+    such a Host. On any other address the Host is the one the user connects with (the opened
+    address, or a name of it), and a browser's request must come from a page under that Host."""
     if not request_host:
         return False
+    name = _url_part(f"//{request_host}", "hostname")
+    if name is None or is_loopback(bound_host) and not _loopback_name(name):
+        return False
+    return origin is None or _url_part(origin, "netloc") == request_host.strip().lower()
+
+
+def _url_part(url: str, part: str) -> str | None:
+    """``urlsplit(url)``'s ``part`` (``hostname``, ``netloc``) in lower case; None when ``url`` is
+    not a URL (``http://[``)."""
     try:
-        name = urlsplit(f"//{request_host}").hostname or ""
+        return (getattr(urlsplit(url.strip()), part) or "").lower()
+    except ValueError:
+        return None
+
+
+def _loopback_name(name: str) -> bool:
+    """Whether a Host header's name is ``localhost`` or a loopback address."""
+    if name == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(name).is_loopback
     except ValueError:
         return False
-    if is_loopback(bound_host) and name != "localhost":
-        try:
-            if not ipaddress.ip_address(name).is_loopback:
-                return False
-        except ValueError:
-            return False
-    return origin is None or urlsplit(origin.strip()).netloc.lower() == request_host.strip().lower()

@@ -1,33 +1,118 @@
-"""What the clients of a viser server may do: connect from this server's own page only, never
+"""What the clients of a viser server may do: reach it from this server's own page only, never
 open a share tunnel, and never print a traceback into the user's terminal, whatever they send.
 
-:func:`guard_clients` applies all three to a ``viser.ViserServer`` (relying on viser's
-``_websock_server``, whose connect callbacks are awaited before any message flows to a client);
-:func:`from_client` wraps a GUI callback. Malformed messages end as one DEBUG line of the
+:func:`start_checked` starts a ``viser.ViserServer`` whose every HTTP request (the page, its
+assets) and websocket handshake is checked before anything is served: one that
+:func:`~splat_framework.viewer.serving.client_allowed` refuses (a page of another web site, by its
+``Origin``; a DNS-rebinding name, by its ``Host``) gets 403 and nothing else, so the websocket
+never opens. Viser gives no hook for this (its client-connect callbacks run after the handshake's
+101, and plain HTTP never reaches them): the check is added to the ``process_request`` that it
+hands to ``websockets.asyncio.server.serve``, the one function through which websockets passes every
+request on the server's socket before answering it (:func:`refuse_foreign`), from the moment the
+socket listens. :func:`guard_clients` removes the share tunnel and quiets malformed messages
+(relying on viser's ``_websock_server``); :func:`from_client` wraps a GUI callback. Refused
+requests and malformed messages end as one DEBUG line of the
 ``splat_framework.viewer.viser_clients`` logger (shown only with debug logging on).
 """
 
 from __future__ import annotations
 
 import functools
+import http
 import logging
+import threading
 import warnings
+from collections import Counter
 
 from .serving import client_allowed
 
-__all__ = ["guard_clients", "from_client"]
+__all__ = ["start_checked", "refuse_foreign", "guard_clients", "from_client"]
 
 log = logging.getLogger(__name__)
 
+REFUSED = "this page may not use the viewer (only the viewer's own page may)\n"
+"""The body of the 403 answering a refused request."""
 
-def guard_clients(server, host: str) -> None:
-    """Guard the clients of ``server`` (a ``viser.ViserServer`` listening on ``host``)."""
+_LOCK = threading.Lock()
+_STARTING: Counter = Counter()
+"""Hosts on which :func:`start_checked` is starting a server now (how many)."""
+_CHECKED: Counter = Counter()
+"""How many websockets servers were started with :func:`refuse_foreign` on each host."""
+
+
+def start_checked(start, host: str):
+    """``start()``'s ``viser.ViserServer``, listening on ``host``, with :func:`refuse_foreign` in the
+    opening handshake of its websockets server from the moment it listens. A viser that no longer
+    starts its server through ``websockets.asyncio.server.serve`` would serve every page: its server
+    is stopped and RuntimeError raised, never a viewer without the check."""
+    with _LOCK:
+        _install_check()
+        _STARTING[host] += 1
+        before = _CHECKED[host]
+    try:
+        server = start()
+    finally:
+        with _LOCK:
+            _STARTING[host] -= 1
+    if _CHECKED[host] == before:
+        server.stop()
+        raise RuntimeError("the viewer's server did not start through websockets.asyncio.server.serve, so it "
+                           "could not refuse the pages of other web sites; not serving (is viser's version supported?)")
+    return server
+
+
+def _install_check() -> None:
+    """Have ``websockets.asyncio.server.serve`` add :func:`refuse_foreign` to the servers started
+    while :func:`start_checked` starts one on their host; other servers of the process pass through
+    unchanged. Installed once, and again if something replaced it since (a test's monkeypatch)."""
+    import websockets.asyncio.server as ws
+
+    if not getattr(ws.serve, "refuses_foreign", False):
+        ws.serve = _serving_checked(ws.serve)
+
+
+def _serving_checked(serve):
+    """``serve`` (websockets') adding :func:`refuse_foreign` to the ``process_request`` of a server
+    on a host in :data:`_STARTING`."""
+
+    @functools.wraps(serve)
+    def checked(handler, host=None, port=None, *, process_request=None, **kwargs):
+        with _LOCK:
+            starting = _STARTING[host] > 0
+            if starting:
+                _CHECKED[host] += 1
+        if starting:
+            process_request = refuse_foreign(host, process_request)
+        return serve(handler, host, port, process_request=process_request, **kwargs)
+
+    checked.refuses_foreign = True
+    return checked
+
+
+def refuse_foreign(host: str, process_request=None):
+    """A websockets ``process_request`` for a server listening on ``host``: 403 (:data:`REFUSED`) for
+    a request :func:`~splat_framework.viewer.serving.client_allowed` refuses or that repeats its
+    ``Host`` or ``Origin``; else ``process_request``'s answer (viser's: the page and its assets; None,
+    the websocket handshake, for an upgrade)."""
+
+    def process(connection, request):
+        hosts, origins = request.headers.get_all("Host"), request.headers.get_all("Origin")
+        if len(hosts) != 1 or len(origins) > 1 or not client_allowed(host, hosts[0], origins[0] if origins else None):
+            log.debug("viewer refused a request: Host %r, Origin %r", hosts, origins)
+            return connection.respond(http.HTTPStatus.FORBIDDEN, REFUSED)
+        return process_request(connection, request) if process_request is not None else None
+
+    return process
+
+
+def guard_clients(server) -> None:
+    """Guard the clients of ``server`` (a ``viser.ViserServer``) once connected: no share tunnel, no
+    traceback from what they send."""
     from viser import _messages
 
     # a client's "share" request would open a public tunnel to this server: not a client's to grant
     server._websock_server.unregister_handler(_messages.ShareUrlRequest)
     _quiet_client_errors(server)
-    _refuse_foreign_pages(server, host)
 
 
 class _ClientErrorsToDebug(logging.Filter):
@@ -65,24 +150,6 @@ def _quiet_client_errors(server) -> None:
     loop = getattr(server, "_event_loop", None)
     if loop is not None:
         loop.set_exception_handler(_client_loop_error)
-
-
-def _refuse_foreign_pages(server, host: str) -> None:
-    """Close, before anything is sent to it, a websocket opened by a page of another web site or
-    under a non-loopback name on a loopback server (:func:`~splat_framework.viewer.serving.client_allowed`).
-    Runs first among viser's connect callbacks, which are awaited before a client's messages flow."""
-    websock = server._websock_server
-
-    async def check(client) -> None:
-        connection = websock._live_connections.get(client.client_id)
-        if connection is None:
-            return
-        headers = connection.request.headers
-        if not client_allowed(host, headers.get("Host"), headers.get("Origin")):
-            log.debug("viewer refused a client: Host %r, Origin %r", headers.get("Host"), headers.get("Origin"))
-            await connection.close(1008, "this page may not use the viewer")
-
-    websock._client_connect_cb.insert(0, check)
 
 
 def from_client(callback):
