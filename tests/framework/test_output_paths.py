@@ -15,7 +15,9 @@ import pytest
 from cli_harness import run_cli
 
 from splat_framework.errors import DataError
-from splat_framework.files.output_paths import MARKER, PLY_COMMENT, RENDER_FOLDER, SCENE_FOLDER, check_output
+from splat_framework.files.output_paths import (
+    MARKER, PLY_COMMENT, RENDER_FOLDER, SCENE_FOLDER, VIDEO_FILE, check_output, run_inputs,
+)
 
 TINY_SCENE = ("--width", 16, "--height", 12, "--views", 3)
 
@@ -195,6 +197,72 @@ def test_render_refreshes_its_own_folder_with_overwrite_keeping_other_files(run_
     (out / "old_view_render.png").write_bytes(b"a render of a view that no longer exists")
     run_cli("render", run_dir, "--out", out, "--overwrite", code=0, watch=[tmp_path], allowed=[out])
     assert (out / "notes.txt").read_text() == "mine" and not (out / "old_view_render.png").exists()
+
+
+# ------------------------------------------------------------------ an input run's layout and its dataset (issue 60)
+
+
+def _dataset_of(run: Path) -> Path:
+    """The dataset folder that the run's config.json records."""
+    return Path(json.loads((run / "config.json").read_text())["config"]["resolved_data"]["path"])
+
+
+@pytest.mark.bad_input("`splat-export --ply` or `splat-render --out` inside an input run's checkpoints/renders or inside the dataset folder", "exit 2, one line naming the path; nothing written")
+def test_export_refuses_a_ply_inside_the_runs_checkpoints(run_dir, tmp_path):
+    target = run_dir / "checkpoints" / "new.ply"
+    r = run_cli("export", run_dir, "--ply", target, code=2, watch=[run_dir, tmp_path])
+    assert r.message == (f"error: {target}: --ply is inside the run folder's checkpoints/ (managed by splat-train); "
+                         f"choose a separate PLY file")
+    os.symlink(run_dir / "checkpoints", tmp_path / "link")  # compared resolved: links followed, `..` removed
+    for sneaky in (tmp_path / "link" / "new.ply", run_dir / "no-such" / ".." / "checkpoints" / "new.ply"):
+        run_cli("export", run_dir, "--ply", sneaky, "--overwrite", code=2,
+                match="is inside the run folder's checkpoints/", watch=[run_dir, tmp_path])
+
+
+@pytest.mark.bad_input("`splat-export --ply` or `splat-render --out` inside an input run's checkpoints/renders or inside the dataset folder", "exit 2, one line naming the path; nothing written")
+def test_render_refuses_an_output_inside_the_runs_dataset_folder(run_dir, tmp_path):
+    data = _dataset_of(run_dir)
+    target = data / "my-renders"
+    r = run_cli("render", run_dir, "--out", target, code=2, watch=[data, run_dir])
+    assert r.message == (f"error: {target}: --out is inside the run's dataset folder {data.resolve()}; "
+                         f"choose a separate render folder")
+    run_cli("render", run_dir, "--out", data, "--overwrite", code=2, match="is the run's dataset folder",
+            watch=[data, run_dir])
+    run_cli("render", run_dir, "--path", "spiral", "--frames", 2, "--out", data / "images" / "spiral.mp4",
+            code=2, match="is inside the run's dataset folder", watch=[data, run_dir])
+
+
+@pytest.mark.bad_input("`splat-export --ply` or `splat-render --out` inside an input run's checkpoints/renders or inside the dataset folder", "exit 2, one line naming the path; nothing written")
+def test_render_never_writes_a_video_over_the_runs_own_files(run_dir):
+    """A video in a run folder is recognised as splat-render's, but not in place of config.json."""
+    config = run_dir / "config.json"
+    run_cli("render", run_dir, "--path", "spiral", "--frames", 2, "--out", config, "--overwrite", code=2,
+            match=f"{config}: --out is the run folder's config.json (managed by splat-train)", watch=[run_dir])
+
+
+def test_a_runs_default_outputs_stay_the_commands_own(run_dir):
+    """The defaults inside the run stay the commands' own (RUN/renders, RUN/point_cloud.ply, RUN/spiral.mp4);
+    no other output may be or lie inside an entry of the run's layout."""
+    from splat_framework.files.output_paths import PLY_FILE
+
+    inputs = run_inputs(run_dir)
+    check_output(run_dir / "renders", RENDER_FOLDER, overwrite=True, inputs=inputs)
+    check_output(run_dir / "point_cloud.ply", PLY_FILE, overwrite=True, inputs=inputs)
+    check_output(run_dir / "spiral.mp4", VIDEO_FILE, overwrite=True, inputs=inputs)
+    with pytest.raises(DataError, match="is the run folder's point_cloud.ply"):  # splat-export's, not a video's
+        check_output(run_dir / "point_cloud.ply", VIDEO_FILE, overwrite=True, inputs=inputs)
+    with pytest.raises(DataError, match="is inside the run folder's renders"):
+        check_output(run_dir / "renders" / "mine", RENDER_FOLDER, inputs=inputs)
+    with pytest.raises(DataError, match="holds the run folder's config.json"):
+        check_output(run_dir.parent, RENDER_FOLDER, inputs=inputs)
+
+
+@pytest.mark.bad_input("an output that is, holds or lies inside the input (`splat-process images DIR --out DIR`, `splat-train --output DATA/run`, `splat-match --out DATA`)", "exit 2, one line; the input is untouched, with or without `--overwrite`")
+def test_train_refuses_an_output_inside_a_dataset_named_under_splat_data(dataset, tmp_path):
+    elsewhere = user_folder(tmp_path / "elsewhere")  # the current folder: --data is found under $SPLAT_DATA
+    run_cli("train", "3dgs", "--data", dataset.name, "--output", dataset / "run", "--steps", 1,
+            code=2, match="inside the input", watch=[tmp_path], cwd=elsewhere,
+            env={**os.environ, "SPLAT_DATA": str(dataset.parent)})
 
 
 # ------------------------------------------------------------------ splat-match and splat-sweep

@@ -24,10 +24,11 @@ class ExportArgs:
 
 
 def main(args: ExportArgs) -> Path:
-    from ..files.output_paths import PLY_FILE, check_output
+    from ..files.output_paths import PLY_FILE, check_output, run_inputs
 
     out = args.ply if args.ply is not None else Path(args.run_dir) / "point_cloud.ply"
-    check_output(out, PLY_FILE, overwrite=args.overwrite or args.ply is None, flag="--ply")  # before torch loads
+    check_output(out, PLY_FILE, overwrite=args.overwrite or args.ply is None, inputs=run_inputs(args.run_dir),
+                 flag="--ply")  # before torch loads
 
     from ..export.ply import export_ply
     from ..engine.run import load_trained_model

@@ -131,10 +131,11 @@ def main(args: MatchArgs) -> "MatchSet":
     from splat_framework.data.parsers import load_scene
     from splat_framework.data.resolve import resolve_data_path
 
-    from ..files.output_paths import MATCH_FOLDER, check_output, claim_output
+    from ..files.output_paths import MATCH_FOLDER, check_output, claim_output, data_inputs
 
     root = resolve_data_path(args.data)
-    check_output(args.out, MATCH_FOLDER, overwrite=args.overwrite, inputs=[root])
+    inputs = [root, *data_inputs(args.data)]  # the scene, and the photos it was posed from
+    check_output(args.out, MATCH_FOLDER, overwrite=args.overwrite, inputs=inputs)
     scene = load_scene(root, views=args.views)
     ids = [int(i) for i in scene.train_indices]
     images = [
@@ -143,7 +144,7 @@ def main(args: MatchArgs) -> "MatchSet":
     ]
     cameras = [scene.cameras[i] for i in ids]
     cache = None if not args.config.cache else (args.cache_dir or Path(args.out) / "cache")
-    claim_output(args.out, MATCH_FOLDER, overwrite=args.overwrite, inputs=[root])
+    claim_output(args.out, MATCH_FOLDER, overwrite=args.overwrite, inputs=inputs)
     return run_matching(images, cameras, ids, args.config, Path(args.out), cache, args.max_lines, Console())
 
 

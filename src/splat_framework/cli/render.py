@@ -45,7 +45,7 @@ def camera_path(kind: str, dm, frames: int) -> tuple[str, list]:
 
 def main(args: RenderArgs) -> Path:
     from ..errors import DataError
-    from ..files.output_paths import RENDER_FOLDER, VIDEO_FILE, check_output
+    from ..files.output_paths import RENDER_FOLDER, VIDEO_FILE, check_output, run_inputs
     from ..files.run_lock import owned, writes_inside
 
     if args.frames < 1:
@@ -53,25 +53,26 @@ def main(args: RenderArgs) -> Path:
     if args.fps < 1:
         raise DataError(f"--fps must be >= 1, got {args.fps}")
     replace = args.overwrite or args.out is None  # the defaults inside RUN_DIR are the run's own
+    inputs = run_inputs(args.run_dir)  # its checkpoints/, config.json, ... and its dataset folder
 
     def check_video(out: Path) -> None:
         for target in video_targets(out, args.depth):
-            check_output(target, VIDEO_FILE, overwrite=replace)
+            check_output(target, VIDEO_FILE, overwrite=replace, inputs=inputs)
 
     if args.path == "test":
         out = args.out or args.run_dir / "renders"
-        check_output(out, RENDER_FOLDER, overwrite=replace)
+        check_output(out, RENDER_FOLDER, overwrite=replace, inputs=inputs)
     elif args.out is not None:  # checked before anything loads; the default name waits for --path auto
         check_video(args.out)
 
     # the default outputs lie in the run folder (own it meanwhile); an --out elsewhere only reads the run
     with owned(args.run_dir, writes=args.out is None or writes_inside(args.run_dir, args.out)):
-        return render_run(args, replace, check_video)
+        return render_run(args, replace, check_video, inputs)
 
 
-def render_run(args: RenderArgs, replace: bool, check_video) -> Path:
-    """Load the run and write what ``args`` asks for (its targets already checked, or checked by
-    ``check_video`` once ``--path auto`` names the video)."""
+def render_run(args: RenderArgs, replace: bool, check_video, inputs) -> Path:
+    """Load the run and write what ``args`` asks for (its targets already checked against ``inputs``,
+    or checked by ``check_video`` once ``--path auto`` names the video)."""
     import torch
 
     from ..console import track
@@ -84,7 +85,7 @@ def render_run(args: RenderArgs, replace: bool, check_video) -> Path:
     bg = background_for(dm.scene, config.device)
     if args.path == "test":
         out = args.out or args.run_dir / "renders"
-        claim_output(out, RENDER_FOLDER, overwrite=replace)
+        claim_output(out, RENDER_FOLDER, overwrite=replace, inputs=inputs)
         views, split = scored_views(dm)
         with torch.no_grad():
             for cam, batch in track(views, f"rendering {split} views", unit="views"):

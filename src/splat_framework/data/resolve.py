@@ -7,6 +7,7 @@ from pathlib import Path
 
 from ..config.data import PhotoPosesConfig
 from ..errors import did_you_mean
+from ..files.output_paths import data_inputs
 from .photos import photo_source, posed_photos
 from .scene import DataError
 
@@ -43,11 +44,10 @@ def locate_data(spec: str | Path) -> Path:
         from . import synthetic  # lazy: written separately, heavy
 
         return Path(synthetic.ensure_scene(name))
+    found = data_inputs(text)  # under $SPLAT_DATA
+    if found:
+        return found[0]
     env = os.environ.get("SPLAT_DATA")
-    if env and not path.is_absolute():
-        candidate = Path(env).expanduser() / path
-        if candidate.exists():
-            return candidate
     where = f"$SPLAT_DATA={env}" if env else "$SPLAT_DATA, which is not set"
     hint = did_you_mean(posix.rstrip("/"), dataset_names(path, Path(env).expanduser() if env else None))
     raise DataError(f"{text}: no such dataset folder{hint} (also looked in {where})")

@@ -9,7 +9,7 @@ from ..files import run_lock
 from .checkpoint import remove_stale_temporaries
 from ..config import TrainConfig
 from ..data import DataError
-from ..files.output_paths import RUN_FOLDER, check_output, check_path, clear_output
+from ..files.output_paths import RUN_FOLDER, check_output, check_path, clear_output, data_inputs
 
 
 def default_run_dir(config: TrainConfig) -> Path:
@@ -42,7 +42,7 @@ def prepare_run_dir(config: TrainConfig) -> Path:
     """
     if config.resume and config.overwrite:
         raise DataError("--resume and --overwrite exclude each other (continue the run, or start it again)")
-    inputs = [Path(config.data)] if Path(config.data).exists() else []
+    inputs = data_inputs(config.data)
     replace = False
     if config.output is None:
         if config.resume:

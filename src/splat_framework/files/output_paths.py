@@ -7,7 +7,12 @@ splat-render, splat-match, splat-sweep) checks its target here before any work:
   command: a run folder (``config.json`` with our checksum), a folder carrying our
   marker file ``.splat-output.json``, a PLY with our header comment, a video or
   render folder inside a run folder;
-- never the input folder, inside it, or a folder that holds it;
+- never an input (:class:`Input`), inside it, or a folder that holds it: the folders or files the
+  command reads (``--data``'s folder, the photos), and for a command that reads a run folder the
+  entries of its layout (checkpoints/, renders/, config.json, ...; :func:`run_inputs`) and its
+  dataset folder. Paths are compared resolved (symlinks followed, ``..`` removed). The one
+  exception: an entry that the same command writes by default (``splat-render RUN`` refreshes
+  RUN/renders, ``splat-export RUN`` writes RUN/point_cloud.ply) may be the target itself;
 - never a special file (FIFO, device node, socket), never below a path component
   that is a file, never in a folder the user cannot write;
 - replacing an output of ours needs ``--overwrite``, and removes only the entries
@@ -33,9 +38,10 @@ from ..errors import DataError
 from .run_lock import LOCK_NAME
 
 __all__ = [
-    "MARKER", "PLY_COMMENT", "OutputKind", "OutputNotWritable", "RUN_FOLDER", "SCENE_FOLDER", "PROCESSED_SCENE",
+    "MARKER", "PLY_COMMENT", "Input", "OutputKind", "OutputNotWritable", "RUN_FOLDER", "SCENE_FOLDER", "PROCESSED_SCENE",
     "PLY_FILE", "RENDER_FOLDER", "VIDEO_FILE", "MATCH_FOLDER", "SWEEP_FOLDER", "check_path", "check_output",
-    "clear_output", "mark_output", "claim_output", "install_output", "is_run_folder",
+    "clear_output", "mark_output", "claim_output", "install_output", "is_run_folder", "data_inputs", "run_inputs",
+    "RUN_LAYOUT",
 ]
 
 MARKER = ".splat-output.json"
@@ -207,20 +213,80 @@ def _describe_special(mode: int) -> str:
     return "a special file"
 
 
-def _overlaps(out: Path, inputs: Iterable[Path]) -> str | None:
+@dataclass(frozen=True)
+class Input:
+    """A path a command reads, or a part of a run folder that another command manages: an output
+    may not be it, lie inside it or hold it."""
+
+    path: Path
+    what: str = ""
+    """How a refusal names it ("the run folder's checkpoints/ (managed by splat-train)"); default
+    "the input PATH"."""
+    writers: tuple[str, ...] = ()
+    """The :attr:`OutputKind.key` of each kind whose output may be this very path (a run's renders/
+    is splat-render's default folder); never inside it."""
+
+
+def _overlaps(out: Path, kind: OutputKind, inputs: Iterable[Path | Input]) -> str | None:
+    """How ``out`` overlaps the first input it is, lies inside or holds (paths resolved); None if none."""
     target = out.resolve()
     for given in inputs:
-        src = Path(given).resolve()
-        if target == src:
-            return f"is the input {src}"
+        given = given if isinstance(given, Input) else Input(Path(given))
+        src = Path(given.path).resolve()
+        what = given.what or f"the input {src}"
+        if target == src and kind.key not in given.writers:
+            return f"is {what}"
         if src in target.parents:
-            return f"is inside the input {src}"
+            return f"is inside {what}"
         if target in src.parents:
-            return f"holds the input {src}"
+            return f"holds {what}"
     return None
 
 
-def check_path(path: Path, kind: OutputKind, *, inputs: Iterable[Path] = (), flag: str = "--out") -> None:
+def data_inputs(spec: str | Path) -> list[Path]:
+    """The existing folder or file that a ``--data`` spec names, as given or under ``$SPLAT_DATA``
+    (nothing is generated or posed: ``synthetic/...`` names no folder yet); empty when none."""
+    path = Path(str(spec)).expanduser()
+    env = os.environ.get("SPLAT_DATA")
+    if not path.exists() and env and not path.is_absolute():
+        path = Path(env).expanduser() / path
+    return [path] if str(spec).strip() and path.exists() else []
+
+
+RUN_LAYOUT: dict[str, tuple[str, ...]] = {
+    **{name: () for name in (*RUN_FOLDER.entries, *RUN_FOLDER.ignored) if not any(c in name for c in "*?[")},
+    "point_cloud.ply": (PLY_FILE.key,),  # splat-export's default PLY
+    "renders": (RENDER_FOLDER.key,),  # splat-render's default folder
+}
+"""The named entries of a run folder's layout -> the keys of the outputs of other commands that may be
+that very entry (videos, ``*.mp4``, are splat-render's own: no named entry)."""
+
+
+def run_inputs(run_dir: Path) -> list[Input]:
+    """What an output of a command reading the run folder ``run_dir`` must keep clear of: the entries
+    of its layout (:data:`RUN_LAYOUT`) and its dataset folders (:func:`_run_data_folders`)."""
+    run_dir = Path(run_dir)
+    layout = [Input(run_dir / name, f"the run folder's {name}{'/' if (run_dir / name).is_dir() else ''} "
+                    f"(managed by {RUN_FOLDER.command})", writers) for name, writers in RUN_LAYOUT.items()]
+    return layout + [Input(p, f"the run's dataset folder {p.resolve()}") for p in _run_data_folders(run_dir)]
+
+
+def _run_data_folders(run_dir: Path) -> list[Path]:
+    """The dataset folders that the run's ``config.json`` records: the folder the run resolved, and
+    the one its ``data`` spec names (:func:`data_inputs`; a folder of photos); none when the config
+    cannot be read (the command then reports the run itself)."""
+    from ..config import read_config_json
+
+    try:
+        config = read_config_json(Path(run_dir) / "config.json", trust_edits=True)[1]
+    except (DataError, OSError, ValueError):
+        return []
+    record = config.get("resolved_data")
+    recorded = record.get("path") if isinstance(record, dict) else None
+    return ([Path(recorded)] if isinstance(recorded, str) else []) + data_inputs(config.get("data", ""))
+
+
+def check_path(path: Path, kind: OutputKind, *, inputs: Iterable[Path | Input] = (), flag: str = "--out") -> None:
     """Refuse (one line) a target that can never be written, whoever wrote what is there.
 
     A path component that is a file, a folder that is not writable, a special file
@@ -252,19 +318,20 @@ def check_path(path: Path, kind: OutputKind, *, inputs: Iterable[Path] = (), fla
             raise DataError(f"{path}: is {_describe_special(st.st_mode)}; {flag} must name a {kind.name}")
         elif kind.folder:
             raise DataError(f"{path}: exists and is not a folder ({flag} names the {kind.name} to write)")
-    overlap = _overlaps(path, inputs)
+    overlap = _overlaps(path, kind, inputs)
     if overlap:
         raise DataError(f"{path}: {flag} {overlap}; choose a separate {kind.name}")
 
 
 def check_output(path: Path, kind: OutputKind, *, overwrite: bool = False, keep: bool = False,
-                 inputs: Iterable[Path] = (), flag: str = "--out") -> bool:
+                 inputs: Iterable[Path | Input] = (), flag: str = "--out") -> bool:
     """Refuse (one line) a target that ``kind``'s command may not write; True when an output of
     ours is there and is to be replaced (the caller removes it with :func:`clear_output`).
 
     ``overwrite``: the user's ``--overwrite``. ``keep``: the command continues what is there
     (a sweep resumes; an output of ours is then kept, not replaced). ``inputs``: the folders or
-    files the command reads, which the target must not be, be inside of, or hold.
+    files the command reads (paths or :class:`Input` s), which the target must not be, be inside
+    of, or hold.
     """
     path = Path(path)
     check_path(path, kind, inputs=inputs, flag=flag)
@@ -315,7 +382,7 @@ def mark_output(folder: Path, kind: OutputKind) -> None:
     atomic_write_text(Path(folder) / MARKER, json.dumps({"written_by": kind.command, "kind": kind.key}) + "\n")
 
 
-def claim_output(path: Path, kind: OutputKind, *, overwrite: bool = False, inputs: Iterable[Path] = (),
+def claim_output(path: Path, kind: OutputKind, *, overwrite: bool = False, inputs: Iterable[Path | Input] = (),
                  flag: str = "--out") -> Path:
     """Check ``path`` (see :func:`check_output`), remove an earlier output of ours when
     ``overwrite``, and create the folder with its marker (folder kinds). Returns ``path``."""

@@ -42,7 +42,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from ..runtime.resources import available_cores
-from ..files.output_paths import SWEEP_FOLDER, check_output, mark_output
+from ..files.output_paths import SWEEP_FOLDER, check_output, data_inputs, mark_output
 from .backends import import_ray, run_local, run_ray, run_serial, spec_dict
 from .grid import (
     BACKENDS,
@@ -121,7 +121,7 @@ def run_sweep(
     if backend == "ray":
         import_ray()  # fail before anything runs
     out = Path(out)
-    check_output(out, SWEEP_FOLDER, keep=True, inputs=[Path(d) for d in grid.data if Path(d).exists()])
+    check_output(out, SWEEP_FOLDER, keep=True, inputs=[p for d in grid.data for p in data_inputs(d)])
     runs = grid.runs(out)
     known = discover_methods()
     unknown = [m for m in unique(grid.methods) if m not in known]
