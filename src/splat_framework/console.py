@@ -9,6 +9,7 @@ terminal, plain lines at a steady cadence in a log.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from contextlib import contextmanager
@@ -31,13 +32,18 @@ def say(message: str, style: str | None = None) -> None:
     console.print(Text(message, style=style or ""), soft_wrap=True)
 
 
-PLAIN_EVERY_S = 10.0
+PLAIN_EVERY_S = 5.0
 """Without a terminal: the most seconds between two progress lines of a running phase."""
 PLAIN_EVERY_FRACTION = 0.05
 """Without a terminal: a phase with a known total also prints a line each time this fraction of it is done."""
 PLAIN_QUIET_S = 2.0
 """Without a terminal: a phase prints nothing before it has run this long (a quick phase, or a failed
 start, leaves no progress lines; the error stays one line)."""
+
+ETA_AFTER_UNITS = 10
+"""A phase shows its remaining time once this many units are done since its clock started..."""
+ETA_AFTER_FRACTION = 0.05
+"""... or this fraction of its total, whichever comes first."""
 
 _SHOW = {"enabled": True}
 
@@ -52,11 +58,13 @@ class Phase:
     """One phase of a command (loading data, matching, warm-up, compiling, training, evaluation) and
     its progress, shown by :func:`phase`: call :meth:`advance` or :meth:`update` as work is done."""
 
-    def __init__(self, name: str, total: int | None, completed: int, unit: str, info: str, quiet_s: float):
+    def __init__(self, name: str, total: int | None, completed: int, unit: str, info: str, quiet_s: float,
+                 clock_from_first: bool = False):
         self.name, self.total, self.completed, self.unit, self.info = name, total, completed, unit, info
         self.quiet_s = quiet_s
         self.start_completed = completed
         self.t0 = time.perf_counter()
+        self.clock_from_first = clock_from_first  # restart the clock once the first unit is done
         self.printed_at: float | None = None  # plain display: when its last line was printed
         self.printed_completed = completed
         self.display: _Terminal | _Plain | None = None
@@ -69,12 +77,23 @@ class Phase:
     def update(self, completed: int | None = None, *, info: str | None = None) -> None:
         """Set the units done and/or the info text (e.g. the training loss)."""
         if completed is not None:
+            if self.clock_from_first and completed > self.start_completed:
+                self.clock_from_first = False  # the first unit (lazy loads, kernel builds) is behind us
+                self.t0, self.start_completed = time.perf_counter(), completed
+                if self.display is not None:
+                    self.display.restart(self)
             self.completed = completed
         if info is not None:
             self.info = info
         follow_load()  # every phase's threads follow the machine's load (runtime.threads)
         if self.display is not None:
             self.display.changed(self)
+
+    def eta_due(self) -> bool:
+        """Whether a remaining time is worth showing: after 10 units or 5 % of the total, whichever
+        comes first, since the clock started (an estimate from 3 steps misleads)."""
+        needed = max(1, min(ETA_AFTER_UNITS, math.ceil(ETA_AFTER_FRACTION * (self.total or 0))))
+        return self.total is not None and self.completed - self.start_completed >= needed
 
     def rate(self) -> float | None:
         """Units per second since the phase began (None before the first unit)."""
@@ -92,7 +111,7 @@ class Phase:
         rate = self.rate()
         if rate:
             parts.append(_speed(rate, self.unit))
-            if self.total and not done and self.completed < self.total:
+            if self.total and not done and self.completed < self.total and self.eta_due():
                 parts.append(f"about {_clock((self.total - self.completed) / rate)} left")
         if self.info:
             parts.append(self.info)
@@ -112,7 +131,7 @@ def _clock(seconds: float) -> str:
 
 @contextmanager
 def phase(name: str, total: int | None = None, *, completed: int = 0, unit: str = "", info: str = "",
-          quiet_s: float = PLAIN_QUIET_S) -> Iterator[Phase]:
+          quiet_s: float = PLAIN_QUIET_S, clock_from_first: bool = False) -> Iterator[Phase]:
     """Show one phase of a command while the block runs; yields its :class:`Phase` to report progress.
 
     In a terminal: a live row (name, bar, done/total, elapsed, remaining, rate, info) under any
@@ -120,8 +139,11 @@ def phase(name: str, total: int | None = None, *, completed: int = 0, unit: str 
     nohup, CI): plain lines, the first after ``quiet_s`` seconds, then one every
     :data:`PLAIN_EVERY_S` seconds or :data:`PLAIN_EVERY_FRACTION` of ``total``, whichever comes first,
     and the summary line (if any line was printed, or ``quiet_s`` is 0). A phase that fails prints
-    no summary (its error does). Nothing is shown after ``show_progress(False)``."""
-    ph = Phase(name, total, completed, unit, info, quiet_s)
+    no summary (its error does). Nothing is shown after ``show_progress(False)``. The remaining
+    time shows once :meth:`Phase.eta_due`; with ``clock_from_first`` (training) the elapsed time
+    and the rate start when the first unit is done, so what that unit waited for (building
+    kernels, loading them) is its own phase and not part of the training clock."""
+    ph = Phase(name, total, completed, unit, info, quiet_s, clock_from_first)
     if _SHOW["enabled"]:
         ph.display = _TERMINAL if console.is_terminal else _PLAIN
         ph.display.open(ph)
@@ -152,11 +174,16 @@ class _Terminal:
         if self.progress is None:
             self.progress = _Rows(console=console, transient=True)
             self.progress.start()
-        ph.task = self.progress.add_task(ph.name, total=ph.total, completed=ph.completed, info=ph.info, unit=ph.unit)
+        ph.task = self.progress.add_task(ph.name, total=ph.total, completed=ph.completed, info=ph.info, unit=ph.unit,
+                                         eta=False)
 
     def changed(self, ph: Phase) -> None:
         if self.progress is not None:
-            self.progress.update(ph.task, completed=ph.completed, info=ph.info)
+            self.progress.update(ph.task, completed=ph.completed, info=ph.info, eta=ph.eta_due())
+
+    def restart(self, ph: Phase) -> None:
+        if self.progress is not None:
+            self.progress.reset(ph.task, start=True, completed=ph.start_completed)
 
     def close(self, ph: Phase, ok: bool) -> None:
         if self.progress is None:
@@ -208,7 +235,7 @@ class _RemainingColumn(TextColumn):
         super().__init__("")
 
     def render(self, task):
-        left = task.time_remaining if task.total is not None and not task.finished else None
+        left = task.time_remaining if task.total is not None and not task.finished and task.fields.get("eta") else None
         return Text(f"~{_clock(left)}" if left is not None else "", style="progress.remaining")
 
 
@@ -250,6 +277,9 @@ class _Plain:
             return True
         return progressed or now - ph.printed_at >= PLAIN_EVERY_S
 
+    def restart(self, ph: Phase) -> None:
+        """The clock restarted: a plain line needs nothing (each line reads the phase's clock)."""
+
     def _print(self, ph: Phase, now: float) -> None:
         with self.lock:
             ph.printed_at, ph.printed_completed = now, ph.completed
@@ -282,8 +312,10 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
     table.add_column("metric")
     table.add_column("value", justify="right")
     split = next((v.get("split", "test") for v in metrics.get("per_view") or []), "test")
+    missing = [k for k, v in metrics["mean"].items() if v is None]  # explained below the table, not shown as n/a
     for k, v in metrics["mean"].items():
-        table.add_row(f"{split} {k}", "n/a" if v is None else f"{v:.4f}")
+        if v is not None:
+            table.add_row(f"{split} {k}", f"{v:.4f}")
     table.add_row("gaussians", str(metrics["num_gaussians"]))
     table.add_row("steps", str(metrics["steps"]))
     if metrics.get("skipped_steps"):
@@ -297,5 +329,21 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
     if split == "train":
         say("Training-view metrics: the scene has no held-out test view (every photo is a training view); "
             "splat-render RUN --path auto renders a video of novel views", "yellow")
-    if metrics.get("lpips_note"):
-        say(f"LPIPS not computed: {metrics['lpips_note']}", "yellow")
+    for line in _missing_metric_lines(missing, metrics.get("lpips_note")):
+        say(line, "yellow")
+
+
+def _missing_metric_lines(missing: list[str], lpips_note: str | None) -> list[str]:
+    """Why the summary table leaves out each metric it could not compute: one line per reason."""
+    reasons: dict[str, list[str]] = {}
+    for k in missing:
+        if k == "lpips":
+            why = lpips_note or "not computed"
+        elif k == "avg":
+            why = "AVG combines PSNR, SSIM and LPIPS, and LPIPS was not computed"
+        elif k.startswith("depth"):
+            why = "the dataset has no ground-truth depth (the built-in scenes have)"
+        else:
+            why = "not computed for this run"
+        reasons.setdefault(why, []).append(k)
+    return [f"not in the table: {', '.join(keys)}: {why}" for why, keys in reasons.items()]

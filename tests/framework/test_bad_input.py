@@ -67,6 +67,24 @@ def test_resolve_data_path(tmp_path, monkeypatch):
     raises_data_error(lambda: resolve_data_path("missing/x"), "not set")
 
 
+@pytest.mark.bad_input("a missing `--data`: an absolute path, or a relative name with `$SPLAT_DATA` unset or set",
+                       "exit 2, one line; an absolute path suggests only its siblings, a relative name says how to set $SPLAT_DATA")
+def test_a_missing_data_path_gets_the_hint_that_helps(tmp_path, monkeypatch):
+    (tmp_path / "llff" / "fern").mkdir(parents=True)
+    (tmp_path / "unrelated").mkdir()
+    monkeypatch.delenv("SPLAT_DATA", raising=False)
+    monkeypatch.chdir(tmp_path / "unrelated")
+    msg = raises_data_error(lambda: resolve_data_path(tmp_path / "nope"))
+    assert msg == f"{tmp_path / 'nope'}: no such dataset folder"  # no unrelated folder, no $SPLAT_DATA
+    assert raises_data_error(lambda: resolve_data_path(tmp_path / "llff" / "fren")).endswith("(did you mean 'fern'?)")
+    assert raises_data_error(lambda: resolve_data_path("llff/fren")) == (
+        "llff/fren: no such dataset folder; a relative name is also looked up under $SPLAT_DATA, which is not set: "
+        "export SPLAT_DATA=/path/to/your/datasets (docs/data.md)")
+    monkeypatch.setenv("SPLAT_DATA", str(tmp_path))
+    assert raises_data_error(lambda: resolve_data_path("llff/fren")) == (
+        f"llff/fren: no such dataset folder (did you mean 'llff/fern'?) (also looked in $SPLAT_DATA={tmp_path})")
+
+
 def test_resolve_synthetic_calls_generator(tmp_path, monkeypatch):
     import sys
     import types
@@ -529,7 +547,7 @@ def test_splat_process_without_pycolmap_names_the_extra(monkeypatch, tmp_path):
         photos.append(tmp_path / "photos" / f"p{k}.png")
         photos[-1].parent.mkdir(exist_ok=True)
         photos[-1].write_bytes(b"")
-    with pytest.raises(DataError, match=r'pip install "splat\[process\]"'):
+    with pytest.raises(DataError, match=r'pip install "splat-framework\[process\]"'):
         estimate_scene(photos, tmp_path / "out")
     assert not (tmp_path / "out").exists()
 

@@ -75,6 +75,43 @@ def test_a_log_gets_a_line_every_few_seconds_or_5_percent(monkeypatch):
     assert 19 <= len(counted) <= 22, counted  # the first, every 5 %, the summary
 
 
+def test_the_training_clock_starts_at_the_first_step_and_no_eta_before_10_steps(terminal):
+    """Issue 61: what the first step waited for (building or loading kernels) is not on the training
+    clock, and no remaining time is guessed from a handful of steps (10, or 5 % of the total)."""
+    with console_mod.phase("training", 1000, unit="steps", quiet_s=0, clock_from_first=True) as ph:
+        time.sleep(1.2)  # the first step: a kernel build
+        ph.update(1)
+        assert ph.line().startswith("training: 1/1000 steps (0%), 0:00:00") and "left" not in ph.line()
+        for k in range(2, 11):
+            ph.update(k)
+            assert "left" not in ph.line(), ph.line()
+        time.sleep(0.01)
+        ph.update(11)
+        assert re.search(r"it/s, about \d:\d\d:\d\d left", ph.line()), ph.line()
+        rows = [r for r in console_mod._TERMINAL.progress.get_renderables()]
+        screen = Console(file=io.StringIO(), width=100, color_system=None, force_terminal=True)
+        for row in rows:
+            screen.print(row)
+        assert re.search(r"11/1000 0:00:00 ~\d:\d\d:\d\d", screen.file.getvalue()), screen.file.getvalue()
+    with console_mod.phase("matching", 4, unit="pairs", quiet_s=0) as ph:  # 5 % of 4 pairs: after the first
+        ph.update(1)
+        assert "left" in ph.line()
+
+
+def test_the_summary_leaves_out_what_it_could_not_compute_and_says_why(capsys, monkeypatch, tmp_path):
+    monkeypatch.setattr(console_mod, "console", Console(file=sys.stderr, width=200))
+    metrics = {"method": "3dgs", "data": "photos", "num_gaussians": 10, "steps": 2, "timing": {"total_s": 1.0},
+               "mean": {"psnr": 20.0, "ssim": 0.5, "lpips": None, "avg": None, "st_lpips": 0.7,
+                        "depth_abs_rel": None}, "lpips_note": "package 'lpips' is not installed"}
+    console_mod.print_summary(metrics, tmp_path)
+    out = capsys.readouterr()
+    assert "n/a" not in out.out and "test psnr" in out.out and "test lpips" not in out.out
+    assert out.err.splitlines() == [
+        "not in the table: lpips: package 'lpips' is not installed",
+        "not in the table: avg: AVG combines PSNR, SSIM and LPIPS, and LPIPS was not computed",
+        "not in the table: depth_abs_rel: the dataset has no ground-truth depth (the built-in scenes have)"]
+
+
 def test_the_first_compiled_kernel_call_is_a_phase_of_its_own(terminal):
     """The kernel compilation (torch.compile's first call) is announced once per kernel."""
     import torch

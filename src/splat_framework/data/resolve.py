@@ -47,10 +47,20 @@ def locate_data(spec: str | Path) -> Path:
     found = data_inputs(text)  # under $SPLAT_DATA
     if found:
         return found[0]
+    raise DataError(missing_data_message(text, path))
+
+
+def missing_data_message(text: str, path: Path) -> str:
+    """The one line for a ``--data`` that names nothing: an absolute path suggests only its own
+    siblings; a relative name also says where ``$SPLAT_DATA`` points, or how to set it."""
+    if path.is_absolute():
+        return f"{text}: no such dataset folder{did_you_mean(path.name, [p.name for p in _folders(path.parent)])}"
     env = os.environ.get("SPLAT_DATA")
-    where = f"$SPLAT_DATA={env}" if env else "$SPLAT_DATA, which is not set"
-    hint = did_you_mean(posix.rstrip("/"), dataset_names(path, Path(env).expanduser() if env else None))
-    raise DataError(f"{text}: no such dataset folder{hint} (also looked in {where})")
+    hint = did_you_mean(text.replace("\\", "/").rstrip("/"), dataset_names(path, Path(env).expanduser() if env else None))
+    if env:
+        return f"{text}: no such dataset folder{hint} (also looked in $SPLAT_DATA={env})"
+    return (f"{text}: no such dataset folder{hint}; a relative name is also looked up under $SPLAT_DATA, which is "
+            "not set: export SPLAT_DATA=/path/to/your/datasets (docs/data.md)")
 
 
 def dataset_names(asked: Path, data_root: Path | None) -> list[str]:

@@ -71,7 +71,7 @@ from ..evaluation.metrics import psnr
 from ..model.strategy import Strategy
 from .numerics import first_nonfinite as _first_nonfinite, optimized_tensors, trainable_tensors
 from ..runtime.profiling import section
-from ..render import set_compile
+from ..render import native_for, set_compile
 from ..runtime.allocator import keep_freed_memory
 from ..runtime.threads import apply_process_threads
 from ..registry import MethodSpec, get_method
@@ -165,6 +165,7 @@ class Trainer(TrainState):
     def _setup(self) -> None:
         """Data, model (SCGaussian: matching, warm-up), optimizers and strategy."""
         set_compile(self.config.compile, user_cache_dir())
+        native_for(self.device)  # built or loaded now, a phase of its own, not inside the first training step
         self.timing: dict[str, float] = {}
         self.generator = seed_everything(self.config.seed)
         t0 = time.perf_counter()
@@ -378,7 +379,7 @@ class Trainer(TrainState):
         total = cfg.total_steps
         self._train_t0 = time.perf_counter()
         with stop_signals(self), phase(
-            "training", total, completed=self.start_step, unit="steps", info=self._step_info(None), quiet_s=0
+            "training", total, completed=self.start_step, unit="steps", info=self._step_info(None), quiet_s=0, clock_from_first=True
         ) as progress:
             first = self.start_step
             try:

@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 
 from ..cache_dir import user_cache_dir
+from ...console import phase
 from ...errors import did_you_mean
 from ..scene import DataError
 from .raycast import Scene, cast_rays
@@ -331,7 +332,8 @@ def ensure_generated(name: str, params: dict, cache_dir: Path | None = None) -> 
     tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{final.name}-", dir=root))
     try:
         p = dict(params)
-        generate_scene(p.pop("kind"), tmp, **p)
+        with phase(f"generating the built-in scene {name} (once; kept in {final})", quiet_s=0):
+            generate_scene(p.pop("kind"), tmp, **p)
         try:
             os.rename(tmp, final)
         except OSError:
