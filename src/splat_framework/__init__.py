@@ -1,6 +1,2 @@
 """splat: a modular Gaussian-splatting framework (the public face for plugins is
 :mod:`splat_framework.plugin`)."""
-
-from ._moved import install as _install
-
-_install()

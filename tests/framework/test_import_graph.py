@@ -128,7 +128,7 @@ def test_the_config_package_reaches_no_torch_module():
 
 LAYERS: list[tuple[str, ...]] = [
     # what every layer uses
-    ("_moved", "errors", "entry_points", "environment", "console", "runtime", "cameras", "files.run_lock"),
+    ("__init__", "errors", "entry_points", "environment", "console", "runtime", "cameras", "files.run_lock"),
     # configs and what they name (torch-free; read for --help)
     ("config", "matching.config", "matching.names", "registry", "methods", "devices"),
     # where commands may write
@@ -150,7 +150,7 @@ matches a module gives its layer."""
 
 
 def layer_of(module: str) -> int:
-    name = module.removeprefix("splat_framework.") if module != "splat_framework" else "_moved"
+    name = module.removeprefix("splat_framework.") if module != "splat_framework" else "__init__"
     best, found = -1, None
     for i, prefixes in enumerate(LAYERS):
         for p in prefixes:
