@@ -215,3 +215,17 @@ def test_the_planted_pickle_would_have_run_without_the_check(tmp_path):
 
 if sys.platform == "win32":  # pragma: no cover
     pytestmark = pytest.mark.skip(reason="POSIX file modes")
+
+
+def test_on_macos_the_native_kernels_are_built_without_openmp(monkeypatch):
+    """Issue 62: Apple's clang takes no -fopenmp; the kernels then build without it (at::parallel_for
+    runs them on one thread) into a build folder of their own."""
+    from splat_framework.render import _native
+
+    monkeypatch.setattr(sys, "platform", "linux")
+    linux, linux_dir = _native._flags(), _native._build_dir(Path("/c"))
+    assert "-fopenmp" in linux and _native._openmp()
+    monkeypatch.setattr(sys, "platform", "darwin")
+    mac = _native._flags()
+    assert "-fopenmp" not in mac and "-march=native" not in mac and not _native._openmp()
+    assert _native._build_dir(Path("/c")) != linux_dir  # a cache shared with a Linux build never mixes them

@@ -15,6 +15,7 @@ from __future__ import annotations
 import hashlib
 import os
 import shutil
+import sys
 import tempfile
 import time
 import warnings
@@ -31,11 +32,18 @@ _SOURCES = ("module.cpp", "binning.cpp", "composite.cpp", "project.cpp", "loss.c
 _STATE: dict = {"module": None, "failed": False}
 
 
+def _openmp() -> bool:
+    """Whether the compiler takes ``-fopenmp``: not Apple's clang (macOS), where the kernels are
+    built without it and ``at::parallel_for`` runs them on one thread."""
+    return sys.platform != "darwin"
+
+
 def _flags() -> list[str]:
     """Optimisation flags: the CPU's own vector instructions (the build folder is keyed by
-    torch's view of them, so a cache shared between machines never loads a wrong build)."""
-    flags = ["-O3", "-fopenmp", "-fno-math-errno", "-fno-trapping-math"]
-    if os.uname().machine in ("x86_64", "AMD64", "aarch64", "arm64"):
+    torch's view of them, so a cache shared between machines never loads a wrong build), and
+    OpenMP where the compiler has it (:func:`_openmp`)."""
+    flags = ["-O3", "-fno-math-errno", "-fno-trapping-math"] + (["-fopenmp"] if _openmp() else [])
+    if sys.platform != "darwin" and os.uname().machine in ("x86_64", "AMD64", "aarch64", "arm64"):
         flags.append("-march=native")
     return flags
 
@@ -116,10 +124,14 @@ def native_kernels(cache_dir: Path | None = None):
             build = _checked_build(build, Path(cache_dir))
             _clear_stale_lock(build)
         ready = build is not None and any(build.glob("*.so"))
+        if not ready and not _openmp():
+            say("note: the native rasterizer kernels are built without OpenMP here (Apple's compiler has none): "
+                "they run on one thread")
         with phase("loading the native rasterizer kernels" if ready
                    else "building the native rasterizer kernels (once per machine)"):
             _STATE["module"] = cpp_extension.load(
-                name="splat_native", sources=[str(_FOLDER / _SOURCES[0])], extra_cflags=_flags(), extra_ldflags=["-fopenmp"],
+                name="splat_native", sources=[str(_FOLDER / _SOURCES[0])], extra_cflags=_flags(),
+                extra_ldflags=["-fopenmp"] if _openmp() else [],
                 build_directory=str(build) if build is not None else None, verbose=False,
             )
         if build is not None:  # what was checked above, or what ninja (re)built now
