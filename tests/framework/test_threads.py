@@ -155,3 +155,32 @@ def test_the_cpu_meter_counts_other_processes_busy_cores_not_this_one():
         child.kill()
         child.wait()
     assert theirs - mine > 0.5  # the child's core shows (the rest of the machine's load is in both)
+
+
+def test_without_proc_or_affinity_the_policy_leaves_the_count_alone(policy, monkeypatch):
+    """Issue 62 (macOS, Windows): no /proc and no sched_getaffinity mean no load reading; "auto"
+    then keeps the count the run started with, and nothing fails."""
+    import builtins
+
+    import torch
+
+    from splat_framework.runtime import resources
+
+    real_open = builtins.open
+
+    def no_proc(path, *args, **kwargs):
+        if str(path).startswith("/proc"):
+            raise FileNotFoundError(2, "No such file or directory", str(path))
+        return real_open(path, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "open", no_proc)
+    monkeypatch.delattr(resources.os, "sched_getaffinity", raising=False)
+    monkeypatch.setattr(resources.os, "listdir", lambda p: (_ for _ in ()).throw(FileNotFoundError(str(p))))
+    assert resources.available_cores() == max(1, resources.os.cpu_count() or 1)
+    assert resources.others_running() is None and resources.CpuMeter().read() is None
+    before = torch.get_num_threads()
+    monkeypatch.setenv("SPLAT_THREADS", "auto")
+    policy.start()
+    for t in range(3):
+        assert policy.follow(now=1e9 + t) is None
+    assert torch.get_num_threads() == before
