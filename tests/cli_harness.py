@@ -16,15 +16,21 @@ Importable from every test folder (``pythonpath = ["tests"]``)::
 
     from cli_harness import run_cli
     run_cli("export", run, "--ply", target, code=2, match="exists", watch=[tmp_path])
+
+:func:`stop_training` runs ``splat-train`` and stops it with SIGTERM once it has written a checkpoint.
 """
 
 from __future__ import annotations
 
+import glob
 import hashlib
 import os
+import re
+import signal
 import stat
 import subprocess
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -134,3 +140,26 @@ def run_cli(
     unexpected = {p for p in changed if not _is_allowed(p, allowed)}
     assert not unexpected, f"changed outside the expected output: {sorted(map(str, unexpected))}\n{shown}"
     return result
+
+
+def stop_training(*args, checkpoints: str, after_step: int = 0, env: dict[str, str] | None = None,
+                  cwd: Path | None = None, timeout: float = 300) -> CliResult:
+    """Run ``splat-train *args`` in a subprocess and send it SIGTERM once a checkpoint of a step past
+    ``after_step`` matches the glob ``checkpoints`` (an absolute pattern); assert that it then
+    stopped (exit 130) without a traceback."""
+    proc = subprocess.Popen([sys.executable, "-m", "splat_framework.cli.train", *map(str, args)], env=env or cli_env(),
+                            cwd=cwd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + timeout
+    try:
+        while not any(int(re.search(r"step-(\d+)\.ckpt$", p).group(1)) > after_step for p in glob.glob(checkpoints)):
+            assert proc.poll() is None, f"splat-train ended before a checkpoint past step {after_step}\n{proc.communicate()}"
+            assert time.time() < deadline, "no checkpoint in time"
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGTERM)
+        stdout, stderr = proc.communicate(timeout=timeout)
+    finally:
+        if proc.poll() is None:  # a failed wait: the run is not left behind
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 130 and "Traceback" not in stderr, f"exit {proc.returncode}\n{stderr[-3000:]}"
+    return CliResult(proc.returncode, stdout, stderr, set())

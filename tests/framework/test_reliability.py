@@ -4,14 +4,15 @@ from __future__ import annotations
 
 import errno
 import os
+import shlex
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 import torch
+from cli_harness import stop_training
 
 import splat_framework.engine.trainer as trainer_mod
 from splat_framework.engine.checkpoint import (
@@ -432,7 +433,7 @@ def test_a_stop_during_setup_leaves_no_empty_run_folder(tmp_path, monkeypatch):
         Trainer(fixed_config("3dgs", out, default_steps=20), [stop_at(3)]).train()
     files = sorted(p.relative_to(out) for p in out.rglob("*"))
     monkeypatch.setattr(GaussianModel, "from_data", classmethod(interrupted))
-    with pytest.raises(TrainingInterrupted, match=r"is unchanged \(continue with --resume\)"):
+    with pytest.raises(TrainingInterrupted, match=r"is unchanged; continue with --resume$"):
         Trainer(fixed_config("3dgs", out, default_steps=20, resume=True))
     assert sorted(p.relative_to(out) for p in out.rglob("*")) == files
 
@@ -454,20 +455,11 @@ def test_sigterm_writes_checkpoint_exits_130_and_resume_finishes(tmp_path):
     # checkpoint interval (rescaled) becomes 1, so a checkpoint exists within the first steps
     args = ["3dgs", "--data", "synthetic/forward-tiny", "--steps", "60", "--output", str(out), "--no-progress",
             "--checkpoint-every", "50", "--model.init.num-points", "300", "--no-save-renders"]
-    proc = subprocess.Popen([PY, "-m", "splat_framework.cli.train", *args], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.time() + 300
-    while not list_checkpoints(out / "checkpoints"):
-        assert proc.poll() is None, proc.communicate()
-        assert time.time() < deadline
-        time.sleep(0.05)
-    proc.send_signal(signal.SIGTERM)
-    stdout, stderr = proc.communicate(timeout=300)
-    assert proc.returncode == 130, stderr
-    assert "Traceback" not in stderr
+    stderr = stop_training(*args, checkpoints=str(out / "checkpoints" / "step-*.ckpt"), env=env).stderr
     lines = [line for line in stderr.splitlines() if line.strip()]
     assert len(lines) == 2 and lines[0].startswith("SIGTERM: stopping after this step"), stderr
     assert lines[1].startswith("stopped: SIGTERM at step "), stderr
+    assert lines[1].endswith("; continue with: " + shlex.join(["splat-train", *args, "--resume"])), stderr
     path, ck = load_latest(out / "checkpoints")
     assert 1 <= ck["step"] < 60 and all(torch.isfinite(t).all() for t in ck["params"].values())
     assert not (out / "metrics.json").exists()

@@ -1,6 +1,9 @@
 """``splat-train METHOD --data PATH [options]``: train a registered method;
 ``splat-train --load-config RUN/config.json [options]``: train a saved experiment again, into a new
 folder, with the options given changed (the method comes from the file, run options do not).
+``splat-train METHOD --data PATH [options] --resume``: continue the run that command started and
+that did not finish (``engine.run_folder.resume_unfinished``); a stop prints the exact command that
+continues it (``engine.run_folder.continue_command``).
 
 Every registered method (entry points of group ``splat_framework.methods``) and
 every config variant (package data found through the ``splat_framework.configs``
@@ -140,7 +143,8 @@ def main(args: list[str] | None = None) -> dict:
     from .common import ArgumentsError, parse_cli
     from .kinds import hidden_kind_flags
 
-    argv, load = _load_config_flag(sys.argv[1:] if args is None else args)
+    given = list(sys.argv[1:] if args is None else args)  # as typed: a stop names the command that continues
+    argv, load = _load_config_flag(given)
     if load is None:
         asked = next((a for a in argv if not a.startswith("-")), None)
     else:  # the method, if named at all, comes first (a later word is a flag's value)
@@ -164,16 +168,19 @@ def main(args: list[str] | None = None) -> dict:
         description="Train a Gaussian-splatting method. Run 'splat-train METHOD --help' for its options; "
         f"'splat-train {LOAD_CONFIG_FLAG} RUN/config.json [options]' re-runs a saved experiment into a new folder.",
     )
-    config = own_photos_views(config, argv)
+    from ..engine.run_folder import resume_unfinished
     from ..engine.trainer import train
 
+    if config.resume and config.output is None and not config.overwrite:  # the run this command started
+        config = resume_unfinished(config)
+    config = own_photos_views(config, argv)
     spec = methods[config.method]  # the one lookup of the run, handed down
     if not config.viewer:
-        return train(config, spec=spec)
+        return train(config, spec=spec, command=given)
     from ..viewer.scene_viewer import ViewerCallback
 
     live = ViewerCallback(port=config.viewer_port, every=config.viewer_every, host=config.viewer_host)
-    metrics = train(config, callbacks=[live], spec=spec)
+    metrics = train(config, callbacks=[live], spec=spec, command=given)
     if live.viewer is not None:
         print(f"training done; the viewer stays at {live.viewer.url} (Ctrl-C to stop)", flush=True)
         live.viewer.serve_until_interrupted()

@@ -70,7 +70,7 @@ class TrainConfig(SplatConfig):
     device: Annotated[Device, RUN_OPTION] = "cpu"
     """Torch device: cpu, cuda, cuda:N, mps, ... (checked against what torch has before a run starts)."""
     resume: Annotated[bool, RUN_OPTION] = False
-    """Continue the run in --output from its last good checkpoint."""
+    """Continue the run in --output from its last good checkpoint; without --output, the one unfinished run (no metrics.json) of this method on this --data under outputs/ (none, or several: refused, naming them)."""
     overwrite: Annotated[bool, RUN_OPTION] = False
     """Allow writing into an existing non-empty --output folder."""
     trust_edited_config: Annotated[bool, RUN_OPTION] = False

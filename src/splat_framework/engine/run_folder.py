@@ -2,29 +2,108 @@
 
 from __future__ import annotations
 
+import shlex
 from datetime import datetime
 from pathlib import Path
+from typing import Sequence
 
+from ..console import say
 from ..files import run_lock
-from .checkpoint import remove_stale_temporaries
-from ..config import TrainConfig
+from .checkpoint import checkpoint_step, list_checkpoints, remove_stale_temporaries
+from ..config import TrainConfig, read_config_json
 from ..data import DataError
 from ..files.output_paths import RUN_FOLDER, check_output, check_path, clear_output, data_inputs
 
 
-def default_run_dir(config: TrainConfig) -> Path:
-    """outputs/SCENE/METHOD/TIMESTAMP, SCENE the last name of the resolved --data path (so that
-    ``--data some/dir/..`` cannot put the run outside ``outputs/``)."""
+def default_runs_folder(config: TrainConfig) -> Path:
+    """outputs/SCENE/METHOD, where the runs of ``config``'s method on its data go by default; SCENE
+    the last name of the resolved --data path (so that ``--data some/dir/..`` cannot put a run
+    outside ``outputs/``)."""
     scene = Path(config.data).resolve().name
     if scene in ("", ".", "..") or not scene.isprintable():
         scene = "scene"
+    return Path("outputs") / scene / config.method
+
+
+def default_run_dir(config: TrainConfig) -> Path:
+    """A new folder for a run without ``--output``: :func:`default_runs_folder`/TIMESTAMP."""
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    base = Path("outputs") / scene / config.method / stamp
+    base = default_runs_folder(config) / stamp
     run_dir, k = base, 1
     while run_dir.exists():  # two runs started in the same second
         run_dir = base.with_name(f"{stamp}-{k}")
         k += 1
     return run_dir
+
+
+def resume_unfinished(config: TrainConfig) -> TrainConfig:
+    """``config`` (``--resume`` without ``--output``) continuing the one unfinished run of its method
+    on its data under ``outputs/`` (:func:`unfinished_runs`), named in one line; a DataError (one
+    line, exit 2) when there is none, or more than one (listed: ``--output`` picks one)."""
+    runs = unfinished_runs(config)
+    which = f"of {config.method} on {config.data}"
+    if not runs:
+        raise DataError(f"--resume: no unfinished run {which} was found under {default_runs_folder(config)} "
+                        "(pass --output RUN_FOLDER to continue a run elsewhere)")
+    if len(runs) > 1:
+        raise DataError(f"--resume: {len(runs)} unfinished runs {which}: {', '.join(map(str, runs))}; "
+                        "pass --output with the one to continue")
+    say(f"resuming {runs[0]} ({_progress(runs[0])})", "cyan")
+    return config.model_copy(update={"output": runs[0]})
+
+
+def unfinished_runs(config: TrainConfig) -> list[Path]:
+    """The runs of ``config``'s method on its data in :func:`default_runs_folder` that did not finish,
+    newest first: a ``config.json`` (read even when edited: the resume check says what is wrong with
+    it) of the same method and ``--data`` (resolved from here), and no ``metrics.json``, which a
+    run writes last; a run stopped, killed, or failed before its final evaluation."""
+    folder = default_runs_folder(config)
+    found = []
+    for run_dir in sorted(folder.iterdir(), reverse=True) if folder.is_dir() else ():
+        saved = _saved_config(run_dir)
+        if saved is not None and not (run_dir / "metrics.json").exists() and saved.get("method") == config.method \
+                and _same_data(saved.get("data"), config.data):
+            found.append(run_dir)
+    return found
+
+
+def _saved_config(run_dir: Path) -> dict | None:
+    """The config a run folder's ``config.json`` records (checksum not required); None without one."""
+    path = run_dir / "config.json"
+    if not path.is_file():
+        return None
+    try:
+        return read_config_json(path, trust_edits=True)[1]
+    except (DataError, OSError, ValueError):
+        return None
+
+
+def _same_data(saved, given: str) -> bool:
+    """Whether a saved ``--data`` spec names the same path as ``given`` (both resolved from here)."""
+    return isinstance(saved, str) and Path(saved).expanduser().resolve() == Path(given).expanduser().resolve()
+
+
+def _progress(run_dir: Path) -> str:
+    """``step 412 of 1000``: where an unfinished run stands (its newest checkpoint, by name)."""
+    saved = _saved_config(run_dir) or {}
+    checkpoints = list_checkpoints(run_dir / "checkpoints")
+    step = checkpoint_step(checkpoints[-1]) if checkpoints else 0
+    return f"step {step} of {saved.get('steps') or saved.get('default_steps')}" + (
+        "" if checkpoints else ", no checkpoint yet")
+
+
+NOT_WITH_RESUME = ("--resume", "--no-resume", "--overwrite", "--no-overwrite")
+"""splat-train flags that :func:`continue_command` leaves out of the command it gives."""
+
+
+def continue_command(argv: Sequence[str], run_dir: Path) -> str:
+    """The exact ``splat-train`` command (shell-quoted) that continues ``run_dir``: ``argv``, the
+    arguments that started it, with ``--resume`` (never ``--overwrite``), and ``--output run_dir``
+    unless they name the output already."""
+    args = [a for a in argv if a not in NOT_WITH_RESUME]
+    if not any(a == "--output" or a.startswith("--output=") for a in args):
+        args += ["--output", str(run_dir)]
+    return shlex.join(["splat-train", *args, "--resume"])
 
 
 def prepare_run_dir(config: TrainConfig) -> Path:

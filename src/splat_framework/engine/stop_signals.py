@@ -50,12 +50,13 @@ def stop_signals(trainer):
                 pass
 
 
-def abandoned_message(reason: str | None, step: int, total: int, checkpoint_dir: Path) -> str:
-    """The one-line message of a run stopped during step ``step`` without its checkpoint: what is on disk."""
+def abandoned_message(reason: str | None, step: int, total: int, checkpoint_dir: Path, hint: str) -> str:
+    """The one-line message of a run stopped during step ``step`` without its checkpoint: what is on
+    disk, then ``hint``, how to continue (``Trainer.continue_hint``)."""
     what = f"{reason} again" if reason else "interrupted"
     saved = list_checkpoints(checkpoint_dir)
     if saved:
-        kept = f"the newest checkpoint is {saved[-1]} (continue from it with --resume)"
+        kept = f"the newest checkpoint is {saved[-1]}; {hint}"
     else:
-        kept = "nothing was saved (no checkpoint yet: --resume starts the run over)"
+        kept = f"nothing was saved (no checkpoint yet: resuming starts the run over); {hint}"
     return f"{what} during step {step + 1}/{total}: stopped at once, this step's checkpoint was not written; {kept}"

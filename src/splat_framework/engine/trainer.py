@@ -35,7 +35,8 @@ Reliability contract:
 - **Signals**: SIGINT/SIGTERM finish the current step, write a checkpoint and
   raise :class:`TrainingInterrupted` (the CLI exits with code 130); a second
   one stops at once and the message says what was saved
-  (:mod:`splat_framework.engine.stop_signals`).
+  (:mod:`splat_framework.engine.stop_signals`). Either message ends with how to
+  continue: from the CLI, the exact command (:meth:`Trainer.continue_hint`).
 - **A failed start** (bad data, a stop during setup) of a new run leaves no
   empty run folder behind.
 - **Numerics**: a step whose loss or gradients are not finite is skipped and
@@ -77,7 +78,7 @@ from ..runtime.threads import apply_process_threads
 from ..registry import MethodSpec, get_method
 from .resume_check import check_saved_config
 from ..runtime.rng import seed_everything
-from .run_folder import prepare_run_dir, remove_if_unused
+from .run_folder import continue_command, prepare_run_dir, remove_if_unused
 from ..files.output_paths import RUN_FOLDER
 from .run_metrics import run_metrics
 from .stop_signals import abandoned_message, stop_signals
@@ -135,13 +136,17 @@ class Trainer(TrainState):
             :meth:`request_stop` to stop the run like SIGINT would.
         spec: the registered method ``config.method`` names, when the caller already looked it
             up (the CLI); else it is looked up here, once.
+        command: the ``splat-train`` arguments that started the run (the CLI's), so that a stop
+            names the exact command that continues it (:func:`continue_command`); else it says
+            ``--resume``.
     """
 
     def __init__(
         self, config: TrainConfig, callbacks: Sequence[Callable[["Trainer", int], None]] = (),
-        spec: MethodSpec | None = None,
+        spec: MethodSpec | None = None, command: Sequence[str] | None = None,
     ):
         self.spec = get_method(config.method) if spec is None else spec
+        self.command = None if command is None else list(command)
         self.config = resolve_steps(config)
         self.callbacks = list(callbacks)
         self.device = resolve_config_devices(self.config)["device"]  # every device field, before anything is written
@@ -218,7 +223,13 @@ class Trainer(TrainState):
         self.release()  # deletes the lock file: an empty folder is then truly empty
         if fresh and remove_if_unused(self.run_dir, default_location=self.config.output is None):
             return f"{what}: nothing was trained, {self.run_dir} removed (start the run again)"
-        return f"{what}: {self.run_dir} is unchanged" + (" (continue with --resume)" if self.config.resume else "")
+        return f"{what}: {self.run_dir} is unchanged" + (f"; {self.continue_hint()}" if self.config.resume else "")
+
+    def continue_hint(self) -> str:
+        """How the user continues this run after a stop: the exact command, when the CLI gave its arguments."""
+        if self.command is None:
+            return "continue with --resume"
+        return f"continue with: {continue_command(self.command, self.run_dir)}"
 
     # ------------------------------------------------------------- config
     def config_payload(self) -> dict:
@@ -386,7 +397,8 @@ class Trainer(TrainState):
                 step = self._loop(progress)
             except KeyboardInterrupt:  # a second Ctrl-C: stopped within a step, before its checkpoint
                 raise TrainingInterrupted(
-                    abandoned_message(self.stop_reason, progress.completed, total, self.checkpoint_dir)) from None
+                    abandoned_message(self.stop_reason, progress.completed, total, self.checkpoint_dir,
+                                      self.continue_hint())) from None
             if step > first and self.nonfinite_streak >= step - first:
                 raise TrainingDiverged(
                     f"training diverged: every step of this run ({step - first}) had a non-finite loss or gradient "
@@ -439,7 +451,7 @@ class Trainer(TrainState):
                 path = self.save(step) if not saved else None
                 where = path or self.checkpoint_dir
                 raise TrainingInterrupted(
-                    f"{self.stop_reason} at step {step}/{total}: checkpoint written to {where} (continue with --resume)"
+                    f"{self.stop_reason} at step {step}/{total}: checkpoint written to {where}; {self.continue_hint()}"
                 )
         return step
 
@@ -454,8 +466,9 @@ class Trainer(TrainState):
 
 
 def train(
-    config: TrainConfig, callbacks: Sequence[Callable[[Trainer, int], None]] = (), spec: MethodSpec | None = None
+    config: TrainConfig, callbacks: Sequence[Callable[[Trainer, int], None]] = (), spec: MethodSpec | None = None,
+    command: Sequence[str] | None = None,
 ) -> dict:
     """Train ``config`` end to end and return metrics (also written to metrics.json); ``spec``: the
-    method's registration when the caller has it (see :class:`Trainer`)."""
-    return Trainer(config, callbacks, spec).train()
+    method's registration when the caller has it, ``command``: the CLI's arguments (see :class:`Trainer`)."""
+    return Trainer(config, callbacks, spec, command).train()
