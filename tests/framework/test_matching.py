@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import time
+from dataclasses import replace
 import warnings
 
 import cv2
@@ -25,6 +26,7 @@ from splat_framework.matching import (
     get_matcher,
     magsac_inliers,
 )
+from splat_framework.matching.report import empty_pairs_line
 from splat_framework.cameras import Camera, intrinsics, look_at
 from support import DATA
 
@@ -211,10 +213,13 @@ def test_empty_pair_in_matchset(monkeypatch):
 
     monkeypatch.setitem(MATCHERS, "few", Few)
     img = np.zeros((16, 16, 3), np.float32)
-    with pytest.warns(UserWarning, match="pair left empty"):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the pipeline records why; its caller names the pairs (report.warn_empty)
         ms = compute_matches([img, img, img], None, [5, 2, 9], MatchConfig(matcher="few"))
     assert ms.pairs() == [(2, 5), (2, 9), (5, 9)]
-    assert ms.total() == 0 and ms.n_warnings == 3
+    assert ms.total() == 0 and ms.n_warnings == 3 and "pair left empty" in ms.warnings[(2, 5)]
+    assert empty_pairs_line(ms, {2: "IMG_2", 5: "IMG_5", 9: "IMG_9"}) == (
+        "3 of 3 pairs left empty (fewer than 8 verified matches): IMG_2-IMG_5, IMG_2-IMG_9, IMG_5-IMG_9")
 
 
 def test_fundamental_from_cameras_is_consistent():
@@ -373,8 +378,9 @@ def test_named_unavailable_matcher_is_one_line_exit_2(no_weights, capsys):
 
 
 def _plane_pair(plane_scene):
+    """The plane's two images, their cameras named after photos (IMG_1, IMG_2) and view ids 0, 1."""
     img_a, img_b, cam_a, cam_b, _ = plane_scene
-    return [img_a, img_b], [cam_a, cam_b], [0, 1]
+    return [img_a, img_b], [replace(cam_a, name="IMG_1"), replace(cam_b, name="IMG_2")], [0, 1]
 
 
 def test_auto_without_learned_weights_keeps_dense_with_one_line_notice(no_weights, plane_scene, monkeypatch):
@@ -383,7 +389,7 @@ def test_auto_without_learned_weights_keeps_dense_with_one_line_notice(no_weight
         warnings.simplefilter("error")  # plentiful dense matches, no guided flow: the learned matcher is never needed
         ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_min_matches=100, auto_guided_flow_max_views=0))
     assert ms.meta["pair_matchers"] == {"0-1": "dense"} and ms.count(0, 1) >= 100
-    with pytest.warns(UserWarning, match=r"matcher auto: pair \(0, 1\) would take guided flow \(2 views\).*not installed"):
+    with pytest.warns(UserWarning, match=r"matcher auto: pair IMG_1-IMG_2 would take guided flow \(2 views\).*not installed"):
         ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_min_matches=100))  # few views: guided flow
     assert ms.meta["pair_matchers"] == {"0-1": "dense"} and ms.count(0, 1) >= 100
     monkeypatch.setattr(M.DenseFlowMatcher, "match", lambda self, a, b: M.no_matches())  # a pair dense flow loses
@@ -420,7 +426,7 @@ def test_auto_picks_the_matcher_by_view_angle(plane_scene, monkeypatch):
     ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False))  # 2 views: the narrow pair too is guided
     assert ms.meta["pair_matchers"] == {"0-1": M.AUTO_GUIDED} and calls == ["learned"] * 2 and ms.count(0, 1) >= 100
     monkeypatch.setattr(M.registry, "learned_available", lambda config: False)  # wide pair, no weights: dense + one notice
-    with pytest.warns(UserWarning, match=r"matcher auto: pair \(0, 1\) is wide \(7 degrees\).*not installed"):
+    with pytest.warns(UserWarning, match=r"matcher auto: pair IMG_1-IMG_2 is wide \(7 degrees\).*not installed"):
         ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_flow_max_angle=5.0))
     assert ms.meta["pair_matchers"] == {"0-1": "dense"} and ms.count(0, 1) >= 100
 

@@ -22,7 +22,7 @@ from splat_framework.data.splits import own_scene_split
 from splat_framework.config.data import PhotoPosesConfig
 from splat_framework.runtime.io import atomic_write_json, read_json
 from splat_framework.matching.matchset import MatchSet
-from splat_framework.matching.prior import warn_unmatched
+from splat_framework.matching.report import warn_empty
 
 NAMES = ["IMG_9", "IMG_18", "IMG_27", "IMG_100"]
 """The photos' stems in natural order (plain name order would be 100, 18, 27, 9)."""
@@ -223,7 +223,7 @@ def test_a_training_view_without_any_verified_match_is_named():
     some = np.ones((20, 2), np.float32)
     ms = MatchSet(view_ids=[0, 4, 9], matches={(0, 4): (some, some), (0, 9): (empty, empty), (4, 9): (empty, empty)})
     with pytest.warns(UserWarning, match="training view IMG_52 has no verified match with any other training view"):
-        warn_unmatched(ms, {0: "IMG_18", 4: "IMG_9", 9: "IMG_52"})
+        warn_empty(ms, {0: "IMG_18", 4: "IMG_9", 9: "IMG_52"})
     assert ms.unmatched_views() == [9]
 
 

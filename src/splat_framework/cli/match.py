@@ -84,7 +84,9 @@ def run_matching(
     max_lines: int = 200,
     console: Any = None,
 ) -> "MatchSet":
-    """Compute matches, print a table, write the ``matches_i_j.png`` files, then ``matches.npz``.
+    """Compute matches, write the ``matches_i_j.png`` files, then ``matches.npz``, print a table and
+    warn about the pairs left empty and the views without any verified match, by the cameras' names
+    (:func:`~splat_framework.matching.report.warn_empty`).
 
     Every file is written atomically and ``matches.npz`` last, so an interrupted or failed
     run leaves either no match set or a complete one (and only whole pictures)."""
@@ -92,6 +94,7 @@ def run_matching(
     from rich.table import Table
 
     from ..matching import compute_matches, draw_matches
+    from ..matching.report import view_names, warn_empty
 
     console = console or Console()
     out_dir = Path(out_dir)
@@ -120,6 +123,7 @@ def run_matching(
     table.add_row("total", "", "", "", str(ms.total()), end_section=True)
     console.print(table)
     console.print(f"{ms.total()} matches in {dt:.2f} s -> {out_dir / 'matches.npz'}")
+    warn_empty(ms, view_names(view_ids, cameras))
     return ms
 
 

@@ -62,9 +62,8 @@ def main(args: ImagesArgs | VideoArgs):
         photos = list_images(args.folder)
         summary = estimate_scene(photos, args.out, mapper=args.mapper, overwrite=args.overwrite, matcher=args.matcher)
     print(summary.line(args.out))
-    if summary.unregistered:
-        left_out = [p.name for p in photos if p.stem not in set(summary.registered)]
-        print(f"not registered (left out of the scene): {', '.join(left_out)}")
+    for line in summary.not_registered_lines():
+        print(line)
     print(f"next: splat-train scgaussian --data {args.out}  (or in one step: splat-train scgaussian --data "
           f"{args.video if isinstance(args, VideoArgs) else args.folder})")
     return summary

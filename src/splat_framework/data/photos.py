@@ -59,7 +59,8 @@ def photos_key(files: list[Path], kind: PhotoSource, options: PhotoPosesConfig) 
 
 def posed_photos(path: Path, kind: PhotoSource, options: PhotoPosesConfig | None = None) -> Path:
     """The posed scene folder (COLMAP layout) of the photos in folder ``path`` or of the video ``path``:
-    read from the cache, or estimated now (one line before, the summary after) and cached."""
+    read from the cache, or estimated now (one line before, the summary after) and cached; either way
+    one line per photo left out, with its verified matches with each other photo by file name."""
     from ..console import say
     from ..files.work_folder import building
     from ..runtime.io import atomic_write_json, read_json
@@ -76,7 +77,9 @@ def posed_photos(path: Path, kind: PhotoSource, options: PhotoPosesConfig | None
     if entry.exists():
         reason = folder_mismatch(entry, root)
         if reason is None:
-            say(f"{path}: poses from the cache ({read_json(entry / SUMMARY)['line']}; {scene})")
+            cached = read_json(entry / SUMMARY)
+            say(f"{path}: poses from the cache ({cached['line']}; {scene})")
+            _say_left_out(cached.get("not_registered_lines", []))
             return scene
         warnings.warn(f"{path}: cached poses not used ({reason}); estimating them again", stacklevel=2)
         shutil.rmtree(entry, ignore_errors=True)
@@ -91,15 +94,22 @@ def posed_photos(path: Path, kind: PhotoSource, options: PhotoPosesConfig | None
             shutil.rmtree(work / "frames")
         else:
             summary = estimate_scene(files, work / "scene", **kwargs)
-        line = summary.line(path)
-        left_out = [f.stem for f in files if f.stem not in set(summary.registered)] if kind == "photos" else []
+        line, left_out = summary.line(path), summary.not_registered_lines()
         atomic_write_json(work / SUMMARY, {"line": line.removeprefix(f"{path}: "), "registered": summary.registered,
-                                           "not_registered": left_out})
+                                           "not_registered": summary.left_out, "not_registered_lines": left_out})
     say(line)
     say(f"poses cached for the next run in {entry}")
-    if summary.unregistered:
-        say(f"not registered (left out of the scene): {', '.join(left_out) or summary.unregistered}", "yellow")
+    _say_left_out(left_out)
     return scene
+
+
+def _say_left_out(lines: list[str]) -> None:
+    """Say, in yellow, the lines naming the photos left out of the scene
+    (:meth:`~splat_framework.sfm.reconstruct.SfmSummary.not_registered_lines`)."""
+    from ..console import say
+
+    for line in lines:
+        say(line, "yellow")
 
 
 def _install_private(work: Path, entry: Path) -> None:

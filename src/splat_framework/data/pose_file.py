@@ -44,14 +44,21 @@ def pose_file_payload(cameras: dict[int, Camera], info: dict) -> dict:
     return {"views": views, "info": info}
 
 
+def _view(entry: dict) -> str:
+    """``view 3 (IMG_4026)``: a pose file's entry by its index and, where it has one, its image's name."""
+    name = entry.get("name")
+    return f"view {entry.get('index')}" + (f" ({name})" if name else "")
+
+
 def _matrix(path: Path, entry: dict, key: str, shape: tuple[int, int]) -> torch.Tensor:
+    """The entry's matrix ``key`` of ``shape`` (float64); a one-line DataError naming the view when it is not one."""
     try:
         m = torch.tensor(entry[key], dtype=torch.float64)
     except (KeyError, TypeError, ValueError):
-        raise DataError(f"{path}: view {entry.get('index')}: '{key}' missing or not a {shape[0]}x{shape[1]} "
+        raise DataError(f"{path}: {_view(entry)}: '{key}' missing or not a {shape[0]}x{shape[1]} "
                         "matrix of numbers") from None
     if tuple(m.shape) != shape or not bool(torch.isfinite(m).all()):
-        raise DataError(f"{path}: view {entry.get('index')}: '{key}' is not a finite {shape[0]}x{shape[1]} matrix")
+        raise DataError(f"{path}: {_view(entry)}: '{key}' is not a finite {shape[0]}x{shape[1]} matrix")
     return m
 
 
@@ -86,8 +93,8 @@ def apply_pose_file(scene: SceneData, path: Path | str) -> SceneData:
         except (KeyError, TypeError, ValueError):
             width = height = 0
         if width <= 0 or height <= 0 or not math.isclose(width / height, old.width / old.height, rel_tol=0.02):
-            raise DataError(f"{path}: view {i}: size {entry.get('width')}x{entry.get('height')} does not have the "
-                            f"scene's aspect ratio ({old.width}x{old.height})")
+            raise DataError(f"{path}: {_view(entry)}: size {entry.get('width')}x{entry.get('height')} does not "
+                            f"have the scene's aspect ratio ({old.width}x{old.height})")
         K = _matrix(path, entry, "K", (3, 3)).to(old.K.dtype)
         w2c = _matrix(path, entry, "world_to_cam", (4, 4)).to(old.world_to_cam.dtype)
         new = Camera(K=K, world_to_cam=w2c, width=width, height=height).scaled(old.width / width)

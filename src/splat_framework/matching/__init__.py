@@ -47,7 +47,8 @@ baselines, guided by sparse matches), ``learned`` (LoFTR, DISK /
 ALIKED + LightGlue, weight lookup), ``registry`` (matchers by name, ``auto``),
 ``geometry`` (F from poses, epipolar check, MAGSAC, pair verification),
 ``sampling`` (balanced thinning), ``matchset`` (MatchSet and its file),
-``pipeline`` (compute_matches and its cache), ``prior`` (a scene's match set,
+``pipeline`` (compute_matches and its cache), ``report`` (the pairs left empty and
+the views without any match, warned by the views' names), ``prior`` (a scene's match set,
 triangulated points), ``drawing``.
 """
 

@@ -13,6 +13,10 @@ if TYPE_CHECKING:  # pragma: no cover
 
     from .config import MatchConfig
 
+MIN_PAIR_MATCHES = 8
+"""A pair keeps its verified matches only when at least this many remain (else it is left empty)."""
+
+
 def as_numpy(x: Any) -> np.ndarray:
     if hasattr(x, "detach"):
         x = x.detach().cpu().numpy()
@@ -93,9 +97,9 @@ def verify_pair(
     pa = np.asarray(pts_a, np.float32).reshape(-1, 2)
     pb = np.asarray(pts_b, np.float32).reshape(-1, 2)
     counts = {"raw": len(pa)}
-    if len(pa) < 8:
+    if len(pa) < MIN_PAIR_MATCHES:
         counts.update(magsac=0, epipolar=0)
-        return *no_matches(), counts, f"only {len(pa)} raw matches (< 8): pair left empty"
+        return *no_matches(), counts, f"only {len(pa)} raw matches (< {MIN_PAIR_MATCHES}): pair left empty"
     mask, F = magsac_inliers(pa, pb, config.magsac_threshold, config.magsac_confidence)
     pa, pb = pa[mask], pb[mask]
     counts["magsac"] = len(pa)
@@ -107,8 +111,8 @@ def verify_pair(
         pa, pb = pa[ok], pb[ok]
     counts["epipolar"] = len(pa)
     warn = None
-    if len(pa) < 8:
-        warn = f"only {len(pa)} verified matches (< 8): pair left empty"
+    if len(pa) < MIN_PAIR_MATCHES:
+        warn = f"only {len(pa)} verified matches (< {MIN_PAIR_MATCHES}): pair left empty"
         pa, pb = no_matches()
     return pa, pb, counts, warn
 

@@ -20,6 +20,7 @@ from .geometry import as_numpy, fundamental_from_cameras, verify_pair, view_angl
 from .learned import WEIGHTS_INSTALL
 from .matchset import CACHE_VERSION, MatchSet, Pair
 from .registry import AUTO, AUTO_DENSE, AUTO_GUIDED, AUTO_LEARNED, MATCHERS, build_matcher
+from .report import pair_name, view_names
 from .sampling import balanced_sample
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -111,7 +112,8 @@ def compute_matches(
             of running the learned matcher on that pair; verified like any other matches.
 
     Returns:
-        MatchSet over all pairs (i, j), i < j, of ``view_ids``.
+        MatchSet over all pairs (i, j), i < j, of ``view_ids``; why a pair was left empty is in its
+        ``warnings``, which the caller reports by the views' names (:func:`~.report.warn_empty`).
     """
     config = config or MatchConfig()
     if len(images) != len(view_ids) or (cameras is not None and len(cameras) != len(view_ids)):
@@ -126,13 +128,16 @@ def compute_matches(
     imgs = [to_hwc(images[k]) for k in order]
     cams = None if cameras is None else [cameras[k] for k in order]
     fg = [None] * len(ids) if masks is None or not config.alpha_mask else [masks[k] for k in order]
+    names = view_names(ids, cams)
     for v, im, m in zip(ids, imgs, fg):
         if m is not None and tuple(m.shape) != tuple(im.shape[:2]):
-            raise ValueError(f"view {v}: mask is {m.shape[1]}x{m.shape[0]} but image is {im.shape[1]}x{im.shape[0]}")
+            raise ValueError(f"view {names[v]}: mask is {m.shape[1]}x{m.shape[0]} "
+                             f"but image is {im.shape[1]}x{im.shape[0]}")
     if cams is not None:
         for v, im, cam in zip(ids, imgs, cams):
             if (cam.width, cam.height) != (im.shape[1], im.shape[0]):
-                raise ValueError(f"view {v}: camera is {cam.width}x{cam.height} but image is {im.shape[1]}x{im.shape[0]}")
+                raise ValueError(f"view {names[v]}: camera is {cam.width}x{cam.height} "
+                                 f"but image is {im.shape[1]}x{im.shape[0]}")
 
     known = known or {}
     key = cache_key(imgs, cams, ids, config, fg, known)
@@ -154,7 +159,7 @@ def compute_matches(
     n_pairs = len(ids) * (len(ids) - 1) // 2
     # a learned matcher's random init must not move the run's random state
     with rng_untouched(), phase("matching", n_pairs, unit="pairs") as progress:
-        ms = _match_all_pairs(ids, imgs, cams, fg, config, key, progress, known)
+        ms = _match_all_pairs(ids, imgs, cams, fg, config, key, progress, known, names)
     if cache_path is not None:
         ms.save(cache_path)
     ms.meta["cache_hit"] = False
@@ -162,9 +167,11 @@ def compute_matches(
 
 
 def _match_all_pairs(ids: list[int], imgs: list[np.ndarray], cams, fg: list, config: MatchConfig, key: str,
-                     progress: Phase, known: dict[Pair, tuple[np.ndarray, np.ndarray]]) -> MatchSet:
+                     progress: Phase, known: dict[Pair, tuple[np.ndarray, np.ndarray]],
+                     names: dict[int, str]) -> MatchSet:
     """The MatchSet of every pair (i, j), i < j, of ``ids`` (:func:`compute_matches` after its cache missed);
-    ``progress`` advances by one per pair; ``known`` pairs take their sparse matches from there."""
+    ``progress`` advances by one per pair; ``known`` pairs take their sparse matches from there; ``names``
+    (view id -> name) name the views in the notice of "auto" without its learned weights."""
     t0 = time.perf_counter()
     matcher = build_matcher(config)
     learned: Matcher | None = None
@@ -182,8 +189,8 @@ def _match_all_pairs(ids: list[int], imgs: list[np.ndarray], cams, fg: list, con
             if registry.learned_available(config):
                 learned = MATCHERS[AUTO_LEARNED].from_config(config)
             else:
-                warnings.warn(f"matcher auto: pair {pair} {why} and the {AUTO_LEARNED} weights are not installed "
-                              f"({WEIGHTS_INSTALL}); using dense matches", stacklevel=3)
+                warnings.warn(f"matcher auto: pair {pair_name(pair, names)} {why} and the {AUTO_LEARNED} weights "
+                              f"are not installed ({WEIGHTS_INSTALL}); using dense matches", stacklevel=3)
         return learned
 
     def sparse_for(pair: Pair, why: str) -> Matcher | None:
@@ -217,7 +224,6 @@ def _match_all_pairs(ids: list[int], imgs: list[np.ndarray], cams, fg: list, con
             used[f"{pair[0]}-{pair[1]}"] = name
             if warn is not None:
                 warns[pair] = warn
-                warnings.warn(f"pair {pair}: {warn}", stacklevel=2)
             progress.advance()
     ms = MatchSet(
         view_ids=ids,

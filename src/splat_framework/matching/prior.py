@@ -21,10 +21,13 @@ from ..console import say
 from ..data.cache_dir import user_cache_dir
 from .config import MatchConfig
 from .matchset import MatchSet
+from .report import view_names, warn_empty
 
 
 def compute_match_set(matching: MatchConfig, datamanager) -> MatchSet:
-    """Matches between all pairs of training views (cached on disk unless ``matching.cache`` is off)."""
+    """Matches between all pairs of training views (cached on disk unless ``matching.cache`` is off), with
+    a warning naming the pairs left empty and one naming the views without any verified match (each view
+    by its image's name, :func:`~.report.warn_empty`; also when the matches come from the cache)."""
     from .pipeline import compute_matches
 
     views = datamanager.train_views()
@@ -37,7 +40,7 @@ def compute_match_set(matching: MatchConfig, datamanager) -> MatchSet:
     match_set = compute_matches(images, cameras, ids, matching, cache_dir, masks, known=known)
     if origin and not (known and match_set.meta.get("cache_hit")):
         (say if known else warnings.warn)(origin)
-    warn_unmatched(match_set, {i: c.name for i, c in zip(ids, cameras)})
+    warn_empty(match_set, view_names(ids, cameras))
     return match_set
 
 
@@ -53,15 +56,6 @@ def posing_matches(matching: MatchConfig, datamanager, ids: list[int], cameras: 
         return {}, ""
     paths = [Path(scene.image_paths[i]) for i in ids]
     return known_sparse_matches(Path(scene.root), paths, [(c.width, c.height) for c in cameras], ids, learned, matching)
-
-
-def warn_unmatched(match_set: MatchSet, names: dict[int, str]) -> None:
-    """One warning naming each training view (``names``: view id -> image name) that has no verified
-    match with any other: the prior cannot place it, so it is learned from its photo alone."""
-    for v in match_set.unmatched_views():
-        warnings.warn(f"training view {names.get(v) or v} has no verified match with any other training view: "
-                      "the matching prior cannot place it (photos with more overlap, or another matcher, "
-                      "help)", stacklevel=3)
 
 
 def match_pairs(match_set: MatchSet, view_ids: list[int]) -> Iterator[tuple[int, int, np.ndarray, np.ndarray]]:

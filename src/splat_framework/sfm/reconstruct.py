@@ -17,7 +17,6 @@ ALIKED + LightGlue.
 
 from __future__ import annotations
 
-import re
 import shutil
 import time
 import warnings
@@ -34,9 +33,6 @@ from .photos import stage_images
 
 MAPPERS = ("incremental", "global")
 
-_PAIR_WARNING = re.compile(r"pair \(\d+, \d+\): ")
-"""A photo matcher's per-pair warning, naming the pair by position: replaced by the verified counts by file name."""
-
 
 @dataclass
 class SfmSummary:
@@ -49,10 +45,29 @@ class SfmSummary:
     matcher: str = "sift"
     pair_matches: dict[tuple[str, str], int] = field(default_factory=dict)
     """Verified matches of every pair of photos, by file name."""
+    photos: list[str] = field(default_factory=list)
+    """The photos' file names, in the order given."""
 
     @property
     def unregistered(self) -> int:
         return self.images - len(self.registered)
+
+    @property
+    def left_out(self) -> list[str]:
+        """The file names of the photos without a pose (left out of the scene)."""
+        registered = set(self.registered)
+        return [name for name in self.photos if Path(name).stem not in registered]
+
+    def not_registered_lines(self) -> list[str]:
+        """One line per photo left out: ``IMG_7.jpg not registered (left out of the scene): verified
+        matches with IMG_1.jpg 3, IMG_2.jpg 0``, its verified matches with each other photo by file name."""
+        return [f"{name} not registered (left out of the scene): verified matches with "
+                f"{describe_counts(self.matches_of(name), 'photos')}" for name in self.left_out]
+
+    def matches_of(self, photo: str) -> dict[str, int]:
+        """The verified matches of ``photo`` with each other photo: {file name: count}, in the photos' order."""
+        found = {b if a == photo else a: n for (a, b), n in self.pair_matches.items() if photo in (a, b)}
+        return {name: found[name] for name in self.photos if name in found}
 
     def line(self, out: Path | str) -> str:
         """One line: what the pose estimation of ``out`` found."""
@@ -61,18 +76,24 @@ class SfmSummary:
                 f"{self.matcher} matches)")
 
 
-LISTED_EMPTY_PAIRS = 10
-"""Up to this many pairs without verified matches are named one by one; more are counted."""
+LISTED_EMPTY = 10
+"""Up to this many pairs (or photos) without verified matches are named one by one; more are counted."""
+
+
+def describe_counts(counts: dict[str, int], what: str) -> str:
+    """``a.jpg-b.jpg 512, b.jpg-c.jpg 30, a.jpg-c.jpg 0``: verified matches by name (of a pair, or of
+    a photo), those with matches first (beyond :data:`LISTED_EMPTY` without, those are counted
+    instead of named: ``the other 12 pairs 0``, ``what`` saying what they are)."""
+    kept = [f"{name} {n}" for name, n in counts.items() if n]
+    empty = [f"{name} 0" for name, n in counts.items() if not n]
+    if len(empty) > LISTED_EMPTY:
+        empty = [f"the other {len(empty)} {what} 0"]
+    return ", ".join(kept + empty)
 
 
 def describe_pair_matches(pairs: dict[tuple[str, str], int]) -> str:
-    """``a.jpg-b.jpg 512, b.jpg-c.jpg 30, a.jpg-c.jpg 0``: every pair's verified matches by file name
-    (beyond :data:`LISTED_EMPTY_PAIRS` empty pairs, those are counted instead of named)."""
-    kept = [f"{a}-{b} {n}" for (a, b), n in pairs.items() if n]
-    empty = [f"{a}-{b} 0" for (a, b), n in pairs.items() if not n]
-    if len(empty) > LISTED_EMPTY_PAIRS:
-        empty = [f"the other {len(empty)} pairs 0"]
-    return ", ".join(kept + empty)
+    """``a.jpg-b.jpg 512, b.jpg-c.jpg 30, a.jpg-c.jpg 0``: every pair's verified matches by file name."""
+    return describe_counts({f"{a}-{b}": n for (a, b), n in pairs.items()}, "pairs")
 
 
 def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental", overwrite: bool = False,
@@ -112,13 +133,8 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
 
             rgb = [cv2.imread(str(work / "input" / f), cv2.IMREAD_COLOR)[..., ::-1].copy() for f in staged]
             try:
-                with phase(f"matching ({matcher}, {len(rgb) * (len(rgb) - 1) // 2} pairs)"), \
-                        warnings.catch_warnings(record=True) as caught:
-                    warnings.simplefilter("always")
+                with phase(f"matching ({matcher}, {len(rgb) * (len(rgb) - 1) // 2} pairs)"):
                     found = plugins[matcher].load()(rgb)
-                for w in caught:  # pairs named by position: the verified counts by file name say it better
-                    if not _PAIR_WARNING.match(str(w.message)):
-                        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
                 write_matches(pycolmap, db, staged, found)
             except FileNotFoundError as e:  # the matcher's weights are not installed
                 if not auto:
@@ -162,6 +178,7 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
             images=len(images), registered=[Path(n).stem for n in staged if n in set(registered)],
             points=best.num_points3D(), reprojection_px=float(best.compute_mean_reprojection_error()),
             seconds=time.perf_counter() - t0, mapper=mapper, matcher=matcher, pair_matches=pairs,
+            photos=[Path(p).name for p in images],
         )
         install_output(scene, out, PROCESSED_SCENE)
         return summary

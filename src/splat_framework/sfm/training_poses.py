@@ -55,7 +55,8 @@ def estimate_training_poses(data: str | Path, *, views: int | str, format: str =
             if summary is not None and len(summary.registered) == len(photos):
                 break
         if summary is None or len(summary.registered) < len(photos):
-            got = f"{len(summary.registered)} of {len(photos)}" if summary is not None else failure
+            got = ("; ".join([f"{len(summary.registered)} of {len(photos)}", *summary.not_registered_lines()])
+                   if summary is not None else failure)
             raise DataError(f"{root}: training views not all registered by either mapper ({got})")
         est = load_colmap(Path(tmp) / "sfm")
     by_name = {Path(p).stem: c for p, c in zip(est.image_paths, est.cameras)}

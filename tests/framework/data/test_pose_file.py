@@ -85,6 +85,9 @@ def test_bad_pose_files_are_one_line_errors_naming_the_file(scene, tmp_path):
             apply_pose_file(scene, path)
         msg = str(e.value)
         assert msg.startswith(str(path)) and "\n" not in msg, msg
+        if name in ("aspect.json", "nan.json"):  # the file's entry by its index and its image's name
+            first = scene.train_indices[0]
+            assert f"view {first} ({scene.cameras[first].name}): " in msg, msg
 
 
 @pytest.mark.skipif(importlib.util.find_spec("pycolmap") is None, reason="estimating poses needs pycolmap")
