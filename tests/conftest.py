@@ -5,6 +5,16 @@ from pathlib import Path
 import pytest
 
 
+@pytest.fixture(autouse=True, scope="session")
+def _tiny_scenes(tmp_path_factory):
+    """The tiny built-in scenes, generated once before any test: a command's first use would print
+    its "generating the built-in scene" phase line before the one-line error a test expects."""
+    from splat_framework.data.synthetic.generate import ensure_scene
+
+    for name in ("forward-tiny", "object-tiny"):
+        ensure_scene(name, tmp_path_factory.getbasetemp() / "splatcache" / "synthetic")
+
+
 @pytest.fixture(autouse=True)
 def _private_cache(tmp_path_factory, monkeypatch):
     """Generated scenes and match caches go to this session's temp folder, never ~/.cache."""

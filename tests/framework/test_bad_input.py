@@ -561,7 +561,7 @@ def test_errors_caused_by_a_flag_name_the_flag(tmp_path):
 
     base = ("3dgs", "--data", "synthetic/forward-tiny", "--steps", "2", "--output", tmp_path / "run")
     res = run_cli("train", *base, "--downscale", "1e308", code=2, match="error: --downscale 1e+308: ")
-    assert "would be decoded to 1x1 pixels; at most 6 for this dataset" in res.stderr
+    assert "would be decoded to less than one pixel; at most 48 for this dataset" in res.stderr
     run_cli("train", *base, "--model.init-scale", "1e308", code=2,
             match="error: invalid config: model.init_scale: Input should be less than or equal to 1000")
     os.mkfifo(tmp_path / "fifo")

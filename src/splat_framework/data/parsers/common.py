@@ -72,22 +72,16 @@ def choose_image_dir(
     return folders[g], g / f, f
 
 
-MIN_DECODED_SIDE = 8
-"""Pixels: the shortest side an image may be decoded to (a smaller one has nothing to train on)."""
-
-
 def check_decoded_size(folder: Path, stored: float, downscale: float) -> None:
     """One line naming ``--downscale`` when it would decode ``folder``'s images (stored at factor
-    ``stored``) to fewer than :data:`MIN_DECODED_SIDE` pixels a side (the first image's header)."""
+    ``stored``) to less than one pixel a side (the first image's header tells their size)."""
     images = list_images(folder)
     if not images or downscale <= stored:
         return
     w, h = read_image_size(images[0])
-    sw, sh = scaled_size(w, h, stored / downscale)
-    if min(sw, sh) < MIN_DECODED_SIDE:
-        most = min(w, h) * stored / MIN_DECODED_SIDE
-        raise DataError(f"--downscale {downscale:g}: {images[0]} ({w}x{h}) would be decoded to {sw}x{sh} pixels; "
-                        f"at most {most:g} for this dataset")
+    if min(w, h) * stored / downscale < 1:
+        raise DataError(f"--downscale {downscale:g}: {images[0]} ({w}x{h}) would be decoded to less than one pixel; "
+                        f"at most {min(w, h) * stored:g} for this dataset")
 
 
 def check_same_size(paths: Sequence[Path]) -> tuple[int, int]:
