@@ -279,9 +279,9 @@ def test_asking_for_a_broken_variant_is_one_line_naming_its_file(tmp_path, case)
 BAD_ARGUMENTS = {  # issue 40's cases, in a subprocess -> what the one line says
     "infinite loss weight": (["scgaussian", "--model.lambda-rg", "inf"], "model.lambda_rg: Input should be a finite number"),
     "huge count": (["scaffold-gs", "--model.feat-dim", "1000000000"], "model.feat_dim: Input should be less than or equal to 1024"),
-    "views abc": (["3dgs", "--views", "abc"], "--views: expected INT|{all}, got ['abc']"),
+    "views abc": (["3dgs", "--views", "abc"], "--views: expected {None}|INT|{all}, got ['abc']"),
     "unknown method": (["3dgx", "--steps", "1"], "unknown method '3dgx' (did you mean '3dgs'?)"),
-    "bad choice": (["3dgs", "--format", "llf"], "--format: 'llf' is not one of auto, llff, blender, dtu, colmap (did you mean 'llff'?)"),
+    "bad choice": (["3dgs", "--format", "llf"], "--format: 'llf' is not one of auto, llff, blender, dtu, transforms, colmap (did you mean 'llff'?)"),
     "unavailable matching device": (["scgaussian", "--model.matching.device", "nosuchdevice", "--data", "synthetic/forward-tiny"],
                                     "--model.matching.device: 'nosuchdevice' is not a torch device"),
 }

@@ -13,6 +13,7 @@ import pytest
 
 from config_walk import overrides_in_every, sub_configs
 from splat_framework.config import apply_overrides, experiment_fields, read_config_json, resolve_steps, upgrade_saved_config
+from splat_framework.data import resolve_views
 from splat_framework.runtime.io import atomic_write_json, read_json
 from splat_framework.matching.config import MatchConfig
 from splat_framework.registry import get_method
@@ -36,7 +37,7 @@ def test_old_config_json_is_todays_experiment(name):
     # learning rates chosen after these files were written (scgaussian's shape rates, 2026-11-26)
     # stay the saved ones: an old run resumes as it was trained
     command = {"data": "synthetic/forward-tiny", "steps": 60, "seed": 0, "optim": old.optim.model_dump()}
-    now = resolve_steps(apply_overrides(defaults, command))
+    now = resolve_steps(resolve_views(apply_overrides(defaults, command)))  # as the trainer settles it
     # so do scgaussian's densification threshold and opacity decay, chosen on 2026-11-27 (the decay is
     # rescaled with the schedule since then; these files hold it unscaled)
     later = {k: raw["strategy"][k] for k in ("grow_grad2d", "opacity_decay") if k in raw["strategy"]}

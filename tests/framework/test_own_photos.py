@@ -56,8 +56,8 @@ def test_a_folder_of_photos_trains_in_one_command_on_all_of_a_few(photo_run):
     out = " ".join((res.stdout + res.stderr).split())
     assert "photos: estimating the poses of 4 photos (pycolmap, incremental mapper, sift matches)" in out, out
     assert "photos: 4 of 4 images registered" in out, out
-    assert ("training on all 4 photos: IMG_9, IMG_18, IMG_27, IMG_100; nothing is held out, "
-            "so the metrics are training-view metrics") in out, out
+    assert ("training on all 4 views of a COLMAP scene (its default; --views N for a few-shot split): IMG_9, IMG_18, "
+            "IMG_27, IMG_100; nothing is held out, so the metrics are training-view metrics") in out, out
     assert "train psnr" in res.stdout and "test psnr" not in res.stdout and "Training-view metrics" in out
     config = read_json(run / "config.json")["config"]
     assert config["views"] == "all"
@@ -210,12 +210,19 @@ def _scene(n: int, views) -> SceneData:
 
 
 def test_more_photos_say_which_train_and_which_test_by_name():
-    assert describe_split(_scene(10, "all")) == ("training on 8 of 10 photos: IMG_2, IMG_3, IMG_4, IMG_5, IMG_6, IMG_7, "
-                                                 "IMG_8, IMG_10; testing on 2: IMG_1, IMG_9")
-    assert describe_split(_scene(8, "all")).startswith("training on all 8 photos: IMG_1, ")
+    assert describe_split(_scene(10, "all"), "all") == (
+        "training on all 8 views of a COLMAP scene (its default; --views N for a few-shot split): IMG_2, IMG_3, "
+        "IMG_4, IMG_5, IMG_6, IMG_7, IMG_8, IMG_10; 2 test views held out (every 8th image): IMG_1, IMG_9")
+    assert describe_split(_scene(8, "all"), "all").startswith("training on all 8 views of a COLMAP scene (its default; "
+                                                              "--views N for a few-shot split): IMG_1, ")
+    assert describe_split(_scene(20, "all"), "all") == (  # more than 8: counted, not named
+        "training on all 17 views of a COLMAP scene (its default; --views N for a few-shot split); "
+        "3 test views held out (every 8th image): IMG_1, IMG_9, IMG_17")
+    assert describe_split(_scene(3, 3), 3) == ("training on 3 views of a COLMAP scene: IMG_1, IMG_2, IMG_3; nothing is "
+                                               "held out, so the metrics are training-view metrics")
     benchmark = _scene(10, 3)
     benchmark.format = "llff"
-    assert describe_split(benchmark) is None
+    assert describe_split(benchmark, 3) is None
 
 
 def test_a_training_view_without_any_verified_match_is_named():

@@ -14,7 +14,6 @@ cv2) are imported only after the arguments are parsed, so ``--help`` is fast.
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 
 def build_parser_type(methods=None, argv: list[str] = (), asked: str | None = None, loaded=None):
@@ -110,35 +109,6 @@ def load_saved_experiment(path: str, methods: dict):
     return method, saved.model_copy(update=run_options)
 
 
-VIEWS_FLAG = "--views"
-
-
-def own_photos_views(config, argv: list[str]):
-    """``config`` training on every photo (``views="all"``: up to ``FEW_PHOTOS`` all of them, else
-    all but every 8th) when ``--data`` is one's own photos (a folder of them, a video, a scene
-    folder splat-process wrote) and ``argv`` does not say ``--views``; the benchmarks' few-shot
-    default stays for datasets, and ``--resume`` keeps the run's own views."""
-    from ..data.photos import is_own_photos
-    from ..data.resolve import locate_data
-    from ..errors import DataError
-
-    if any(a == VIEWS_FLAG or a.startswith(VIEWS_FLAG + "=") for a in argv):
-        return config
-    if config.resume and config.output is not None and (Path(config.output) / "config.json").is_file():
-        from ..config import read_config_json
-
-        try:
-            saved = read_config_json(Path(config.output) / "config.json", trust_edits=True)[1].get("views")
-        except DataError:  # the resume check says what is wrong with it
-            return config
-        return config.model_copy(update={"views": saved}) if saved is not None else config
-    try:
-        own = is_own_photos(locate_data(config.data))
-    except DataError:  # said in one line once the run loads its data
-        return config
-    return config.model_copy(update={"views": "all"}) if own else config
-
-
 def main(args: list[str] | None = None) -> dict:
     from .common import ArgumentsError, parse_cli
     from .kinds import hidden_kind_flags
@@ -173,7 +143,6 @@ def main(args: list[str] | None = None) -> dict:
 
     if config.resume and config.output is None and not config.overwrite:  # the run this command started
         config = resume_unfinished(config)
-    config = own_photos_views(config, argv)
     spec = methods[config.method]  # the one lookup of the run, handed down
     if not config.viewer:
         return train(config, spec=spec, command=given)

@@ -41,10 +41,10 @@ class TrainConfig(SplatConfig):
     """Method name (set by the subcommand)."""
     data: str = "synthetic/forward"
     """Dataset folder, or a folder of your own photos or a video (posed first, see --photos.*; then every photo trains unless --views says otherwise); a relative path that does not exist is looked up under $SPLAT_DATA; synthetic/forward and synthetic/object are generated on first use."""
-    format: Literal["auto", "llff", "blender", "dtu", "colmap"] = "auto"
-    """Dataset format; auto detects it from the folder's contents."""
-    views: Annotated[int, Field(ge=1, le=MAX_VIEWS)] | Literal["all"] = 3
-    """Number of training views (few-shot split rules of the dataset), or all."""
+    format: Literal["auto", "llff", "blender", "dtu", "transforms", "colmap"] = "auto"
+    """Dataset format; auto detects it from the folder's contents (transforms: a nerfstudio or instant-ngp transforms.json)."""
+    views: Annotated[int, Field(ge=1, le=MAX_VIEWS)] | Literal["all"] | None = None
+    """Number of training views (few-shot split rules of the dataset), or all (every view but the held-out test views). Default: the format's, settled when the run starts and recorded in config.json: 3 on LLFF, Blender and DTU (the papers' few-shot setting), all on COLMAP and transforms.json scenes and your own photos (every 8th held out for testing beyond 8 photos); --resume keeps the run's."""
     downscale: Positive | None = None
     """Image downscale factor (default: the dataset's protocol, e.g. 8 for LLFF, 2 for Blender)."""
     train_poses: Path | None = None

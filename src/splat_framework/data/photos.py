@@ -118,11 +118,3 @@ def _install_private(work: Path, entry: Path) -> None:
     os.chmod(work, 0o700)
     os.replace(work, entry)
 
-
-def is_own_photos(path: Path) -> bool:
-    """Whether ``path`` is one's own photos: a folder of photos, a video, or a scene folder that
-    splat-process (or this module's cache) wrote."""
-    from ..files.output_paths import PROCESSED_SCENE
-
-    path = Path(path)
-    return photo_source(path) is not None or (path.is_dir() and PROCESSED_SCENE.is_ours(path))

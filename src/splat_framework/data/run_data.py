@@ -1,7 +1,8 @@
 """The data of a training config: the scene it names, and the record of it that makes a run
 folder self-contained (``TrainConfig.resolved_data``, written into ``config.json``).
 
-A run records the absolute dataset folder and its split by image name when it starts
+A run settles its views when it starts (:func:`resolve_views`: the format's default where
+``--views`` is not given), and records the absolute dataset folder and its split by image name
 (:func:`record_data`); reopening it (:func:`load_config_scene`) reads that folder with that
 split from any shell. A run folder written before the record existed resolves ``data`` as
 it did then (``$SPLAT_DATA``, the split rules).
@@ -13,18 +14,21 @@ from dataclasses import replace
 from pathlib import Path
 
 from ..config.data import ResolvedData, absolute, source_of
-from .parsers import load_scene
+from .parsers import detect_format, load_scene
 from .parsers.common import scene_extent
+from .photos import photo_source
 from .pose_file import apply_pose_file
-from .resolve import resolve_data_path
+from .resolve import locate_data, resolve_data_path
 from .scene import DataError, SceneData
+from .splits import FEW_SHOT_FORMATS, LLFF_HOLDOUT, default_views
 
 
 def load_config_scene(config) -> SceneData:
     """The scene a training config names (``data``, ``format``, ``views``, ``downscale``; a folder of
     photos or a video posed with ``photos``), its training cameras replaced from ``train_poses`` when
     set. With ``resolved_data`` recorded for these fields: its folder (``data`` again where that
-    folder is gone) and its split, by image name."""
+    folder is gone) and its split, by image name. Unset ``views`` are settled first (:func:`resolve_views`)."""
+    config = resolve_views(config)
     record = config.resolved_data if config.resolved_data is not None and config.resolved_data.resolves(config) else None
     if record is not None and Path(record.path).is_dir():
         root = Path(record.path)
@@ -68,15 +72,70 @@ def record_data(config, scene: SceneData):
     return config.model_copy(update={"resolved_data": record})
 
 
-def describe_split(scene: SceneData) -> str | None:
-    """One line naming the photos that train and those that test, for a scene of one's own photos
-    (COLMAP format: splat-process or photos given as --data); None for a benchmark dataset."""
-    if scene.format != "colmap":
+def resolve_views(config):
+    """``config`` with ``views`` settled where it is unset (None, no ``--views``): a resumed run's
+    own (its config.json), else the default of its data's format (:func:`~.splits.default_views`:
+    few-shot on the benchmarks, every view on one's own scenes). The one place the default applies;
+    config.json then records the views."""
+    if config.views is not None:
+        return config
+    views = resumed_views(config)
+    return config.model_copy(update={"views": default_views(data_format(config)) if views is None else views})
+
+
+def data_format(config) -> str:
+    """The format of the data ``config`` names: ``format`` when given, else recognised from the folder
+    (a folder of photos or a video is posed into a COLMAP scene); a DataError when there is none."""
+    if config.format != "auto":
+        return config.format
+    path = locate_data(config.data)
+    return "colmap" if photo_source(path) is not None else detect_format(path)
+
+
+def resumed_views(config):
+    """The views that the run ``--resume`` continues recorded in its config.json; None when there is
+    no such file to read (the resume check says what is wrong with one)."""
+    saved = Path(config.output) / "config.json" if config.resume and config.output is not None else None
+    if saved is None or not saved.is_file():
         return None
-    names = [c.name for c in scene.cameras]
-    train = [names[i] for i in scene.train_indices]
-    which = f"all {len(names)} photos" if len(train) == len(names) else f"{len(train)} of {len(names)} photos"
-    line = f"training on {which}: {', '.join(train)}"
+    from ..config.persist import read_config_json
+
+    try:
+        return read_config_json(saved, trust_edits=True)[1].get("views")
+    except DataError:
+        return None
+
+
+NAMED_VIEWS = 8
+"""Up to this many training (or test) views, the line describing the split names them."""
+SCENE_KINDS = {"colmap": "a COLMAP scene", "transforms": "a transforms.json scene"}
+
+
+def describe_split(scene: SceneData, views) -> str | None:
+    """One line saying how many views train and how many are held out for testing (naming them when
+    few) and, where ``views`` is the format's default, that it is and how to ask for another; for a
+    scene of one's own (COLMAP: splat-process or photos given as --data; transforms.json). None for
+    the benchmarks, whose few-shot split is the papers'."""
+    if scene.format in FEW_SHOT_FORMATS:
+        return None
+    kind = SCENE_KINDS.get(scene.format, f"a {scene.format} scene")
+    line = f"training on {'all ' if views == 'all' else ''}{_counted(scene.train_indices, 'view')} of {kind}"
+    if views == default_views(scene.format):
+        line += " (its default; --views N for a few-shot split)"
+    line += _names(scene, scene.train_indices)
     if not scene.test_indices:
         return line + "; nothing is held out, so the metrics are training-view metrics"
-    return line + f"; testing on {len(scene.test_indices)}: {', '.join(names[i] for i in scene.test_indices)}"
+    held_out = _counted(scene.test_indices, "test view")
+    return line + f"; {held_out} held out (every {LLFF_HOLDOUT}th image){_names(scene, scene.test_indices)}"
+
+
+def _counted(indices: list[int], noun: str) -> str:
+    """``"3 views"``, ``"1 view"``."""
+    return f"{len(indices)} {noun}{'' if len(indices) == 1 else 's'}"
+
+
+def _names(scene: SceneData, indices: list[int]) -> str:
+    """``": a, b, c"``: the cameras' names, when there are at most :data:`NAMED_VIEWS`; else ""."""
+    if len(indices) > NAMED_VIEWS:
+        return ""
+    return ": " + ", ".join(scene.cameras[i].name for i in indices)

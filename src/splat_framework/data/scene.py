@@ -17,7 +17,7 @@ class SceneData:
 
     Attributes:
         root: the dataset folder.
-        format: parser name ("llff", "blender", "dtu", "colmap").
+        format: parser name ("llff", "blender", "dtu", "transforms", "colmap").
         cameras: one Camera per image, already matching the size at which the
             images will be decoded (after ``image_scale``).
         image_paths: one image file per camera.

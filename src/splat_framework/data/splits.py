@@ -3,7 +3,7 @@
 See ``docs/data.md``. All functions return ``(train, test)`` as
 sorted-as-specified lists of indices into the parser's camera list.
 
-- LLFF / COLMAP / synthetic forward scenes (images sorted by name): test =
+- LLFF / COLMAP / transforms.json / synthetic forward scenes (images sorted by name): test =
   every 8th image (0, 8, 16, ...); train = the remaining images at positions
   ``round(linspace(0, n_rest - 1, k))`` (Python ``round``: banker's rounding).
 - Blender: 8 views from >= 94 train frames -> DietNeRF's [2, 16, 26, 55, 73,
@@ -14,11 +14,15 @@ sorted-as-specified lists of indices into the parser's camera list.
 
 ``views="all"`` trains on every non-test image (the dense setting).
 
-A user's own scene (COLMAP, e.g. from ``splat-process``) of only a few photos
-is trained on all of them when holding out every 8th would leave fewer than
+Without ``--views`` a scene trains on :func:`default_views`: the papers' few-shot
+:data:`FEW_SHOT_VIEWS` on the benchmark formats, every view elsewhere (COLMAP and
+transforms.json scenes: one's own captures).
+
+A user's own scene (COLMAP, e.g. from ``splat-process``, or transforms.json) of only a
+few photos is trained on all of them when holding out every 8th would leave fewer than
 ``views`` (:func:`own_scene_split`): three photos and ``--views 3`` train on the
-three, and there is no test view to score; with ``views="all"`` (the default of
-``splat-train --data PHOTOS``) up to :data:`FEW_PHOTOS` photos all train.
+three, and there is no test view to score; with ``views="all"`` (their default)
+up to :data:`FEW_PHOTOS` photos all train.
 """
 
 from __future__ import annotations
@@ -37,6 +41,18 @@ DTU_TRAIN_ORDER = [25, 22, 28, 40, 44, 48, 0, 8, 13]
 FEW_PHOTOS = 8
 """Up to this many photos of one's own, ``views="all"`` trains on every one and holds none out."""
 DTU_TEST = [1, 2, 9, 10, 11, 12, 14, 15, 23, 24, 26, 27, 29, 30, 31, 32, 33, 34, 35, 41, 42, 43, 45, 46, 47]
+FEW_SHOT_FORMATS = ("llff", "blender", "dtu")
+"""The benchmark formats, whose scenes train on a few-shot split unless ``--views`` says otherwise."""
+FEW_SHOT_VIEWS = 3
+"""Training views of the benchmark formats' default split (the papers' main setting)."""
+
+
+def default_views(fmt: str) -> Views:
+    """The training views of a scene of format ``fmt`` when ``--views`` is not given:
+    :data:`FEW_SHOT_VIEWS` on the benchmarks (:data:`FEW_SHOT_FORMATS`), "all" on every other
+    format (COLMAP, transforms.json: one's own scenes, every 8th image held out beyond
+    :data:`FEW_PHOTOS`)."""
+    return FEW_SHOT_VIEWS if fmt in FEW_SHOT_FORMATS else "all"
 
 
 def check_views(views: object) -> Views:

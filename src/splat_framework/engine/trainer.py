@@ -63,7 +63,7 @@ from .camera_refine import CameraRefiner, refined_cameras
 from .checkpoint import save_checkpoint
 from ..config import TrainConfig, config_payload, resolve_steps, save_config
 from ..console import phase, print_summary, say, show_progress
-from ..data import DataManager, describe_split, load_config_scene, record_data
+from ..data import DataManager, describe_split, load_config_scene, record_data, resolve_views
 from ..data.cache_dir import user_cache_dir
 from ..devices import resolve_config_devices
 from ..evaluation.held_out import evaluate
@@ -147,7 +147,7 @@ class Trainer(TrainState):
     ):
         self.spec = get_method(config.method) if spec is None else spec
         self.command = None if command is None else list(command)
-        self.config = resolve_steps(config)
+        self.config = resolve_steps(resolve_views(config))  # the views first: more of them may lengthen the schedule
         self.callbacks = list(callbacks)
         self.device = resolve_config_devices(self.config)["device"]  # every device field, before anything is written
         out = self.config.output
@@ -184,8 +184,9 @@ class Trainer(TrainState):
                 backdrop=self.config.model.reg.backdrop_weight > 0,
             )
         self.config = record_data(self.config, scene)  # config.json names the folder and split: eval from any shell
-        if describe_split(scene):
-            say(describe_split(scene))
+        split = describe_split(scene, self.config.views)
+        if split:
+            say(split)
         self.timing["data_s"] = time.perf_counter() - t0
         bg = 1.0 if scene.white_background else 0.0
         self.background = torch.full((3,), bg, device=self.device)

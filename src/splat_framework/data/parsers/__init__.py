@@ -5,7 +5,10 @@
 - ``poses_bounds.npy``                     -> llff
 - ``transforms_train.json``                -> blender
 - ``cameras_sphere.npz``                   -> dtu
-- ``sparse/0/`` or ``sparse/`` with ``cameras.bin|txt`` -> colmap
+- ``transforms.json`` (nerfstudio, instant-ngp) -> transforms
+- ``sparse/0/``, ``sparse/`` or ``colmap/sparse/0/`` with ``cameras.bin|txt`` -> colmap
+
+(nerfstudio's ns-process-data writes both of the last two: its ``transforms.json`` is read.)
 
 Every failure is a :class:`DataError` with a one-line message naming the file.
 """
@@ -18,7 +21,7 @@ from typing import Callable, Literal
 from ..scene import DataError, SceneData
 from ..splits import check_views
 
-FORMATS = ("llff", "blender", "dtu", "colmap")
+FORMATS = ("llff", "blender", "dtu", "transforms", "colmap")
 
 
 def _loader(fmt: str) -> Callable[..., SceneData]:
@@ -34,6 +37,10 @@ def _loader(fmt: str) -> Callable[..., SceneData]:
         from .dtu import load_dtu
 
         return load_dtu
+    if fmt == "transforms":
+        from .transforms import load_transforms
+
+        return load_transforms
     if fmt == "colmap":
         from .colmap import load_colmap
 
@@ -50,6 +57,10 @@ def marked_format(path: Path) -> str | None:
         return "blender"
     if (path / "cameras_sphere.npz").is_file():
         return "dtu"
+    from .transforms import TRANSFORMS
+
+    if (path / TRANSFORMS).is_file():
+        return "transforms"
     from .colmap import find_sparse_dir
 
     if find_sparse_dir(path) is not None:
@@ -74,7 +85,7 @@ def detect_format(path: Path) -> str:
     if empty:
         raise DataError(f"{path}: empty folder, no dataset found")
     raise DataError(
-        f"{path}: neither a dataset (poses_bounds.npy, transforms_train.json, cameras_sphere.npz or "
+        f"{path}: neither a dataset (poses_bounds.npy, transforms_train.json, cameras_sphere.npz, transforms.json or "
         "sparse/0/cameras.bin|txt) nor a folder of photos; splat-process turns your own photos or video into a scene folder"
     )
 
@@ -90,7 +101,7 @@ def load_scene(
 
     Args:
         path: dataset folder.
-        format: "auto" (detect), "llff", "blender", "dtu" or "colmap".
+        format: "auto" (detect) or one of :data:`FORMATS`.
         views: number of training views under the dataset's few-shot
             protocol (see :mod:`splat_framework.data.splits`), or "all".
         downscale: image downscale factor relative to full resolution.

@@ -25,7 +25,8 @@ NEAR, FAR = 2.0, 6.0
 FLIP_YZ = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
-def _read_json(path: Path) -> dict:
+def read_json_object(path: Path) -> dict:
+    """The top-level JSON object of ``path`` (a one-line DataError naming the file otherwise)."""
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as e:
@@ -43,7 +44,8 @@ def _read_json(path: Path) -> dict:
     return meta
 
 
-def _number(value: object, where: str) -> float:
+def number(value: object, where: str) -> float:
+    """``value`` as a finite float (a DataError naming ``where`` otherwise)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise DataError(f"{where}: expected a number, got {type(value).__name__}")
     v = float(value)
@@ -72,18 +74,19 @@ def _matrix(value: object, where: str) -> np.ndarray:
     return m
 
 
-def _frames(root: Path, split: str, required: bool) -> tuple[Path, float | None, list[tuple[str, np.ndarray]]]:
-    path = root / f"transforms_{split}.json"
-    if not path.is_file():
-        if required:
-            raise DataError(f"{path}: file not found")
-        return path, None, []
-    meta = _read_json(path)
-    angle = None
-    if "camera_angle_x" in meta:
-        angle = _number(meta["camera_angle_x"], f"{path}: camera_angle_x")
-        if not 0.0 < angle < math.pi:
-            raise DataError(f"{path}: camera_angle_x must be in (0, pi) radians, got {angle:g}")
+def camera_angle(meta: dict, path: Path, key: str = "camera_angle_x") -> float | None:
+    """The field of view ``key`` of transforms file ``path`` (radians, in (0, pi)); None when absent."""
+    if key not in meta:
+        return None
+    angle = number(meta[key], f"{path}: {key}")
+    if not 0.0 < angle < math.pi:
+        raise DataError(f"{path}: {key} must be in (0, pi) radians, got {angle:g}")
+    return angle
+
+
+def transform_frames(meta: dict, path: Path) -> list[tuple[str, np.ndarray]]:
+    """The frames of transforms file ``path`` (NeRF's, instant-ngp's, nerfstudio's) whose object is
+    ``meta``: (file_path, 4x4 camera-to-world matrix in OpenGL axes) each."""
     frames = meta.get("frames")
     if frames is None:
         raise DataError(f"{path}: missing key 'frames'")
@@ -103,24 +106,55 @@ def _frames(root: Path, split: str, required: bool) -> tuple[Path, float | None,
         if not isinstance(fp, str) or not fp.strip():
             raise DataError(f"{where}: file_path must be a non-empty string")
         out.append((fp, _matrix(fr["transform_matrix"], where)))
-    return path, angle, out
+    return out
 
 
-def _image_path(root: Path, file_path: str) -> Path:
+def _frames(root: Path, split: str, required: bool) -> tuple[Path, float | None, list[tuple[str, np.ndarray]]]:
+    path = root / f"transforms_{split}.json"
+    if not path.is_file():
+        if required:
+            raise DataError(f"{path}: file not found")
+        return path, None, []
+    meta = read_json_object(path)
+    angle = camera_angle(meta, path)
+    return path, angle, transform_frames(meta, path)
+
+
+def frame_image(root: Path, file_path: str, listed_in: Path) -> Path:
+    """The image file a frame's ``file_path`` names (relative to ``root``; Blender's lack the
+    ``.png``); a DataError naming the transforms file ``listed_in`` when it does not exist."""
     rel = file_path.strip()
     while rel.startswith("./"):
         rel = rel[2:]
     p = root / rel
-    if p.suffix.lower() in IMAGE_SUFFIXES:
-        return p
-    return p.with_name(p.name + ".png")
+    if p.suffix.lower() not in IMAGE_SUFFIXES:
+        p = p.with_name(p.name + ".png")
+    if not p.is_file():
+        raise DataError(f"{p}: image file not found (file_path {file_path!r} in {listed_in.name})")
+    return p
 
 
-def _rel(p: Path, root: Path) -> Path:
+def relative_image(p: Path, root: Path) -> Path:
+    """Image path ``p`` relative to the dataset folder ``root`` (its name alone when outside it)."""
     try:
         return p.relative_to(root)
     except ValueError:  # absolute file_path outside the dataset folder
         return Path(p.name)
+
+
+def frame_name(p: Path, root: Path) -> str:
+    """The camera name of image ``p``: its path relative to ``root``, without suffix, "/" as "_"."""
+    return relative_image(p, root).with_suffix("").as_posix().replace("/", "_")
+
+
+def focal_length(pixels: float, angle: float) -> float:
+    """The focal length, in pixels, of a field of view ``angle`` (radians) across ``pixels``."""
+    return 0.5 * pixels / math.tan(0.5 * angle)
+
+
+def opencv_camera_to_world(m: np.ndarray) -> np.ndarray:
+    """A transforms file's camera-to-world matrix (OpenGL axes) in OpenCV axes."""
+    return m @ FLIP_YZ
 
 
 def load_blender(root: Path, *, views: Views = "all", downscale: float | None = None) -> SceneData:
@@ -138,17 +172,14 @@ def load_blender(root: Path, *, views: Views = "all", downscale: float | None = 
     entries = [(train_json, angle_tr, fp, m, "train") for fp, m in train_frames]
     entries += [(test_json, angle_te if angle_te is not None else angle_tr, fp, m, "test") for fp, m in test_frames]
 
-    paths = [_image_path(root, fp) for _, _, fp, _, _ in entries]
-    for p, (js, _, fp, _, _) in zip(paths, entries):
-        if not p.is_file():
-            raise DataError(f"{p}: image file not found (file_path {fp!r} in {js.name})")
+    paths = [frame_image(root, fp, js) for js, _, fp, _, _ in entries]
     stored = check_same_size(paths)
     w, h = decoded_size(stored, image_scale)
 
     depth_root = root / "depths"
     depth_paths = None
     if depth_root.is_dir():
-        depth_paths = [depth_root / _rel(p, root).with_suffix(".npy") for p in paths]
+        depth_paths = [depth_root / relative_image(p, root).with_suffix(".npy") for p in paths]
         for d in depth_paths:
             if not d.is_file():
                 raise DataError(f"{d}: depth map missing (depths/ must mirror every image path)")
@@ -156,12 +187,12 @@ def load_blender(root: Path, *, views: Views = "all", downscale: float | None = 
     cameras = []
     for i, ((js, angle, fp, m, _split), p) in enumerate(zip(entries, paths)):
         where = f"{js}: frame {fp!r}"
-        focal_full = 0.5 * stored[0] / math.tan(0.5 * angle)
+        focal_full = focal_length(stored[0], angle)
         fx = focal_full * (w / stored[0])
         fy = focal_full * (h / stored[1])
-        c2w = m @ FLIP_YZ
-        name = _rel(p, root).with_suffix("").as_posix().replace("/", "_")
-        cameras.append(make_camera(c2w[:3, :3], c2w[:3, 3], fx, fy, w / 2.0, h / 2.0, w, h, NEAR, FAR, name, where))
+        c2w = opencv_camera_to_world(m)
+        cameras.append(make_camera(c2w[:3, :3], c2w[:3, 3], fx, fy, w / 2.0, h / 2.0, w, h, NEAR, FAR,
+                                   frame_name(p, root), where))
 
     n_train = len(train_frames)
     train_pool = list(range(n_train))

@@ -1,4 +1,4 @@
-"""COLMAP sparse models (``sparse/0/`` or ``sparse/``), binary or text.
+"""COLMAP sparse models (``sparse/0/``, ``sparse/`` or nerfstudio's ``colmap/sparse/0/``), binary or text.
 
 Supported camera models: SIMPLE_PINHOLE, PINHOLE and SIMPLE_RADIAL (its
 radial distortion is ignored with a warning; undistort first for exact
@@ -25,12 +25,14 @@ from ..images import natural_key
 from ..scene import DataError, SceneData
 from ..splits import Views, own_scene_split
 from .common import (
+    DEFAULT_BOUNDS,
     check_finite,
     check_same_size,
     choose_image_dir,
     decoded_size,
     make_camera,
     build_scene,
+    pixel_ratios,
 )
 
 # id -> (name, number of params)
@@ -71,8 +73,14 @@ class ColmapImage:
     point3d_ids: np.ndarray  # observed point ids (>= 0 only)
 
 
+SPARSE_DIRS = ("sparse/0", "sparse", "colmap/sparse/0")
+"""Where a scene folder's COLMAP model may be, in order: COLMAP's own layout, a single model, and
+nerfstudio's ns-process-data layout (``images/`` beside ``colmap/``)."""
+
+
 def find_sparse_dir(root: Path) -> Path | None:
-    for d in (root / "sparse" / "0", root / "sparse"):
+    """The first of :data:`SPARSE_DIRS` under ``root`` holding ``cameras.bin`` or ``cameras.txt``, or None."""
+    for d in (root / sub for sub in SPARSE_DIRS):
         if any((d / f"cameras{ext}").is_file() for ext in (".bin", ".txt")):
             return d
     return None
@@ -292,7 +300,7 @@ def _percentile_bounds(z: np.ndarray) -> tuple[float, float] | None:
 def load_colmap(root: Path, *, views: Views = "all", downscale: float | None = None) -> SceneData:
     sparse = find_sparse_dir(root)
     if sparse is None:
-        raise DataError(f"{root}: no COLMAP model (sparse/0/cameras.bin or .txt)")
+        raise DataError(f"{root}: no COLMAP model (sparse/0/, sparse/ or colmap/sparse/0/ with cameras.bin or .txt)")
     cams, images, points, img_file, pts_file = read_model(sparse)
     cam_file = sparse / ("cameras.bin" if (sparse / "cameras.bin").is_file() else "cameras.txt")
     if not images:
@@ -348,7 +356,7 @@ def load_colmap(root: Path, *, views: Views = "all", downscale: float | None = N
     all_z = [(xyz @ R.T + t)[:, 2] for R, t, _ in poses] if len(xyz) else []
     glob = _percentile_bounds(np.concatenate(all_z)) if all_z else None
     if glob is None:
-        glob = (0.01, 100.0)
+        glob = DEFAULT_BOUNDS
         if len(xyz):
             warnings.warn(f"{pts_file}: too few points in front of the cameras; near/far default to 0.01/100", stacklevel=3)
 
@@ -366,11 +374,7 @@ def load_colmap(root: Path, *, views: Views = "all", downscale: float | None = N
         near, far = bounds or glob
         if cam.width < 1 or cam.height < 1:
             raise DataError(f"{cam_file}: camera {cam.id}: invalid size {cam.width}x{cam.height}")
-        sx, sy = w / cam.width, h / cam.height
-        if abs(sx - sy) > 0.02 * max(sx, sy):
-            raise DataError(
-                f"{p}: image is {w}x{h} but {cam_file.name} camera {cam.id} is {cam.width}x{cam.height} (aspect ratios differ)"
-            )
+        sx, sy = pixel_ratios((w, h), (cam.width, cam.height), str(p), f"{cam_file.name} camera {cam.id} is")
         if cam.model == "PINHOLE":
             fx, fy, cx, cy = cam.params[:4]
         else:

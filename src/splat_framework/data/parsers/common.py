@@ -16,6 +16,8 @@ from ..images import list_images, read_image_size, scaled_size
 from ..scene import DataError, SceneData
 
 ROTATION_TOL = 2e-3
+DEFAULT_BOUNDS = (0.01, 100.0)
+"""near/far of a camera whose scene gives no depth range to go by."""
 
 
 def check_downscale(downscale: float | None, where: Path) -> float | None:
@@ -106,6 +108,17 @@ def find_images(folder: Path) -> list[Path]:
     if not paths:
         raise DataError(f"{folder}: no image files in folder")
     return paths
+
+
+def pixel_ratios(decoded: tuple[int, int], stated: tuple[float, float], where: str, stated_by: str) -> tuple[float, float]:
+    """(sx, sy): decoded image pixels per pixel of the camera size a dataset states; a DataError
+    naming ``where`` when the two aspect ratios differ by more than 2 % (``stated_by``: who states
+    the size, e.g. "poses give")."""
+    (w, h), (W, H) = decoded, stated
+    sx, sy = w / W, h / H
+    if abs(sx - sy) > 0.02 * max(sx, sy):
+        raise DataError(f"{where}: image is {w}x{h} but {stated_by} {W:g}x{H:g} (aspect ratios differ)")
+    return sx, sy
 
 
 def check_finite(a: np.ndarray, where: str) -> None:

@@ -15,7 +15,9 @@ import numpy as np
 
 from ..scene import DataError, SceneData
 from ..splits import Views, llff_split
-from .common import check_same_size, choose_image_dir, decoded_size, find_images, image_folders, make_camera, build_scene
+from .common import (
+    build_scene, check_same_size, choose_image_dir, decoded_size, find_images, image_folders, make_camera, pixel_ratios,
+)
 
 
 def load_poses_bounds(path: Path) -> np.ndarray:
@@ -70,11 +72,7 @@ def load_llff(root: Path, *, views: Views = "all", downscale: float | None = Non
             raise DataError(f"{where}: image size H={H:g}, W={W:g} must be positive")
         if not f > 0:
             raise DataError(f"{where}: degenerate pose, focal {f:g} must be positive")
-        sx, sy = w / W, h / H
-        if abs(sx - sy) > 0.02 * max(sx, sy):
-            raise DataError(
-                f"{where}: image is {w}x{h} but poses give {W:g}x{H:g} (aspect ratios differ)"
-            )
+        sx, _ = pixel_ratios((w, h), (W, H), where, "poses give")
         rot = poses[i, :, :3]
         R = np.stack([rot[:, 1], rot[:, 0], -rot[:, 2]], axis=1)
         near, far = float(bounds[i, 0]), float(bounds[i, 1])

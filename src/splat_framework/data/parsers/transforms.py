@@ -1,0 +1,124 @@
+"""nerfstudio / instant-ngp scenes: one ``transforms.json`` beside the images.
+
+Its ``frames`` hold ``file_path`` (relative to the folder) and ``transform_matrix``
+(camera-to-world in OpenGL axes, read as Blender's: :mod:`.blender`). The intrinsics are global:
+``fl_x``, ``fl_y``, ``cx``, ``cy`` in pixels of a ``w`` x ``h`` image (nerfstudio copies them from
+COLMAP, whose pixel centres are at +0.5 like ours, so the principal point is used as stored), or
+``camera_angle_x`` (and ``camera_angle_y``) with the principal point at the centre. Distortion
+coefficients (``k1`` ... ``p2``) are ignored with a warning (undistort first for exact results);
+fisheye and panoramic cameras are refused. Frames are taken in natural order of their paths and
+split as a COLMAP scene is (:func:`~..splits.own_scene_split`: every 8th held out); images
+are decoded at full resolution unless ``--downscale`` says otherwise.
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from ..images import natural_key
+from ..scene import DataError, SceneData
+from ..splits import Views, own_scene_split
+from .blender import (
+    camera_angle, focal_length, frame_image, frame_name, number, opencv_camera_to_world, read_json_object, transform_frames,
+)
+from .common import DEFAULT_BOUNDS, build_scene, check_downscale, check_same_size, decoded_size, make_camera, pixel_ratios
+
+TRANSFORMS = "transforms.json"
+PERSPECTIVE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+"""nerfstudio's ``camera_model`` values read as pinhole cameras (any distortion ignored)."""
+DISTORTION = ("k1", "k2", "k3", "k4", "p1", "p2")
+MIN_CONVERGENCE = 1e-3
+"""Least mean squared sine between the optical axes and their common direction for them to meet
+in a point the cameras look at (below it they are parallel: a forward-facing capture)."""
+
+
+def load_transforms(root: Path, *, views: Views = "all", downscale: float | None = None) -> SceneData:
+    """Parse the ``transforms.json`` scene in folder ``root`` (see the module docstring)."""
+    path = root / TRANSFORMS
+    if not path.is_file():
+        raise DataError(f"{path}: file not found")
+    meta = read_json_object(path)
+    frames = sorted(transform_frames(meta, path), key=lambda f: natural_key(f[0]))
+    f = check_downscale(downscale, root)
+    image_scale = 1.0 / (1.0 if f is None else f)
+    paths = [frame_image(root, fp, path) for fp, _ in frames]
+    stored = check_same_size(paths)
+    w, h = decoded_size(stored, image_scale)
+    fx, fy, cx, cy, width, height = _intrinsics(meta, path, stored)
+    sx, sy = pixel_ratios((w, h), (width, height), str(path), "its w, h give")
+    c2ws = [opencv_camera_to_world(m) for _, m in frames]
+    near, far = _depth_bounds(c2ws)
+    cameras = [
+        make_camera(c2w[:3, :3], c2w[:3, 3], fx * sx, fy * sy, cx * sx, cy * sy, w, h, near, far, name,
+                    f"{path}: frame {fp!r}")
+        for (fp, _), c2w, name in zip(frames, c2ws, _camera_names(paths, root))
+    ]
+    train, test = own_scene_split(len(cameras), views)
+    return build_scene(root, "transforms", cameras, paths, train, test, image_scale=image_scale)
+
+
+def _intrinsics(meta: dict, path: Path, stored: tuple[int, int]) -> tuple[float, float, float, float, float, float]:
+    """(fx, fy, cx, cy, width, height) of the camera as the file states it: from ``fl_x`` (``fl_y``,
+    ``cx``, ``cy``, ``w``, ``h`` default to ``fl_x``, the centre and the stored image size), else from
+    ``camera_angle_x`` (``camera_angle_y``) over the stored size."""
+    _check_camera_model(meta, path)
+
+    def value(key: str, default: float) -> float:
+        return number(meta[key], f"{path}: {key}") if key in meta else default
+
+    if "fl_x" in meta:
+        width, height = value("w", stored[0]), value("h", stored[1])
+        if not (width > 0 and height > 0):
+            raise DataError(f"{path}: image size w={width:g}, h={height:g} must be positive")
+        fx = value("fl_x", 0.0)
+        return fx, value("fl_y", fx), value("cx", width / 2), value("cy", height / 2), width, height
+    angle_x = camera_angle(meta, path)
+    if angle_x is None:
+        raise DataError(f"{path}: no intrinsics (global fl_x, fl_y, cx, cy, w, h, or camera_angle_x); "
+                        "per-frame intrinsics are not read")
+    width, height = stored
+    fx = focal_length(width, angle_x)
+    angle_y = camera_angle(meta, path, "camera_angle_y")
+    fy = fx if angle_y is None else focal_length(height, angle_y)
+    return fx, fy, width / 2, height / 2, width, height
+
+
+def _check_camera_model(meta: dict, path: Path) -> None:
+    """A DataError for a camera model that is not a pinhole one; one warning when the file gives
+    distortion coefficients, which are ignored."""
+    model = meta.get("camera_model", "PINHOLE")
+    if model not in PERSPECTIVE_MODELS:
+        raise DataError(f"{path}: camera_model {model!r} is not supported (use {', '.join(PERSPECTIVE_MODELS)})")
+    given = [k for k in DISTORTION if k in meta and number(meta[k], f"{path}: {k}") != 0.0]
+    if given:
+        warnings.warn(f"{path}: distortion ({', '.join(given)}) is ignored; undistort the images first for exact "
+                      "results", stacklevel=4)
+
+
+def _depth_bounds(c2ws: list[np.ndarray]) -> tuple[float, float]:
+    """near/far of every camera, which transforms.json does not record: around the point the
+    cameras look at (the least-squares point nearest to every optical axis), seen at depths z,
+    near = z_min / 2 and far = 1.5 z_max (Blender's 2 and 6 at radius 4); where the axes do not
+    meet in front of every camera (parallel axes: a forward-facing capture), :data:`DEFAULT_BOUNDS`."""
+    centers = np.stack([m[:3, 3] for m in c2ws])
+    axes = np.stack([m[:3, 2] / np.linalg.norm(m[:3, 2]) for m in c2ws])  # OpenCV: the camera looks down +z
+    projectors = np.eye(3) - axes[:, :, None] * axes[:, None, :]
+    a = projectors.sum(0)
+    if np.linalg.eigvalsh(a)[0] < MIN_CONVERGENCE * len(c2ws):
+        return DEFAULT_BOUNDS
+    target = np.linalg.solve(a, np.einsum("nij,nj->i", projectors, centers))
+    z = ((target - centers) * axes).sum(1)
+    if not (z > 0).all():
+        return DEFAULT_BOUNDS
+    return 0.5 * float(z.min()), 1.5 * float(z.max())
+
+
+def _camera_names(paths: list[Path], root: Path) -> list[str]:
+    """The images' stems, or, where two share one, their paths relative to ``root`` joined by "_"."""
+    stems = [p.stem for p in paths]
+    if len(set(stems)) == len(stems):
+        return stems
+    return [frame_name(p, root) for p in paths]
