@@ -12,11 +12,12 @@ Typical loop::
         out = rasterize(...)                       # out.meta is ``info``
         strategy.step_pre_backward(params, optimizers, state, step, out.meta)
         loss.backward()
+        for opt in optimizers.values(): opt.step(); opt.zero_grad(set_to_none=True)  # first, as gsplat
         # params["means"] must now hold the true positions of ALL rows (a
         # model whose positions are computed, e.g. ray-bound Gaussians, writes
-        # them into params["means"] before this call).
+        # them into params["means"] before this call: prepare_for_strategy).
+        # The statistics come from info (the render's meta), not from .grad.
         counts = strategy.step_post_backward(params, optimizers, state, step, out.meta)
-        for opt in optimizers.values(): opt.step(); opt.zero_grad(set_to_none=True)
 
 Extension points of :class:`DefaultStrategy` for models with extra per-row
 parameters (SCGaussian's ray flags): ``protected_rows`` marks rows that are never
