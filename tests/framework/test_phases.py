@@ -196,12 +196,13 @@ def test_resume_refusal_names_only_the_fields_the_user_changed(tmp_path, method)
     """--resume with another --steps and --seed: the refusal names steps and seed, not the internal
     default_steps nor the schedule fields --steps rescales (scgaussian's opacity decay among them)."""
     from splat_framework.config import resolve_steps, save_config
+    from splat_framework.data.run_data import resolve_views
     from splat_framework.registry import get_method
 
     run = tmp_path / "run"
     run.mkdir()
     cfg = get_method(method).default_config().model_copy(update={"steps": 20, "data": "synthetic/forward-tiny"})
-    save_config(resolve_steps(cfg), run / "config.json")
+    save_config(resolve_steps(resolve_views(cfg)), run / "config.json")  # as a run records it
     res = run_cli("train", method, "--data", "synthetic/forward-tiny", "--output", run, "--resume",
                   "--steps", "30", "--seed", "1", code=2, match="--resume cannot change the experiment",
                   watch=[run], env=cli_env(SPLAT_COMPILE="0"))

@@ -80,7 +80,12 @@ def resolve_views(config):
     if config.views is not None:
         return config
     views = resumed_views(config)
-    return config.model_copy(update={"views": default_views(data_format(config)) if views is None else views})
+    if views is None:
+        try:
+            views = default_views(data_format(config))
+        except DataError:  # no such data: said where the data is loaded, after the output's checks
+            return config
+    return config.model_copy(update={"views": views})
 
 
 def data_format(config) -> str:
