@@ -159,12 +159,12 @@ def test_variants_survive_a_wheel_install(tmp_path):
     project = tmp_path / "project"  # a copy: setuptools writes build/ next to pyproject.toml
     for name in ("src", "configs"):
         shutil.copytree(REPO / name, project / name, ignore=shutil.ignore_patterns("*.egg-info", "__pycache__"))
-    for name in ("pyproject.toml", "setup.py", "README.md"):
+    for name in ("pyproject.toml", "setup.py", "README.md", "LICENSE"):
         shutil.copy(REPO / name, project / name)
     built = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(tmp_path), str(project)],
                            capture_output=True, text=True, timeout=600)
     assert built.returncode == 0, built.stderr
-    wheel = next(tmp_path.glob("splat-*.whl"))
+    wheel = next(tmp_path.glob("splat_framework-*.whl"))
     env_dir = tmp_path / "venv"
     venv.create(env_dir, with_pip=False)
     py = env_dir / "bin" / "python"
