@@ -132,4 +132,5 @@ def test_training_on_photos_lists_the_photo_left_out_also_from_the_cache(noisy_p
                       "--photos.matcher", "sift", "--model.init.num-points", "300", code=0, env=env)
         out = " ".join((res.stdout + res.stderr).split())  # the console may wrap a long line
         assert posing in out and left_out in out, out
-        assert "training on all 4 photos: IMG_1, IMG_2, IMG_3, IMG_5" in out, out
+        assert ("training on all 4 views of a COLMAP scene (its default; --views N for a few-shot split): "
+                "IMG_1, IMG_2, IMG_3, IMG_5") in out, out

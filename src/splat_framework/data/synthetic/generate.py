@@ -332,7 +332,7 @@ def ensure_generated(name: str, params: dict, cache_dir: Path | None = None) -> 
     tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{final.name}-", dir=root))
     try:
         p = dict(params)
-        with phase(f"generating the built-in scene {name} (once; kept in {final})", quiet_s=0):
+        with phase(f"generating the built-in scene {name} (once; kept in {final})"):  # lines after 2 s
             generate_scene(p.pop("kind"), tmp, **p)
         try:
             os.rename(tmp, final)
