@@ -72,18 +72,21 @@ def record_data(config, scene: SceneData):
     return config.model_copy(update={"resolved_data": record})
 
 
-def resolve_views(config):
+def resolve_views(config, strict: bool = True):
     """``config`` with ``views`` settled where it is unset (None, no ``--views``): a resumed run's
     own (its config.json), else the default of its data's format (:func:`~.splits.default_views`:
     few-shot on the benchmarks, every view on one's own scenes). The one place the default applies;
-    config.json then records the views."""
+    config.json then records the views. ``strict=False`` (the trainer, before the output checks)
+    leaves them unset when the data cannot be recognised: loading it says why, after those checks."""
     if config.views is not None:
         return config
     views = resumed_views(config)
     if views is None:
         try:
             views = default_views(data_format(config))
-        except DataError:  # no such data: said where the data is loaded, after the output's checks
+        except DataError:
+            if strict:
+                raise
             return config
     return config.model_copy(update={"views": views})
 

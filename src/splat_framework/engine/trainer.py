@@ -147,7 +147,7 @@ class Trainer(TrainState):
     ):
         self.spec = get_method(config.method) if spec is None else spec
         self.command = None if command is None else list(command)
-        self.config = resolve_steps(resolve_views(config))  # the views first: more of them may lengthen the schedule
+        self.config = resolve_steps(resolve_views(config, strict=False))  # views first: more may lengthen the schedule
         self.callbacks = list(callbacks)
         self.device = resolve_config_devices(self.config)["device"]  # every device field, before anything is written
         out = self.config.output
