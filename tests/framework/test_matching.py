@@ -572,7 +572,11 @@ def test_disk_lightglue_plumbing_random_weights(tmp_path):
     sd = KF.LightGlue(None, input_dim=128).state_dict()
     torch.save({f"matcher.{k}": v for k, v in sd.items()}, tmp_path / "disk_lightglue.pth")  # hloc-style keys
     t0 = time.perf_counter()
+    assert torch.backends.cuda.flash_sdp_enabled()
     m = get_matcher("disk-lightglue", weights=tmp_path, max_keypoints=128, resize=0)
+    # kornia's LightGlue switches fused attention off for the whole process (the CPU's too: 1.5x
+    # slower matching); building the matcher puts the switch back
+    assert torch.backends.cuda.flash_sdp_enabled()
     m.lightglue.conf.filter_threshold = 0.0  # random weights: keep every assignment
     a, b = _tiny_pair()
     pa, pb = m.match(a, b)
