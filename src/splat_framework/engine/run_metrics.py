@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ..runtime.io import atomic_write_json
+from ..runtime.threads import threads_record
 
 
 def run_metrics(trainer, results: dict) -> dict:
@@ -24,6 +25,7 @@ def run_metrics(trainer, results: dict) -> dict:
         "restores": trainer.restores,
         "lpips_note": results["lpips_note"],
         "test_pose_steps": cfg.test_pose_steps,
+        "threads": threads_record(),
     }
     metrics["init_stats"] = dict(trainer.model.init_stats)
     report = trainer.model.report(trainer.datamanager)

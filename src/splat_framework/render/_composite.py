@@ -41,6 +41,7 @@ from torch.autograd.function import once_differentiable
 from ._kernels import ALPHA_MAX, T_MIN, gathering_bwd, get_kernels
 from ._kernels import bwd_round as bwd_round_eager
 from ..runtime.profiling import section
+from ..runtime.resources import available_cores
 _DUMMY_LOGIT = -1.0e4  # exp() == 0 in float32 and float64
 ABSGRAD_REQUEST = "absgrad_requested"
 """The attribute :func:`~splat_framework.render.rasterizer.request_absgrad` sets on a render's means2d."""
@@ -346,9 +347,10 @@ class _Composite(torch.autograd.Function):
         absgrad = getattr(ctx.means2d, ABSGRAD_REQUEST, False)
         width = 6 + f + (2 if absgrad else 0)  # the table's columns, then |dL/du|, |dL/dv| summed over pixels
         if ctx.native is not None:
-            # one [N + 1, width] table per worker thread (no atomics), summed; each thread's tiles are
-            # a fixed interleave, so the gradients are the same bits run after run (exact resume)
-            slots = torch.zeros(max(torch.get_num_threads(), 1), n + 1, width, device=table.device, dtype=table.dtype)
+            # one [N + 1, width] table per core the process may use (no atomics), summed; slot s adds
+            # the tiles s, s + slots, ... in order, whichever thread runs it: the gradients are the same
+            # bits run after run (exact resume) and for any thread count the load leaves the run
+            slots = torch.zeros(available_cores(), n + 1, width, device=table.device, dtype=table.dtype)
             for active, gid_sorted, tile_offset, t_entry, n_incl in ctx.rounds:
                 ctx.native.composite_backward(table, gid_sorted, tile_offset, active, tile_centers, t_entry, n_incl,
                                               g_out, total, prefix, slots, grid.tile)

@@ -64,6 +64,7 @@ class ThreadPolicy:
         self.pending: int | None = None  # a new count seen once, applied when seen again
         self.next_read = 0.0
         self.changes = 0
+        self.used: set[int] = set()  # every count the process ran with since the policy started
         self.meter = CpuMeter()
 
     def start(self) -> int | None:
@@ -73,6 +74,7 @@ class ThreadPolicy:
         value = mode()
         if isinstance(value, int):
             self._set(value)
+            self.used = {value}
             return value
         current = torch.get_num_threads()
         if self.most is None or current != self.applied:  # set by someone else since: the new ceiling
@@ -83,6 +85,7 @@ class ThreadPolicy:
                 self._set(start)
             self.meter.read()
             self.next_read, self.pending = time.monotonic() + READ_EVERY_S, None
+        self.used = {torch.get_num_threads()}
         return None
 
     def follow(self, now: float | None = None) -> int | None:
@@ -125,6 +128,14 @@ class ThreadPolicy:
         torch.set_num_threads(n)
         self.applied = n
         self.changes += 1
+        self.used.add(n)
+
+    def record(self) -> dict:
+        """What a run's metrics.json keeps of its threads: the setting, every count used (under "auto"
+        they follow the load), and the gradient slots of the native compositing, which, not the
+        thread count, fix the order of its sums (one per core the process may use)."""
+        setting = mode()
+        return {"setting": str(setting), "counts": sorted(self.used), "gradient_slots": available_cores()}
 
 
 def _match_opencv(n: int) -> None:
@@ -140,6 +151,11 @@ POLICY = ThreadPolicy()
 def apply_process_threads() -> int | None:
     """Start the process's thread policy; returns the pinned count under ``SPLAT_THREADS=N`` (else None)."""
     return POLICY.start()
+
+
+def threads_record() -> dict:
+    """The threads of this process's run, for metrics.json (see :meth:`ThreadPolicy.record`)."""
+    return POLICY.record()
 
 
 def follow_load() -> int | None:

@@ -197,3 +197,24 @@ def test_build_folder_is_keyed_by_source_flags_and_cpu(tmp_path, monkeypatch):
     monkeypatch.setattr(torch.backends.cpu, "get_cpu_capability", lambda: "SOMETHING-ELSE")
     assert _native._build_dir(tmp_path) != a  # a cache shared with another CPU never loads this build
     assert _native._build_dir(None) is None
+
+
+def test_native_gradients_are_the_same_bits_for_any_thread_count(native):
+    # under SPLAT_THREADS=auto the count follows the machine's load: the sums of the backward are
+    # ordered by gradient slots (one per core), not by threads, so a seed trains the same alone or
+    # beside other work
+    width, height = 96, 64
+    viewmat, K = ref.make_camera(width, height)
+    params = [p.requires_grad_() for p in ref.random_scene(400, 9, dtype=torch.float32)]
+    before = torch.get_num_threads()
+    grads = []
+    try:
+        for threads in (1, 2, 3):
+            torch.set_num_threads(threads)
+            out = rasterizer.rasterize(*params, viewmat, K, width, height)
+            grads.append(torch.autograd.grad((out.rgb.square().sum() + out.depth.sum()), params))
+    finally:
+        torch.set_num_threads(before)
+    for other in grads[1:]:
+        for a, b in zip(grads[0], other):
+            assert torch.equal(a, b)
