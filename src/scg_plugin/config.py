@@ -23,7 +23,7 @@ from splat_framework.plugin import (
 )
 
 from splat_framework.config.init import KIND, FrustumInitConfig, RandomInitConfig, init_field
-from splat_framework.matching import MatchConfig
+from splat_framework.config import MatchConfig
 
 
 class OrdinaryRandomInit(RandomInitConfig):
