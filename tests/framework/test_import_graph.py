@@ -170,7 +170,8 @@ LAYERS: list[tuple[str, ...]] = [
     ("plugin", "scg_plugin", "anchor_gs"),
     ("engine",),
     ("viewer", "sweep"),
-    ("cli",),
+    # the commands, and what tests (a plugin's too) run them with
+    ("cli", "testing"),
 ]
 """The layers of src/, lowest first: a module imports modules of its own layer or lower ones only.
 Entries are folders (packages) and top-level modules of ``splat_framework``, or a plugin package: a
