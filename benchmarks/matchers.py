@@ -49,7 +49,7 @@ def training_views(data: str, views: int):
     as training sees them."""
     from splat_framework.data.images import load_alpha, load_image
     from splat_framework.data.parsers import load_scene
-    from splat_framework.data.resolve import resolve_data_path
+    from splat_framework.sfm import resolve_data_path
 
     scene = load_scene(resolve_data_path(data), views=views)
     ids = [int(i) for i in scene.train_indices]
@@ -61,7 +61,7 @@ def training_views(data: str, views: int):
 
 def match_config(spec: str):
     """``NAME[:key=value,...]`` -> MatchConfig, e.g. ``aliked-lightglue:learned_resize=0,max_keypoints=4096``."""
-    from splat_framework.matching import MatchConfig
+    from splat_framework.config import MatchConfig
 
     name, _, rest = spec.partition(":")
     fields = dict(kv.split("=", 1) for kv in rest.split(",") if kv)

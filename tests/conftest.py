@@ -9,10 +9,10 @@ import pytest
 def _tiny_scenes(tmp_path_factory):
     """The tiny built-in scenes, generated once before any test: a command's first use would print
     its "generating the built-in scene" phase line before the one-line error a test expects."""
-    from splat_framework.data.synthetic.generate import ensure_scene
+    from splat_framework.testing import TINY_SCENES, tiny_scene
 
-    for name in ("forward-tiny", "object-tiny"):
-        ensure_scene(name, tmp_path_factory.getbasetemp() / "splatcache" / "synthetic")
+    for name in TINY_SCENES:
+        tiny_scene(tmp_path_factory.getbasetemp() / "splatcache", name)
 
 
 @pytest.fixture(autouse=True)

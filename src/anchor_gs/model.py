@@ -27,11 +27,10 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from splat_framework.losses import photometric_loss
-from splat_framework.model.gaussians import knn_scale, log_lerp, run_fraction
-from splat_framework.model.init import initial_points
-from splat_framework.model.regularisers import regulariser_terms
-from splat_framework.plugin import Camera, GaussianModel, RenderOutput, adam, rasterize, rgb_to_sh
+from splat_framework.plugin import (
+    Camera, GaussianModel, RenderOutput, adam, initial_points, knn_scale, log_lerp, photometric_loss, rasterize,
+    regulariser_terms, rgb_to_sh, run_fraction,
+)
 
 VIEW_MARGIN = 0.5
 """Anchors are decoded when they project within the image widened by this fraction on every side."""

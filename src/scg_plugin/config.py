@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, ClassVar, Literal
+from typing import ClassVar, Literal
 
 from pydantic import Field
 
@@ -10,27 +10,26 @@ import tyro
 
 from splat_framework.plugin import (
     DensifyConfig,
+    FrustumInitConfig,
     GaussianModelConfig,
     MAX_GAUSSIANS,
     MAX_MATCHES,
     LearningRate,
+    MatchConfig,
     NonNegative,
     Positive,
     Period,
+    RandomInitConfig,
     Steps,
     TrainConfig,
+    init_field,
     strategy_field,
 )
-
-from splat_framework.config.init import KIND, FrustumInitConfig, RandomInitConfig, init_field
-from splat_framework.matching import MatchConfig
 
 
 class OrdinaryRandomInit(RandomInitConfig):
     """Random start of the ordinary Gaussians (the 3DGS reference's): uniform in the scene box, grey."""
 
-    kind: Annotated[Literal["random"], KIND] = "random"
-    """The start's kind."""
     num_points: int = Field(10_000, ge=0, le=MAX_GAUSSIANS)
     """Random ordinary Gaussians at start beside the ray-based ones (0 = ordinary ones come only from densification): matched rays cover only textured surfaces."""
 
@@ -38,8 +37,6 @@ class OrdinaryRandomInit(RandomInitConfig):
 class OrdinaryFrustumInit(FrustumInitConfig):
     """Frustum start of the ordinary Gaussians: random points inside the training frusta, coloured by their pixels."""
 
-    kind: Annotated[Literal["frustum"], KIND] = "frustum"
-    """The start's kind."""
     num_points: int = Field(10_000, ge=0, le=MAX_GAUSSIANS)
     """Random ordinary Gaussians at start beside the ray-based ones (0 = ordinary ones come only from densification)."""
 

@@ -13,8 +13,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from splat_framework.plugin import Camera, GaussianModel, ops
-from splat_framework.runtime.profiling import section
+from splat_framework.plugin import Camera, GaussianModel, ops, section
 
 from .losses import rendering_geometry_loss
 from .ray_gaussians import MatchCache, RayBundle, gaussian_position_loss, pixel_errors

@@ -1,7 +1,7 @@
 """SCGaussian's start-up, one named step each, in the order :meth:`SCGaussianModel.from_data` runs them.
 
 1. :func:`ray_prior`: match every pair of training views
-   (:func:`splat_framework.matching.prior.compute_match_set`, cached on disk) and bind two ray-based Gaussians to each verified match
+   (:func:`splat_framework.plugin.compute_match_set`, cached on disk) and bind two ray-based Gaussians to each verified match
    (:class:`~scg_plugin.ray_gaussians.RayBundle`); None when fewer than
    ``min_matches`` were found (one warning).
 2. :func:`warm_up_prior`: the first stage of the two-stage schedule: optimise the
@@ -26,11 +26,9 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from splat_framework.console import phase
-from splat_framework.plugin import Camera, StrategyConfig
-from splat_framework.matching.prior import compute_match_set, match_pairs
-from splat_framework.config.init import FALLBACK_POINTS
-from splat_framework.model.init import initial_points
+from splat_framework.plugin import (
+    FALLBACK_POINTS, Camera, StrategyConfig, compute_match_set, config_3dgs, initial_points, match_pairs, phase, resolve_steps,
+)
 
 from .ray_gaussians import MatchCache, RayBundle, build_ray_bundle, warm_up
 
@@ -101,9 +99,6 @@ def baseline_schedule(config) -> BaselineSchedule:
     same total iterations as ``config`` (its own thresholds and iterations, rescaled as
     ``--steps`` does), in ``config``'s strategy kind (SCGaussian's, which keeps the ray-based
     Gaussians) with its other strategy fields unchanged."""
-    from splat_framework.config import resolve_steps
-    from splat_framework.methods.gaussian_splatting import config_3dgs
-
     base = resolve_steps(config_3dgs().model_copy(update={"steps": config.total_steps}))
     strategy = type(config.strategy).model_validate(
         config.strategy.model_dump() | base.strategy.model_dump(exclude={"kind", "enabled"}))

@@ -5,7 +5,27 @@
 Names resolve lazily (module ``__getattr__``): importing this module, or a method's
 ``config.py`` that takes its config classes from here, imports no torch, so ``--help``
 stays fast; the model side (``GaussianModel``, ``Strategy``, ``ops``, ``rasterize``,
-``Camera``) is imported on first use. Names not listed here are internal and may move.
+``Camera``) is imported on first use. Names not listed here are internal and may move:
+the in-repo plugins (``scg_plugin``, ``anchor_gs``) and ``examples/`` import the framework
+only from here (``tests/framework/test_plugin_imports.py``), and their tests also from
+:mod:`splat_framework.testing`.
+
+Besides the contract (configs and their field markers, the model, strategies, the renderer),
+the face holds what a method's own parts build on:
+
+- starts: ``RandomInitConfig`` and ``FrustumInitConfig`` (kinds a model may narrow or extend),
+  ``initial_points`` (the start its ``model.init`` describes, as every model's ``from_data``
+  builds it), ``FALLBACK_POINTS`` (random points when a prior is missing or sparse);
+- the matching prior: ``MatchConfig`` (a config's ``matching`` field), ``compute_match_set``
+  (the verified matches of the training views, cached) and ``match_pairs`` (them, pair by pair);
+- losses: ``photometric_loss`` (L1 + D-SSIM) and ``regulariser_terms`` (the opt-in ``model.reg``
+  terms a ``get_loss_dict`` adds);
+- schedules: ``run_fraction`` and ``log_lerp`` (a learning rate decaying over the run),
+  ``resolve_steps`` (a config's schedule rescaled to its ``--steps``), ``config_3dgs`` (the
+  ``3dgs`` baseline's config, e.g. its densification schedule);
+- geometry: ``knn_scale`` (each point's distance to its nearest neighbours, 3DGS's start scale);
+- the terminal and the profile: ``phase`` (a named phase with progress, as the framework's own
+  set-up steps show), ``section`` (time a named part of a step in ``--profile``).
 """
 
 from __future__ import annotations
@@ -27,6 +47,12 @@ _EXPORTS: dict[str, str] = {
     "strategy_field": "splat_framework.config",
     "InitConfig": "splat_framework.config",
     "init_field": "splat_framework.config",
+    "RandomInitConfig": "splat_framework.config",
+    "FrustumInitConfig": "splat_framework.config.init",
+    "FALLBACK_POINTS": "splat_framework.config.init",
+    "MatchConfig": "splat_framework.config",
+    "resolve_steps": "splat_framework.config",
+    "config_3dgs": "splat_framework.methods.gaussian_splatting",
     # field markers of configs
     "Steps": "splat_framework.config",
     "StartSteps": "splat_framework.config",
@@ -42,6 +68,9 @@ _EXPORTS: dict[str, str] = {
     "MAX_GAUSSIANS": "splat_framework.config",
     "MAX_MATCHES": "splat_framework.config",
     "RUN_OPTION": "splat_framework.config",
+    # the terminal and the profile
+    "phase": "splat_framework.console",
+    "section": "splat_framework.runtime.profiling",
     # the model side (imports torch on first use)
     "GaussianModel": "splat_framework.model.gaussians",
     "Strategy": "splat_framework.model.strategy",
@@ -50,6 +79,14 @@ _EXPORTS: dict[str, str] = {
     "adam": "splat_framework.model.optim",
     "StartPoints": "splat_framework.model.init",
     "scene_box": "splat_framework.model.init",
+    "initial_points": "splat_framework.model.init",
+    "knn_scale": "splat_framework.model.gaussians",
+    "run_fraction": "splat_framework.model.gaussians",
+    "log_lerp": "splat_framework.model.gaussians",
+    "regulariser_terms": "splat_framework.model.regularisers",
+    "photometric_loss": "splat_framework.losses",
+    "compute_match_set": "splat_framework.matching.prior",
+    "match_pairs": "splat_framework.matching.prior",
     "Camera": "splat_framework.cameras",
     "RenderOutput": "splat_framework.render",
     "rasterize": "splat_framework.render",
@@ -65,17 +102,24 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .cameras import Camera
     from .config import (
         MAX_GAUSSIANS, MAX_MATCHES, RUN_OPTION, DensifyConfig, Fraction, GaussianModelConfig, Interval, LearningRate,
-        ModelConfig, NonNegative, OptimConfig, OptionalPeriod, Period, Positive, RampPeriod, RegularisersConfig,
-        SplatConfig, StartSteps, StepFactor, Steps,
-        StrategyConfig, TrainConfig, strategy_field, InitConfig, init_field,
+        MatchConfig, ModelConfig, NonNegative, OptimConfig, OptionalPeriod, Period, Positive, RampPeriod,
+        RandomInitConfig, RegularisersConfig, SplatConfig, StartSteps, StepFactor, Steps,
+        StrategyConfig, TrainConfig, strategy_field, InitConfig, init_field, resolve_steps,
     )
-    from .model.init import StartPoints, scene_box
+    from .config.init import FALLBACK_POINTS, FrustumInitConfig
+    from .console import phase
+    from .losses import photometric_loss
+    from .matching.prior import compute_match_set, match_pairs
+    from .methods.gaussian_splatting import config_3dgs
+    from .model.init import StartPoints, initial_points, scene_box
     from .model import ops
-    from .model.gaussians import GaussianModel
+    from .model.gaussians import GaussianModel, knn_scale, log_lerp, run_fraction
     from .model.optim import adam
+    from .model.regularisers import regulariser_terms
     from .model.strategy import DefaultStrategy, Strategy, check_rows
     from .registry import MethodSpec
     from .render import RenderOutput, quat_to_rotmat, rasterize, rgb_to_sh
+    from .runtime.profiling import section
 
 
 def __getattr__(name: str) -> Any:

@@ -14,7 +14,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from splat_framework.data import DataError, DataManager, load_image, load_scene, read_image_size, resolve_data_path
+from splat_framework.data import DataError, DataManager, load_image, load_scene, read_image_size
+from splat_framework.sfm import resolve_data_path
 from support import llff_row, make_blender, make_colmap, make_dtu, make_llff, write_png
 
 

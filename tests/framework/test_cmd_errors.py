@@ -128,7 +128,7 @@ def test_match_writes_matches_npz_last(tmp_path, monkeypatch):
     """Interrupted while drawing the pictures: each written picture is whole and there is no matches.npz."""
     import splat_framework.matching as matching
     from splat_framework.cli.match import run_matching
-    from splat_framework.matching import MatchConfig
+    from splat_framework.config import MatchConfig
 
     rng = np.random.default_rng(0)
     images = [rng.random((48, 64, 3)).astype(np.float32) for _ in range(3)]

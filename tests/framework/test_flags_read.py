@@ -31,7 +31,7 @@ READ_ELSEWHERE = {
 READ_IN_ANOTHER_MODE = {
     "model.cache_until": "scgaussian's single-stage schedule only (scgaussian-single-stage; the two-stage one "
                          "caches during its warm-up), as its help says",
-    "photos.matcher": "--data naming a folder of photos or a video only (data/photos.py poses them), as its help says",
+    "photos.matcher": "--data naming a folder of photos or a video only (sfm/own_photos.py poses them), as its help says",
     "photos.mapper": "--data naming a folder of photos or a video only",
     "photos.frames": "--data naming a video only",
     "camera_refine.lr_rotation": "--camera-refine.mode on, or auto with estimated training poses (off by default), "

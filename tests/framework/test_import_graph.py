@@ -1,6 +1,8 @@
 """The import graph of src/: module -> module, read with ``ast`` (top-level, function-level and
-``if TYPE_CHECKING:`` imports: a loop for the type checker is a loop of the design too): no circle,
-and no module takes another module's private names."""
+``if TYPE_CHECKING:`` imports: a loop for the type checker is a loop of the design too), with the
+package ``__init__``s an import runs on the way (``import a.b.c`` runs ``a/b/__init__.py`` first):
+no circle, drawn or hidden behind a package, no module taking another module's private names, and
+every module placed in a layer by its folder."""
 
 from __future__ import annotations
 
@@ -10,11 +12,11 @@ from pathlib import Path
 SRC = Path(__file__).resolve().parents[2] / "src"
 
 
-def _module_files() -> dict[str, Path]:
-    """Dotted module name -> file, for every package under src/."""
+def _module_files(src: Path = SRC) -> dict[str, Path]:
+    """Dotted module name -> file, for every package under ``src``."""
     out = {}
-    for path in SRC.rglob("*.py"):
-        rel = path.relative_to(SRC).with_suffix("")
+    for path in src.rglob("*.py"):
+        rel = path.relative_to(src).with_suffix("")
         parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
         if parts and all(p.isidentifier() for p in parts):
             out[".".join(parts)] = path
@@ -42,15 +44,23 @@ def _imports(name: str, path: Path, modules: dict[str, Path]) -> list[tuple[str,
     return [(m, n) for m, n in out if m in modules]
 
 
-def import_graph() -> tuple[dict[str, set[str]], list[str]]:
-    """The module graph of src/ and the private-name imports found (``importer: target.name``)."""
-    modules = _module_files()
+def _packages_run(importer: str, target: str, modules: dict[str, Path]) -> list[str]:
+    """The packages whose ``__init__`` importing ``target`` runs first: its parent packages, except
+    those holding ``importer`` (already being imported when ``importer`` runs)."""
+    parts = target.split(".")
+    parents = (".".join(parts[:i]) for i in range(1, len(parts)))
+    return [p for p in parents if p in modules and not (importer == p or importer.startswith(p + "."))]
+
+
+def import_graph(src: Path = SRC) -> tuple[dict[str, set[str]], list[str]]:
+    """The module graph of ``src`` (an edge to every package ``__init__`` an import runs) and the
+    private-name imports found (``importer: target.name``)."""
+    modules = _module_files(src)
     graph, private = {}, []
     for name, path in modules.items():
         graph[name] = set()
         for target, item in _imports(name, path, modules):
-            if target != name:
-                graph[name].add(target)
+            graph[name] |= {target, *_packages_run(name, target, modules)} - {name}
             own_package = name == target.rpartition(".")[0] or name.rpartition(".")[0] == target.rpartition(".")[0]
             hidden_module = target.rpartition(".")[2].startswith("_") and not target.endswith("__")
             if (item is not None and item.startswith("_") and not item.startswith("__")) or (
@@ -94,9 +104,25 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 def test_the_graph_is_read():
     graph, _ = import_graph()
     assert "splat_framework.render.sh" in graph["splat_framework.render"]  # from .sh import ...
-    assert "splat_framework.matching.names" in graph["splat_framework.matching.config"]
-    assert graph["splat_framework.matching.names"] == set()  # a matcher name validates with nothing else
+    assert "splat_framework.config.matcher_names" in graph["splat_framework.config.matching"]
+    assert graph["splat_framework.config.matcher_names"] == set()  # a matcher name validates with nothing else
+    # ``from ..matching.prior import ...`` runs matching/__init__.py first
+    assert {"splat_framework.matching", "splat_framework.matching.prior"} <= graph["splat_framework.model.init"]
     assert len(graph) > 100
+
+
+def test_a_circle_behind_a_package_init_is_found(tmp_path):
+    """Today's main had this one: ``c.i`` imports ``m.cfg`` (running ``m/__init__``, which imports the
+    package ``c``, whose ``__init__`` imports ``c.i``); no edge of it names a package's own module."""
+    files = {"p/__init__.py": "", "p/c/__init__.py": "from .i import X\n", "p/c/base.py": "B = 1\n",
+             "p/c/i.py": "from ..m.cfg import M\nX = M\n", "p/m/__init__.py": "from .. import c\nfrom .cfg import M\n",
+             "p/m/cfg.py": "from ..c.base import B\nM = B\n"}
+    for rel, text in files.items():
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_text(text)
+    graph, _ = import_graph(tmp_path)
+    assert graph["p.c.i"] == {"p.m", "p.m.cfg"} and graph["p.m.cfg"] == {"p.c", "p.c.base"}
+    assert cycles(graph) == [["p.c", "p.c.i", "p.m", "p.m.cfg"]]
 
 
 def test_cycles_are_found():
@@ -128,37 +154,38 @@ def test_the_config_package_reaches_no_torch_module():
 
 LAYERS: list[tuple[str, ...]] = [
     # what every layer uses
-    ("__init__", "errors", "entry_points", "environment", "console", "runtime", "cameras", "files.run_lock"),
+    ("__init__", "errors", "entry_points", "environment", "console", "runtime", "cameras"),
     # configs and what they name (torch-free; read for --help)
-    ("config", "matching.config", "matching.names", "registry", "methods", "devices"),
+    ("config", "registry", "methods", "devices"),
     # where commands may write
     ("files",),
-    # data: datasets, own photos and their poses, file formats a start is read from
-    ("data", "sfm", "export.ply"),
+    # data: datasets, and the file formats a start is read from or a run is exported to
+    ("data", "export"),
+    # poses from one's own photos
+    ("sfm",),
     ("matching",),
     ("render", "losses"),
     ("model",),
-    ("evaluation", "export"),
+    ("evaluation",),
     ("plugin", "scg_plugin", "anchor_gs"),
     ("engine",),
     ("viewer", "sweep"),
-    ("cli",),
+    # the commands, and what tests (a plugin's too) run them with
+    ("cli", "testing"),
 ]
 """The layers of src/, lowest first: a module imports modules of its own layer or lower ones only.
-Entries are module prefixes under ``splat_framework`` (or a plugin package); the longest prefix that
-matches a module gives its layer."""
+Entries are folders (packages) and top-level modules of ``splat_framework``, or a plugin package: a
+module's folder gives its layer, never its own name (``matching.config`` is in the matching layer)."""
 
 
 def layer_of(module: str) -> int:
+    """The layer of ``module``: that of its folder under ``splat_framework`` (or its plugin package)."""
     name = module.removeprefix("splat_framework.") if module != "splat_framework" else "__init__"
-    best, found = -1, None
-    for i, prefixes in enumerate(LAYERS):
-        for p in prefixes:
-            if (name == p or name.startswith(p + ".")) and len(p) > best:
-                best, found = len(p), i
-    if found is None:
-        raise AssertionError(f"{module} is in no layer: add it to LAYERS")
-    return found
+    folder = name.partition(".")[0]
+    found = [i for i, entries in enumerate(LAYERS) if folder in entries]
+    if not found:
+        raise AssertionError(f"{module} is in no layer: add {folder!r} to LAYERS")
+    return found[0]
 
 
 def test_no_import_runs_back_up_a_layer():
@@ -167,10 +194,16 @@ def test_no_import_runs_back_up_a_layer():
     assert upward == []
 
 
+def test_layers_name_folders_once():
+    entries = [e for layer in LAYERS for e in layer]
+    assert len(entries) == len(set(entries)) and not [e for e in entries if "." in e]
+
+
 def test_the_layer_rule_sees_an_upward_import():
     assert layer_of("splat_framework.config.train") < layer_of("splat_framework.viewer.serving")
-    assert layer_of("splat_framework.matching.config") < layer_of("splat_framework.matching.pipeline")
-    assert layer_of("splat_framework.export.ply") < layer_of("splat_framework.model.init") < layer_of("splat_framework.export.video")
+    assert layer_of("splat_framework.matching.config") == layer_of("splat_framework.matching.pipeline")
+    assert layer_of("splat_framework.config") < layer_of("splat_framework.data.photos") < layer_of("splat_framework.sfm.photos")
+    assert layer_of("splat_framework.export.ply") < layer_of("splat_framework.model.init")
 
 
 def test_every_module_imports_first_in_a_fresh_process():

@@ -13,9 +13,9 @@ import pytest
 import torch
 
 from splat_framework import matching as M
+from splat_framework.config import MatchConfig
 from splat_framework.matching import (
     MATCHERS,
-    MatchConfig,
     MatchSet,
     MissingWeightsError,
     balanced_sample,
@@ -648,7 +648,8 @@ def test_cli_help_is_fast_and_flat():
 
 
 def test_matcher_names_are_the_registered_matchers_and_validate_configs():
-    from splat_framework.matching import names, registry
+    from splat_framework.config import matcher_names as names
+    from splat_framework.matching import registry
 
     assert registry.MATCHERS is names.MATCHERS and all(registry.MATCHERS.values())  # one registry, classes filled in
     AUTO = names.AUTO

@@ -15,7 +15,7 @@ from config_walk import overrides_in_every, sub_configs
 from splat_framework.config import apply_overrides, experiment_fields, read_config_json, resolve_steps, upgrade_saved_config
 from splat_framework.data import resolve_views
 from splat_framework.runtime.io import atomic_write_json, read_json
-from splat_framework.matching.config import MatchConfig
+from splat_framework.config import MatchConfig
 from splat_framework.registry import get_method
 from splat_framework.engine.run import load_trained_model
 from splat_framework.engine.trainer import Trainer, TrainingInterrupted

@@ -80,7 +80,8 @@ def test_the_run_folder_evaluates_from_another_folder_and_shell(photo_run, tmp_p
 
 
 def test_the_same_photos_are_posed_once_and_a_changed_photo_again(photo_run, tmp_path, monkeypatch, capsys):
-    from splat_framework.data.photos import photo_source, photos_key, posed_photos
+    from splat_framework.data.photos import photo_source
+    from splat_framework.sfm.own_photos import photos_key, posed_photos
 
     _, run, photos, env = photo_run
     monkeypatch.setenv("SPLAT_CACHE", env["SPLAT_CACHE"])
@@ -108,7 +109,7 @@ def test_an_edited_cache_entry_is_posed_again_with_one_line_naming_the_file(phot
                                                                           capsys, tamper):
     """Issue 60: the cached entry's manifest covers poses, images and matches; an entry edited by
     hand (a moved pose, a painted or emptied image) is posed again, never used."""
-    from splat_framework.data.photos import posed_photos
+    from splat_framework.sfm.own_photos import posed_photos
 
     _, _, photos, env = photo_run
     cache = tmp_path / "cache"
@@ -143,7 +144,7 @@ def test_an_edited_cache_entry_is_posed_again_with_one_line_naming_the_file(phot
 
 def test_a_failed_posing_leaves_no_entry_and_does_not_say_cached(photo_run, tmp_path, monkeypatch, capsys):
     import splat_framework.sfm.reconstruct as reconstruct
-    from splat_framework.data.photos import posed_photos
+    from splat_framework.sfm.own_photos import posed_photos
     from splat_framework.errors import DataError
 
     _, _, photos, _ = photo_run

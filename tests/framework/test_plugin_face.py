@@ -35,5 +35,5 @@ def test_the_face_names_the_model_contract():
 
     assert plugin.GaussianModel is GaussianModel and plugin.MethodSpec is MethodSpec
     assert callable(plugin.ops.remove) and callable(plugin.rasterize)
-    with pytest.raises(AttributeError, match="no attribute 'knn_scale'"):
-        plugin.knn_scale  # internal names are not part of the face
+    with pytest.raises(AttributeError, match="no attribute 'box_points'"):
+        plugin.box_points  # internal names are not part of the face

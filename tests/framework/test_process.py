@@ -206,7 +206,7 @@ def test_the_prior_takes_the_posing_matches_instead_of_matching_the_pairs_again(
     matching again, said in one line naming the file."""
     from splat_framework.data import DataManager
     from splat_framework.matching import learned
-    from splat_framework.matching.config import MatchConfig
+    from splat_framework.config import MatchConfig
     from splat_framework.sfm.pose_matches import POSE_MATCHES, known_sparse_matches
     from splat_framework.matching.prior import compute_match_set
 

@@ -363,7 +363,7 @@ def test_invalid_values_of_nested_configs_name_their_dotted_path(tmp_path):
     """Without tyro's private hooks: a config built from arguments raises InvalidArguments (not a
     ValueError, which tyro would box), and the CLI finds where that config class sits."""
     from scg_plugin.config import RayStrategyConfig, SCGModelConfig
-    from splat_framework.matching import MatchConfig
+    from splat_framework.config import MatchConfig
     from splat_framework.cli.common import config_path
     from splat_framework.config import GaussianModelConfig, InvalidArguments, OptimConfig, cli_parsing
 

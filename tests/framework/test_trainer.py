@@ -11,7 +11,8 @@ import pytest
 import torch
 
 from splat_framework.config import SCHEMA_VERSION, apply_overrides, read_config_json, save_config
-from splat_framework.data import DataError, load_scene, resolve_data_path
+from splat_framework.data import DataError, load_scene
+from splat_framework.sfm import resolve_data_path
 from splat_framework.data.datamanager import view_bytes
 from splat_framework.evaluation.held_out import evaluate
 from splat_framework.runtime.io import read_json

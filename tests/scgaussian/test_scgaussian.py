@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from splat_framework.matching import MatchConfig, compute_matches
+from splat_framework.config import MatchConfig
+from splat_framework.matching import compute_matches
 from splat_framework.matching.prior import triangulate
 from scg_plugin.method import config_scgaussian
 from scg_plugin.model import SCGaussianModel

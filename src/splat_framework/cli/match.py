@@ -20,7 +20,7 @@ import tyro
 from pydantic import AfterValidator, Field
 
 from ..config import SplatConfig
-from ..matching import MatchConfig
+from ..config import MatchConfig
 
 if TYPE_CHECKING:  # pragma: no cover
     from splat_framework.cameras import Camera
@@ -133,7 +133,7 @@ def main(args: MatchArgs) -> "MatchSet":
 
     from splat_framework.data.images import load_image
     from splat_framework.data.parsers import load_scene
-    from splat_framework.data.resolve import resolve_data_path
+    from splat_framework.sfm.own_photos import resolve_data_path
 
     from ..files.output_paths import MATCH_FOLDER, check_output, claim_output, data_inputs
 

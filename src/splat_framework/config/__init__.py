@@ -5,6 +5,7 @@ flag's help). Every name is importable from here; the modules say what each is:
 - :mod:`.base`: the machinery under every config (:class:`SplatConfig`, markers such as
   :data:`Steps` and :data:`RUN_OPTION`, bounded field types, :func:`cli_parsing`),
 - :mod:`.init`: the initialisation kinds of ``model.init``,
+- :mod:`.matching`: the matching prior's :class:`MatchConfig` (and :mod:`.matcher_names`, the matchers it may choose),
 - :mod:`.strategy`: the densification strategies' configs,
 - :mod:`.model`: what every model reads (:class:`ModelConfig`), the opt-in regularisers
   (``model.reg``), the 3DGS model and its learning rates,
@@ -49,6 +50,7 @@ from .base import (
     cli_parsing,
 )
 from .init import InitConfig, InitKinds, RandomInitConfig, init_field, init_kinds, upgrade_init_layout
+from .matching import MatchConfig
 from .merge import apply_overrides, deep_merge
 from .model import (
     REGULARISER_FIELDS,
@@ -75,7 +77,7 @@ __all__ = [
     "DEVICE_MARKER", "MAX_GAUSSIANS", "MAX_MATCHES", "MAX_SCHEDULE", "MAX_STEPS", "MAX_VIEWS", "MOVED_FIELDS",
     "PER_STEP_MARKER", "REGULARISER_FIELDS", "RUN_OPTION", "SCHEMA_VERSION", "SHORTEN_ONLY", "STEPS_MARKER",
     "DensifyConfig", "Device", "Finite", "Fraction", "GaussianModelConfig", "InitConfig", "InitKinds", "Interval",
-    "InvalidArguments", "LearningRate", "Marker", "ModelConfig", "NonNegative", "OptimConfig", "OptionalPeriod",
+    "InvalidArguments", "LearningRate", "Marker", "MatchConfig", "ModelConfig", "NonNegative", "OptimConfig", "OptionalPeriod",
     "Period", "Positive", "RampPeriod", "RandomInitConfig", "RegisteredStrategies", "RegularisersConfig",
     "SplatConfig", "StartSteps", "StepFactor", "Steps", "StrategyConfig", "TrainConfig",
     "apply_overrides", "cli_parsing", "config_payload", "deep_merge", "experiment_fields", "init_field", "init_kinds", "read_config_json",

@@ -24,7 +24,7 @@ import tyro
 from pydantic import BeforeValidator, Field, SerializeAsAny
 
 from .base import MAX_GAUSSIANS, Positive, SplatConfig, as_registered_kind, registered_kinds
-from ..matching.config import MatchConfig
+from .matching import MatchConfig
 
 FALLBACK_POINTS = 10_000
 """Random points a model starts from when its prior (matches, triangulated points) is missing or sparse."""

@@ -1,120 +1,24 @@
-"""Your own photos (or a video) as ``--data``: posed once by structure from motion, then cached.
-
-A folder that holds images and no dataset marker (see :func:`~.parsers.marked_format`), or a
-video file, is posed as ``splat-process`` would pose it (:func:`splat_framework.sfm.estimate_scene`)
-and the posed scene folder is kept in ``$SPLAT_CACHE/photos/<key>/scene``, where ``key`` hashes
-the photos' names and bytes and the pose options: the next run on the same photos reads it
-back, a changed, added or removed photo poses them again. An entry is written whole or not at all
-(built beside its place, then renamed), with a manifest of every file's sha256 (poses, images, the
-posing's matches); an entry whose files do not match it (edited, emptied, added, unreadable) is
-posed again, with one warning naming the file.
-"""
+"""Your own photos (or a video) as ``--data``: what is one, recognised without posing it
+(:mod:`splat_framework.sfm.own_photos` poses it)."""
 
 from __future__ import annotations
 
-import hashlib
-import json
-import os
-import shutil
-import warnings
 from pathlib import Path
 from typing import Literal
 
-from ..config.data import PhotoPosesConfig
-from ..runtime.trusted import folder_mismatch, private_folder, write_folder_manifest
-from .cache_dir import user_cache_dir
 from .images import list_images
 from .parsers import marked_format
 
 PhotoSource = Literal["photos", "video"]
-KEY_VERSION = "splat-photos-1"
-"""Bumped when what the cache holds changes."""
-SUMMARY = "summary.json"
-"""Written last beside the cached scene: the entry is complete."""
+VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg")
+"""File suffixes that ``splat-train --data`` reads as a video (any format OpenCV decodes works with splat-process video)."""
 
 
 def photo_source(path: Path) -> PhotoSource | None:
     """"photos" for a folder of images that is not a dataset, "video" for a video file, else None."""
-    from ..sfm.video import VIDEO_SUFFIXES
-
     path = Path(path)
     if path.is_file():
         return "video" if path.suffix.lower() in VIDEO_SUFFIXES else None
     if path.is_dir() and marked_format(path) is None and list_images(path):
         return "photos"
     return None
-
-
-def photos_key(files: list[Path], kind: PhotoSource, options: PhotoPosesConfig) -> str:
-    """Hex digest of the files' names and bytes (in the given order) and of the pose options that apply."""
-    used = options.model_dump(mode="json", exclude=set() if kind == "video" else {"frames"})
-    h = hashlib.sha256(json.dumps([KEY_VERSION, kind, used], sort_keys=True).encode())
-    for f in files:
-        h.update(f"\0{f.name}\0{f.stat().st_size}\0".encode())
-        with open(f, "rb") as src:
-            for block in iter(lambda: src.read(1 << 20), b""):
-                h.update(block)
-    return h.hexdigest()
-
-
-def posed_photos(path: Path, kind: PhotoSource, options: PhotoPosesConfig | None = None) -> Path:
-    """The posed scene folder (COLMAP layout) of the photos in folder ``path`` or of the video ``path``:
-    read from the cache, or estimated now (one line before, the summary after) and cached; either way
-    one line per photo left out, with its verified matches with each other photo by file name."""
-    from ..console import say
-    from ..files.work_folder import building
-    from ..runtime.io import atomic_write_json, read_json
-    from ..sfm.photos import list_images as list_photos
-    from ..sfm.reconstruct import estimate_scene
-    from ..sfm.video import pick_video_frames
-
-    options = options or PhotoPosesConfig()
-    path = Path(path)
-    files = list_photos(path) if kind == "photos" else [path]
-    root = user_cache_dir()
-    entry = root / "photos" / photos_key(files, kind, options)[:24]
-    scene = entry / "scene"
-    if entry.exists():
-        reason = folder_mismatch(entry, root)
-        if reason is None:
-            cached = read_json(entry / SUMMARY)
-            say(f"{path}: poses from the cache ({cached['line']}; {scene})")
-            _say_left_out(cached.get("not_registered_lines", []))
-            return scene
-        warnings.warn(f"{path}: cached poses not used ({reason}); estimating them again", stacklevel=2)
-        shutil.rmtree(entry, ignore_errors=True)
-    what = f"{len(files)} photos" if kind == "photos" else f"{options.frames} frames of the video"
-    say(f"{path}: estimating the poses of {what} (pycolmap, {options.mapper} mapper, {options.matcher} matches)")
-    kwargs = {"mapper": options.mapper, "matcher": options.matcher, "overwrite": True}
-    private_folder(entry.parent)
-    with building(entry, _install_private) as work:
-        if kind == "video":
-            frames = pick_video_frames(path, options.frames, work / "frames")
-            summary = estimate_scene(frames, work / "scene", **kwargs)
-            shutil.rmtree(work / "frames")
-        else:
-            summary = estimate_scene(files, work / "scene", **kwargs)
-        line, left_out = summary.line(path), summary.not_registered_lines()
-        atomic_write_json(work / SUMMARY, {"line": line.removeprefix(f"{path}: "), "registered": summary.registered,
-                                           "not_registered": summary.left_out, "not_registered_lines": left_out})
-    say(line)
-    say(f"poses cached for the next run in {entry}")
-    _say_left_out(left_out)
-    return scene
-
-
-def _say_left_out(lines: list[str]) -> None:
-    """Say, in yellow, the lines naming the photos left out of the scene
-    (:meth:`~splat_framework.sfm.reconstruct.SfmSummary.not_registered_lines`)."""
-    from ..console import say
-
-    for line in lines:
-        say(line, "yellow")
-
-
-def _install_private(work: Path, entry: Path) -> None:
-    """Move a finished cache entry into place, readable by the user alone, with the manifest of its files."""
-    write_folder_manifest(work)
-    os.chmod(work, 0o700)
-    os.replace(work, entry)
-

@@ -1,26 +1,16 @@
-"""Turn a user's ``--data`` argument into a dataset folder."""
+"""Find what a user's ``--data`` argument names (a folder of photos or a video is posed by
+:func:`splat_framework.sfm.own_photos.resolve_data_path`)."""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
 
-from ..config.data import PhotoPosesConfig
 from ..errors import did_you_mean
 from ..files.output_paths import data_inputs
-from .photos import photo_source, posed_photos
 from .scene import DataError
 
 SYNTHETIC_PREFIX = "synthetic/"
-
-
-def resolve_data_path(spec: str | Path, photos: PhotoPosesConfig | None = None) -> Path:
-    """Resolve a dataset spec to an existing dataset folder: :func:`locate_data`, then, for a folder
-    of photos or a video, the scene posed from them (:func:`splat_framework.data.photos.posed_photos`,
-    with the pose options ``photos``; cached). Raises DataError when none exists."""
-    path = locate_data(spec)
-    kind = photo_source(path)
-    return posed_photos(path, kind, photos) if kind is not None else path
 
 
 def locate_data(spec: str | Path) -> Path:

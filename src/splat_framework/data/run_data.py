@@ -1,11 +1,11 @@
-"""The data of a training config: the scene it names, and the record of it that makes a run
+"""The data of a training config: its views, and the record of its scene that makes a run
 folder self-contained (``TrainConfig.resolved_data``, written into ``config.json``).
 
 A run settles its views when it starts (:func:`resolve_views`: the format's default where
 ``--views`` is not given), and records the absolute dataset folder and its split by image name
-(:func:`record_data`); reopening it (:func:`load_config_scene`) reads that folder with that
-split from any shell. A run folder written before the record existed resolves ``data`` as
-it did then (``$SPLAT_DATA``, the split rules).
+(:func:`record_data`); reopening it (:func:`splat_framework.engine.run_scene.load_config_scene`)
+reads that folder with that split (:func:`with_split`) from any shell. A run folder written
+before the record existed resolves ``data`` as it did then (``$SPLAT_DATA``, the split rules).
 """
 
 from __future__ import annotations
@@ -14,36 +14,12 @@ from dataclasses import replace
 from pathlib import Path
 
 from ..config.data import ResolvedData, absolute, source_of
-from .parsers import detect_format, load_scene
+from .parsers import detect_format
 from .parsers.common import scene_extent
 from .photos import photo_source
-from .pose_file import apply_pose_file
-from .resolve import locate_data, resolve_data_path
+from .resolve import locate_data
 from .scene import DataError, SceneData
 from .splits import FEW_SHOT_FORMATS, LLFF_HOLDOUT, default_views
-
-
-def load_config_scene(config) -> SceneData:
-    """The scene a training config names (``data``, ``format``, ``views``, ``downscale``; a folder of
-    photos or a video posed with ``photos``), its training cameras replaced from ``train_poses`` when
-    set. With ``resolved_data`` recorded for these fields: its folder (``data`` again where that
-    folder is gone) and its split, by image name. Unset ``views`` are settled first (:func:`resolve_views`)."""
-    config = resolve_views(config)
-    record = config.resolved_data if config.resolved_data is not None and config.resolved_data.resolves(config) else None
-    if record is not None and Path(record.path).is_dir():
-        root = Path(record.path)
-    else:
-        try:
-            root = resolve_data_path(config.data, config.photos)
-        except DataError as e:
-            if record is None:
-                raise
-            raise DataError(f"{record.path}: the run's dataset folder is gone, and {e}") from None
-    scene = load_scene(root, format=config.format, views=config.views, downscale=config.downscale)
-    if record is not None:
-        scene = with_split(scene, record.train, record.test)
-    poses = record.train_poses if record is not None else config.train_poses
-    return apply_pose_file(scene, poses) if poses is not None else scene
 
 
 def with_split(scene: SceneData, train: list[str], test: list[str]) -> SceneData:

@@ -77,7 +77,8 @@ def _renders(model) -> None:
 def load_run(run_dir: Path, device: str | None = None, trust_edits: bool = False):
     """(config, datamanager, model) of ``run_dir``, the model holding the newest good checkpoint."""
     from ..console import phase
-    from ..data import DataManager, load_config_scene
+    from ..data import DataManager
+    from .run_scene import load_config_scene
     from .camera_refine import refined_cameras
 
     with phase(f"loading {run_dir}: its newest checkpoint"):

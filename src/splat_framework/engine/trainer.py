@@ -63,7 +63,7 @@ from .camera_refine import CameraRefiner, refined_cameras
 from .checkpoint import save_checkpoint
 from ..config import TrainConfig, config_payload, resolve_steps, save_config
 from ..console import phase, print_summary, say, show_progress
-from ..data import DataManager, describe_split, load_config_scene, record_data, resolve_views
+from ..data import DataManager, describe_split, record_data, resolve_views
 from ..data.cache_dir import user_cache_dir
 from ..devices import resolve_config_devices
 from ..evaluation.held_out import evaluate
@@ -81,6 +81,7 @@ from ..runtime.rng import seed_everything
 from .run_folder import continue_command, prepare_run_dir, remove_if_unused
 from ..files.output_paths import RUN_FOLDER
 from .run_metrics import run_metrics
+from .run_scene import load_config_scene
 from .stop_signals import abandoned_message, stop_signals
 from .train_state import TrainState
 

@@ -41,7 +41,10 @@ weights raises ``MissingWeightsError`` (one line).
 Heavy modules (cv2, torch, kornia) are imported inside functions so that the
 CLI's ``--help`` stays fast.
 
-Modules: ``config`` (MatchConfig), ``base`` (the Matcher protocol, image
+Its config, :class:`~splat_framework.config.MatchConfig`, is with the other configs
+(``splat_framework.config.matching``, torch-free, with the matcher names it may choose).
+
+Modules: ``base`` (the Matcher protocol, image
 conversions), ``classical`` (SIFT, dense flow), ``guided`` (flow across wide
 baselines, guided by sparse matches), ``learned`` (LoFTR, DISK /
 ALIKED + LightGlue, weight lookup), ``registry`` (matchers by name, ``auto``),
@@ -52,14 +55,9 @@ the views without any match, warned by the views' names), ``prior`` (a scene's m
 triangulated points), ``drawing``.
 """
 
-# MatchConfig builds on splat_framework.config, whose package imports this package's config
-# module (the triangulated start's matching): initialise that package first, so that importing
-# splat_framework.matching (or any of its modules) first of all does not meet it half-built
-from .. import config as _config  # noqa: F401  (import order)
 from .base import Matcher, Pts, no_matches, texture, to_gray_u8, to_hwc, to_uint8_rgb
 from .classical import DenseFlowMatcher, SiftMatcher, mutual_ratio_match
 from .guided import GuidedFlowMatcher
-from .config import MatchConfig
 from .drawing import draw_matches
 from .geometry import epipolar_distance, fundamental_from_cameras, magsac_inliers, verify_pair, view_angle
 from .learned import (
@@ -104,7 +102,6 @@ __all__ = [
     "learned_available",
     "LoFTRMatcher",
     "magsac_inliers",
-    "MatchConfig",
     "Matcher",
     "MatchSet",
     "MissingWeightsError",

@@ -11,7 +11,7 @@ from .base import Pts, no_matches, to_gray_u8, to_hwc, texture
 from .sampling import balanced_sample
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .config import MatchConfig
+    from ..config.matching import MatchConfig
 
 def mutual_ratio_match(
     desc_a: np.ndarray, desc_b: np.ndarray, ratio: float = 0.8, mutual: bool = True, chunk: int = 1024

@@ -11,7 +11,7 @@ from .base import Pts, no_matches
 if TYPE_CHECKING:  # pragma: no cover
     from splat_framework.cameras import Camera
 
-    from .config import MatchConfig
+    from ..config.matching import MatchConfig
 
 MIN_PAIR_MATCHES = 8
 """A pair keeps its verified matches only when at least this many remain (else it is left empty)."""

@@ -14,7 +14,7 @@ import numpy as np
 from .base import Pts, no_matches, to_uint8_rgb
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .config import MatchConfig
+    from ..config.matching import MatchConfig
 
 
 def _device(config: MatchConfig):

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .config import MatchConfig
+from ..config.matching import MatchConfig
 from .pipeline import compute_matches
 
 

@@ -14,7 +14,7 @@ import numpy as np
 from ..console import Phase, phase
 from . import registry
 from .base import KnownMatches, Matcher, Pts, inside_mask, to_hwc
-from .config import MatchConfig
+from ..config.matching import MatchConfig
 from .guided import GuidedFlowMatcher
 from .geometry import as_numpy, fundamental_from_cameras, verify_pair, view_angle
 from .learned import WEIGHTS_INSTALL

@@ -19,7 +19,7 @@ from torch import Tensor
 from ..cameras import Camera
 from ..console import say
 from ..data.cache_dir import user_cache_dir
-from .config import MatchConfig
+from ..config.matching import MatchConfig
 from .matchset import MatchSet
 from .report import view_names, warn_empty
 

@@ -1,4 +1,4 @@
-"""Matchers by name (their names, and the rule of ``auto``, in :mod:`.names`)."""
+"""Matchers by name (their names, and the rule of ``auto``, in :mod:`splat_framework.config.matcher_names`)."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ from typing import TYPE_CHECKING, Any
 from .base import Matcher
 from .classical import DenseFlowMatcher, SiftMatcher
 from .learned import AlikedLightGlueMatcher, DiskLightGlueMatcher, LoFTRMatcher, MissingWeightsError
-from .names import AUTO, AUTO_DENSE, AUTO_GUIDED, AUTO_LEARNED, MATCHERS
+from ..config.matcher_names import AUTO, AUTO_DENSE, AUTO_GUIDED, AUTO_LEARNED, MATCHERS
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .config import MatchConfig
+    from ..config.matching import MatchConfig
 
 MATCHERS.update({
     "dense": DenseFlowMatcher,

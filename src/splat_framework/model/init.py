@@ -1,16 +1,16 @@
 """The initial points of every method, one function per kind of ``model.init``
 (:mod:`splat_framework.config.init`), called through :func:`initial_points`.
 
-Each function takes ``(config, datamanager, generator)`` and returns a :class:`StartPoints`
-on the training images' device. The generator is the run's (seeded), so a start is a pure
-function of the config, the data and the seed.
+Each function takes ``(config, datamanager, generator)`` and returns a :class:`StartPoints`,
+which :func:`initial_points` puts on the training images' device. The generator is the run's
+(seeded), so a start is a pure function of the config, the data and the seed.
 """
 
 from __future__ import annotations
 
 import importlib
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import torch
 from torch import Tensor
@@ -29,7 +29,8 @@ MIN_TRIANGULATED = 50
 @dataclass
 class StartPoints:
     """Where a model starts: points [N, 3] and colours [N, 3] in [0, 1] (on the training images'
-    device), and seconds per named set-up phase (metrics.json's timing, e.g. ``matching_s``)."""
+    device once :func:`initial_points` returns them), and seconds per named set-up phase
+    (metrics.json's timing, e.g. ``matching_s``)."""
 
     points: Tensor
     colors: Tensor
@@ -38,9 +39,11 @@ class StartPoints:
 
 def initial_points(init, datamanager, generator: torch.Generator) -> StartPoints:
     """The start that ``init`` (an :class:`~splat_framework.config.init.InitConfig`) describes, built
-    by the function its ``points_fn`` names."""
+    by the function its ``points_fn`` names, on the training images' device (``datamanager.device``:
+    a plugin's function need not know it)."""
     module, _, name = init.points_fn.partition(":")
-    return getattr(importlib.import_module(module), name)(init, datamanager, generator)
+    start = getattr(importlib.import_module(module), name)(init, datamanager, generator)
+    return replace(start, points=start.points.to(datamanager.device), colors=start.colors.to(datamanager.device))
 
 
 def _train_views(datamanager) -> tuple[list[Camera], list[Tensor]]:

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..matching.config import MatchConfig
+from ..config.matching import MatchConfig
 from ..runtime.trusted import sha256_file
 
 REUSABLE = ("aliked-lightglue", "disk-lightglue")
@@ -34,7 +34,7 @@ Pair = tuple[str, str]
 def reused_matcher(config: MatchConfig) -> str | None:
     """The learned matcher whose pairs the prior of ``config`` may take from a posing ("auto": its
     learned matcher), or None (dense, SIFT, LoFTR: matched as configured)."""
-    from ..matching.names import AUTO, AUTO_LEARNED
+    from ..config.matcher_names import AUTO, AUTO_LEARNED
 
     name = AUTO_LEARNED if config.matcher == AUTO else config.matcher
     return name if name in REUSABLE else None

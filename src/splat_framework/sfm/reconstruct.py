@@ -193,7 +193,7 @@ def keep_pose_matches(pycolmap, model, sparse0: Path, images: Path, staged: list
     prior can take them from (:mod:`.pose_matches`)."""
     import numpy as np
 
-    from ..matching.config import MatchConfig
+    from ..config.matching import MatchConfig
     from .pose_matches import POSE_MATCHES, REUSABLE, matcher_options, save_pose_matches
 
     if matcher not in REUSABLE:

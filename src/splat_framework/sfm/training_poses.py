@@ -37,7 +37,7 @@ def estimate_training_poses(data: str | Path, *, views: int | str, format: str =
     from ..data.parsers import load_scene
     from ..data.parsers.colmap import load_colmap
     from ..data.pose_file import pose_file_payload
-    from ..data.resolve import resolve_data_path
+    from .own_photos import resolve_data_path
 
     root = resolve_data_path(data)
     scene = load_scene(root, format=format, views=views, downscale=downscale)

@@ -8,10 +8,6 @@ import numpy as np
 
 from ..errors import DataError
 
-VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg")
-"""File suffixes that ``splat-train --data`` reads as a video (any format OpenCV decodes works with splat-process video)."""
-
-
 def pick_video_frames(video: Path, n: int, dest: Path) -> list[Path]:
     """Write ``n`` frames of ``video`` spread along it into ``dest`` (created) as PNG: the video is
     cut into ``n`` equal spans and the sharpest frame of each (largest variance of the Laplacian

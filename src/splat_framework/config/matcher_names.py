@@ -1,5 +1,5 @@
 """The matcher names a config may choose, and the rule of the default matcher ``auto`` (torch-free,
-importing nothing else of :mod:`splat_framework.matching`: configs validate a name with it)."""
+importing nothing: :class:`~.matching.MatchConfig` validates a name with it)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""``MatchConfig``: how matches between training views are computed and verified (torch-free)."""
+"""``MatchConfig``: how the matching prior (:mod:`splat_framework.matching`) computes and verifies
+matches between training views (torch-free: read for ``--help``, as every config)."""
 
 from __future__ import annotations
 
@@ -7,9 +8,8 @@ from typing import Literal
 
 from pydantic import Field, field_validator
 
-from splat_framework.config.base import MAX_MATCHES, MAX_VIEWS, Device, SplatConfig
-
-from .names import check_matcher_name
+from .base import MAX_MATCHES, MAX_VIEWS, Device, SplatConfig
+from .matcher_names import check_matcher_name
 
 
 class MatchConfig(SplatConfig):

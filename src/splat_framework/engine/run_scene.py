@@ -1,0 +1,35 @@
+"""The scene a run's training config names: its ``--data`` found (one's own photos posed by
+:mod:`splat_framework.sfm`), read with the run's recorded split and training poses."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..data.parsers import load_scene
+from ..data.pose_file import apply_pose_file
+from ..data.run_data import resolve_views, with_split
+from ..data.scene import DataError, SceneData
+from ..sfm.own_photos import resolve_data_path
+
+
+def load_config_scene(config) -> SceneData:
+    """The scene a training config names (``data``, ``format``, ``views``, ``downscale``; a folder of
+    photos or a video posed with ``photos``), its training cameras replaced from ``train_poses`` when
+    set. With ``resolved_data`` recorded for these fields: its folder (``data`` again where that
+    folder is gone) and its split, by image name. Unset ``views`` are settled first (:func:`resolve_views`)."""
+    config = resolve_views(config)
+    record = config.resolved_data if config.resolved_data is not None and config.resolved_data.resolves(config) else None
+    if record is not None and Path(record.path).is_dir():
+        root = Path(record.path)
+    else:
+        try:
+            root = resolve_data_path(config.data, config.photos)
+        except DataError as e:
+            if record is None:
+                raise
+            raise DataError(f"{record.path}: the run's dataset folder is gone, and {e}") from None
+    scene = load_scene(root, format=config.format, views=config.views, downscale=config.downscale)
+    if record is not None:
+        scene = with_split(scene, record.train, record.test)
+    poses = record.train_poses if record is not None else config.train_poses
+    return apply_pose_file(scene, poses) if poses is not None else scene
