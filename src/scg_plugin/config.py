@@ -23,7 +23,7 @@ from splat_framework.plugin import (
 )
 
 from splat_framework.config.init import KIND, FrustumInitConfig, RandomInitConfig, init_field
-from splat_framework.matching import MatchConfig
+from splat_framework.matching import AutoMatchConfig, MatchKinds
 
 
 class OrdinaryRandomInit(RandomInitConfig):
@@ -53,8 +53,8 @@ class SCGModelConfig(GaussianModelConfig):
 
     init: OrdinaryKinds = Field(default_factory=OrdinaryRandomInit)
     """Random ordinary Gaussians at start beside the ray-based ones (the sparse-prior fill and the no-prior fallback are placed by the same kind); ray-based Gaussians always start on the matched rays."""
-    matching: MatchConfig = Field(default_factory=MatchConfig)
-    """Matching prior."""
+    matching: MatchKinds = Field(default_factory=AutoMatchConfig)
+    """Matching prior (--model.matching.kind picks the matcher)."""
     ray_binding: bool = True
     """Keep ray-based Gaussians bound to their rays during training (False = they become ordinary Gaussians after the warm-up: the 'only non-structure' ablation)."""
     schedule: Literal["two-stage", "single-stage"] = "two-stage"

@@ -42,7 +42,7 @@ def llff(tmp_path_factory) -> Path:
     [
         (["--max-lines", "-5"], ("max_lines", "greater than or equal to 0")),
         (["--seed", "-1"], ("seed", "greater than or equal to 0")),
-        (["--matcher", "nosuch"], ("unknown matcher", "nosuch")),
+        (["--kind", "nosuch"], ("--kind", "nosuch")),
         (["--views", "abc"], ("--views", "abc")),
     ],
 )
@@ -128,7 +128,7 @@ def test_match_writes_matches_npz_last(tmp_path, monkeypatch):
     """Interrupted while drawing the pictures: each written picture is whole and there is no matches.npz."""
     import splat_framework.matching as matching
     from splat_framework.cli.match import run_matching
-    from splat_framework.matching import MatchConfig
+    from splat_framework.matching import match_config
 
     rng = np.random.default_rng(0)
     images = [rng.random((48, 64, 3)).astype(np.float32) for _ in range(3)]
@@ -142,7 +142,7 @@ def test_match_writes_matches_npz_last(tmp_path, monkeypatch):
 
     monkeypatch.setattr(matching, "draw_matches", draw_then_interrupt)
     with pytest.raises(KeyboardInterrupt):
-        run_matching(images, None, [0, 1, 2], MatchConfig(matcher="dense", epipolar_check=False), tmp_path / "m")
+        run_matching(images, None, [0, 1, 2], match_config("dense", epipolar_check=False), tmp_path / "m")
     assert not (tmp_path / "m" / "matches.npz").exists()
     assert sorted(p.name for p in (tmp_path / "m").iterdir()) == [drawn[0].name]  # whole, no temp file
     import cv2

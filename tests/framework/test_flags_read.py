@@ -142,7 +142,7 @@ def test_every_flag_a_method_shows_is_read(name, names, scene, tmp_path):
     spec = METHODS[name]
     config = _active(spec.default_config()).model_copy(update={
         "data": str(scene), "output": tmp_path / "run", "progress": False, "save_renders": False})
-    dense = {"matching": {"matcher": "dense", "cache": False}}  # no weights, fast on 40x30 images; matched, not cached
+    dense = {"matching": {"kind": "dense", "cache": False}}  # no weights, fast on 40x30 images; matched, not cached
     if "matching" in type(config.model).model_fields:
         config = apply_overrides(config, {"model": dense})
     if "matching" in type(config.model.init).model_fields:

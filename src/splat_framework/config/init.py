@@ -24,7 +24,7 @@ import tyro
 from pydantic import BeforeValidator, Field, SerializeAsAny
 
 from .base import MAX_GAUSSIANS, Positive, SplatConfig, as_registered_kind, registered_kinds
-from ..matching.config import MatchConfig
+from ..matching.config import AutoMatchConfig, MatchKinds
 
 FALLBACK_POINTS = 10_000
 """Random points a model starts from when its prior (matches, triangulated points) is missing or sparse."""
@@ -99,8 +99,8 @@ class TriangulatedInitConfig(InitConfig):
 
     kind: Annotated[Literal["triangulated"], KIND] = "triangulated"
     """The start's kind."""
-    matching: MatchConfig = Field(default_factory=MatchConfig)
-    """Matching prior used for triangulation."""
+    matching: MatchKinds = Field(default_factory=AutoMatchConfig)
+    """Matching prior used for triangulation (--model.init.matching.kind picks the matcher)."""
     max_reprojection_px: Positive = 2.0
     """Drop triangulated points whose reprojection error exceeds this (pixels)."""
     fallback: RandomKinds = Field(default_factory=RandomInitConfig)

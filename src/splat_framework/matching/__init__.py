@@ -41,7 +41,7 @@ weights raises ``MissingWeightsError`` (one line).
 Heavy modules (cv2, torch, kornia) are imported inside functions so that the
 CLI's ``--help`` stays fast.
 
-Modules: ``config`` (MatchConfig), ``base`` (the Matcher protocol, image
+Modules: ``config`` (the matchers' configs, tagged by ``kind``), ``base`` (the Matcher protocol, image
 conversions), ``classical`` (SIFT, dense flow), ``guided`` (flow across wide
 baselines, guided by sparse matches), ``learned`` (LoFTR, DISK /
 ALIKED + LightGlue, weight lookup), ``registry`` (matchers by name, ``auto``),
@@ -59,7 +59,10 @@ from .. import config as _config  # noqa: F401  (import order)
 from .base import Matcher, Pts, no_matches, texture, to_gray_u8, to_hwc, to_uint8_rgb
 from .classical import DenseFlowMatcher, SiftMatcher, mutual_ratio_match
 from .guided import GuidedFlowMatcher
-from .config import MatchConfig
+from .config import (
+    AlikedLightGlueMatchConfig, AutoMatchConfig, DenseMatchConfig, DiskLightGlueMatchConfig, LoFTRMatchConfig, MatchConfig,
+    MatchKinds, SiftMatchConfig, match_config, match_kinds,
+)
 from .drawing import draw_matches
 from .geometry import epipolar_distance, fundamental_from_cameras, magsac_inliers, verify_pair, view_angle
 from .learned import (
@@ -105,6 +108,15 @@ __all__ = [
     "LoFTRMatcher",
     "magsac_inliers",
     "MatchConfig",
+    "MatchKinds",
+    "AlikedLightGlueMatchConfig",
+    "AutoMatchConfig",
+    "DenseMatchConfig",
+    "DiskLightGlueMatchConfig",
+    "LoFTRMatchConfig",
+    "SiftMatchConfig",
+    "match_config",
+    "match_kinds",
     "Matcher",
     "MatchSet",
     "MissingWeightsError",
