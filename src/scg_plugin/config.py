@@ -22,7 +22,7 @@ from splat_framework.plugin import (
     strategy_field,
 )
 
-from splat_framework.config.init import KIND, FrustumInitConfig, RandomInitConfig, init_field
+from splat_framework.config.init import KIND, FrustumInitConfig, PlyInitConfig, RandomInitConfig, init_field
 from splat_framework.matching import AutoMatchConfig, MatchKinds
 
 
@@ -44,8 +44,9 @@ class OrdinaryFrustumInit(FrustumInitConfig):
     """Random ordinary Gaussians at start beside the ray-based ones (0 = ordinary ones come only from densification)."""
 
 
-OrdinaryKinds = init_field(OrdinaryRandomInit, OrdinaryFrustumInit)
-"""SCGaussian's starts for its ordinary Gaussians: the random kinds, which may be empty."""
+OrdinaryKinds = init_field(OrdinaryRandomInit, OrdinaryFrustumInit, PlyInitConfig)
+"""SCGaussian's starts for its ordinary Gaussians: the random kinds, which may be empty, or a PLY's
+points (every method starts from a PLY: its Gaussians' centres become the ordinary Gaussians)."""
 
 
 class SCGModelConfig(GaussianModelConfig):
