@@ -80,7 +80,7 @@ def test_match_out_through_a_file_is_one_line_exit_2(llff, tmp_path):
     naming it (the output guard, and behind it cli.common.run_cli's path errors), the file untouched."""
     (tmp_path / "file").write_text("mine")
     for out in (tmp_path / "file", tmp_path / "file" / "m"):
-        run_cli("match", "--data", llff, "--out", out, "--matcher", "dense", code=2,
+        run_cli("match", "--data", llff, "--out", out, "--kind", "dense", code=2,
                 match=str(tmp_path / "file"), watch=[tmp_path, llff])
 
 
@@ -110,7 +110,7 @@ def test_match_ctrl_c_exits_130_and_leaves_nothing_half_written(tmp_path):
     before = snapshot(tmp_path)
     proc = subprocess.Popen(
         [sys.executable, "-m", "splat_framework.cli.match", "--data", str(scene), "--out", str(out),
-         "--views", "all", "--matcher", "sift", "--no-cache"],
+         "--views", "all", "--kind", "sift", "--no-cache"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=cli_env(),
     )
     line = proc.stdout.readline()  # "matching 5 views (10 pairs) with sift...": inside run_cli, matching

@@ -154,15 +154,18 @@ def main(args: MatchArgs) -> "MatchSet":
 
 def chosen_kind(argv: list[str]) -> MatchArgs:
     """The defaults of :class:`MatchArgs` with the matcher that ``--kind K`` in ``argv`` names (so that
-    the parser shows and reads its flags); an unknown kind is an ArgumentsError (one line)."""
+    the parser shows and reads its flags; with ``--help``, as :mod:`.help_screen` shows them, every
+    matcher listed); an unknown kind is an ArgumentsError (one line)."""
     from ..matching import match_kinds
     from .common import ArgumentsError, did_you_mean
+    from .help_screen import ALL, help_group, help_view
     from .kinds import flag_value
 
     kind, kinds = flag_value(argv, "--kind"), match_kinds()
     if kind is not None and kind not in kinds:
         raise ArgumentsError(f"--kind: {kind!r} is not one of {', '.join(kinds)}{did_you_mean(kind, kinds)}")
-    return MatchArgs.model_construct(config=kinds[kind or AutoMatchConfig().kind]())
+    args = MatchArgs.model_construct(config=kinds[kind or AutoMatchConfig().kind]())
+    return args if help_group(argv, None)[1] is None else help_view(args, ALL, "splat-match")[0]
 
 
 def entrypoint() -> None:

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from .base import (
     DEVICE_MARKER,
+    FOLDED,
     MAX_GAUSSIANS,
     MAX_MATCHES,
     MAX_SCHEDULE,
@@ -72,7 +73,7 @@ from .strategy import DensifyConfig, RegisteredStrategies, StrategyConfig, strat
 from .train import TrainConfig, experiment_fields
 
 __all__ = [
-    "DEVICE_MARKER", "MAX_GAUSSIANS", "MAX_MATCHES", "MAX_SCHEDULE", "MAX_STEPS", "MAX_VIEWS", "MOVED_FIELDS",
+    "DEVICE_MARKER", "FOLDED", "MAX_GAUSSIANS", "MAX_MATCHES", "MAX_SCHEDULE", "MAX_STEPS", "MAX_VIEWS", "MOVED_FIELDS",
     "PER_STEP_MARKER", "REGULARISER_FIELDS", "RUN_OPTION", "SCHEMA_VERSION", "SHORTEN_ONLY", "STEPS_MARKER",
     "DensifyConfig", "Device", "Finite", "Fraction", "GaussianModelConfig", "InitConfig", "InitKinds", "Interval",
     "InvalidArguments", "LearningRate", "Marker", "ModelConfig", "NonNegative", "OptimConfig", "OptionalPeriod",

@@ -21,8 +21,9 @@ from splat_framework.config.base import (
 
 from .names import AUTO, check_matcher_name
 
-MATCHER = tyro.conf.arg(metavar="KIND", help="The matcher: auto, dense, sift, loftr, aliked-lightglue, disk-lightglue (each its own flags).")
-"""The ``kind`` flag of every matcher's config: one placeholder and one help text."""
+MATCHER = tyro.conf.arg(metavar="KIND")
+"""The ``kind`` flag of every matcher's config: one placeholder (its help lists the matchers, each
+with its own flags: see :mod:`splat_framework.cli.help_screen`)."""
 
 
 class MatchConfig(SplatConfig):
