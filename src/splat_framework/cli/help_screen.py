@@ -19,6 +19,8 @@ from typing import Annotated, Any
 
 from pydantic import BaseModel, Field, create_model
 
+from .kinds import suppressed, unannotated, union_kinds
+
 HELP_FLAGS = ("-h", "--help")
 TOP = "options"
 """The name of the top-level flags' group (tyro's box title for them)."""
@@ -45,19 +47,13 @@ def _flag(path: str) -> str:
     return path.replace("_", "-")
 
 
-def _kinds_of(annotation) -> dict[str, type]:
-    from .kinds import union_kinds
-
-    return union_kinds(annotation)
-
-
 def _leaf_groups(config: BaseModel, path: str = "") -> typing.Iterator[tuple[str, str, Any]]:
     """(group path, field name, field info) of every flag of ``config`` (not its ``kind`` tags, nor suppressed fields)."""
     for name, info in type(config).model_fields.items():
         value = config.__dict__.get(name)
         if isinstance(value, BaseModel):
             yield from _leaf_groups(value, f"{path}{name}.")
-        elif name != "kind" and not _suppressed(info):
+        elif name != "kind" and not suppressed(info):
             yield path.rstrip("."), name, info
 
 
@@ -122,9 +118,10 @@ def help_view(config: BaseModel, chosen: str, command: str, unfolded: tuple[str,
 
     ``chosen``: "" for the main screen, a group (``strategy``, ``model.matching``, :data:`TOP`) or
     :data:`ALL`; ``unfolded``: the groups the main screen shows in full besides :data:`MAIN_GROUPS`
-    (those whose kind the command line chooses, :func:`chosen_kinds`). The returned config's fields that the screen leaves off are suppressed and each
-    ``kind`` lists the kinds its field accepts; it only prints help (its classes are derived for it).
-    A group the config does not have is an ArgumentsError naming those it has."""
+    (those whose kind the command line chooses, :func:`chosen_kinds`). The returned config's fields
+    that the screen leaves off are suppressed and each ``kind`` lists the kinds its field accepts;
+    it only prints help (its classes are derived for it). A group the config does not have is an
+    ArgumentsError naming those it has."""
     from .common import ArgumentsError, did_you_mean
 
     chosen = _flag(chosen)
@@ -154,7 +151,7 @@ def _view(config: BaseModel, path: str, shown, kinds: dict[str, type]) -> tuple[
     for name, info in cls.model_fields.items():
         value = config.__dict__.get(name, info)  # a required field left unset (a PLY's path): info stands for it
         if isinstance(value, BaseModel):
-            sub, seen = _view(value, f"{path}{name}.", shown, _kinds_of(hints[name]))
+            sub, seen = _view(value, f"{path}{name}.", shown, union_kinds(hints[name]))
             keep = tuple(m for m in typing.get_args(hints[name])[1:] if type(m).__module__.startswith("tyro"))
             shape = Annotated[(type(sub), *keep)] if keep else type(sub)
             fields[name] = (shape if seen else tyro.conf.Suppress[shape], Field(description=info.description))
@@ -167,25 +164,12 @@ def _view(config: BaseModel, path: str, shown, kinds: dict[str, type]) -> tuple[
             visible = True
             what = " (each with its own flags)" if len(kinds) > 1 else ""
             help_ = f"{(info.description or 'The kind').rstrip('.')}: {', '.join(kinds)}{what}."
-            fields[name] = (Annotated[_bare(hints[name]), tyro.conf.arg(metavar="KIND", help=help_)],
+            fields[name] = (Annotated[unannotated(hints[name]), tyro.conf.arg(metavar="KIND", help=help_)],
                             Field(description=info.description))
         else:
-            visible = visible or not _suppressed(info)
+            visible = visible or not suppressed(info)
         if value is not info:
             values[name] = value
     derived = create_model(cls.__name__, __base__=cls, __module__=cls.__module__, __doc__=cls.__doc__, **fields)
     return derived.model_construct(**values), visible
 
-
-def _suppressed(info) -> bool:
-    import tyro
-
-    suppress = typing.get_args(tyro.conf.Suppress[int])[1]
-    return any(m is suppress for m in info.metadata)
-
-
-def _bare(annotation):
-    """``annotation`` without its ``Annotated`` layers."""
-    while typing.get_origin(annotation) is Annotated:
-        annotation = typing.get_args(annotation)[0]
-    return annotation
