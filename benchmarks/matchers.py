@@ -36,7 +36,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--data", nargs="+", default=["llff/fern:3", "blender/lego:8", "dtu/scan37:3"],
                    help="SCENE:VIEWS entries (as splat-train --data / --views)")
     p.add_argument("--matchers", nargs="+", default=MATCHER_ROWS,
-                   help="matcher names, each optionally with MatchConfig fields: NAME[:key=value,...]")
+                   help="matcher names, each optionally with fields of its config: NAME[:key=value,...]")
     p.add_argument("--threads", type=int, default=None, help="torch threads (default: all cores)")
     p.add_argument("--json", type=Path, default=Path("docs/measurements/matchers.json"))
     p.add_argument("--readme", type=Path, default=None, help="splice the table into this file's matcher markers")
@@ -60,12 +60,12 @@ def training_views(data: str, views: int):
 
 
 def match_config(spec: str):
-    """``NAME[:key=value,...]`` -> MatchConfig, e.g. ``aliked-lightglue:learned_resize=0,max_keypoints=4096``."""
-    from splat_framework.config import MatchConfig
+    """``NAME[:key=value,...]`` -> the matcher NAME's config, e.g. ``aliked-lightglue:learned_resize=0,max_keypoints=4096``."""
+    from splat_framework.config import match_config as config_of
 
     name, _, rest = spec.partition(":")
     fields = dict(kv.split("=", 1) for kv in rest.split(",") if kv)
-    return MatchConfig(matcher=name, cache=False, **fields)
+    return config_of(name, cache=False, **fields)
 
 
 def measure(data: str, views: int, matcher: str) -> dict:

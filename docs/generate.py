@@ -33,11 +33,13 @@ ENV = {"COLUMNS": HELP_COLUMNS, "NO_COLOR": "1", "TERM": "dumb", "SPLAT_CONFIG_P
 
 
 def command_help(argv: list[str]) -> str:
-    """What ``argv --help`` prints (``argv[0]`` a console script), at a fixed width, trailing spaces cut."""
+    """What ``argv --help`` prints (``argv[0]`` a console script; ``argv`` may hold its ``--help`` already,
+    with a group after it), at a fixed width, trailing spaces cut."""
     (ep,) = [e for e in entry_points(group="console_scripts") if e.name == argv[0]]
     out = io.StringIO()
     with mock.patch.dict(os.environ, ENV), \
-            mock.patch.object(sys, "argv", [*argv, "--help"]), contextlib.redirect_stdout(out), \
+            mock.patch.object(sys, "argv", argv if "--help" in argv else [*argv, "--help"]), \
+            contextlib.redirect_stdout(out), \
             contextlib.redirect_stderr(io.StringIO()):
         try:
             ep.load()()
@@ -57,8 +59,11 @@ def cli_help_block() -> str:
         parts += [f"### `{name}`", "", "```text", command_help([name]), "```", ""]
     parts += ["### `splat-train 3dgs` (the flags of one method)", "",
               "Every method has the run options above plus its own model, strategy and optimiser flags; "
-              "`splat-train METHOD --help` lists them. For `3dgs`:", "",
-              "```text", command_help(["splat-train", "3dgs"]), "```"]
+              "`splat-train METHOD --help` shows the main ones and names the groups it leaves off. For `3dgs`:", "",
+              "```text", command_help(["splat-train", "3dgs"]), "```", "",
+              "### `splat-train 3dgs --help all` (every flag of one method)", "",
+              "`--help GROUP` shows one of those groups; `--help all` every flag:", "",
+              "```text", command_help(["splat-train", "3dgs", "--help", "all"]), "```"]
     return "\n".join(parts)
 
 

@@ -45,13 +45,13 @@ class ScaffoldModelConfig(ModelConfig):
     """Anchors (voxelised initial points) decoded per view into neural Gaussians."""
 
     voxel_size: NonNegative = 0.0
-    """Anchor grid size in world units; 0 = the median distance of the initial points to their 3 nearest neighbours."""
+    """Anchor grid size in world units (0 = the points' median 3-NN distance)."""
     n_offsets: int = Field(10, ge=1, le=MAX_OFFSETS)
-    """k: neural Gaussians per anchor (at most 256: each anchor's Gaussians are decoded every step)."""
+    """k: neural Gaussians per anchor (at most 256)."""
     feat_dim: int = Field(32, ge=1, le=MAX_FEAT_DIM)
-    """Anchor feature size (the MLPs' width; at most 1024: the public code uses 32, and the memory plan counts it per anchor)."""
+    """Anchor feature size, the MLPs' width (at most 1024)."""
     lambda_scaling: NonNegative = 0.01
-    """Weight of the volume regulariser: mean product of the neural Gaussians' scales."""
+    """Weight of the volume regulariser (the neural Gaussians' scales)."""
 
     def memory_per_point(self, bytes_per_gaussian: int) -> int:
         """An anchor: its n_offsets neural Gaussians, and its feature, offsets and scaling with their
@@ -63,7 +63,7 @@ class ScaffoldOptimConfig(SplatConfig):
     """Learning rates of Scaffold-GS's and Octree-GS's anchors and MLPs (Adam, one optimizer per group)."""
 
     offset_lr: LearningRate = 0.01
-    """Offset learning rate, times the scene scale (exponential decay to offset_lr_final over the run)."""
+    """Offset learning rate, times the scene scale (decays to offset_lr_final)."""
     offset_lr_final: LearningRate = 1e-4
     """Final offset learning rate, times the scene scale."""
     feature_lr: LearningRate = 0.0075
@@ -82,17 +82,17 @@ class AnchorUpdateConfig(StrategyConfig):
     """What Scaffold-GS's and Octree-GS's anchor updates share: statistics, schedule, pruning."""
 
     start_stat: Steps = 17
-    """Accumulate neural-Gaussian gradients and opacities from this iteration (public code: 500 of 30,000)."""
+    """Accumulate the neural Gaussians' statistics from this iteration."""
     update_from: Steps = 50
-    """First iteration at which anchors grow and are pruned (public code: 1500 of 30,000)."""
+    """First iteration at which anchors grow and are pruned."""
     update_until: Steps = 500
     """Last iteration of the anchor updates (public code: 15,000 of 30,000)."""
     update_interval: Interval = 100
-    """Iterations between anchor updates (not rescaled: the success criteria count visits within it)."""
+    """Iterations between anchor updates (not rescaled by --steps)."""
     grad_threshold: NonNegative = 0.0002
-    """Grow where a neural Gaussian's mean screen-space gradient (NDC units) exceeds this (scaled per level)."""
+    """Grow where the mean screen-space gradient exceeds this (per level)."""
     success_threshold: Fraction = 0.8
-    """Fraction of an interval an anchor must have been seen in before it may be pruned (half of it for growing)."""
+    """Fraction of an interval an anchor must be seen in before it is pruned."""
     min_opacity: NonNegative = 0.005
     """Prune anchors whose mean summed neural opacity falls below this."""
 
@@ -101,9 +101,9 @@ class AnchorStrategyConfig(AnchorUpdateConfig):
     """Scaffold-GS anchor growing and pruning (``anchor_gs.strategy.AnchorStrategy``)."""
 
     kind: tyro.conf.Suppress[Literal["anchor"]] = "anchor"
-    """The strategy's tag."""
+    """The strategy."""
     update_depth: int = Field(3, ge=1, le=MAX_LEVELS)
-    """Growing levels: voxel size init_factor / hierarchy_factor^i times the base size."""
+    """Growing levels (voxels init_factor / hierarchy_factor^i of the base)."""
     init_factor: int = Field(16, ge=1, le=2**16)
     """Coarsest growing level's voxel size in base voxels."""
     hierarchy_factor: int = Field(4, ge=2, le=64)
@@ -126,23 +126,23 @@ class OctreeModelConfig(ScaffoldModelConfig):
     """Scaffold-GS anchors on the levels of an octree, drawn per view by camera distance."""
 
     voxel_size: NonNegative = 0.0
-    """Anchor grid size at the initial level (init_level) in world units; 0 = the median distance of the initial points to their 3 nearest neighbours (Scaffold-GS's rule). Level l has voxel_size * fork^(init_level - l)."""
+    """Anchor grid size at init_level, world units (0 = median 3-NN distance)."""
     fork: int = Field(2, ge=2, le=64)
     """Voxel size ratio between consecutive levels."""
     levels: int = Field(0, ge=0, le=MAX_LEVELS)
-    """Levels of detail; 0 = round(log_fork(d_max / d_min)) + 1 from the training cameras' distances to the initial points (quantiles dist_ratio and 1 - dist_ratio)."""
+    """Levels of detail (0 = from the cameras' distances to the points)."""
     init_level: int = Field(-1, ge=-1, le=MAX_LEVELS)
     """Level at which progressive training starts; -1 = levels // 2."""
     dist_ratio: Fraction = 0.999
     """Quantile of the camera-point distances taken as d_max (and 1 - it as d_min)."""
     visible_threshold: Fraction = 0.0
-    """Drop anchors (initial and grown) selected by no more than this fraction of the training cameras."""
+    """Drop anchors seen by no more than this fraction of the training views."""
     progressive: bool = True
-    """Train coarse to fine: levels above init_level open one by one over the first coarse_iter iterations."""
+    """Train coarse to fine: finer levels open over the first coarse_iter."""
     coarse_iter: Steps = 250
     """Iterations of progressive training (public code: 10,000 of 40,000)."""
     coarse_factor: Positive = 1.5
-    """Each level's opening interval is this much shorter than the previous one (a geometric series)."""
+    """Each level opens this much sooner than the previous one."""
 
 
 class OctreeStrategyConfig(AnchorUpdateConfig):
@@ -150,15 +150,15 @@ class OctreeStrategyConfig(AnchorUpdateConfig):
     (``anchor_gs.strategy.OctreeStrategy``). Schedule: the public code's 40,000 iterations x 1000 / 40,000."""
 
     kind: tyro.conf.Suppress[Literal["octree"]] = "octree"
-    """The strategy's tag."""
+    """The strategy."""
     start_stat: Steps = 12
-    """Accumulate neural-Gaussian gradients and opacities from this iteration (public code: 500 of 40,000)."""
+    """Accumulate the neural Gaussians' statistics from this iteration."""
     update_from: Steps = 38
-    """First iteration at which anchors grow and are pruned (public code: 1500 of 40,000)."""
+    """First iteration at which anchors grow and are pruned."""
     update_until: Steps = 625
     """Last iteration of the anchor updates (public code: 25,000 of 40,000)."""
     update_ratio: NonNegative = 0.2
-    """Level l grows where the gradient is in [t fork^(u l), t fork^(u (l+1))) (u: this, t: grad_threshold); above it, one level finer."""
+    """Exponent u of the per-level growth thresholds t fork^(u l)."""
     extra_ratio: NonNegative = 0.25
     """An anchor whose mean gradient exceeds the level's threshold x this is drawn at a finer level from then on ..."""
     extra_up: NonNegative = 0.01

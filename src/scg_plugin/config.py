@@ -15,10 +15,12 @@ from splat_framework.plugin import (
     MAX_GAUSSIANS,
     MAX_MATCHES,
     LearningRate,
-    MatchConfig,
+    AutoMatchConfig,
+    MatchKinds,
     NonNegative,
     Positive,
     Period,
+    PlyInitConfig,
     RandomInitConfig,
     Steps,
     TrainConfig,
@@ -31,35 +33,36 @@ class OrdinaryRandomInit(RandomInitConfig):
     """Random start of the ordinary Gaussians (the 3DGS reference's): uniform in the scene box, grey."""
 
     num_points: int = Field(10_000, ge=0, le=MAX_GAUSSIANS)
-    """Random ordinary Gaussians at start beside the ray-based ones (0 = ordinary ones come only from densification): matched rays cover only textured surfaces."""
+    """Random ordinary Gaussians beside the ray-based ones (0 = none)."""
 
 
 class OrdinaryFrustumInit(FrustumInitConfig):
     """Frustum start of the ordinary Gaussians: random points inside the training frusta, coloured by their pixels."""
 
     num_points: int = Field(10_000, ge=0, le=MAX_GAUSSIANS)
-    """Random ordinary Gaussians at start beside the ray-based ones (0 = ordinary ones come only from densification)."""
+    """Random ordinary Gaussians beside the ray-based ones (0 = none)."""
 
 
-OrdinaryKinds = init_field(OrdinaryRandomInit, OrdinaryFrustumInit)
-"""SCGaussian's starts for its ordinary Gaussians: the random kinds, which may be empty."""
+OrdinaryKinds = init_field(OrdinaryRandomInit, OrdinaryFrustumInit, PlyInitConfig)
+"""SCGaussian's starts for its ordinary Gaussians: the random kinds, which may be empty, or a PLY's
+points (every method starts from a PLY: its Gaussians' centres become the ordinary Gaussians)."""
 
 
 class SCGModelConfig(GaussianModelConfig):
     """SCGaussian: hybrid ray-based + ordinary Gaussians with matching-prior losses."""
 
     init: OrdinaryKinds = Field(default_factory=OrdinaryRandomInit)
-    """Random ordinary Gaussians at start beside the ray-based ones (the sparse-prior fill and the no-prior fallback are placed by the same kind); ray-based Gaussians always start on the matched rays."""
-    matching: MatchConfig = Field(default_factory=MatchConfig)
-    """Matching prior."""
+    """The ordinary Gaussians' start (the ray-based ones start on the matches)."""
+    matching: MatchKinds = Field(default_factory=AutoMatchConfig)
+    """Matching prior (--model.matching.kind K picks the matcher)."""
     ray_binding: bool = True
-    """Keep ray-based Gaussians bound to their rays during training (False = they become ordinary Gaussians after the warm-up: the 'only non-structure' ablation)."""
+    """Keep ray-based Gaussians on their rays (False: free after the warm-up)."""
     schedule: Literal["two-stage", "single-stage"] = "two-stage"
-    """two-stage: z warm-up with L_gp, then L_photo + delta*L_rg (public code); single-stage: L_photo + beta*L_gp + delta*L_rg from the start (paper text)."""
+    """two-stage: z warm-up, then training (public code); single-stage: paper."""
     warmup_steps: Steps = 2000
     """Iterations of the z warm-up (two-stage schedule; 0 = no warm-up)."""
     warmup_lr: LearningRate = 0.03
-    """Warm-up step size of z as a fraction of each view's depth range (Adam lr), halved every warmup_lr_halve_every."""
+    """Warm-up step of z, as a fraction of each view's depth range."""
     warmup_lr_halve_every: Period = 500
     """Halve the warm-up learning rate every this many warm-up iterations."""
     lambda_gp: NonNegative = 0.0
@@ -69,19 +72,19 @@ class SCGModelConfig(GaussianModelConfig):
     rg_start: Steps = 0
     """Main-training iteration from which the rendering-geometry loss is on."""
     cache_filter: bool = True
-    """Cache per match the z with the lowest position error and drop matches whose best error stays above filter_eta_px."""
+    """Keep each match's best z; drop matches whose error stays above eta."""
     cache_until: Steps = 0
-    """Single-stage: cache during main iterations [0, cache_until), then apply (two-stage caches during the warm-up)."""
+    """Single-stage: cache during iterations [0, cache_until), then apply."""
     filter_eta_px: Positive = 2.0
-    """eta: drop matches whose best reprojection error (pixels, worse of both directions) exceeds this."""
+    """eta: drop matches whose best reprojection error exceeds this (px)."""
     z_lr: LearningRate = 1.6e-4
-    """Learning rate of ray depths during main training, times the scene scale (decays like the position lr)."""
+    """Learning rate of ray depths, times the scene scale."""
     min_matches: int = Field(50, ge=0, le=MAX_MATCHES)
-    """Below this many verified matches the run warns and falls back to random ordinary Gaussians."""
+    """Fewer verified matches than this: no prior, ordinary Gaussians only."""
     sparse_matches: int = Field(1000, ge=0, le=MAX_MATCHES)
-    """Below this many verified matches the prior is too sparse to grow a model from: the run warns and adds max(init.num_points, 10000) random ordinary Gaussians alongside the ray-based ones (0 = never)."""
+    """Fewer matches than this: add at least 10,000 random Gaussians (0 = never)."""
     thin_prior_baseline: bool = True
-    """When the prior is missing or sparse (fewer than sparse_matches matches), also train as the 3dgs baseline does at the same budget: its densification schedule and SH schedule, the ray-based Gaussians still kept (scg_plugin.startup.baseline_schedule). A model made mostly of random Gaussians then grows like one, so a thin prior does not leave SCGaussian below its baseline."""
+    """With a missing or sparse prior, train on the 3dgs baseline's schedule."""
 
 
 class RayStrategyConfig(DensifyConfig):
@@ -89,7 +92,7 @@ class RayStrategyConfig(DensifyConfig):
     pruned, and clones / split children are ordinary Gaussians (``scg_plugin.strategy``)."""
 
     kind: tyro.conf.Suppress[Literal["ray-gaussian"]] = "ray-gaussian"
-    """The strategy's tag."""
+    """The strategy."""
     strategy_class: ClassVar[str] = "scg_plugin.strategy:RayGaussianStrategy"
 
 

@@ -9,7 +9,8 @@
    matches whose reprojection error stays above ``filter_eta_px`` (cache and filter).
 3. :func:`ordinary_points`: the ordinary (free) Gaussians to start with:
    ``init.num_points`` random ones, or at least ``FALLBACK_POINTS`` when the
-   prior is missing or sparse (one warning).
+   prior is missing or sparse (one warning); a start with points of its own
+   (``--model.init.kind ply``) gives them all, whatever the prior.
 4. :func:`baseline_schedule`: with a missing or sparse prior, the run trains with
    the 3dgs baseline's densification and SH schedules (``thin_prior_baseline``), which the
    model keeps beside the run's one config.
@@ -46,10 +47,12 @@ def ray_prior(config, datamanager, generator: torch.Generator, timing: dict) -> 
     bundle = build_ray_bundle(match_pairs(match_set, ids), [c.to("cpu") for c, _ in views], generator)
     n_matches = len(bundle) // 2
     if n_matches < cfg.min_matches:
+        fill = random_fill(cfg)
         warnings.warn(
             f"only {n_matches} verified matches between the {len(ids)} training views "
             f"(fewer than min_matches={cfg.min_matches}): falling back to "
-            f"{max(cfg.init.num_points, FALLBACK_POINTS)} random ordinary Gaussians",
+            + (f"{fill} random ordinary Gaussians" if fill is not None else
+               f"the ordinary Gaussians of the {cfg.init.kind} start alone"),
             stacklevel=3,
         )
         return None, n_matches
@@ -105,6 +108,12 @@ def baseline_schedule(config) -> BaselineSchedule:
     return BaselineSchedule(strategy=strategy, sh_degree_interval=base.model.sh_degree_interval)
 
 
+def random_fill(cfg) -> int | None:
+    """Random ordinary Gaussians that a missing or sparse prior is filled with:
+    ``max(init.num_points, FALLBACK_POINTS)``; None for a start with points of its own (a PLY's)."""
+    return max(cfg.init.num_points, FALLBACK_POINTS) if hasattr(cfg.init, "num_points") else None
+
+
 def ordinary_points(
     cfg, datamanager, bundle: RayBundle | None, n_matches: int, generator: torch.Generator
 ) -> tuple[Tensor, Tensor]:
@@ -112,9 +121,13 @@ def ordinary_points(
 
     ``init.num_points`` random ones placed by ``init.kind`` (none for the only-ray variant), or
     ``max(init.num_points, FALLBACK_POINTS)`` when there is no prior or fewer
-    than ``sparse_matches`` matches (one warning)."""
+    than ``sparse_matches`` matches (one warning); the points of a start that has its own
+    (a PLY's, whatever the prior)."""
     views = datamanager.train_views()
-    n_fill = max(cfg.init.num_points, FALLBACK_POINTS)
+    n_fill = random_fill(cfg)
+    if n_fill is None:
+        start = initial_points(cfg.init, datamanager, generator)
+        return start.points, start.colors
     sparse = bundle is not None and thin_prior(cfg, bundle, n_matches)
     if sparse:
         warnings.warn(

@@ -13,10 +13,12 @@ only from here (``tests/framework/test_plugin_imports.py``), and their tests als
 Besides the contract (configs and their field markers, the model, strategies, the renderer),
 the face holds what a method's own parts build on:
 
-- starts: ``RandomInitConfig`` and ``FrustumInitConfig`` (kinds a model may narrow or extend),
+- starts: ``RandomInitConfig``, ``FrustumInitConfig`` and ``PlyInitConfig`` (kinds a model may
+  narrow or extend),
   ``initial_points`` (the start its ``model.init`` describes, as every model's ``from_data``
   builds it), ``FALLBACK_POINTS`` (random points when a prior is missing or sparse);
-- the matching prior: ``MatchConfig`` (a config's ``matching`` field), ``compute_match_set``
+- the matching prior: ``MatchKinds`` (a config's ``matching`` field: any matcher's config, by its
+  ``kind``; ``AutoMatchConfig`` the default, ``MatchConfig`` their base), ``compute_match_set``
   (the verified matches of the training views, cached) and ``match_pairs`` (them, pair by pair);
 - losses: ``photometric_loss`` (L1 + D-SSIM) and ``regulariser_terms`` (the opt-in ``model.reg``
   terms a ``get_loss_dict`` adds);
@@ -49,8 +51,11 @@ _EXPORTS: dict[str, str] = {
     "init_field": "splat_framework.config",
     "RandomInitConfig": "splat_framework.config",
     "FrustumInitConfig": "splat_framework.config.init",
+    "PlyInitConfig": "splat_framework.config.init",
     "FALLBACK_POINTS": "splat_framework.config.init",
     "MatchConfig": "splat_framework.config",
+    "MatchKinds": "splat_framework.config",
+    "AutoMatchConfig": "splat_framework.config",
     "resolve_steps": "splat_framework.config",
     "config_3dgs": "splat_framework.methods.gaussian_splatting",
     # field markers of configs
@@ -106,7 +111,8 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
         RandomInitConfig, RegularisersConfig, SplatConfig, StartSteps, StepFactor, Steps,
         StrategyConfig, TrainConfig, strategy_field, InitConfig, init_field, resolve_steps,
     )
-    from .config.init import FALLBACK_POINTS, FrustumInitConfig
+    from .config import AutoMatchConfig, MatchKinds
+    from .config.init import FALLBACK_POINTS, FrustumInitConfig, PlyInitConfig
     from .console import phase
     from .losses import photometric_loss
     from .matching.prior import compute_match_set, match_pairs

@@ -42,7 +42,7 @@ def llff(tmp_path_factory) -> Path:
     [
         (["--max-lines", "-5"], ("max_lines", "greater than or equal to 0")),
         (["--seed", "-1"], ("seed", "greater than or equal to 0")),
-        (["--matcher", "nosuch"], ("unknown matcher", "nosuch")),
+        (["--kind", "nosuch"], ("--kind", "nosuch")),
         (["--views", "abc"], ("--views", "abc")),
     ],
 )
@@ -80,7 +80,7 @@ def test_match_out_through_a_file_is_one_line_exit_2(llff, tmp_path):
     naming it (the output guard, and behind it cli.common.run_cli's path errors), the file untouched."""
     (tmp_path / "file").write_text("mine")
     for out in (tmp_path / "file", tmp_path / "file" / "m"):
-        run_cli("match", "--data", llff, "--out", out, "--matcher", "dense", code=2,
+        run_cli("match", "--data", llff, "--out", out, "--kind", "dense", code=2,
                 match=str(tmp_path / "file"), watch=[tmp_path, llff])
 
 
@@ -110,7 +110,7 @@ def test_match_ctrl_c_exits_130_and_leaves_nothing_half_written(tmp_path):
     before = snapshot(tmp_path)
     proc = subprocess.Popen(
         [sys.executable, "-m", "splat_framework.cli.match", "--data", str(scene), "--out", str(out),
-         "--views", "all", "--matcher", "sift", "--no-cache"],
+         "--views", "all", "--kind", "sift", "--no-cache"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=cli_env(),
     )
     line = proc.stdout.readline()  # "matching 5 views (10 pairs) with sift...": inside run_cli, matching
@@ -128,7 +128,7 @@ def test_match_writes_matches_npz_last(tmp_path, monkeypatch):
     """Interrupted while drawing the pictures: each written picture is whole and there is no matches.npz."""
     import splat_framework.matching as matching
     from splat_framework.cli.match import run_matching
-    from splat_framework.config import MatchConfig
+    from splat_framework.config import match_config
 
     rng = np.random.default_rng(0)
     images = [rng.random((48, 64, 3)).astype(np.float32) for _ in range(3)]
@@ -142,7 +142,7 @@ def test_match_writes_matches_npz_last(tmp_path, monkeypatch):
 
     monkeypatch.setattr(matching, "draw_matches", draw_then_interrupt)
     with pytest.raises(KeyboardInterrupt):
-        run_matching(images, None, [0, 1, 2], MatchConfig(matcher="dense", epipolar_check=False), tmp_path / "m")
+        run_matching(images, None, [0, 1, 2], match_config("dense", epipolar_check=False), tmp_path / "m")
     assert not (tmp_path / "m" / "matches.npz").exists()
     assert sorted(p.name for p in (tmp_path / "m").iterdir()) == [drawn[0].name]  # whole, no temp file
     import cv2

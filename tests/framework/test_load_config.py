@@ -54,3 +54,48 @@ def test_load_config_of_a_bad_file_is_one_line(run_dir, tmp_path):
     save_config(config.model_copy(update={"method": "3dgs-gone"}), tmp_path / "gone.json")
     run_cli("train", "--load-config", tmp_path / "gone.json", code=2, match=("gone.json", "'3dgs-gone' is not registered"),
             watch=[tmp_path], allowed=[])
+
+
+# The matching block of every config.json written before each matcher had a config of its own:
+# one flat block of every matcher's fields, tagged by ``matcher`` (values: those versions' defaults).
+FLAT_MATCHING = {
+    "matcher": "auto", "auto_flow_max_angle": 15.0, "auto_min_matches": 1000, "auto_guided_flow_max_views": 4,
+    "max_matches": 12000, "grid_cell": 16, "sift_features": 8000, "ratio": 0.8, "sift_upscale": 2.0,
+    "dense_preset": "medium", "dense_upscale": 4.0, "fb_threshold": 1.0, "dense_oversample": 3.0,
+    "min_texture": 1e-06, "min_confidence": 0.0, "max_keypoints": 2048, "learned_resize": 1024,
+    "magsac_threshold": 1.0, "magsac_confidence": 0.999, "alpha_mask": True, "epipolar_check": True,
+    "epipolar_threshold": 2.0, "seed": 0, "weights": None, "device": "cpu", "cache": True,
+}
+
+
+@pytest.mark.parametrize("variant, edits", [("scgaussian", {"max_matches": 3000}),
+                                            ("scgaussian-sift", {"ratio": 0.7, "grid_cell": 8}),
+                                            ("scgaussian-disk-lightglue", {"max_keypoints": 1024}),
+                                            ("3dgs-triang", {"dense_upscale": 2.0})])
+def test_a_flat_matching_block_of_an_old_run_loads_as_its_matchers_config(variant, edits, tmp_path):
+    """An old run's ``matching`` block (one flat block, ``matcher`` its tag) is today's config of that
+    matcher, its values kept and the other matchers' fields (never read by it) dropped; --load-config
+    of that run gives the experiment the run trained."""
+    from splat_framework.cli.train import load_saved_experiment
+    from splat_framework.config import apply_overrides, experiment_fields
+    from splat_framework.registry import discover_methods
+    from splat_framework.runtime.io import atomic_write_json
+
+    methods = discover_methods()
+    config = methods[variant].default_config()
+    at = ("model", "init") if variant.endswith("-triang") else ("model",)
+    block = config.model.init.matching if variant.endswith("-triang") else config.model.matching
+    config = apply_overrides(config, {at[0]: {at[1]: {"matching": edits}} if len(at) == 2 else {"matching": edits}})
+    save_config(config, tmp_path / "config.json")
+    payload = json.loads((tmp_path / "config.json").read_text())
+    section = payload["config"]
+    for key in at:
+        section = section[key]
+    section["matching"] = FLAT_MATCHING | {"matcher": block.kind} | edits  # as the old versions wrote it
+    payload.pop("checksum")
+    atomic_write_json(tmp_path / "config.json", payload)  # signed, as those versions signed it
+    method, loaded = load_saved_experiment(str(tmp_path / "config.json"), methods)
+    keep = experiment_fields(type(config))
+    assert loaded.model_dump(include=keep) == config.model_dump(include=keep)
+    matching = loaded.model.init.matching if variant.endswith("-triang") else loaded.model.matching
+    assert type(matching) is type(block) and all(getattr(matching, k) == v for k, v in edits.items())

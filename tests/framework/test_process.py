@@ -206,7 +206,7 @@ def test_the_prior_takes_the_posing_matches_instead_of_matching_the_pairs_again(
     matching again, said in one line naming the file."""
     from splat_framework.data import DataManager
     from splat_framework.matching import learned
-    from splat_framework.config import MatchConfig
+    from splat_framework.config import match_config
     from splat_framework.sfm.pose_matches import POSE_MATCHES, known_sparse_matches
     from splat_framework.matching.prior import compute_match_set
 
@@ -215,7 +215,7 @@ def test_the_prior_takes_the_posing_matches_instead_of_matching_the_pairs_again(
     assert run_process("images", str(photos), "--out", str(out), matcher=None).returncode == 0
     assert (out / POSE_MATCHES).is_file()
     dm = DataManager(load_colmap(out, views=3))
-    config = MatchConfig(cache=False)
+    config = match_config(cache=False)
 
     def never(*args, **kwargs):
         raise AssertionError("the learned matcher was built although the posing kept every pair")

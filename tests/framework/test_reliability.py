@@ -132,7 +132,7 @@ def test_resume_reproduces_uninterrupted_run_scgaussian(tmp_path):
     def cfg_fn(out, **kw):
         # single stage with the match cache alive across the interruption (cache until 30)
         over = {"model": {"schedule": "single-stage", "cache_until": 30, "lambda_gp": 1.0, "warmup_steps": 0,
-                          "init": {"num_points": 0}, "sparse_matches": 0, "matching": {"matcher": "dense", "max_matches": 100, "dense_preset": "ultrafast"}}}
+                          "init": {"num_points": 0}, "sparse_matches": 0, "matching": {"kind": "dense", "max_matches": 100, "dense_preset": "ultrafast"}}}
         return apply_overrides(fixed_config("scgaussian", out, **kw), over)
 
     straight = Trainer(cfg_fn(tmp_path / "a"))

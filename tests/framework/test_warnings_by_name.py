@@ -81,13 +81,13 @@ def test_training_names_the_pairs_left_empty_and_the_view_without_a_match_also_f
                 "prior cannot place it (photos with more overlap, or another matcher, help)"]
     for run in ("run", "again"):  # the second run's matches come from the cache
         res = run_cli("train", "3dgs-triang", "--data", noisy_scene, "--views", "all", "--steps", "1", "--output",
-                      tmp_path / run, "--no-progress", "--model.init.matching.matcher", "sift", code=0, env=env)
+                      tmp_path / run, "--no-progress", "--model.init.matching.kind", "sift", code=0, env=env)
         assert warning_lines(res.stderr) == expected, res.stderr
         assert not INDEX.search(res.stdout + res.stderr), res.stderr
 
 
 def test_splat_match_names_the_pairs_left_empty_and_the_view_without_a_match(noisy_scene, tmp_path):
-    res = run_cli("match", "--data", noisy_scene, "--views", "all", "--matcher", "sift", "--out", tmp_path / "m",
+    res = run_cli("match", "--data", noisy_scene, "--views", "all", "--kind", "sift", "--out", tmp_path / "m",
                   code=0)
     lines = warning_lines(res.stderr)
     assert lines[0].startswith("warning: 3 of 6 pairs left empty") and lines[0].endswith("image003-image004"), lines

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from splat_framework.config import MatchConfig
+from splat_framework.config import match_config
 from splat_framework.matching import compute_matches
 from splat_framework.matching.prior import triangulate
 from scg_plugin.method import config_scgaussian
@@ -102,7 +102,7 @@ def test_warm_up_with_real_matches_is_as_good_as_triangulation(scene):
     views = dm.train_views()
     cams = [c for c, _ in views]
     ids = [int(b["index"]) for _, b in views]
-    ms = compute_matches([b["image"].numpy() for _, b in views], cams, ids, MatchConfig(matcher="dense"))
+    ms = compute_matches([b["image"].numpy() for _, b in views], cams, ids, match_config("dense"))
     pos = {v: k for k, v in enumerate(ids)}
     pairs = [(pos[i], pos[j], *ms.get(i, j)) for i, j in ms.pairs()]
     assert sum(len(p[2]) for p in pairs) > 500
@@ -303,3 +303,48 @@ def test_triangulation_without_matches_falls_back_to_the_reference_random_init(s
     assert (means >= box[0] - 1e-5).all() and (means <= box[1] + 1e-5).all()
     sh0 = model.params["sh0"].detach()
     assert torch.all(sh0 == sh0[0])  # grey, like 3dgs
+
+
+def test_a_ply_start_gives_the_ordinary_gaussians_beside_the_ray_based_ones(scene, monkeypatch, tmp_path):
+    """``--model.init.kind ply``: the PLY's Gaussians (centres, base colours) are SCGaussian's ordinary
+    Gaussians, after the ray-based ones, whatever the prior: a sparse one adds no random fill."""
+    import scg_plugin.startup as startup
+    from splat_framework.export.ply import export_ply, load_ply
+    from splat_framework.matching import MatchSet
+    from splat_framework.model.gaussians import GaussianModel
+    from splat_framework.registry import get_method
+
+    sc, dm, depths = scene
+    source = GaussianModel.from_data(get_method("3dgs-frustum").default_config(), dm, torch.Generator().manual_seed(0))
+    ply = load_ply(export_ply(source, tmp_path / "start.ply"))
+    uv_a, uv_b, _ = true_correspondences(dm, depths, 0, 1, n=100)
+    ids = [int(i) for i in sc.train_indices]
+    monkeypatch.setattr(
+        startup, "compute_match_set",
+        lambda config, dm: MatchSet(view_ids=ids, matches={(ids[0], ids[1]): (uv_a.numpy(), uv_b.numpy())}),
+    )
+    cfg = apply_overrides(config_scgaussian(), {"model": {"warmup_steps": 50,
+                                                          "init": {"kind": "ply", "path": str(tmp_path / "start.ply")}}})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a sparse prior: nothing random added, so nothing to say
+        model = SCGaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
+    rays = model.num_match_gaussians
+    assert rays > 0 and model.num_gaussians == rays + ply["means"].shape[0]
+    assert torch.equal(model.params["means"].detach()[rays:], ply["means"])
+    assert torch.allclose(model.params["sh0"].detach()[rays:], ply["sh0"], atol=1e-5)
+
+
+def test_scgaussian_trains_from_a_ply_on_the_command_line(run_dir, tmp_path):
+    """``splat-train scgaussian --model.init.kind ply --model.init.path X.ply`` trains (the tiny scene, a few steps)."""
+    import json
+
+    from cli_harness import run_cli
+    from splat_framework.engine.run import load_trained_model
+    from splat_framework.export.ply import export_ply
+
+    _, source = load_trained_model(run_dir)
+    ply = export_ply(source, tmp_path / "start.ply")
+    run_cli("train", "scgaussian", "--data", "synthetic/forward-tiny", "--steps", "4", "--output", tmp_path / "run",
+            "--no-progress", "--model.init.kind", "ply", "--model.init.path", ply, code=0)
+    saved = json.loads((tmp_path / "run" / "config.json").read_text())["config"]["model"]["init"]
+    assert saved == {"kind": "ply", "path": str(ply)} and (tmp_path / "run" / "metrics.json").is_file()

@@ -26,16 +26,25 @@ def union_kinds(annotation) -> dict[str, type[BaseModel]]:
     kinds = {}
     for m in members:
         field = getattr(m, "model_fields", {}).get("kind")
-        tags = typing.get_args(_unannotated(field.annotation)) if field is not None else ()
+        tags = typing.get_args(unannotated(field.annotation)) if field is not None else ()
         for tag in tags:
             kinds[tag] = m
     return kinds
 
 
-def _unannotated(annotation):
+def unannotated(annotation):
+    """``annotation`` without its ``Annotated`` layers."""
     while typing.get_origin(annotation) is typing.Annotated:
         annotation = typing.get_args(annotation)[0]
     return annotation
+
+
+def suppressed(info) -> bool:
+    """Whether a pydantic field (its ``FieldInfo``) is hidden from the command line (``tyro.conf.Suppress``)."""
+    import tyro
+
+    marker = typing.get_args(tyro.conf.Suppress[int])[1]
+    return any(m is marker for m in info.metadata)
 
 
 def flag_value(argv: list[str], flag: str) -> str | None:
@@ -84,15 +93,12 @@ def hidden_kind_flags(argv: list[str], config: BaseModel, prefix: str = "") -> l
     """``argv`` without the ``--PATH.kind K`` flags of fields whose ``kind`` the parser does not show
     (``tyro.conf.Suppress``: a strategy's), once :func:`choose_kinds` has applied them; such a flag
     without a value is an :class:`~splat_framework.cli.common.ArgumentsError`."""
-    import tyro
-
-    suppress = typing.get_args(tyro.conf.Suppress[int])[1]
     for name in type(config).model_fields:
         value = getattr(config, name, None)
         if not isinstance(value, BaseModel):
             continue
         kind = type(value).model_fields.get("kind")
-        if kind is not None and any(m is suppress for m in kind.metadata):
+        if kind is not None and suppressed(kind):
             argv = _without_flag(argv, f"--{prefix}{name}.kind")
         argv = hidden_kind_flags(argv, value, f"{prefix}{name}.")
     return argv

@@ -2,7 +2,7 @@
 
 Example::
 
-    splat-match --data llff/fern --views 3 --matcher dense --out runs/fern_matches
+    splat-match --data llff/fern --views 3 --kind dense --out runs/fern_matches
 
 writes ``matches.npz`` (a :class:`splat_framework.matching.MatchSet`) and one picture
 ``matches_i_j.png`` per pair into ``--out``, and prints the counts per pair.
@@ -20,7 +20,7 @@ import tyro
 from pydantic import AfterValidator, Field
 
 from ..config import SplatConfig
-from ..config import MatchConfig
+from ..config import AutoMatchConfig, MatchConfig, MatchKinds
 
 if TYPE_CHECKING:  # pragma: no cover
     from splat_framework.cameras import Camera
@@ -59,8 +59,8 @@ class MatchArgs(SplatConfig):
     overwrite: bool = False
     """Replace the results in --out when splat-match wrote them (matches.npz, matches_*.png; the cache stays)."""
 
-    config: Annotated[MatchConfig, tyro.conf.arg(name="")] = Field(default_factory=MatchConfig)
-    """Matching settings."""
+    config: Annotated[MatchKinds, tyro.conf.arg(name="")] = Field(default_factory=AutoMatchConfig)
+    """Matching settings (--kind K: the matcher, whose flags --help then shows)."""
 
 
 def _image_to_numpy(img: Any) -> Any:
@@ -100,7 +100,7 @@ def run_matching(
     out_dir = Path(out_dir)
     images = [_image_to_numpy(im) for im in images]
     n_pairs = len(view_ids) * (len(view_ids) - 1) // 2
-    console.print(f"matching {len(view_ids)} views ({n_pairs} pairs) with {config.matcher}...", highlight=False)
+    console.print(f"matching {len(view_ids)} views ({n_pairs} pairs) with {config.kind}...", highlight=False)
     t0 = time.perf_counter()
     ms = compute_matches(images, cameras, view_ids, config, cache_dir)
     dt = time.perf_counter() - t0
@@ -112,7 +112,7 @@ def run_matching(
 
     cached = " (cached)" if ms.meta.get("cache_hit") else ""
     used = sorted(set(ms.meta.get("pair_matchers", {}).values()))  # "auto" uses dense, learned or both
-    table = Table(title=f"{config.matcher} ({', '.join(used) or config.matcher}) matches, views {ms.view_ids}{cached}")
+    table = Table(title=f"{config.kind} ({', '.join(used) or config.kind}) matches, views {ms.view_ids}{cached}")
     for col in ("pair", "raw", "MAGSAC", "epipolar", "final"):
         table.add_column(col, justify="right")
     for p in ms.pairs():
@@ -152,10 +152,28 @@ def main(args: MatchArgs) -> "MatchSet":
     return run_matching(images, cameras, ids, args.config, Path(args.out), cache, args.max_lines, Console())
 
 
+def chosen_kind(argv: list[str]) -> MatchArgs:
+    """The defaults of :class:`MatchArgs` with the matcher that ``--kind K`` in ``argv`` names (so that
+    the parser shows and reads its flags; with ``--help``, as :mod:`.help_screen` shows them, every
+    matcher listed); an unknown kind is an ArgumentsError (one line)."""
+    from ..matching import match_kinds
+    from .common import ArgumentsError, did_you_mean
+    from .help_screen import ALL, help_group, help_view
+    from .kinds import flag_value
+
+    kind, kinds = flag_value(argv, "--kind"), match_kinds()
+    if kind is not None and kind not in kinds:
+        raise ArgumentsError(f"--kind: {kind!r} is not one of {', '.join(kinds)}{did_you_mean(kind, kinds)}")
+    args = MatchArgs.model_construct(config=kinds[kind or AutoMatchConfig().kind]())
+    return args if help_group(argv, None)[1] is None else help_view(args, ALL, "splat-match")[0]
+
+
 def entrypoint() -> None:
+    import sys
+
     from .common import parse_cli, run_cli
 
-    run_cli(lambda: main(parse_cli(MatchArgs, prog="splat-match", field_prefix="")))
+    run_cli(lambda: main(parse_cli(MatchArgs, prog="splat-match", field_prefix="", default=chosen_kind(sys.argv[1:]))))
 
 
 if __name__ == "__main__":

@@ -16,22 +16,28 @@ from __future__ import annotations
 import sys
 
 
-def build_parser_type(methods=None, argv: list[str] = (), asked: str | None = None, loaded=None):
+def build_parser_type(methods=None, argv: list[str] = (), asked: str | None = None, loaded=None,
+                      help_group: str | None = None):
     """The subcommand type of every method's default config; the ``asked`` method's (``loaded``, a
     saved run's config, when given) with the kinds that ``argv``'s ``--PATH.kind K`` flags choose
-    (``cli.kinds.choose_kinds``)."""
+    (``cli.kinds.choose_kinds``). ``help_group``: the help screen asked for (``cli.help_screen``;
+    "" the main one), which the asked method's config then shows, only to print it."""
     import tyro
 
     from ..registry import discover_methods
+    from .help_screen import chosen_kinds, help_view
     from .kinds import choose_kinds
 
     methods = discover_methods() if methods is None else methods
     defaults = {name: spec.default_config() for name, spec in methods.items()}
+    descriptions = {name: spec.description for name, spec in methods.items()}
     if loaded is not None:
         defaults[asked] = loaded
     if asked in defaults:
         defaults[asked] = choose_kinds(defaults[asked], list(argv))
-    descriptions = {name: spec.description for name, spec in methods.items()}
+        if help_group is not None:
+            defaults[asked], line = help_view(defaults[asked], help_group, f"splat-train {asked}", chosen_kinds(list(argv)))
+            descriptions[asked] = f"{descriptions[asked]}\n\n{line}" if line else descriptions[asked]
     return tyro.extras.subcommand_type_from_defaults(defaults, descriptions)
 
 
@@ -111,6 +117,7 @@ def load_saved_experiment(path: str, methods: dict):
 
 def main(args: list[str] | None = None) -> dict:
     from .common import ArgumentsError, parse_cli
+    from .help_screen import help_group as help_group_of
     from .kinds import hidden_kind_flags
 
     given = list(sys.argv[1:] if args is None else args)  # as typed: a stop names the command that continues
@@ -128,7 +135,8 @@ def main(args: list[str] | None = None) -> dict:
         if asked is None:
             argv, asked = [method, *argv], method
     # tyro's errors and invalid values: one line (cli.common.run_cli), not tyro's box
-    parser_type = build_parser_type(methods, argv, asked, loaded)
+    argv, help_group = help_group_of(argv, asked)
+    parser_type = build_parser_type(methods, argv, asked, loaded, help_group)
     config = parse_cli(
         parser_type,
         prog="splat-train",

@@ -5,7 +5,7 @@ flag's help). Every name is importable from here; the modules say what each is:
 - :mod:`.base`: the machinery under every config (:class:`SplatConfig`, markers such as
   :data:`Steps` and :data:`RUN_OPTION`, bounded field types, :func:`cli_parsing`),
 - :mod:`.init`: the initialisation kinds of ``model.init``,
-- :mod:`.matching`: the matching prior's :class:`MatchConfig` (and :mod:`.matcher_names`, the matchers it may choose),
+- :mod:`.matching`: the matching prior's configs, one per matcher (:class:`MatchConfig`, :data:`MatchKinds`; and :mod:`.matcher_names`, the matchers it may choose),
 - :mod:`.strategy`: the densification strategies' configs,
 - :mod:`.model`: what every model reads (:class:`ModelConfig`), the opt-in regularisers
   (``model.reg``), the 3DGS model and its learning rates,
@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from .base import (
     DEVICE_MARKER,
+    FOLDED,
     MAX_GAUSSIANS,
     MAX_MATCHES,
     MAX_SCHEDULE,
@@ -50,7 +51,18 @@ from .base import (
     cli_parsing,
 )
 from .init import InitConfig, InitKinds, RandomInitConfig, init_field, init_kinds, upgrade_init_layout
-from .matching import MatchConfig
+from .matching import (
+    AlikedLightGlueMatchConfig,
+    AutoMatchConfig,
+    DenseMatchConfig,
+    DiskLightGlueMatchConfig,
+    LoFTRMatchConfig,
+    MatchConfig,
+    MatchKinds,
+    SiftMatchConfig,
+    match_config,
+    match_kinds,
+)
 from .merge import apply_overrides, deep_merge
 from .model import (
     REGULARISER_FIELDS,
@@ -74,7 +86,7 @@ from .strategy import DensifyConfig, RegisteredStrategies, StrategyConfig, strat
 from .train import TrainConfig, experiment_fields
 
 __all__ = [
-    "DEVICE_MARKER", "MAX_GAUSSIANS", "MAX_MATCHES", "MAX_SCHEDULE", "MAX_STEPS", "MAX_VIEWS", "MOVED_FIELDS",
+    "DEVICE_MARKER", "FOLDED", "MAX_GAUSSIANS", "MAX_MATCHES", "MAX_SCHEDULE", "MAX_STEPS", "MAX_VIEWS", "MOVED_FIELDS",
     "PER_STEP_MARKER", "REGULARISER_FIELDS", "RUN_OPTION", "SCHEMA_VERSION", "SHORTEN_ONLY", "STEPS_MARKER",
     "DensifyConfig", "Device", "Finite", "Fraction", "GaussianModelConfig", "InitConfig", "InitKinds", "Interval",
     "InvalidArguments", "LearningRate", "Marker", "MatchConfig", "ModelConfig", "NonNegative", "OptimConfig", "OptionalPeriod",
@@ -83,4 +95,6 @@ __all__ = [
     "apply_overrides", "cli_parsing", "config_payload", "deep_merge", "experiment_fields", "init_field", "init_kinds", "read_config_json",
     "follows_schedule", "regroup_fields", "resolve_steps", "save_config", "scale_schedule", "strategy_field", "strategy_kinds",
     "upgrade_init_layout", "upgrade_reg_layout", "upgrade_saved_config",
+    "AlikedLightGlueMatchConfig", "AutoMatchConfig", "DenseMatchConfig", "DiskLightGlueMatchConfig", "LoFTRMatchConfig",
+    "MatchKinds", "SiftMatchConfig", "match_config", "match_kinds",
 ]

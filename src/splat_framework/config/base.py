@@ -33,6 +33,12 @@ RUN_OPTION = Marker(
     "device, progress bar, resume, ...) may differ between a run and its ``--resume``; every other "
     "field is the experiment and must not (see :func:`experiment_fields`).",
 )
+FOLDED = Marker(
+    "Folded",
+    "This flag is left off its command's main ``--help`` screen, which counts it in its group's line "
+    "instead; ``--help GROUP`` shows it (``--help options`` a top-level flag's group). The groups other "
+    "than the model and its start are folded whole (see :mod:`splat_framework.cli.help_screen`).",
+)
 PER_STEP_MARKER = Marker(
     "PerStep",
     "This float field is a factor applied at every iteration (a decay): a schedule rescaled by f takes "

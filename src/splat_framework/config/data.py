@@ -19,11 +19,11 @@ class PhotoPosesConfig(SplatConfig):
     """Pose estimation (pycolmap, as splat-process) when --data is a folder of photos or a video."""
 
     matcher: str = "auto"
-    """Correspondences COLMAP maps from: "sift" (COLMAP's own), a registered photo matcher (aliked-lightglue, disk-lightglue), or "auto": aliked-lightglue where registered and its weights are installed, else sift."""
+    """Photo matcher: auto, sift or a registered one (aliked-lightglue, ...)."""
     mapper: Literal["incremental", "global"] = "incremental"
     """COLMAP's incremental mapper, or the global one (GLOMAP)."""
     frames: Annotated[int, Field(ge=2, le=MAX_FRAMES)] = 10
-    """Frames taken from a video: the sharpest of each of this many equal spans."""
+    """Frames taken from a video (the sharpest of each equal span)."""
 
 
 SOURCE_FIELDS = ("data", "format", "views", "downscale", "train_poses", "photos")

@@ -24,19 +24,14 @@ import tyro
 from pydantic import BeforeValidator, Field, SerializeAsAny
 
 from .base import MAX_GAUSSIANS, Positive, SplatConfig, as_registered_kind, registered_kinds
-from .matching import MatchConfig
+from .matching import AutoMatchConfig, MatchKinds
 
 FALLBACK_POINTS = 10_000
 """Random points a model starts from when its prior (matches, triangulated points) is missing or sparse."""
 
-KIND = tyro.conf.arg(
-    metavar="KIND",
-    help="The start's kind, described above: random, frustum, triangulated, sfm, ply, or one a plugin "
-    "registers (a fallback, and SCGaussian's ordinary Gaussians: random or frustum); each kind has its "
-    "own flags, which --help shows after --model.init.kind K.",
-)
-"""The ``kind`` flag of every initialisation: a placeholder and one help text (the field takes any
-kind of its union, each with its own flags; see :mod:`splat_framework.cli.kinds`)."""
+KIND = tyro.conf.arg(metavar="KIND")
+"""The ``kind`` flag of every initialisation: one placeholder (its help lists the kinds the field
+takes, each with its own flags: see :mod:`splat_framework.cli.help_screen`)."""
 
 
 class InitConfig(SplatConfig):
@@ -63,7 +58,7 @@ class RandomInitConfig(InitConfig):
     """Random start (the 3DGS reference's): points uniform in the scene's content box (else the box of the training frusta), grey."""
 
     kind: Annotated[Literal["random"], KIND] = "random"
-    """The start's kind."""
+    """The start."""
     num_points: int = Field(10_000, ge=1, le=MAX_GAUSSIANS)
     """Number of random initial points."""
     points_fn = "splat_framework.model.init:box_points"
@@ -77,7 +72,7 @@ class FrustumInitConfig(RandomInitConfig):
     """Frustum start: random points inside the training frusta (uniform in inverse depth), coloured by their pixels."""
 
     kind: Annotated[Literal["frustum"], KIND] = "frustum"
-    """The start's kind."""
+    """The start."""
     points_fn = "splat_framework.model.init:frustum_points"
 
 
@@ -98,13 +93,13 @@ class TriangulatedInitConfig(InitConfig):
     """Triangulated start (the paper's "Triang. init" rows): the training views' matches triangulated with the known poses."""
 
     kind: Annotated[Literal["triangulated"], KIND] = "triangulated"
-    """The start's kind."""
-    matching: MatchConfig = Field(default_factory=MatchConfig)
-    """Matching prior used for triangulation."""
+    """The start."""
+    matching: MatchKinds = Field(default_factory=AutoMatchConfig)
+    """Matching prior of the triangulation (--model.init.matching.kind K)."""
     max_reprojection_px: Positive = 2.0
-    """Drop triangulated points whose reprojection error exceeds this (pixels)."""
+    """Drop triangulated points whose reprojection error exceeds this (px)."""
     fallback: RandomKinds = Field(default_factory=RandomInitConfig)
-    """The random start used instead when fewer than 50 matches triangulate (texture-less views; one warning)."""
+    """The random start used when fewer than 50 matches triangulate."""
     points_fn = "splat_framework.model.init:triangulated_points"
 
     @property
@@ -116,7 +111,7 @@ class SfMInitConfig(InitConfig):
     """SfM start: a COLMAP dataset's points3D with their colours (computed from all its photos, test views included)."""
 
     kind: Annotated[Literal["sfm"], KIND] = "sfm"
-    """The start's kind."""
+    """The start."""
     points_fn = "splat_framework.model.init:sfm_points"
 
 
@@ -124,7 +119,7 @@ class PlyInitConfig(InitConfig):
     """PLY start: the centres and base colours of a 3DGS-layout PLY's Gaussians (splat-export's, the 3DGS reference's)."""
 
     kind: Annotated[Literal["ply"], KIND] = "ply"
-    """The start's kind."""
+    """The start."""
     path: Path
     """PLY file to start from."""
     points_fn = "splat_framework.model.init:ply_points"

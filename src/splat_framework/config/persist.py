@@ -45,6 +45,43 @@ OLD_SHARED_FIELDS = {
 }
 
 
+_DENSE = ("dense_preset", "dense_upscale", "fb_threshold", "dense_oversample", "min_texture")
+_LIGHTGLUE = ("min_confidence", "weights", "device", "max_keypoints", "learned_resize")
+#: The matcher-specific fields of the flat ``matching`` block that config.json files held before each
+#: matcher had a config of its own (tagged by ``kind``, then named ``matcher``), by the matcher that
+#: read them: a record of that layout, whatever today's matcher configs become.
+FLAT_MATCHER_FIELDS = {
+    "dense": _DENSE, "sift": ("sift_features", "ratio", "sift_upscale"), "loftr": ("min_confidence", "weights", "device"),
+    "aliked-lightglue": _LIGHTGLUE, "disk-lightglue": _LIGHTGLUE,
+    "auto": ("auto_flow_max_angle", "auto_min_matches", "auto_guided_flow_max_views", *_DENSE, *_LIGHTGLUE),
+}
+
+
+def upgrade_match_layout(block):
+    """A saved ``matching`` block (dict) written before the matchers' configs were tagged, in today's
+    layout: its ``matcher`` is its ``kind``, and the other matchers' fields (:data:`FLAT_MATCHER_FIELDS`,
+    which its matcher never read) are dropped. Any other value is returned as it is."""
+    if not isinstance(block, dict) or "matcher" not in block or "kind" in block:
+        return block
+    out = dict(block)
+    kind = out.pop("matcher")
+    if kind not in FLAT_MATCHER_FIELDS:
+        return {"kind": kind, **out}  # validation names it
+    others = {f for fields in FLAT_MATCHER_FIELDS.values() for f in fields} - set(FLAT_MATCHER_FIELDS[kind])
+    return {"kind": kind, **{k: v for k, v in out.items() if k not in others}}
+
+
+def _upgrade_matching(model: dict) -> dict:
+    """``model`` (a saved model config dict) with its matching blocks (the prior's, the triangulated
+    start's) in today's layout (:func:`upgrade_match_layout`)."""
+    out = dict(model)
+    if "matching" in out:
+        out["matching"] = upgrade_match_layout(out["matching"])
+    if isinstance(out.get("init"), dict) and "matching" in out["init"]:
+        out["init"] = {**out["init"], "matching": upgrade_match_layout(out["init"]["matching"])}
+    return out
+
+
 def regroup_fields(cfg: dict, defaults: dict) -> dict:
     """A copy of a saved config dict whose ``model`` and ``optim`` fields sit where the method's
     ``defaults`` (its default config, as a dict) keep them: a field the other group has now moves
@@ -68,8 +105,9 @@ def regroup_fields(cfg: dict, defaults: dict) -> dict:
 
 def upgrade_saved_config(cfg: dict, defaults: TrainConfig | None = None) -> dict:
     """A copy of a saved config dict without the :data:`MOVED_FIELDS` (runs written before they moved),
-    its ``model.init`` and ``model.reg`` in today's layout (:func:`~splat_framework.config.init.upgrade_init_layout`,
-    :func:`~splat_framework.config.model.upgrade_reg_layout`).
+    its ``model.init``, ``model.reg`` and matching blocks in today's layout
+    (:func:`~splat_framework.config.init.upgrade_init_layout`, :func:`~splat_framework.config.model.upgrade_reg_layout`,
+    :func:`upgrade_match_layout`).
 
     With ``defaults`` (the method's default config), its model and learning-rate fields are
     regrouped as the method keeps them (:func:`regroup_fields`) and fields added since the file
@@ -86,7 +124,7 @@ def upgrade_saved_config(cfg: dict, defaults: TrainConfig | None = None) -> dict
         else:
             section.pop(name, None)
     if isinstance(out.get("model"), dict):
-        out["model"] = upgrade_reg_layout(upgrade_init_layout(out["model"]))
+        out["model"] = _upgrade_matching(upgrade_reg_layout(upgrade_init_layout(out["model"])))
     if defaults is not None:
         default_dict = json.loads(defaults.model_dump_json())
         filled = deep_merge(default_dict, regroup_fields(out, default_dict))

@@ -30,7 +30,7 @@ class StrategyConfig(SplatConfig):
     strategy_class: ClassVar[str] = ""
     """``"module:Class"`` of the :class:`~splat_framework.model.strategy.Strategy` built from this config."""
     kind: str
-    """The strategy's tag."""
+    """The strategy."""
     enabled: bool = True
     """Run densification at all (False keeps the initial Gaussians only)."""
 
@@ -79,37 +79,37 @@ class DensifyConfig(StrategyConfig):
     """Adaptive density control of 3DGS (clone, split, prune, opacity reset)."""
 
     kind: tyro.conf.Suppress[Literal["default"]] = "default"
-    """The strategy's tag."""
+    """The strategy."""
     prune_opa: Annotated[float, Field(ge=0, lt=1, allow_inf_nan=False)] = 0.005
     """Prune Gaussians whose opacity falls below this."""
     grow_grad2d: NonNegative = 0.0002
-    """Grow Gaussians whose mean screen-space gradient (NDC units) exceeds this."""
+    """Grow Gaussians whose mean screen-space gradient exceeds this."""
     grow_scale3d: Positive = 0.01
-    """Clone below / split above this largest scale, relative to the scene scale."""
+    """Clone below / split above this largest scale (scene scale)."""
     grow_scale2d: Positive = 0.05
-    """Also split Gaussians whose screen radius / image size exceeds this (only before refine_scale2d_stop_iter)."""
+    """Also split Gaussians whose screen radius / image size exceeds this."""
     prune_scale3d: Positive = 0.1
-    """After the first opacity reset, prune Gaussians larger than this (relative to the scene scale)."""
+    """After the first reset, prune Gaussians larger than this (scene scale)."""
     prune_scale2d: Positive = 0.15
-    """Prune Gaussians whose screen radius exceeds this fraction of the image size (until refine_scale2d_stop_iter)."""
+    """Prune Gaussians whose screen radius exceeds this fraction of the image."""
     refine_scale2d_stop_iter: Steps = 0
     """Stop the 2D-size pruning after this iteration (0 = never use it)."""
     refine_start_iter: StartSteps = 500
-    """First iteration at which densification runs (a longer schedule keeps it: see StartSteps)."""
+    """First iteration at which densification runs."""
     refine_stop_iter: Steps = 2500
     """Last iteration at which densification runs."""
     reset_every: OptionalPeriod = 3000
-    """Reset opacities to 2*prune_opa every this many iterations (None: never; the 3D-size pruning, which starts after the first reset, then never runs either)."""
+    """Reset opacities to 2*prune_opa every this many iterations (None: never)."""
     opacity_decay: StepFactor = 1.0
-    """Multiply every opacity by this after each step from refine_start_iter on (Binocular3DGS, Han et al. NeurIPS 2024: 0.995, with no reset), so only Gaussians the views keep asking for stay opaque (1 = off). Written for the method's own schedule: a run f times as long (--steps, more views) applies its f-th root each step."""
+    """Multiply every opacity by this each step from refine_start_iter (1 = off)."""
     refine_every: Interval = 100
-    """Densify every this many iterations (not rescaled by --steps, so short runs do not densify more often)."""
+    """Densify every this many iterations (not rescaled by --steps)."""
     pause_refine_after_reset: Steps = 0
     """Skip densification for this many iterations after an opacity reset."""
     absgrad: bool = False
-    """Grow by the absolute-gradient criterion (AbsGS, Ye et al. 2024): each Gaussian's sum over pixels of |per-pixel screen gradient|, in which the opposite pixel gradients of a large Gaussian over fine detail do not cancel; it is larger than the plain gradient, so raise grow_grad2d with it (gsplat uses 4x its threshold)."""
+    """Grow by the absolute gradient (AbsGS); raise grow_grad2d with it."""
     revised_opacity: bool = False
-    """Use the revised opacity for cloned/split Gaussians (Rota Bulo et al. 2024)."""
+    """Revised opacity for cloned and split Gaussians (Rota Bulo et al.)."""
 
     strategy_class: ClassVar[str] = "splat_framework.model.strategy:DefaultStrategy"
 

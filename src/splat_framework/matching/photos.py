@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..config.matching import MatchConfig
+from ..config.matching import match_config
 from .pipeline import compute_matches
 
 
 def _match(images: list[np.ndarray], matcher: str) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
     """{(i, j): (pts_i, pts_j)} over every pair of ``images`` ([H, W, 3] uint8 RGB), continuous coordinates."""
-    ms = compute_matches(images, None, list(range(len(images))), MatchConfig(matcher=matcher, max_matches=0, cache=False))
+    ms = compute_matches(images, None, list(range(len(images))), match_config(matcher, max_matches=0, cache=False))
     return {pair: ms.get(*pair) for pair in ms.pairs()}
 
 

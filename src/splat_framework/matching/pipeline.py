@@ -14,7 +14,7 @@ import numpy as np
 from ..console import Phase, phase
 from . import registry
 from .base import KnownMatches, Matcher, Pts, inside_mask, to_hwc
-from ..config.matching import MatchConfig
+from ..config.matching import MatchConfig, match_config
 from .guided import GuidedFlowMatcher
 from .geometry import as_numpy, fundamental_from_cameras, verify_pair, view_angle
 from .learned import WEIGHTS_INSTALL
@@ -39,7 +39,7 @@ def cache_key(
     result depends on it)."""
     h = hashlib.sha1()
     head = {"version": CACHE_VERSION, "config": config.model_dump(mode="json"), "view_ids": [int(v) for v in view_ids]}
-    if config.matcher == AUTO:
+    if config.kind == AUTO:
         head["learned_available"] = registry.learned_available(config)
     h.update(json.dumps(head, sort_keys=True).encode())
     for img in images:
@@ -103,7 +103,7 @@ def compute_matches(
         cameras: one Camera per view (same size as its image) for the epipolar
             check, or None to skip it.
         view_ids: dataset index of each view (the MatchSet's keys), unique.
-        config: matching settings (default MatchConfig()).
+        config: matching settings (default: matcher auto, match_config()).
         cache_dir: folder for the on-disk cache (None = no cache).
         masks: per view, a foreground mask [H, W] (the image's alpha, 0 =
             background) or None; used when ``config.alpha_mask`` is on.
@@ -115,7 +115,7 @@ def compute_matches(
         MatchSet over all pairs (i, j), i < j, of ``view_ids``; why a pair was left empty is in its
         ``warnings``, which the caller reports by the views' names (:func:`~.report.warn_empty`).
     """
-    config = config or MatchConfig()
+    config = config or match_config()
     if len(images) != len(view_ids) or (cameras is not None and len(cameras) != len(view_ids)):
         raise ValueError(f"{len(images)} images, {None if cameras is None else len(cameras)} cameras and "
                          f"{len(view_ids)} view ids: they must be one per view")
@@ -197,24 +197,24 @@ def _match_all_pairs(ids: list[int], imgs: list[np.ndarray], cams, fg: list, con
         """The pair's learned matches: those the posing kept, else the learned matcher of "auto"."""
         return KnownMatches(*known[pair]) if pair in known else auto_learned(pair, why)
 
-    guided = config.matcher == AUTO and len(ids) <= config.auto_guided_flow_max_views
+    guided = config.kind == AUTO and len(ids) <= config.auto_guided_flow_max_views
     for a in range(len(ids)):
         for b in range(a + 1, len(ids)):
             pair = (ids[a], ids[b])
             F_known = fundamental_from_cameras(cams[a], cams[b]) if (cams is not None and config.epipolar_check) else None
             seed, pair_masks = config.seed + 7919 * a + b, (fg[a], fg[b])
-            name = AUTO_DENSE if config.matcher == AUTO else config.matcher
+            name = AUTO_DENSE if config.kind == AUTO else config.kind
             angle = view_angle(cams[a], cams[b]) if cams is not None else 0.0
-            wide = config.matcher == AUTO and config.auto_flow_max_angle > 0 and angle >= config.auto_flow_max_angle
+            wide = config.kind == AUTO and config.auto_flow_max_angle > 0 and angle >= config.auto_flow_max_angle
             why = f"is wide ({angle:.0f} degrees)" if wide else f"would take guided flow ({len(ids)} views)"
             sparse = sparse_for(pair, why) if wide or guided else None
             if sparse is not None:
                 chosen, name = (GuidedFlowMatcher(sparse, matcher), AUTO_GUIDED) if guided else (sparse, AUTO_LEARNED)
                 pa, pb, counts, warn = _verified(chosen, imgs[a], imgs[b], F_known, config, seed, pair_masks)
             else:
-                own = KnownMatches(*known[pair]) if config.matcher != AUTO and pair in known else matcher
+                own = KnownMatches(*known[pair]) if config.kind != AUTO and pair in known else matcher
                 pa, pb, counts, warn = _verified(own, imgs[a], imgs[b], F_known, config, seed, pair_masks)
-                if (config.matcher == AUTO and counts["final"] < config.auto_min_matches
+                if (config.kind == AUTO and counts["final"] < config.auto_min_matches
                         and (sparse := sparse_for(pair, f"keeps only {counts['final']} dense matches")) is not None):
                     alt = _verified(sparse, imgs[a], imgs[b], F_known, config, seed, pair_masks)
                     if alt[2]["final"] > counts["final"]:

@@ -41,7 +41,7 @@ def get_matcher(name: str, **kwargs: Any) -> Matcher:
 
 def build_matcher(config: MatchConfig) -> Matcher:
     """Instantiate the matcher named by ``config`` with the config's settings ("auto": its dense matcher)."""
-    cls = MATCHERS[AUTO_DENSE if config.matcher == AUTO else config.matcher]
+    cls = MATCHERS[AUTO_DENSE if config.kind == AUTO else config.kind]
     if hasattr(cls, "from_config"):
         return cls.from_config(config)
     return cls()

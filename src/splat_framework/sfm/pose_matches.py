@@ -36,7 +36,7 @@ def reused_matcher(config: MatchConfig) -> str | None:
     learned matcher), or None (dense, SIFT, LoFTR: matched as configured)."""
     from ..config.matcher_names import AUTO, AUTO_LEARNED
 
-    name = AUTO_LEARNED if config.matcher == AUTO else config.matcher
+    name = AUTO_LEARNED if config.kind == AUTO else config.kind
     return name if name in REUSABLE else None
 
 

@@ -193,7 +193,7 @@ def keep_pose_matches(pycolmap, model, sparse0: Path, images: Path, staged: list
     prior can take them from (:mod:`.pose_matches`)."""
     import numpy as np
 
-    from ..config.matching import MatchConfig
+    from ..config.matching import match_config
     from .pose_matches import POSE_MATCHES, REUSABLE, matcher_options, save_pose_matches
 
     if matcher not in REUSABLE:
@@ -219,4 +219,4 @@ def keep_pose_matches(pycolmap, model, sparse0: Path, images: Path, staged: list
             inside &= np.isfinite(u).all(1) & (u[:, 0] >= 0) & (u[:, 0] <= cam.width) & (u[:, 1] >= 0) & (u[:, 1] <= cam.height)
         pairs[(a, b)] = (ua[inside], ub[inside])
     kept = {name: (images / name, (cam.width, cam.height)) for name, cam in pinhole.items()}
-    save_pose_matches(images.parent / POSE_MATCHES, matcher, matcher_options(MatchConfig(matcher=matcher)), kept, pairs)
+    save_pose_matches(images.parent / POSE_MATCHES, matcher, matcher_options(match_config(matcher)), kept, pairs)

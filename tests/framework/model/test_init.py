@@ -134,9 +134,9 @@ def test_ply_kind_starts_3dgs_from_an_exported_model(tmp_path, forward_dm):
 
 @pytest.mark.bad_input("`--model.init.kind` naming a kind the method does not take", "exit 2, one line naming the kinds it takes")
 def test_any_method_starts_from_a_ply_on_the_command_line(tmp_path):
-    """``--model.init.kind ply --model.init.path x.ply`` on 3dgs and on scaffold-gs; --help shows the
-    chosen kind's flags; an unknown kind, or one the method does not take (scgaussian's ordinary
-    Gaussians are random), is one line naming the choices."""
+    """``--model.init.kind ply --model.init.path x.ply`` on 3dgs, scaffold-gs and scgaussian; --help shows
+    the chosen kind's flags; an unknown kind, or one the method does not take (scgaussian's ordinary
+    Gaussians are random or a PLY's), is one line naming the choices."""
     import tyro
 
     from splat_framework.cli.common import ArgumentsError
@@ -144,7 +144,7 @@ def test_any_method_starts_from_a_ply_on_the_command_line(tmp_path):
     from splat_framework.registry import discover_methods
 
     methods = discover_methods()
-    for method in ("3dgs", "scaffold-gs"):
+    for method in ("3dgs", "scaffold-gs", "scgaussian"):
         argv = [method, "--model.init.kind", "ply", "--model.init.path", str(tmp_path / "x.ply")]
         config = tyro.cli(build_parser_type(methods, argv, method), args=argv)
         assert config.model.init.kind == "ply" and config.model.init.path == tmp_path / "x.ply"
@@ -153,5 +153,5 @@ def test_any_method_starts_from_a_ply_on_the_command_line(tmp_path):
     assert config.model.init.max_reprojection_px == 3 and config.model.init.matching == methods["3dgs-triang"].default_config().model.init.matching
     with pytest.raises(ArgumentsError, match="'sphere' is not one of random, frustum, triangulated, sfm, ply"):
         build_parser_type(methods, ["3dgs", "--model.init.kind", "sphere"], "3dgs")
-    with pytest.raises(ArgumentsError, match="'ply' is not one of random, frustum"):
-        build_parser_type(methods, ["scgaussian", "--model.init.kind", "ply"], "scgaussian")
+    with pytest.raises(ArgumentsError, match="'sfm' is not one of random, frustum, ply"):
+        build_parser_type(methods, ["scgaussian", "--model.init.kind", "sfm"], "scgaussian")

@@ -1,0 +1,109 @@
+"""``splat-train METHOD --help``, one group a screen (``cli.help_screen``): a main screen that fits
+150 lines at 100 columns, every flag on the screen of its group, the kinds a method takes listed."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import re
+from importlib.metadata import EntryPoint, entry_points
+from typing import Annotated, Literal
+
+import pytest
+
+from splat_framework.config.init import KIND, RandomInitConfig
+from splat_framework.registry import discover_methods
+
+COLUMNS = "100"
+"""The width docs/cli.md is written at (docs/generate.py)."""
+MAX_LINES = 150
+
+
+def help_of(*argv: str) -> str:
+    """What ``splat-train ARGV`` prints, at :data:`COLUMNS` columns, without colour."""
+    from splat_framework.cli.train import main
+
+    out = io.StringIO()
+    with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(out):
+        mp.setenv("COLUMNS", COLUMNS)
+        mp.setenv("NO_COLOR", "1")
+        with pytest.raises(SystemExit) as e:
+            main(list(argv))
+    assert e.value.code in (0, None), out.getvalue()[-2000:]
+    return out.getvalue()
+
+
+def flags(text: str) -> set[str]:
+    """The flags a help screen shows (``--a.b-c``, its ``--no-`` form left out)."""
+    return set(re.findall(r"^[│|\s]*(--[a-z0-9][\w.\-]*)", text, re.M)) - {"--help"}
+
+
+METHODS = sorted({"3dgs", "scgaussian", "scaffold-gs", "octree-gs"} & set(discover_methods()))
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_the_main_screen_fits_150_lines_and_every_flag_is_on_its_groups_screen(method):
+    main = help_of(method, "--help")
+    assert len(main.splitlines()) <= MAX_LINES, f"{method} --help: {len(main.splitlines())} lines"
+    every = flags(help_of(method, "--help", "all"))
+    named = re.search(r"shows one\):\n(.*?)every flag", main, re.S).group(1)
+    groups = re.findall(r"([\w.\-]+) \(\d+\)", named)
+    screens = {g: flags(help_of(method, "--help", g)) for g in groups}
+    assert set().union(flags(main), *screens.values()) == every  # no flag lost, none invented
+    for group, shown in screens.items():  # a group's screen: its flags only
+        assert all(f.startswith(f"--{group}.") for f in shown) or group == "options", (group, shown)
+    assert "--model.init.kind" in flags(main) and "--strategy.kind" in flags(main)
+
+
+def test_scgaussian_shows_the_chosen_matchers_flags_only():
+    main = help_of("scgaussian", "--help")
+    assert "--model.matching.kind" in flags(main) and "--model.matching.max-matches" not in flags(main)
+    assert len(main.splitlines()) <= MAX_LINES
+    sift = flags(help_of("scgaussian", "--model.matching.kind", "sift", "--help"))  # the choice opens its group
+    assert {"--model.matching.sift-features", "--model.matching.max-matches"} <= sift
+    assert not {"--model.matching.dense-upscale", "--model.matching.weights"} & sift
+    auto = flags(help_of("scgaussian", "--help", "model.matching"))
+    assert {"--model.matching.dense-upscale", "--model.matching.weights", "--model.matching.auto-min-matches"} <= auto
+    assert "--model.matching.sift-features" not in auto
+
+
+@pytest.mark.bad_input("`splat-train METHOD --help GROUP` naming no group of the method", "exit 2, one line naming its groups")
+def test_an_unknown_group_is_one_line_naming_the_groups():
+    from splat_framework.cli.common import ArgumentsError
+    from splat_framework.cli.train import main
+
+    with pytest.raises(ArgumentsError, match=r"--help strategyy: not a group of splat-train 3dgs .*strategy.*"
+                                             r"did you mean"):
+        main(["3dgs", "--help", "strategyy"])
+
+
+class GridTestInit(RandomInitConfig):
+    """A plugin's start kind (registered below through a fake entry point)."""
+
+    kind: Annotated[Literal["grid-test"], KIND] = "grid-test"
+    """The start."""
+
+
+def test_the_kind_flags_list_the_registered_strategies_and_start_kinds(monkeypatch):
+    """A strategy and a start kind that plugins register show in ``--help``'s kind flags of every
+    method that takes them; a method that narrows its kinds lists its own."""
+    from splat_framework import entry_points as plugins
+    from splat_framework.config.init import init_kinds
+    from splat_framework.config.strategy import strategy_kinds
+    from splat_framework.entry_points import INIT_ENTRY_POINT_GROUP, STRATEGY_ENTRY_POINT_GROUP
+
+    fake = [EntryPoint("ray-gaussian", "scg_plugin.config:RayStrategyConfig", STRATEGY_ENTRY_POINT_GROUP),
+            EntryPoint("grid-test", f"{__name__}:GridTestInit", INIT_ENTRY_POINT_GROUP)]
+    monkeypatch.setattr(plugins, "entry_points", lambda group: [e for e in [*entry_points(group=group), *fake]
+                                                               if e.group == group])
+    strategy_kinds.cache_clear()
+    init_kinds.cache_clear()
+    try:
+        text = " ".join(help_of("3dgs", "--help").split())  # the help's lines joined: a list may wrap
+        assert "The strategy: default, ray-gaussian (each with its own flags)" in text
+        assert "The start: random, frustum, triangulated, sfm, ply, grid-test (each with its own flags)" in text
+        scg = " ".join(help_of("scgaussian", "--help").split())
+        assert "The start: random, frustum, ply (each" in scg and "The strategy: ray-gaussian. (default" in scg
+    finally:
+        strategy_kinds.cache_clear()
+        init_kinds.cache_clear()
