@@ -296,7 +296,7 @@ def test_config_json_roundtrip_with_schema_version(tmp_path):
 
     cfg = config_scgaussian()
     save_config(cfg, tmp_path / "config.json")
-    method, raw = read_config_json(tmp_path / "config.json")
+    method, raw, _ = read_config_json(tmp_path / "config.json")
     assert method == "scgaussian"
     assert type(cfg).model_validate(raw) == cfg
     (tmp_path / "old.json").write_text('{"schema_version": 0, "config": {}}')

@@ -247,7 +247,7 @@ def test_trusted_resume_of_the_same_experiment_writes_the_true_config(seed0_run,
     checkpoints record) and writes this run's config, signed."""
     run = edited_copy(seed0_run, tmp_path, "delete")
     run_cli("train", *train_args(run, 10, "--resume", "--trust-edited-config"), code=0)
-    method, saved = read_config_json(run / "config.json")
+    method, saved, _ = read_config_json(run / "config.json")
     assert method == "3dgs" and saved["seed"] == 0 and saved["trust_edited_config"] is True
 
 

@@ -90,7 +90,7 @@ def load_saved_experiment(path: str, methods: dict):
         what = "not a regular file" if file.exists() else "no such file"
         raise DataError(f"{file}: {what} (--load-config takes a run's config.json)")
     try:
-        method, raw = read_config_json(file)
+        method, raw, version = read_config_json(file)
     except (UnicodeDecodeError, ValueError) as e:
         if isinstance(e, DataError):
             raise
@@ -99,7 +99,7 @@ def load_saved_experiment(path: str, methods: dict):
         raise DataError(f"{file}: method {method!r} is not registered{did_you_mean(str(method), methods)}")
     defaults = methods[method].default_config()
     try:
-        saved = type(defaults).model_validate(upgrade_saved_config(raw, defaults))
+        saved = type(defaults).model_validate(upgrade_saved_config(raw, version, defaults))
     except ValidationError as e:
         from .common import format_validation_error
 

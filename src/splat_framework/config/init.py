@@ -154,27 +154,3 @@ def _registered_init(value: Any) -> Any:
 InitKinds = Annotated[SerializeAsAny[InitConfig], BeforeValidator(_registered_init), tyro.conf.AvoidSubcommands]
 """The initialisation kinds every model accepts unless its config narrows them with :func:`init_field`:
 the built-ins and every kind of the ``splat_framework.inits`` entry points."""
-
-
-def upgrade_init_layout(model: dict) -> dict:
-    """A saved model config (dict) written before ``model.init`` was a tagged union, in today's layout.
-
-    Then ``init`` was "random" or "frustum" and ``init_num_points`` its count; a ``-triang`` method
-    (``max_reprojection_px`` and ``matching`` beside them, and for Scaffold/Octree-GS
-    ``start_from = "triangulated"``) started from triangulated matches and fell back to
-    ``max(init_num_points, FALLBACK_POINTS)`` points placed by ``init``. A model config without
-    a string ``init`` is returned as it is."""
-    if not isinstance(model.get("init"), str):
-        return model
-    out = dict(model)
-    placed = {"kind": out.pop("init")}
-    if "init_num_points" in out:
-        placed["num_points"] = out.pop("init_num_points")
-    start = out.pop("start_from", "triangulated")  # Scaffold/Octree-GS named their start; 3dgs-triang had none
-    if "max_reprojection_px" in out:  # the triangulation's fields (Scaffold/Octree-GS carried them whatever their start)
-        prior = {"matching": out.pop("matching", {}), "max_reprojection_px": out.pop("max_reprojection_px")}
-        if start == "triangulated":
-            count = max(int(placed.get("num_points", FALLBACK_POINTS)), FALLBACK_POINTS)
-            placed = {"kind": "triangulated", **prior, "fallback": placed | {"num_points": count}}
-    out["init"] = placed
-    return out
