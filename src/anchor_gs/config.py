@@ -17,11 +17,11 @@ from typing import ClassVar, Literal
 
 from pydantic import Field
 
-import tyro
 
 from splat_framework.plugin import (
     Fraction,
     Interval,
+    Kind,
     LearningRate,
     ModelConfig,
     NonNegative,
@@ -100,7 +100,7 @@ class AnchorUpdateConfig(StrategyConfig):
 class AnchorStrategyConfig(AnchorUpdateConfig):
     """Scaffold-GS anchor growing and pruning (``anchor_gs.strategy.AnchorStrategy``)."""
 
-    kind: tyro.conf.Suppress[Literal["anchor"]] = "anchor"
+    kind: Kind[Literal["anchor"]] = "anchor"
     """The strategy's tag."""
     update_depth: int = Field(3, ge=1, le=MAX_LEVELS)
     """Growing levels: voxel size init_factor / hierarchy_factor^i times the base size."""
@@ -149,7 +149,7 @@ class OctreeStrategyConfig(AnchorUpdateConfig):
     """Octree-GS anchor growing (per level, and one level finer for strong gradients) and pruning
     (``anchor_gs.strategy.OctreeStrategy``). Schedule: the public code's 40,000 iterations x 1000 / 40,000."""
 
-    kind: tyro.conf.Suppress[Literal["octree"]] = "octree"
+    kind: Kind[Literal["octree"]] = "octree"
     """The strategy's tag."""
     start_stat: Steps = 12
     """Accumulate neural-Gaussian gradients and opacities from this iteration (public code: 500 of 40,000)."""

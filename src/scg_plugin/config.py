@@ -2,15 +2,15 @@
 
 from __future__ import annotations
 
-from typing import Annotated, ClassVar, Literal
+from typing import ClassVar, Literal
 
 from pydantic import Field
 
-import tyro
 
 from splat_framework.plugin import (
     DensifyConfig,
     GaussianModelConfig,
+    Kind,
     MAX_GAUSSIANS,
     MAX_MATCHES,
     LearningRate,
@@ -22,14 +22,14 @@ from splat_framework.plugin import (
     strategy_field,
 )
 
-from splat_framework.config.init import KIND, FrustumInitConfig, RandomInitConfig, init_field
+from splat_framework.config.init import FrustumInitConfig, RandomInitConfig, init_field
 from splat_framework.matching import MatchConfig
 
 
 class OrdinaryRandomInit(RandomInitConfig):
     """Random start of the ordinary Gaussians (the 3DGS reference's): uniform in the scene box, grey."""
 
-    kind: Annotated[Literal["random"], KIND] = "random"
+    kind: Kind[Literal["random"]] = "random"
     """The start's kind."""
     num_points: int = Field(10_000, ge=0, le=MAX_GAUSSIANS)
     """Random ordinary Gaussians at start beside the ray-based ones (0 = ordinary ones come only from densification): matched rays cover only textured surfaces."""
@@ -38,7 +38,7 @@ class OrdinaryRandomInit(RandomInitConfig):
 class OrdinaryFrustumInit(FrustumInitConfig):
     """Frustum start of the ordinary Gaussians: random points inside the training frusta, coloured by their pixels."""
 
-    kind: Annotated[Literal["frustum"], KIND] = "frustum"
+    kind: Kind[Literal["frustum"]] = "frustum"
     """The start's kind."""
     num_points: int = Field(10_000, ge=0, le=MAX_GAUSSIANS)
     """Random ordinary Gaussians at start beside the ray-based ones (0 = ordinary ones come only from densification)."""
@@ -91,7 +91,7 @@ class RayStrategyConfig(DensifyConfig):
     """3DGS adaptive density control for the hybrid model: the Gaussians of matches are never
     pruned, and clones / split children are ordinary Gaussians (``scg_plugin.strategy``)."""
 
-    kind: tyro.conf.Suppress[Literal["ray-gaussian"]] = "ray-gaussian"
+    kind: Kind[Literal["ray-gaussian"]] = "ray-gaussian"
     """The strategy's tag."""
     strategy_class: ClassVar[str] = "scg_plugin.strategy:RayGaussianStrategy"
 

@@ -27,6 +27,7 @@ _EXPORTS: dict[str, str] = {
     "strategy_field": "splat_framework.config",
     "InitConfig": "splat_framework.config",
     "init_field": "splat_framework.config",
+    "Kind": "splat_framework.config",
     # field markers of configs
     "Steps": "splat_framework.config",
     "StartSteps": "splat_framework.config",
@@ -66,7 +67,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .config import (
         MAX_GAUSSIANS, MAX_MATCHES, RUN_OPTION, DensifyConfig, Fraction, GaussianModelConfig, Interval, LearningRate,
         ModelConfig, NonNegative, OptimConfig, OptionalPeriod, Period, Positive, RampPeriod, RegularisersConfig,
-        SplatConfig, StartSteps, StepFactor, Steps,
+        Kind, SplatConfig, StartSteps, StepFactor, Steps,
         StrategyConfig, TrainConfig, strategy_field, InitConfig, init_field,
     )
     from .model.init import StartPoints, scene_box

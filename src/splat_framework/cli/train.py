@@ -111,7 +111,6 @@ def load_saved_experiment(path: str, methods: dict):
 
 def main(args: list[str] | None = None) -> dict:
     from .common import ArgumentsError, parse_cli
-    from .kinds import hidden_kind_flags
 
     given = list(sys.argv[1:] if args is None else args)  # as typed: a stop names the command that continues
     argv, load = _load_config_flag(given)
@@ -132,8 +131,7 @@ def main(args: list[str] | None = None) -> dict:
     config = parse_cli(
         parser_type,
         prog="splat-train",
-        args=hidden_kind_flags(argv, loaded if loaded is not None else methods[asked].default_config())
-        if asked in methods else argv,
+        args=argv,
         subcommands=methods,
         description="Train a Gaussian-splatting method. Run 'splat-train METHOD --help' for its options; "
         f"'splat-train {LOAD_CONFIG_FLAG} RUN/config.json [options]' re-runs a saved experiment into a new folder.",

@@ -4,14 +4,15 @@ Each kind is a config tagged by ``kind`` (a member of a discriminated union, as 
 are) that names the function building its points as ``points_fn = "module:function"``;
 :func:`splat_framework.model.init.initial_points` calls it, the one place that builds start
 points for every method (3dgs's Gaussians, Scaffold-GS's and Octree-GS's anchors, SCGaussian's
-ordinary Gaussians). A function takes ``(config, datamanager, generator)`` and returns
-``(points [N, 3], colours [N, 3] in [0, 1], stats)``.
+ordinary Gaussians). A function takes ``(config, datamanager, generator)`` and returns a
+:class:`~splat_framework.model.init.StartPoints` (points [N, 3], colours [N, 3] in [0, 1], and seconds
+per named set-up phase).
 
 Every model accepts the built-in kinds and those a plugin registers in the entry-point group
-``splat_framework.inits`` (:data:`InitKinds`); a model that accepts fewer lists them with
-:func:`init_field`. On the command line ``--model.init.kind K`` picks one and shows its flags
-(``splat-train 3dgs --model.init.kind ply --help``), a TOML variant writes
-``[overrides.model.init] kind = "K"``.
+``splat_framework.inits`` (:data:`InitKinds`; the entry point's name is the kind's tag, declared as
+``kind: Kind[Literal["TAG"]] = "TAG"``); a model that accepts fewer lists them with :func:`init_field`.
+On the command line ``--model.init.kind K`` picks one and shows its flags (``splat-train 3dgs
+--model.init.kind ply --help``), a TOML variant writes ``[overrides.model.init] kind = "K"``.
 """
 
 from __future__ import annotations
@@ -23,27 +24,16 @@ from typing import Annotated, Any, ClassVar, Literal, Union
 import tyro
 from pydantic import BeforeValidator, Field, SerializeAsAny
 
-from .base import MAX_GAUSSIANS, Positive, SplatConfig, as_registered_kind, registered_kinds
+from .base import MAX_GAUSSIANS, Kind, KindConfig, Positive, as_registered_kind, registered_kinds
 from ..matching.config import MatchConfig
 
 FALLBACK_POINTS = 10_000
 """Random points a model starts from when its prior (matches, triangulated points) is missing or sparse."""
 
-KIND = tyro.conf.arg(
-    metavar="KIND",
-    help="The start's kind, described above: random, frustum, triangulated, sfm, ply, or one a plugin "
-    "registers (a fallback, and SCGaussian's ordinary Gaussians: random or frustum); each kind has its "
-    "own flags, which --help shows after --model.init.kind K.",
-)
-"""The ``kind`` flag of every initialisation: a placeholder and one help text (the field takes any
-kind of its union, each with its own flags; see :mod:`splat_framework.cli.kinds`)."""
+class InitConfig(KindConfig):
+    """Base of the initialisations' configs: a discriminated-union member tagged by ``kind``
+    (declared as ``kind: Kind[Literal["TAG"]] = "TAG"``, see :class:`~.base.KindConfig`)."""
 
-
-class InitConfig(SplatConfig):
-    """Base of the initialisations' configs: a discriminated-union member tagged by ``kind``."""
-
-    kind: str
-    """The initialisation's tag."""
     points_fn: ClassVar[str]
     """``module:function`` building this kind's points (see the module docstring)."""
 
@@ -62,7 +52,7 @@ class InitConfig(SplatConfig):
 class RandomInitConfig(InitConfig):
     """Random start (the 3DGS reference's): points uniform in the scene's content box (else the box of the training frusta), grey."""
 
-    kind: Annotated[Literal["random"], KIND] = "random"
+    kind: Kind[Literal["random"]] = "random"
     """The start's kind."""
     num_points: int = Field(10_000, ge=1, le=MAX_GAUSSIANS)
     """Number of random initial points."""
@@ -76,7 +66,7 @@ class RandomInitConfig(InitConfig):
 class FrustumInitConfig(RandomInitConfig):
     """Frustum start: random points inside the training frusta (uniform in inverse depth), coloured by their pixels."""
 
-    kind: Annotated[Literal["frustum"], KIND] = "frustum"
+    kind: Kind[Literal["frustum"]] = "frustum"
     """The start's kind."""
     points_fn = "splat_framework.model.init:frustum_points"
 
@@ -97,7 +87,7 @@ RandomKinds = init_field(RandomInitConfig, FrustumInitConfig)
 class TriangulatedInitConfig(InitConfig):
     """Triangulated start (the paper's "Triang. init" rows): the training views' matches triangulated with the known poses."""
 
-    kind: Annotated[Literal["triangulated"], KIND] = "triangulated"
+    kind: Kind[Literal["triangulated"]] = "triangulated"
     """The start's kind."""
     matching: MatchConfig = Field(default_factory=MatchConfig)
     """Matching prior used for triangulation."""
@@ -115,7 +105,7 @@ class TriangulatedInitConfig(InitConfig):
 class SfMInitConfig(InitConfig):
     """SfM start: a COLMAP dataset's points3D with their colours (computed from all its photos, test views included)."""
 
-    kind: Annotated[Literal["sfm"], KIND] = "sfm"
+    kind: Kind[Literal["sfm"]] = "sfm"
     """The start's kind."""
     points_fn = "splat_framework.model.init:sfm_points"
 
@@ -123,7 +113,7 @@ class SfMInitConfig(InitConfig):
 class PlyInitConfig(InitConfig):
     """PLY start: the centres and base colours of a 3DGS-layout PLY's Gaussians (splat-export's, the 3DGS reference's)."""
 
-    kind: Annotated[Literal["ply"], KIND] = "ply"
+    kind: Kind[Literal["ply"]] = "ply"
     """The start's kind."""
     path: Path
     """PLY file to start from."""
