@@ -17,11 +17,11 @@ from typing import ClassVar, Literal
 
 from pydantic import Field
 
-import tyro
 
 from splat_framework.plugin import (
     Fraction,
     Interval,
+    Kind,
     LearningRate,
     ModelConfig,
     NonNegative,
@@ -100,8 +100,8 @@ class AnchorUpdateConfig(StrategyConfig):
 class AnchorStrategyConfig(AnchorUpdateConfig):
     """Scaffold-GS anchor growing and pruning (``anchor_gs.strategy.AnchorStrategy``)."""
 
-    kind: tyro.conf.Suppress[Literal["anchor"]] = "anchor"
-    """The strategy."""
+    kind: Kind[Literal["anchor"]] = "anchor"
+    """The strategy's tag."""
     update_depth: int = Field(3, ge=1, le=MAX_LEVELS)
     """Growing levels (voxels init_factor / hierarchy_factor^i of the base)."""
     init_factor: int = Field(16, ge=1, le=2**16)
@@ -149,8 +149,8 @@ class OctreeStrategyConfig(AnchorUpdateConfig):
     """Octree-GS anchor growing (per level, and one level finer for strong gradients) and pruning
     (``anchor_gs.strategy.OctreeStrategy``). Schedule: the public code's 40,000 iterations x 1000 / 40,000."""
 
-    kind: tyro.conf.Suppress[Literal["octree"]] = "octree"
-    """The strategy."""
+    kind: Kind[Literal["octree"]] = "octree"
+    """The strategy's tag."""
     start_stat: Steps = 12
     """Accumulate the neural Gaussians' statistics from this iteration."""
     update_from: Steps = 38

@@ -6,12 +6,11 @@ from typing import ClassVar, Literal
 
 from pydantic import Field
 
-import tyro
-
 from splat_framework.plugin import (
     DensifyConfig,
     FrustumInitConfig,
     GaussianModelConfig,
+    Kind,
     MAX_GAUSSIANS,
     MAX_MATCHES,
     LearningRate,
@@ -91,8 +90,8 @@ class RayStrategyConfig(DensifyConfig):
     """3DGS adaptive density control for the hybrid model: the Gaussians of matches are never
     pruned, and clones / split children are ordinary Gaussians (``scg_plugin.strategy``)."""
 
-    kind: tyro.conf.Suppress[Literal["ray-gaussian"]] = "ray-gaussian"
-    """The strategy."""
+    kind: Kind[Literal["ray-gaussian"]] = "ray-gaussian"
+    """The strategy's tag."""
     strategy_class: ClassVar[str] = "scg_plugin.strategy:RayGaussianStrategy"
 
 

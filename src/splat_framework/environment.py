@@ -29,6 +29,10 @@ VARIABLES: dict[str, str] = {
                                 "limit); images beyond it are decoded again when needed.",
     "SPLAT_CONFIG_PATH": "`:`-separated folders of TOML config variants, searched before the installed "
                          "packages' variants.",
+    "SPLAT_METHODS": "Methods registered without installing a package: comma-separated `module.path:name` "
+                     "entries, each naming a `MethodSpec` in a module Python can import (on `PYTHONPATH`), "
+                     "beside the `splat_framework.methods` entry points "
+                     "(`SPLAT_METHODS=my_methods:spec splat-train my-method --data ...`).",
 }
 """Variable -> one line on what it does."""
 
@@ -73,6 +77,25 @@ def compile_setting(value: str | None) -> bool | None:
     return _SWITCH[text]
 
 
+_OBJECT_PATH = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*")
+
+
+def method_entries(value: str | None) -> list[str]:
+    """``SPLAT_METHODS``: its ``module.path:name`` entries (comma-separated; blanks ignored); one line
+    naming the variable and the first entry that is not one else (its loading is checked by the
+    method registry, with :func:`method_entry_error`)."""
+    entries = [e.strip() for e in (value or "").split(",") if e.strip()]
+    for entry in entries:
+        if not _OBJECT_PATH.fullmatch(entry):
+            raise method_entry_error(value or "", entry, "is not a module.path:name naming a MethodSpec")
+    return entries
+
+
+def method_entry_error(value: str, entry: str, why: str) -> DataError:
+    """The one line refusing ``entry`` of ``SPLAT_METHODS=value``."""
+    return _bad("SPLAT_METHODS", value, f"entry {entry!r} {why}")
+
+
 def _folder(name: str, value: str, must_exist: bool) -> None:
     for part in value.split(os.pathsep) if name == "SPLAT_CONFIG_PATH" else [value]:
         if not part:
@@ -96,6 +119,7 @@ def check_environment(environ=None) -> None:
         "SPLAT_CACHE": lambda v: _folder("SPLAT_CACHE", v, must_exist=False),
         "SPLAT_DATA": lambda v: _folder("SPLAT_DATA", v, must_exist=False),
         "SPLAT_CONFIG_PATH": lambda v: _folder("SPLAT_CONFIG_PATH", v, must_exist=True),
+        "SPLAT_METHODS": method_entries,
     }
     for name, check in checks.items():
         if name in env:

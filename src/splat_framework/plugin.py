@@ -58,6 +58,7 @@ _EXPORTS: dict[str, str] = {
     "AutoMatchConfig": "splat_framework.config",
     "resolve_steps": "splat_framework.config",
     "config_3dgs": "splat_framework.methods.gaussian_splatting",
+    "Kind": "splat_framework.config",
     # field markers of configs
     "Steps": "splat_framework.config",
     "StartSteps": "splat_framework.config",
@@ -108,7 +109,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .config import (
         MAX_GAUSSIANS, MAX_MATCHES, RUN_OPTION, DensifyConfig, Fraction, GaussianModelConfig, Interval, LearningRate,
         MatchConfig, ModelConfig, NonNegative, OptimConfig, OptionalPeriod, Period, Positive, RampPeriod,
-        RandomInitConfig, RegularisersConfig, SplatConfig, StartSteps, StepFactor, Steps,
+        RandomInitConfig, RegularisersConfig, Kind, SplatConfig, StartSteps, StepFactor, Steps,
         StrategyConfig, TrainConfig, strategy_field, InitConfig, init_field, resolve_steps,
     )
     from .config import AutoMatchConfig, MatchKinds

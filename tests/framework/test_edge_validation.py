@@ -180,7 +180,7 @@ def test_resume_skips_a_nan_checkpoint(run_copy, capsys):
     good = list_checkpoints(folder)[-1]
     ck = load_checkpoint(good)
     _write_raw(checkpoint_path(folder, 30), {**ck, "step": 30, "params": _nan(ck["params"])})
-    method, raw = read_config_json(run_copy / "config.json")
+    method, raw, _ = read_config_json(run_copy / "config.json")
     cfg = type(DEFAULTS[method]).model_validate({**raw, "resume": True, "overwrite": False, "output": str(run_copy),
                                                  "progress": False})
     capsys.readouterr()

@@ -19,6 +19,7 @@ INVALID = {
     "SPLAT_CACHE": ["FILE"],
     "SPLAT_DATA": ["FILE"],
     "SPLAT_CONFIG_PATH": ["MISSING"],
+    "SPLAT_METHODS": ["nocolon", "my_methods:spec,not a path", "mod:", "mod:spec:x"],
 }
 VALID = {
     "SPLAT_THREADS": ["auto", "off", "1", "16", " Auto ", ""],
@@ -27,6 +28,7 @@ VALID = {
     "SPLAT_CACHE": ["NEW"],
     "SPLAT_DATA": ["NEW"],
     "SPLAT_CONFIG_PATH": ["DIR"],
+    "SPLAT_METHODS": ["my_methods:spec", "pkg.my_methods:spec, other:spec_b,", ""],
 }
 
 

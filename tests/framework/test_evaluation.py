@@ -200,7 +200,7 @@ def test_a_run_saved_with_an_unusable_device_is_one_line_exit_2(run_dir, tmp_pat
 
     run = tmp_path / "run"
     shutil.copytree(run_dir, run)
-    method, raw = read_config_json(run / "config.json")
+    method, raw, _ = read_config_json(run / "config.json")
     config = type(get_method(method).default_config()).model_validate(raw)
     save_config(config.model_copy(update={"device": device}), run / "config.json")  # a valid checksum
     before = (run / "metrics.json").read_bytes()

@@ -30,10 +30,11 @@ def test_old_config_json_is_todays_experiment(name):
     command line gives (the -triang methods now TOML variants, starting from triangulated matches)."""
     saved = json.loads((OLD / f"{name}.json").read_text())["config"]["model"]
     assert isinstance(saved["init"], str) and "init_num_points" in saved
-    method, raw = read_config_json(OLD / f"{name}.json")
+    method, raw, version = read_config_json(OLD / f"{name}.json")
+    assert version == 1
     spec = get_method(method)
     defaults = spec.default_config()
-    old = type(defaults).model_validate(upgrade_saved_config(raw, defaults))
+    old = type(defaults).model_validate(upgrade_saved_config(raw, version, defaults))
     # learning rates chosen after these files were written (scgaussian's shape rates, 2026-11-26)
     # stay the saved ones: an old run resumes as it was trained
     command = {"data": "synthetic/forward-tiny", "steps": 60, "seed": 0, "optim": old.optim.model_dump()}
@@ -68,6 +69,7 @@ def test_run_saved_in_the_old_layout_resumes_bit_identically(tmp_path):
     model = payload["config"]["model"]
     assert model["init"] == {"kind": "frustum", "num_points": 300}
     model["init"], model["init_num_points"] = "frustum", 300
+    payload["schema_version"] = 1  # the layout's version
     payload.pop("checksum", None)
     atomic_write_json(path, payload)
     assert json.loads(path.read_text())["config"]["model"]["init"] == "frustum"
@@ -86,8 +88,9 @@ def test_flat_regularisers_and_anchor_learning_rates_find_their_groups():
     assert "sh_degree" in raw["model"] and "means_lr" in raw["optim"] and "offset_lr" in raw["model"]
     raw["model"]["stereo_weight"], raw["model"]["offset_lr"] = 0.5, 0.02
     defaults = get_method(raw["method"]).default_config()
-    config = type(defaults).model_validate(upgrade_saved_config(raw, defaults))
+    config = type(defaults).model_validate(upgrade_saved_config(raw, 1, defaults))
     assert config.model.reg.stereo_weight == 0.5 and config.optim.offset_lr == 0.02
     assert "sh_degree" not in type(config.model).model_fields and "means_lr" not in type(config.optim).model_fields
-    method, raw = read_config_json(OLD / "scgaussian.json")
+    method, raw, version = read_config_json(OLD / "scgaussian.json")
+    raw = upgrade_saved_config(raw, version, get_method(method).default_config())
     assert raw["model"]["reg"]["depth_smoothness"] == 5.0 and raw["model"]["sh_degree"] == 3  # scgaussian reads it

@@ -76,6 +76,7 @@ def test_registered_strategy_kinds_are_every_unnarrowed_methods(monkeypatch):
             warnings.simplefilter("always")
             assert strategy_kinds() == {"default": DensifyConfig, "ray-gaussian": RayStrategyConfig}
         assert sorted(m for m in ("misnamed", "broken") if any(m in str(x.message) for x in w)) == ["broken", "misnamed"]
+        assert any("its kind tag is 'ray-gaussian', not its entry-point name 'misnamed'" in str(x.message) for x in w)
         base = spec_3dgs.default_config()
         cfg = apply_overrides(base, {"strategy": {"kind": "ray-gaussian", "prune_opa": 0.01}})
         assert type(cfg.strategy) is RayStrategyConfig and type(base).model_validate_json(cfg.model_dump_json()) == cfg
@@ -83,6 +84,42 @@ def test_registered_strategy_kinds_are_every_unnarrowed_methods(monkeypatch):
             apply_overrides(base, {"strategy": {"kind": "mcmc"}})
     finally:
         strategy_kinds.cache_clear()
+
+
+MY_METHODS = """
+from splat_framework.plugin import MethodSpec, TrainConfig
+
+def config():
+    return TrainConfig(method="my-3dgs")
+
+spec = MethodSpec(name="my-3dgs", description="3DGS registered by SPLAT_METHODS", config_factory=config,
+                  model="splat_framework.model.gaussians:GaussianModel")
+not_a_spec = 3
+"""
+
+
+@pytest.mark.bad_input("`SPLAT_METHODS` with an entry that is not `module.path:name`, does not import, is not a "
+                       "MethodSpec or names a registered method", "exit 2, one line naming the variable and the entry")
+def test_a_method_registered_by_splat_methods_trains_without_a_package(tmp_path):
+    """A MethodSpec in a module on PYTHONPATH, named by ``SPLAT_METHODS``, is a method like an installed
+    one (listed, trained, saved under its name); a bad entry is one line naming the variable and the entry."""
+    from cli_harness import cli_env, run_cli
+
+    (tmp_path / "code").mkdir()
+    (tmp_path / "code" / "my_methods.py").write_text(MY_METHODS)
+    path = os.pathsep.join(p for p in (str(tmp_path / "code"), os.environ.get("PYTHONPATH")) if p)
+    env = cli_env(PYTHONPATH=path, SPLAT_METHODS="my_methods:spec", SPLAT_COMPILE="0")
+    listed = run_cli("train", "--help", code=0, env=env)
+    assert "my-3dgs" in listed.stdout and "3DGS registered by SPLAT_METHODS" in listed.stdout
+    out = tmp_path / "run"
+    run_cli("train", "my-3dgs", "--data", "synthetic/forward-tiny", "--steps", "3", "--model.init.num-points", "200",
+            "--no-progress", "--no-save-renders", "--output", out, code=0, env=env)
+    assert read_config_json(out / "config.json").method == "my-3dgs" and (out / "metrics.json").is_file()
+    for value, why in (("my_methods", "is not a module.path:name"), ("no_such_module:spec", "cannot be loaded"),
+                       ("my_methods:not_a_spec", "not a MethodSpec"),
+                       ("my_methods:spec,my_methods:spec", "'my-3dgs', which is already registered")):
+        run_cli("train", "my-3dgs", "--help", code=2, env={**env, "SPLAT_METHODS": value},
+                match=(f"SPLAT_METHODS={value!r}: entry", why), watch=[tmp_path])
 
 
 def test_variant_files_override_base(tmp_path, monkeypatch):
@@ -296,7 +333,7 @@ def test_config_json_roundtrip_with_schema_version(tmp_path):
 
     cfg = config_scgaussian()
     save_config(cfg, tmp_path / "config.json")
-    method, raw = read_config_json(tmp_path / "config.json")
+    method, raw, _ = read_config_json(tmp_path / "config.json")
     assert method == "scgaussian"
     assert type(cfg).model_validate(raw) == cfg
     (tmp_path / "old.json").write_text('{"schema_version": 0, "config": {}}')

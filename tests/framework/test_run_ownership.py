@@ -141,6 +141,55 @@ def test_a_stale_lock_file_leaves_a_folder_empty_for_a_new_run(tmp_path):
     assert not out.joinpath(LOCK_NAME).exists()
 
 
+def test_the_lock_needs_no_fcntl_nor_unix_only_calls(tmp_path, monkeypatch):
+    """On a Python without ``fcntl``, ``os.pread``/``pwrite`` and the ``O_NOFOLLOW``/``O_NONBLOCK`` flags, whose
+    system cannot delete an open file (Windows, simulated: filelock keeps its own lock primitive), the lock
+    still excludes another process both ways and names its holder, a planted symlink is refused, and the
+    lock file a release leaves behind blocks nothing."""
+    import filelock
+
+    assert filelock.lock_descriptor  # loaded before fcntl goes: the library's primitive, as LockFileEx on Windows
+    monkeypatch.setitem(sys.modules, "fcntl", None)  # `import fcntl` raises ImportError
+    for name in ("pread", "pwrite", "O_NOFOLLOW", "O_NONBLOCK"):
+        monkeypatch.delattr(os, name, raising=False)
+    real_unlink = Path.unlink
+
+    def unlink(path, *args, **kwargs):
+        if path.name == LOCK_NAME:
+            raise PermissionError(13, "the file is open")  # what Windows answers for an open file
+        return real_unlink(path, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "unlink", unlink)
+    try_lock = ("import sys; from splat_framework.files import run_lock\n"
+                "print(run_lock.holder(sys.argv[1]))\n"
+                "try: run_lock.acquire(sys.argv[1])\n"
+                "except run_lock.RunFolderBusy as e: print(e)")
+    run = tmp_path / "run"
+    run.mkdir()
+    lock = run_lock.acquire(run)
+    other = subprocess.run([sys.executable, "-c", try_lock, str(run)], env=cli_env(), capture_output=True, text=True)
+    holder_line, refusal = other.stdout.splitlines()
+    assert holder_line.startswith(f"pid {os.getpid()} on ") and f"({holder_line})" in refusal and "in use" in refusal
+    lock.release()
+    assert (run / LOCK_NAME).is_file() and not run_lock.holds(run)  # left behind, unlocked
+    child = hold_lock(run)
+    try:
+        with pytest.raises(run_lock.RunFolderBusy, match=f"pid {child.pid} "):
+            run_lock.acquire(run)
+        assert run_lock.holder(run).startswith(f"pid {child.pid} ")
+    finally:
+        child.kill()
+        child.wait()
+    assert run_lock.acquire(run).held and run_lock.holder(run) is None
+    run_lock.release(run)
+    planted = tmp_path / "planted"
+    planted.mkdir()
+    os.symlink(tmp_path / "elsewhere.txt", planted / LOCK_NAME)
+    with pytest.raises(DataError, match="a symlink is in its place"):
+        run_lock.acquire(planted)
+    assert not (tmp_path / "elsewhere.txt").exists()
+
+
 # -------------------------------------------------------------- provenance
 def edited_copy(seed0_run: Path, tmp_path: Path, edit: str) -> Path:
     """A copy of the seed-0 run whose config.json is deleted, stripped of its checksum, or has its seed
@@ -198,7 +247,7 @@ def test_trusted_resume_of_the_same_experiment_writes_the_true_config(seed0_run,
     checkpoints record) and writes this run's config, signed."""
     run = edited_copy(seed0_run, tmp_path, "delete")
     run_cli("train", *train_args(run, 10, "--resume", "--trust-edited-config"), code=0)
-    method, saved = read_config_json(run / "config.json")
+    method, saved, _ = read_config_json(run / "config.json")
     assert method == "3dgs" and saved["seed"] == 0 and saved["trust_edited_config"] is True
 
 

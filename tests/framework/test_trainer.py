@@ -46,7 +46,7 @@ def test_run_writes_documented_outputs_and_learns(tmp_path, capsys):
     # config.json: schema version, the resolved config, a checksum that verifies
     payload = read_json(run / "config.json", require_checksum=True)
     assert payload["schema_version"] == SCHEMA_VERSION
-    method, raw = read_config_json(run / "config.json")
+    method, raw, _ = read_config_json(run / "config.json")
     assert method == "3dgs" and raw["steps"] == 60
     # checkpoints: the final one
     ckpts = sorted((run / "checkpoints").glob("step-*.ckpt"))

@@ -19,6 +19,7 @@ from typing import Annotated, Any
 
 from pydantic import BaseModel, Field, create_model
 
+from ..config.base import derived_views
 from .kinds import suppressed, unannotated, union_kinds
 
 HELP_FLAGS = ("-h", "--help")
@@ -170,6 +171,7 @@ def _view(config: BaseModel, path: str, shown, kinds: dict[str, type]) -> tuple[
             visible = visible or not suppressed(info)
         if value is not info:
             values[name] = value
-    derived = create_model(cls.__name__, __base__=cls, __module__=cls.__module__, __doc__=cls.__doc__, **fields)
+    with derived_views():
+        derived = create_model(cls.__name__, __base__=cls, __module__=cls.__module__, __doc__=cls.__doc__, **fields)
     return derived.model_construct(**values), visible
 

@@ -87,34 +87,3 @@ def choose_kinds(config: BaseModel, argv: list[str], prefix: str = "") -> BaseMo
         if value is not getattr(config, name, None):
             updates[name] = value
     return config.model_copy(update=updates) if updates else config
-
-
-def hidden_kind_flags(argv: list[str], config: BaseModel, prefix: str = "") -> list[str]:
-    """``argv`` without the ``--PATH.kind K`` flags of fields whose ``kind`` the parser does not show
-    (``tyro.conf.Suppress``: a strategy's), once :func:`choose_kinds` has applied them; such a flag
-    without a value is an :class:`~splat_framework.cli.common.ArgumentsError`."""
-    for name in type(config).model_fields:
-        value = getattr(config, name, None)
-        if not isinstance(value, BaseModel):
-            continue
-        kind = type(value).model_fields.get("kind")
-        if kind is not None and suppressed(kind):
-            argv = _without_flag(argv, f"--{prefix}{name}.kind")
-        argv = hidden_kind_flags(argv, value, f"{prefix}{name}.")
-    return argv
-
-
-def _without_flag(argv: list[str], flag: str) -> list[str]:
-    norm, out, i = flag.replace("_", "-"), [], 0
-    while i < len(argv):
-        name, eq, _ = argv[i].partition("=")
-        if name.replace("_", "-") != norm:
-            out.append(argv[i])
-        elif not eq:
-            if i + 1 >= len(argv):
-                from .common import ArgumentsError
-
-                raise ArgumentsError(f"{flag} needs a kind; see the command's --help")
-            i += 1
-        i += 1
-    return out

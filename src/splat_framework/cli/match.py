@@ -156,7 +156,7 @@ def chosen_kind(argv: list[str]) -> MatchArgs:
     """The defaults of :class:`MatchArgs` with the matcher that ``--kind K`` in ``argv`` names (so that
     the parser shows and reads its flags; with ``--help``, as :mod:`.help_screen` shows them, every
     matcher listed); an unknown kind is an ArgumentsError (one line)."""
-    from ..matching import match_kinds
+    from ..config import match_kinds
     from .common import ArgumentsError, did_you_mean
     from .help_screen import ALL, help_group, help_view
     from .kinds import flag_value

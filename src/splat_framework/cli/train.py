@@ -96,7 +96,7 @@ def load_saved_experiment(path: str, methods: dict):
         what = "not a regular file" if file.exists() else "no such file"
         raise DataError(f"{file}: {what} (--load-config takes a run's config.json)")
     try:
-        method, raw = read_config_json(file)
+        method, raw, version = read_config_json(file)
     except (UnicodeDecodeError, ValueError) as e:
         if isinstance(e, DataError):
             raise
@@ -105,7 +105,7 @@ def load_saved_experiment(path: str, methods: dict):
         raise DataError(f"{file}: method {method!r} is not registered{did_you_mean(str(method), methods)}")
     defaults = methods[method].default_config()
     try:
-        saved = type(defaults).model_validate(upgrade_saved_config(raw, defaults))
+        saved = type(defaults).model_validate(upgrade_saved_config(raw, version, defaults))
     except ValidationError as e:
         from .common import format_validation_error
 
@@ -118,7 +118,6 @@ def load_saved_experiment(path: str, methods: dict):
 def main(args: list[str] | None = None) -> dict:
     from .common import ArgumentsError, parse_cli
     from .help_screen import help_group as help_group_of
-    from .kinds import hidden_kind_flags
 
     given = list(sys.argv[1:] if args is None else args)  # as typed: a stop names the command that continues
     argv, load = _load_config_flag(given)
@@ -140,8 +139,7 @@ def main(args: list[str] | None = None) -> dict:
     config = parse_cli(
         parser_type,
         prog="splat-train",
-        args=hidden_kind_flags(argv, loaded if loaded is not None else methods[asked].default_config())
-        if asked in methods else argv,
+        args=argv,
         subcommands=methods,
         description="Train a Gaussian-splatting method. Run 'splat-train METHOD --help' for its options; "
         f"'splat-train {LOAD_CONFIG_FLAG} RUN/config.json [options]' re-runs a saved experiment into a new folder.",

@@ -12,7 +12,8 @@ flag's help). Every name is importable from here; the modules say what each is:
 - :mod:`.train`: :class:`TrainConfig`, the command-line contract, and the experiment's fields,
 - :mod:`.schedule`: ``--steps`` rescaling the schedule (:data:`Steps` and :data:`StepFactor` fields),
 - :mod:`.merge`: overrides of variants and sweeps (:func:`apply_overrides`),
-- :mod:`.persist`: ``config.json`` (save, read, upgrade old layouts).
+- :mod:`.persist`: ``config.json`` (save, read),
+- :mod:`.versions`: its schema versions and the ordered steps upgrading each to the next.
 
 A method's config is a subclass of :class:`TrainConfig` whose ``model`` field holds the
 method-specific part. Variants (paper ablation rows) are a base config plus a few overrides.
@@ -37,6 +38,8 @@ from .base import (
     Fraction,
     Interval,
     InvalidArguments,
+    Kind,
+    KindConfig,
     LearningRate,
     Marker,
     NonNegative,
@@ -50,7 +53,7 @@ from .base import (
     Steps,
     cli_parsing,
 )
-from .init import InitConfig, InitKinds, RandomInitConfig, init_field, init_kinds, upgrade_init_layout
+from .init import InitConfig, InitKinds, RandomInitConfig, init_field, init_kinds
 from .matching import (
     AlikedLightGlueMatchConfig,
     AutoMatchConfig,
@@ -64,37 +67,23 @@ from .matching import (
     match_kinds,
 )
 from .merge import apply_overrides, deep_merge
-from .model import (
-    REGULARISER_FIELDS,
-    GaussianModelConfig,
-    ModelConfig,
-    OptimConfig,
-    RegularisersConfig,
-    upgrade_reg_layout,
-)
-from .persist import (
-    MOVED_FIELDS,
-    SCHEMA_VERSION,
-    config_payload,
-    read_config_json,
-    regroup_fields,
-    save_config,
-    upgrade_saved_config,
-)
+from .model import GaussianModelConfig, ModelConfig, OptimConfig, RegularisersConfig
+from .persist import SavedConfig, config_payload, read_config_json, save_config
+from .versions import SCHEMA_VERSION, UPGRADES, upgrade_saved_config
 from .schedule import follows_schedule, resolve_steps, scale_schedule
 from .strategy import DensifyConfig, RegisteredStrategies, StrategyConfig, strategy_field, strategy_kinds
 from .train import TrainConfig, experiment_fields
 
 __all__ = [
-    "DEVICE_MARKER", "FOLDED", "MAX_GAUSSIANS", "MAX_MATCHES", "MAX_SCHEDULE", "MAX_STEPS", "MAX_VIEWS", "MOVED_FIELDS",
-    "PER_STEP_MARKER", "REGULARISER_FIELDS", "RUN_OPTION", "SCHEMA_VERSION", "SHORTEN_ONLY", "STEPS_MARKER",
+    "DEVICE_MARKER", "FOLDED", "MAX_GAUSSIANS", "MAX_MATCHES", "MAX_SCHEDULE", "MAX_STEPS", "MAX_VIEWS",
+    "PER_STEP_MARKER", "RUN_OPTION", "SCHEMA_VERSION", "SHORTEN_ONLY", "STEPS_MARKER",
     "DensifyConfig", "Device", "Finite", "Fraction", "GaussianModelConfig", "InitConfig", "InitKinds", "Interval",
-    "InvalidArguments", "LearningRate", "Marker", "MatchConfig", "ModelConfig", "NonNegative", "OptimConfig", "OptionalPeriod",
+    "InvalidArguments", "Kind", "KindConfig", "LearningRate", "Marker", "MatchConfig", "ModelConfig", "NonNegative", "OptimConfig", "OptionalPeriod",
     "Period", "Positive", "RampPeriod", "RandomInitConfig", "RegisteredStrategies", "RegularisersConfig",
-    "SplatConfig", "StartSteps", "StepFactor", "Steps", "StrategyConfig", "TrainConfig",
+    "SavedConfig", "SplatConfig", "StartSteps", "StepFactor", "Steps", "StrategyConfig", "TrainConfig", "UPGRADES",
     "apply_overrides", "cli_parsing", "config_payload", "deep_merge", "experiment_fields", "init_field", "init_kinds", "read_config_json",
-    "follows_schedule", "regroup_fields", "resolve_steps", "save_config", "scale_schedule", "strategy_field", "strategy_kinds",
-    "upgrade_init_layout", "upgrade_reg_layout", "upgrade_saved_config",
+    "follows_schedule", "resolve_steps", "save_config", "scale_schedule", "strategy_field", "strategy_kinds",
+    "upgrade_saved_config",
     "AlikedLightGlueMatchConfig", "AutoMatchConfig", "DenseMatchConfig", "DiskLightGlueMatchConfig", "LoFTRMatchConfig",
     "MatchKinds", "SiftMatchConfig", "match_config", "match_kinds",
 ]

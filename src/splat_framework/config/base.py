@@ -9,10 +9,13 @@ run's, the matcher's, the initialisations') can build on it without an import ci
 
 from __future__ import annotations
 
+import re
+import typing
 from contextlib import contextmanager
 from contextvars import ContextVar
-from typing import Annotated, Any, Iterator
+from typing import Annotated, Any, Iterator, Literal, TypeVar
 
+import tyro
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 
@@ -148,19 +151,79 @@ class SplatConfig(BaseModel):
             raise
 
 
+KIND_FLAG = tyro.conf.arg(
+    metavar="KIND",
+    help="The group's kind; each kind has its own flags (give the kind before --help to see them).",
+)
+"""How every ``--PATH.kind`` flag shows: a placeholder and one help text (the field takes any kind its
+group accepts, each with its own flags; see :mod:`splat_framework.cli.kinds`)."""
+
+_T = TypeVar("_T")
+Kind = Annotated[_T, KIND_FLAG]
+"""The one way a kind-tagged config declares its tag: ``kind: Kind[Literal["mcmc"]] = "mcmc"`` (a
+one-value Literal, its default the same tag). :class:`KindConfig` checks every subclass for it."""
+
+KIND_TAG = re.compile(r"[a-z0-9]+(-[a-z0-9]+)*")
+"""A kind tag: lower-case words joined by hyphens (``ray-gaussian``), as methods and flags are named."""
+
+
+_DERIVED_VIEW: ContextVar[bool] = ContextVar("derived_view", default=False)
+
+
+@contextmanager
+def derived_views() -> Iterator[None]:
+    """Inside, classes derived from a kind's config (the help screen's views of a config, whose
+    ``kind`` flag lists the kinds its field takes) skip :class:`KindConfig`'s check of the tag's
+    declaration: they are views of a checked class, never registered."""
+    token = _DERIVED_VIEW.set(True)
+    try:
+        yield
+    finally:
+        _DERIVED_VIEW.reset(token)
+
+
+class KindConfig(SplatConfig):
+    """Base of a family of configs tagged by ``kind`` (the start kinds, the strategies): a member of a
+    discriminated union, picked by its tag in a saved config, a TOML variant or ``--PATH.kind``.
+
+    A subclass that tags a kind declares it as ``kind: Kind[Literal["TAG"]] = "TAG"`` with a
+    :data:`KIND_TAG`; any other declaration is a TypeError naming the class when it is defined. A
+    subclass that keeps ``kind: str`` is a base of kinds, tagging none."""
+
+    kind: str
+    """The kind's tag."""
+
+    @classmethod
+    def __pydantic_init_subclass__(cls, **kwargs: Any) -> None:
+        super().__pydantic_init_subclass__(**kwargs)
+        field = cls.model_fields["kind"]
+        if field.annotation is str or _DERIVED_VIEW.get():
+            return
+        tags = typing.get_args(field.annotation) if typing.get_origin(field.annotation) is Literal else ()
+        if not (len(tags) == 1 and field.default == tags[0] and isinstance(tags[0], str)
+                and KIND_TAG.fullmatch(tags[0]) and any(m is KIND_FLAG for m in field.metadata)):
+            raise TypeError(
+                f"{cls.__module__}.{cls.__qualname__}.kind: declare the tag as kind: Kind[Literal[\"TAG\"]] = \"TAG\" "
+                "(splat_framework.plugin.Kind; TAG lower-case words joined by hyphens)"
+            )
+
+
 def registered_kinds(group: str, what: str, base: type, builtins: dict[str, type]) -> dict[str, type]:
     """{kind: config class} of a kind-tagged config family: ``builtins``, then the classes named in
     the entry-point ``group`` (``KIND = "module:ConfigClass"``). An entry that is not a subclass of
-    ``base`` whose ``kind`` defaults to its own name, or that repeats a kind, is left out with one
-    warning naming it (a broken plugin must not kill the CLI)."""
+    ``base``, whose ``kind`` tag is not its entry-point name, or that repeats a kind, is left out with
+    one warning naming it (a broken plugin must not kill the CLI)."""
     import warnings
 
     from ..entry_points import load_entry_points
 
     kinds = dict(builtins)
     for name, cls in load_entry_points(group, what).items():
-        if not (isinstance(cls, type) and issubclass(cls, base)) or cls.model_fields["kind"].default != name:
-            warnings.warn(f"{what} plugin '{name}' is not a {base.__name__} of kind '{name}'; ignored", stacklevel=2)
+        if not (isinstance(cls, type) and issubclass(cls, base)):
+            warnings.warn(f"{what} plugin '{name}' is not a {base.__name__} subclass; ignored", stacklevel=2)
+        elif (tag := cls.model_fields["kind"].default) != name:
+            warnings.warn(f"{what} plugin '{name}' ({cls.__module__}:{cls.__qualname__}): its kind tag is {tag!r}, "
+                          f"not its entry-point name '{name}'; ignored", stacklevel=2)
         elif name in kinds:
             warnings.warn(f"{what} kind '{name}' registered twice; keeping the first", stacklevel=2)
         else:

@@ -4,14 +4,15 @@ Each kind is a config tagged by ``kind`` (a member of a discriminated union, as 
 are) that names the function building its points as ``points_fn = "module:function"``;
 :func:`splat_framework.model.init.initial_points` calls it, the one place that builds start
 points for every method (3dgs's Gaussians, Scaffold-GS's and Octree-GS's anchors, SCGaussian's
-ordinary Gaussians). A function takes ``(config, datamanager, generator)`` and returns
-``(points [N, 3], colours [N, 3] in [0, 1], stats)``.
+ordinary Gaussians). A function takes ``(config, datamanager, generator)`` and returns a
+:class:`~splat_framework.model.init.StartPoints` (points [N, 3], colours [N, 3] in [0, 1], and seconds
+per named set-up phase).
 
 Every model accepts the built-in kinds and those a plugin registers in the entry-point group
-``splat_framework.inits`` (:data:`InitKinds`); a model that accepts fewer lists them with
-:func:`init_field`. On the command line ``--model.init.kind K`` picks one and shows its flags
-(``splat-train 3dgs --model.init.kind ply --help``), a TOML variant writes
-``[overrides.model.init] kind = "K"``.
+``splat_framework.inits`` (:data:`InitKinds`; the entry point's name is the kind's tag, declared as
+``kind: Kind[Literal["TAG"]] = "TAG"``); a model that accepts fewer lists them with :func:`init_field`.
+On the command line ``--model.init.kind K`` picks one and shows its flags (``splat-train 3dgs
+--model.init.kind ply --help``), a TOML variant writes ``[overrides.model.init] kind = "K"``.
 """
 
 from __future__ import annotations
@@ -23,22 +24,16 @@ from typing import Annotated, Any, ClassVar, Literal, Union
 import tyro
 from pydantic import BeforeValidator, Field, SerializeAsAny
 
-from .base import MAX_GAUSSIANS, Positive, SplatConfig, as_registered_kind, registered_kinds
+from .base import MAX_GAUSSIANS, Kind, KindConfig, Positive, as_registered_kind, registered_kinds
 from .matching import AutoMatchConfig, MatchKinds
 
 FALLBACK_POINTS = 10_000
 """Random points a model starts from when its prior (matches, triangulated points) is missing or sparse."""
 
-KIND = tyro.conf.arg(metavar="KIND")
-"""The ``kind`` flag of every initialisation: one placeholder (its help lists the kinds the field
-takes, each with its own flags: see :mod:`splat_framework.cli.help_screen`)."""
+class InitConfig(KindConfig):
+    """Base of the initialisations' configs: a discriminated-union member tagged by ``kind``
+    (declared as ``kind: Kind[Literal["TAG"]] = "TAG"``, see :class:`~.base.KindConfig`)."""
 
-
-class InitConfig(SplatConfig):
-    """Base of the initialisations' configs: a discriminated-union member tagged by ``kind``."""
-
-    kind: str
-    """The initialisation's tag."""
     points_fn: ClassVar[str]
     """``module:function`` building this kind's points (see the module docstring)."""
 
@@ -57,8 +52,8 @@ class InitConfig(SplatConfig):
 class RandomInitConfig(InitConfig):
     """Random start (the 3DGS reference's): points uniform in the scene's content box (else the box of the training frusta), grey."""
 
-    kind: Annotated[Literal["random"], KIND] = "random"
-    """The start."""
+    kind: Kind[Literal["random"]] = "random"
+    """The start's kind."""
     num_points: int = Field(10_000, ge=1, le=MAX_GAUSSIANS)
     """Number of random initial points."""
     points_fn = "splat_framework.model.init:box_points"
@@ -71,8 +66,8 @@ class RandomInitConfig(InitConfig):
 class FrustumInitConfig(RandomInitConfig):
     """Frustum start: random points inside the training frusta (uniform in inverse depth), coloured by their pixels."""
 
-    kind: Annotated[Literal["frustum"], KIND] = "frustum"
-    """The start."""
+    kind: Kind[Literal["frustum"]] = "frustum"
+    """The start's kind."""
     points_fn = "splat_framework.model.init:frustum_points"
 
 
@@ -92,8 +87,8 @@ RandomKinds = init_field(RandomInitConfig, FrustumInitConfig)
 class TriangulatedInitConfig(InitConfig):
     """Triangulated start (the paper's "Triang. init" rows): the training views' matches triangulated with the known poses."""
 
-    kind: Annotated[Literal["triangulated"], KIND] = "triangulated"
-    """The start."""
+    kind: Kind[Literal["triangulated"]] = "triangulated"
+    """The start's kind."""
     matching: MatchKinds = Field(default_factory=AutoMatchConfig)
     """Matching prior of the triangulation (--model.init.matching.kind K)."""
     max_reprojection_px: Positive = 2.0
@@ -110,16 +105,16 @@ class TriangulatedInitConfig(InitConfig):
 class SfMInitConfig(InitConfig):
     """SfM start: a COLMAP dataset's points3D with their colours (computed from all its photos, test views included)."""
 
-    kind: Annotated[Literal["sfm"], KIND] = "sfm"
-    """The start."""
+    kind: Kind[Literal["sfm"]] = "sfm"
+    """The start's kind."""
     points_fn = "splat_framework.model.init:sfm_points"
 
 
 class PlyInitConfig(InitConfig):
     """PLY start: the centres and base colours of a 3DGS-layout PLY's Gaussians (splat-export's, the 3DGS reference's)."""
 
-    kind: Annotated[Literal["ply"], KIND] = "ply"
-    """The start."""
+    kind: Kind[Literal["ply"]] = "ply"
+    """The start's kind."""
     path: Path
     """PLY file to start from."""
     points_fn = "splat_framework.model.init:ply_points"
@@ -149,27 +144,3 @@ def _registered_init(value: Any) -> Any:
 InitKinds = Annotated[SerializeAsAny[InitConfig], BeforeValidator(_registered_init), tyro.conf.AvoidSubcommands]
 """The initialisation kinds every model accepts unless its config narrows them with :func:`init_field`:
 the built-ins and every kind of the ``splat_framework.inits`` entry points."""
-
-
-def upgrade_init_layout(model: dict) -> dict:
-    """A saved model config (dict) written before ``model.init`` was a tagged union, in today's layout.
-
-    Then ``init`` was "random" or "frustum" and ``init_num_points`` its count; a ``-triang`` method
-    (``max_reprojection_px`` and ``matching`` beside them, and for Scaffold/Octree-GS
-    ``start_from = "triangulated"``) started from triangulated matches and fell back to
-    ``max(init_num_points, FALLBACK_POINTS)`` points placed by ``init``. A model config without
-    a string ``init`` is returned as it is."""
-    if not isinstance(model.get("init"), str):
-        return model
-    out = dict(model)
-    placed = {"kind": out.pop("init")}
-    if "init_num_points" in out:
-        placed["num_points"] = out.pop("init_num_points")
-    start = out.pop("start_from", "triangulated")  # Scaffold/Octree-GS named their start; 3dgs-triang had none
-    if "max_reprojection_px" in out:  # the triangulation's fields (Scaffold/Octree-GS carried them whatever their start)
-        prior = {"matching": out.pop("matching", {}), "max_reprojection_px": out.pop("max_reprojection_px")}
-        if start == "triangulated":
-            count = max(int(placed.get("num_points", FALLBACK_POINTS)), FALLBACK_POINTS)
-            placed = {"kind": "triangulated", **prior, "fallback": placed | {"num_points": count}}
-    out["init"] = placed
-    return out

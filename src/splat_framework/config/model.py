@@ -38,10 +38,6 @@ class RegularisersConfig(SplatConfig):
     """Opacity noise (Co-Adaptation): its standard deviation; 0 = off."""
 
 
-REGULARISER_FIELDS = tuple(RegularisersConfig.model_fields)
-"""The regularisers' field names (old config.json files held them flat in ``model``)."""
-
-
 class ModelConfig(SplatConfig):
     """What every model reads: its start, its photometric loss, its depth, the opt-in regularisers."""
 
@@ -91,13 +87,3 @@ class OptimConfig(SplatConfig):
     """Base colour (SH degree 0) learning rate."""
     shN_lr: LearningRate = 2.5e-3 / 20
     """Higher SH coefficients learning rate."""
-
-
-def upgrade_reg_layout(model: dict) -> dict:
-    """A saved model config (dict) written before the regularisers were a group, in today's layout:
-    its flat regulariser fields (:data:`REGULARISER_FIELDS`) moved into ``reg``. A model config
-    that has a ``reg`` already, or none of those fields, is returned as it is."""
-    flat = {k: model[k] for k in REGULARISER_FIELDS if k in model}
-    if "reg" in model or not flat:
-        return model
-    return {k: v for k, v in model.items() if k not in flat} | {"reg": flat}

@@ -11,15 +11,16 @@ import tyro
 from pydantic import BeforeValidator, Field, SerializeAsAny
 
 from .base import (
-    Interval, NonNegative, OptionalPeriod, Positive, SplatConfig, StartSteps, StepFactor, Steps, as_registered_kind, registered_kinds,
+    Interval, Kind, KindConfig, NonNegative, OptionalPeriod, Positive, StartSteps, StepFactor, Steps, as_registered_kind,
+    registered_kinds,
 )
 
 
 
-class StrategyConfig(SplatConfig):
+class StrategyConfig(KindConfig):
     """Base of the densification strategies' configs, each tagged by its ``kind``.
 
-    Each subclass names its ``kind`` (a one-value Literal: the tag by which a saved
+    Each subclass names its ``kind`` (``kind: Kind[Literal["TAG"]] = "TAG"``: the tag by which a saved
     config, a TOML variant, a sweep or ``--strategy.kind`` picks it) and its strategy
     class as ``"module:Class"`` in :attr:`strategy_class` (imported, with torch, only
     by :meth:`setup`). A kind registered in the entry-point group
@@ -29,8 +30,6 @@ class StrategyConfig(SplatConfig):
 
     strategy_class: ClassVar[str] = ""
     """``"module:Class"`` of the :class:`~splat_framework.model.strategy.Strategy` built from this config."""
-    kind: str
-    """The strategy."""
     enabled: bool = True
     """Run densification at all (False keeps the initial Gaussians only)."""
 
@@ -78,8 +77,8 @@ def _registered_strategy(value: Any) -> Any:
 class DensifyConfig(StrategyConfig):
     """Adaptive density control of 3DGS (clone, split, prune, opacity reset)."""
 
-    kind: tyro.conf.Suppress[Literal["default"]] = "default"
-    """The strategy."""
+    kind: Kind[Literal["default"]] = "default"
+    """The strategy's tag."""
     prune_opa: Annotated[float, Field(ge=0, lt=1, allow_inf_nan=False)] = 0.005
     """Prune Gaussians whose opacity falls below this."""
     grow_grad2d: NonNegative = 0.0002

@@ -8,7 +8,10 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
-from ..config import TrainConfig, config_payload, follows_schedule, experiment_fields, read_config_json, upgrade_saved_config
+from ..config import (
+    SCHEMA_VERSION, TrainConfig, config_payload, follows_schedule, experiment_fields, read_config_json, upgrade_saved_config,
+)
+from ..config.versions import UNVERSIONED, version_problem
 from ..data import DataError
 from ..registry import MethodSpec
 from .checkpoint import list_checkpoints
@@ -18,10 +21,12 @@ SHOWN_FIELDS = 4
 
 
 def experiment_record(config: TrainConfig) -> dict:
-    """The experiment fields of a resolved config (what a resume may not change), as JSON values;
-    every checkpoint carries it, covered by the checkpoint's checksum."""
+    """The experiment fields of a resolved config (what a resume may not change), as JSON values,
+    with the config's ``schema_version`` (a record without one is version 1); every checkpoint
+    carries it, covered by the checkpoint's checksum."""
     experiment = experiment_fields(type(config))
-    return {k: v for k, v in config_payload(config)["config"].items() if k in experiment}
+    fields = {k: v for k, v in config_payload(config)["config"].items() if k in experiment}
+    return {"schema_version": SCHEMA_VERSION, **fields}
 
 
 def check_saved_config(config: TrainConfig, spec: MethodSpec, run_dir: Path) -> bool:
@@ -41,12 +46,12 @@ def check_saved_config(config: TrainConfig, spec: MethodSpec, run_dir: Path) -> 
             )
         return False
     try:
-        saved, verified = read_config_json(path)[1], True
+        saved, verified = read_config_json(path), True
     except DataError:
         if not trust:
             raise
-        saved, verified = read_config_json(path, trust_edits=True)[1], False
-    check_same_experiment(config, spec, path, saved)
+        saved, verified = read_config_json(path, trust_edits=True), False
+    check_same_experiment(config, spec, path, saved.config, saved.version)
     return verified
 
 
@@ -56,7 +61,12 @@ def check_checkpoint_record(config: TrainConfig, spec: MethodSpec, path: Path, c
     experiment is accepted only on the word of a verified config.json (``config_verified``)."""
     record = ck.get("experiment")
     if isinstance(record, dict):
-        check_same_experiment(config, spec, path, record)
+        record = dict(record)
+        version = record.pop("schema_version", UNVERSIONED)
+        problem = version_problem(version)
+        if problem:
+            raise DataError(f"{path}: its experiment record's {problem}")
+        check_same_experiment(config, spec, path, record, version)
     elif not config_verified:
         raise DataError(
             f"{path}: records no experiment (written by an older version) and config.json is missing or "
@@ -64,10 +74,10 @@ def check_checkpoint_record(config: TrainConfig, spec: MethodSpec, path: Path, c
         )
 
 
-def check_same_experiment(config: TrainConfig, spec: MethodSpec, path: Path, saved: dict) -> None:
-    """DataError naming the fields (up to :data:`SHOWN_FIELDS`) in which ``saved`` (a config dict as
-    written by this or an older version) is another experiment than ``config``."""
-    old = upgrade_saved_config(dict(saved), spec.default_config())
+def check_same_experiment(config: TrainConfig, spec: MethodSpec, path: Path, saved: dict, version: int) -> None:
+    """DataError naming the fields (up to :data:`SHOWN_FIELDS`) in which ``saved`` (a config dict of
+    schema ``version``) is another experiment than ``config``."""
+    old = upgrade_saved_config(saved, version, spec.default_config())
     new = config_payload(config)["config"]
     if old.get("method") not in (None, new["method"]):
         raise DataError(f"{path}: the run was trained with method {old['method']!r}, not {new['method']!r}")

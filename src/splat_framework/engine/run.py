@@ -32,13 +32,13 @@ def _load_checkpointed(run_dir: Path, device: str | None, scene_scale: float, tr
     cfg_path = run_dir / "config.json"
     if not cfg_path.is_file():
         raise DataError(f"{cfg_path}: not a run folder (config.json missing)")
-    method, raw = read_config_json(cfg_path, trust_edits)
+    method, raw, version = read_config_json(cfg_path, trust_edits)
     try:
         spec = get_method(method)
     except KeyError as e:
         raise DataError(f"{cfg_path}: {e.args[0]}") from None
     defaults = spec.default_config()
-    config = type(defaults).model_validate(upgrade_saved_config(raw, defaults))
+    config = type(defaults).model_validate(upgrade_saved_config(raw, version, defaults))
     if device is not None:
         config = config.model_copy(update={"device": device})
     resolve_config_devices(config, None if device is not None else str(cfg_path))

@@ -14,6 +14,7 @@ from pathlib import Path
 import torch
 
 from ..console import say
+from ..model.strategy import unplain_state
 from .checkpoint import CheckpointError, check_structure, list_checkpoints, load_checkpoint, load_latest
 from .resume_check import check_checkpoint_record, experiment_record
 from ..runtime.rng import restore_rng_state, rng_state
@@ -37,6 +38,10 @@ class TrainState:
         return experiment_record(self.config)
 
     def state_payload(self, step: int) -> dict:
+        odd = unplain_state(self.strategy_state)
+        if odd is not None:
+            raise TypeError(f"{type(self.strategy).__name__}'s state {odd}: a checkpoint holds tensors and plain "
+                            "values only (it is loaded with weights_only=True)")
         timing = dict(self.timing)
         timing["train_s"] = self._train_seconds()
         return {

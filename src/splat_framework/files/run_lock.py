@@ -1,4 +1,4 @@
-"""One process owns a run folder: an exclusive ``flock`` on ``RUN/.splat.lock``.
+"""One process owns a run folder: an exclusive lock on ``RUN/.splat.lock``.
 
 Every command that writes into a run folder takes the lock before anything else
 and holds it until it is done:
@@ -13,7 +13,7 @@ and holds it until it is done:
 
 A second process gets :class:`RunFolderBusy` (a DataError: one line, exit 2)
 naming the holder: its pid, host, command line and start time, which the holder
-writes into the lock file.
+writes into the lock file (after its first byte, :data:`RECORD_AT`).
 
 Pure readers take no lock: ``splat-view``, and ``splat-render``/``splat-export``
 writing outside the run folder. Every file a run writes (checkpoints,
@@ -21,13 +21,21 @@ config.json, metrics.json) is replaced atomically and checksummed, so a reader
 never sees half a file; and a shared lock would let a viewer left open for hours
 block ``--resume``, or a render of a running run's newest checkpoint refuse.
 
-Stale locks cannot block: the kernel drops a ``flock`` when its process dies
+The lock is the operating system's, taken on the open descriptor through
+``filelock.lock_descriptor`` (``flock`` on Linux and macOS, ``LockFileEx`` on byte 0
+on Windows); nothing here needs ``fcntl``, ``os.pread`` or Unix-only open flags.
+Stale locks cannot block: the system drops the lock when its process dies
 (kill -9, power cut on a local disk), so a lock file left behind is just a file.
-The holder deletes the file when it releases the lock; an acquirer checks that
-the file it locked is still the one at the path (same inode), else retries, so
-no two processes can both believe they own the folder. The lock belongs to the
+The holder deletes the file when it releases the lock (where the system lets it:
+Windows keeps an open file, and the next owner locks it again); an acquirer checks
+that the file it locked is still the one at the path (same file id), else retries,
+so no two processes can both believe they own the folder. The lock belongs to the
 process: acquiring a folder it already holds returns the same lock (several
 ``Trainer`` objects of one test on one folder).
+
+Tested where: Linux runs every test; the paths of a platform without ``fcntl``,
+``os.pread`` and the Unix open flags, and one that cannot delete an open file
+(Windows), are simulated in ``tests/framework/test_run_ownership.py``.
 """
 
 from __future__ import annotations
@@ -48,8 +56,9 @@ from ..errors import DataError
 LOCK_NAME = ".splat.lock"
 """The lock file inside a run folder (ignored when a folder's emptiness is judged)."""
 
-_OPEN_FLAGS = os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC
-"""A symlink or a FIFO planted at the lock's name is never followed nor waited on."""
+RECORD_AT = 1
+"""Offset of the holder's record in the lock file: Windows locks byte 0, and its locks also bar
+other processes from reading the bytes they cover."""
 
 _HOLDER_WAIT_S = 0.5
 """How long a refused process waits for the holder to finish writing its identity."""
@@ -121,10 +130,32 @@ def _read_holder(fd: int) -> str:
     """The identity the holder wrote into the lock file ("" while it has not yet)."""
     deadline = time.monotonic() + _HOLDER_WAIT_S
     while True:
-        text = os.pread(fd, 4096, 0).decode("utf-8", "replace").strip()
+        os.lseek(fd, RECORD_AT, os.SEEK_SET)
+        text = os.read(fd, 4096).decode("utf-8", "replace").strip()
         if text or time.monotonic() > deadline:
             return " ".join(text.split())
         time.sleep(0.02)
+
+
+def _open_flags() -> int:
+    """Flags of every open of the lock file: a symlink or a FIFO planted at its name is never
+    followed nor waited on, where the platform has the flags (Windows has neither, nor FIFOs;
+    a symlink there is refused by :func:`_open` before opening)."""
+    return getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0)
+
+
+def _open(path: Path, flags: int) -> int:
+    """A descriptor of the lock file at ``path``; OSError (ELOOP) for a symlink in its place."""
+    if not getattr(os, "O_NOFOLLOW", 0) and path.is_symlink():
+        raise OSError(errno.ELOOP, "a symlink is in its place")
+    return os.open(path, flags | _open_flags(), 0o600)
+
+
+def _try_lock(fd: int) -> bool:
+    """Take the exclusive lock of ``fd``'s file without waiting; False when another process has it."""
+    from filelock import lock_descriptor
+
+    return lock_descriptor(fd, blocking=False)
 
 
 def acquire(folder: Path) -> RunLock:
@@ -133,8 +164,6 @@ def acquire(folder: Path) -> RunLock:
     Raises :class:`RunFolderBusy` naming the holder when another process has it, and
     DataError when the lock file cannot be made (a symlink in its place, a read-only folder).
     """
-    import fcntl
-
     folder = Path(folder)
     key = folder.resolve()
     mine = _held.pop(key, None)
@@ -148,19 +177,17 @@ def acquire(folder: Path) -> RunLock:
     path = key / LOCK_NAME
     while True:
         try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT | _OPEN_FLAGS, 0o600)
+            fd = _open(path, os.O_RDWR | os.O_CREAT)
         except OSError as e:
             why = "a symlink is in its place" if e.errno == errno.ELOOP else (e.strerror or str(e))
             raise DataError(f"{path}: cannot create the run folder's lock file ({why})") from None
         if not stat.S_ISREG(os.fstat(fd).st_mode):
             os.close(fd)
             raise DataError(f"{path}: not a regular file, so it cannot be the run folder's lock file")
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
+        if not _try_lock(fd):
             who = _read_holder(fd) or "identity not written yet"
             os.close(fd)
-            raise busy(folder, who) from None
+            raise busy(folder, who)
         if _same_file(fd, path):
             break
         os.close(fd)  # the holder we waited on deleted that file as it released: lock the new one
@@ -169,7 +196,8 @@ def acquire(folder: Path) -> RunLock:
     lock = _held[key] = RunLock(key, fd)
     try:
         os.ftruncate(fd, 0)
-        os.pwrite(fd, record.encode("utf-8", "replace"), 0)
+        os.lseek(fd, 0, os.SEEK_SET)
+        os.write(fd, b"\n" + record.encode("utf-8", "replace"))  # the record at RECORD_AT
     except OSError:  # a full disk: report it (one line in the CLIs), holding nothing
         lock.release()
         raise
@@ -178,23 +206,17 @@ def acquire(folder: Path) -> RunLock:
 
 def holder(folder: Path) -> str | None:
     """The identity of the other process holding ``folder``'s lock, None when none does (or this one).
-    Creates nothing."""
-    import fcntl
-
+    Creates nothing (a free lock is taken for an instant, and dropped with the descriptor)."""
     if holds(folder):
         return None
     try:
-        fd = os.open(Path(folder) / LOCK_NAME, os.O_RDONLY | _OPEN_FLAGS)
+        fd = _open(Path(folder) / LOCK_NAME, os.O_RDONLY)
     except OSError:
         return None
     try:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
+        if not stat.S_ISREG(os.fstat(fd).st_mode) or _try_lock(fd):
             return None
-        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
-    except BlockingIOError:
         return _read_holder(fd) or "identity not written yet"
-    else:
-        return None
     finally:
         os.close(fd)
 

@@ -20,6 +20,7 @@ them) instead of forking the trainer.
 
 from __future__ import annotations
 
+import inspect
 import math
 from types import MappingProxyType
 from typing import Any, Mapping
@@ -137,8 +138,22 @@ class GaussianModel(nn.Module):
         self.config = config
         self.scene_scale = float(scene_scale)
         self.active_sh_degree = 0
-        self.params = nn.ParameterDict(self.init_params(points, colors) if rows is None else self.as_params(rows))
-        self.networks = self.build_networks()
+        try:
+            self.params = nn.ParameterDict(self.init_params(points, colors) if rows is None else self.as_params(rows))
+            self.networks = self.build_networks()
+        except AttributeError as e:  # the usual cause: a subclass sets what they read after super().__init__()
+            raise AttributeError(f"{e} (building {type(self).__name__}: set every attribute init_params and "
+                                 "build_networks read before calling super().__init__())") from e
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """A subclass's own ``__init__`` must take ``rows=`` (keyword) and hand it on: ``from_checkpoint``
+        builds every model with a checkpoint's rows instead of points (TypeError naming the class)."""
+        super().__init_subclass__(**kwargs)
+        if "__init__" in vars(cls):
+            params = inspect.signature(cls.__init__).parameters
+            if "rows" not in params and not any(p.kind is p.VAR_KEYWORD for p in params.values()):
+                raise TypeError(f"{cls.__module__}.{cls.__qualname__}.__init__ takes no rows=: from_checkpoint builds "
+                                "the model with a checkpoint's rows (pass rows=rows on to super().__init__)")
 
     # ------------------------------------------------------------------ build
     @classmethod

@@ -37,7 +37,7 @@ from splat_framework.config import DensifyConfig
 from splat_framework.model.ops import decay_opa, duplicate, remove, reset_opa, split
 from splat_framework.render import request_absgrad
 
-__all__ = ["DefaultStrategy", "DensifyConfig", "Strategy", "check_rows"]
+__all__ = ["DefaultStrategy", "DensifyConfig", "Strategy", "check_rows", "unplain_state"]
 
 
 def check_rows(params: Mapping[str, Tensor], optimizers: Mapping[str, torch.optim.Optimizer],
@@ -56,6 +56,22 @@ def check_rows(params: Mapping[str, Tensor], optimizers: Mapping[str, torch.opti
             raise ValueError(f"params[{key!r}] requires grad but has no optimizer")
 
 
+def unplain_state(state: Mapping[str, Any]) -> str | None:
+    """``'key' (type)`` of the first entry of a strategy's ``state`` holding a value that a checkpoint
+    loaded with ``weights_only=True`` cannot hold, None when every value is a tensor, a bool, int,
+    float, str or None, or a list, tuple or dict of them (a numpy number is not: ``float(x)`` it)."""
+
+    def odd(value: Any) -> str | None:
+        if torch.is_tensor(value) or type(value) in (bool, int, float, str, type(None)):
+            return None
+        if isinstance(value, (list, tuple, dict)):
+            items = [*value.keys(), *value.values()] if isinstance(value, dict) else value
+            return next((bad for v in items if (bad := odd(v)) is not None), None)
+        return type(value).__name__
+
+    return next((f"{k!r} ({bad})" for k, v in state.items() if (bad := odd(v)) is not None), None)
+
+
 class Strategy:
     """What the trainer calls to grow and prune Gaussians: the seam a plugin overrides.
 
@@ -67,7 +83,8 @@ class Strategy:
     ``splat_framework.strategies``, without touching the trainer. A
     strategy sees plain dicts only, never the model: ``params`` (name -> [N, ...]
     tensors, one row per Gaussian), ``optimizers`` (name -> optimizer of that one
-    tensor), its own ``state`` (checkpointed by the trainer; tensors with one row
+    tensor), its own ``state`` (checkpointed by the trainer and loaded with ``weights_only=True``:
+    tensors and plain values only, see :func:`unplain_state`; tensors with one row
     per Gaussian must be resized by whoever adds or removes rows) and ``info``
     (the rasterizer's meta dict). The trainer calls, each step: :meth:`loss` (added to
     the model's loss), :meth:`step_pre_backward` and, after the optimizers stepped,

@@ -476,7 +476,7 @@ def test_configs_saved_before_the_ray_rule_moved_still_load():
         raw["steps_per_view"] = 250  # became schedule_views (same iteration counts)
         with pytest.raises(ValidationError):
             type(config).model_validate(raw)
-        assert type(config).model_validate(upgrade_saved_config(raw)) == config
+        assert type(config).model_validate(upgrade_saved_config(raw, 1, config)) == config
     params, opts = make_params(3, is_ray=[1.0, 0.0, 0.0])
     with pytest.raises(ValueError, match="is_match"):
         RayGaussianStrategy(cfg()).check_sanity(params, opts)

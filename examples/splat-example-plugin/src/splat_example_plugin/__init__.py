@@ -12,7 +12,6 @@ only when training starts (a strategy config names its class as ``module:Class``
 
 from typing import Literal
 
-import tyro
 from pydantic import Field
 
 from typing import ClassVar
@@ -22,6 +21,7 @@ from splat_framework.plugin import (
     GaussianModelConfig,
     InitConfig,
     Interval,
+    Kind,
     MAX_GAUSSIANS,
     MethodSpec,
     NonNegative,
@@ -36,7 +36,7 @@ from splat_framework.plugin import (
 class GridInitConfig(InitConfig):
     """Lattice start: points on a regular grid filling the scene's box, grey."""
 
-    kind: Literal["grid"] = "grid"
+    kind: Kind[Literal["grid"]] = "grid"
     """The start's kind."""
     per_axis: int = Field(20, ge=2, le=200)
     """Points along each axis of the box (per_axis ** 3 in all)."""
@@ -50,7 +50,7 @@ class GridInitConfig(InitConfig):
 class PruneOnlyConfig(StrategyConfig):
     """Never grow the model; every ``every`` iterations remove the Gaussians whose opacity is below ``min_opacity``."""
 
-    kind: tyro.conf.Suppress[Literal["prune-only"]] = "prune-only"
+    kind: Kind[Literal["prune-only"]] = "prune-only"
     """The strategy's tag."""
     min_opacity: float = Field(0.005, ge=0, lt=1)
     """Remove Gaussians whose opacity is below this."""
@@ -63,7 +63,7 @@ class MCMCConfig(StrategyConfig):
     """3DGS as Markov chain Monte Carlo (Kheradmand et al. 2024): dead Gaussians are relocated onto live
     ones drawn by opacity, the model grows by drawing more, and opacity and scale are regularised."""
 
-    kind: tyro.conf.Suppress[Literal["mcmc"]] = "mcmc"
+    kind: Kind[Literal["mcmc"]] = "mcmc"
     """The strategy's tag."""
     cap_max: int = Field(1_000_000, ge=1, le=MAX_GAUSSIANS)
     """Most Gaussians the model grows to."""

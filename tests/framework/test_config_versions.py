@@ -1,0 +1,62 @@
+"""``config.json`` carries its schema version; old versions are upgraded by one ordered list of steps
+(``config.versions.UPGRADES``), a newer one is refused in one line naming the file (issue 62, item 3)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from cli_harness import run_cli
+
+from splat_framework.config import SCHEMA_VERSION, UPGRADES, config_payload, read_config_json, save_config, upgrade_saved_config
+from splat_framework.errors import DataError
+from splat_framework.registry import get_method
+from splat_framework.runtime.io import atomic_write_json
+
+OLD = Path(__file__).parent / "old_init_configs"
+
+
+def test_every_version_below_the_current_one_has_one_step():
+    assert list(UPGRADES) == list(range(1, SCHEMA_VERSION))
+
+
+def written_at(version: int, tmp_path: Path) -> list[Path]:
+    """config.json files of schema ``version``: version 1's layouts before issue 41 (``old_init_configs``),
+    and one holding today's layout, as every run wrote it until version 2 (also without a version at all)."""
+    assert version == 1, "a new version needs its sample files here"
+    today = json.loads(json.dumps(config_payload(get_method("scaffold-gs").default_config())))
+    files = sorted(OLD.glob("*.json"))
+    for name, payload in (("today.json", {**today, "schema_version": 1}), ("unversioned.json", today["config"])):
+        atomic_write_json(tmp_path / name, payload if name == "today.json" else {"config": payload})
+        files.append(tmp_path / name)
+    return files
+
+
+@pytest.mark.parametrize("version", range(1, SCHEMA_VERSION))
+def test_a_file_of_each_old_version_upgrades_to_the_current_config(version, tmp_path):
+    """Upgraded, a file of an old version is a valid config of today's schema: written again (current
+    version), it reads back as the same config, through no step."""
+    for path in written_at(version, tmp_path):
+        method, raw, found = read_config_json(path)
+        assert found == version, path
+        defaults = get_method(method).default_config()
+        config = type(defaults).model_validate(upgrade_saved_config(raw, found, defaults))
+        save_config(config, tmp_path / "again.json")
+        _, again, now = read_config_json(tmp_path / "again.json")
+        assert now == SCHEMA_VERSION and type(defaults).model_validate(again) == config, path
+        if path.name == "today.json":  # a file already in today's layout: upgraded to itself
+            assert config == type(defaults).model_validate(json.loads(path.read_text())["config"])
+
+
+@pytest.mark.bad_input("a run's `config.json` written by a newer splat (a higher schema version)",
+                       "exit 2, one line naming the file and its version; nothing written")
+def test_a_file_of_a_newer_version_is_refused_naming_it(tmp_path):
+    payload = config_payload(get_method("3dgs").default_config().model_copy(update={"steps": 2}))
+    path = tmp_path / "config.json"
+    atomic_write_json(path, {**payload, "schema_version": SCHEMA_VERSION + 1})  # signed: only the version is wrong
+    with pytest.raises(DataError, match=f"newer") as refused:
+        read_config_json(path)
+    assert str(path) in str(refused.value) and "\n" not in str(refused.value)
+    run_cli("train", "--load-config", path, code=2, match=(str(path), f"version {SCHEMA_VERSION + 1}", "newer"),
+            watch=[tmp_path])
