@@ -62,7 +62,9 @@ class SCGModelConfig(GaussianModelConfig):
     warmup_steps: Steps = 2000
     """Iterations of the z warm-up (two-stage schedule; 0 = no warm-up)."""
     warmup_lr: LearningRate = 0.03
-    """Warm-up step size of z as a fraction of each view's depth range (Adam lr), halved every warmup_lr_halve_every."""
+    """Warm-up step size of z (Adam lr) in warmup_lr_unit, halved every warmup_lr_halve_every."""
+    warmup_lr_unit: Literal["depth-range", "scene"] = "depth-range"
+    """Unit of warmup_lr: depth-range, a fraction of the median depth range (far - near) of the matched rays, the same at any scene scale; scene, the scene's own length unit, as the official code's 0.5 (LLFF and Blender are stored in the official code's units; its DTU is a COLMAP model of its own, not the dataset's cameras)."""
     warmup_lr_halve_every: Period = 500
     """Halve the warm-up learning rate every this many warm-up iterations."""
     lambda_gp: NonNegative = 0.0
