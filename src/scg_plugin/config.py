@@ -61,7 +61,9 @@ class SCGModelConfig(GaussianModelConfig):
     warmup_steps: Steps = 2000
     """Iterations of the z warm-up (two-stage schedule; 0 = no warm-up)."""
     warmup_lr: LearningRate = 0.03
-    """Warm-up step of z, as a fraction of each view's depth range."""
+    """Warm-up step of z (Adam lr) in warmup_lr_unit, halved every warmup_lr_halve_every."""
+    warmup_lr_unit: Literal["depth-range", "scene"] = "depth-range"
+    """Unit of warmup_lr: a fraction of the matched rays' depth range, or scene units (the official code's)."""
     warmup_lr_halve_every: Period = 500
     """Halve the warm-up learning rate every this many warm-up iterations."""
     lambda_gp: NonNegative = 0.0

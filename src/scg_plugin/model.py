@@ -16,7 +16,7 @@ from torch import Tensor, nn
 from splat_framework.plugin import Camera, GaussianModel, ops, section
 
 from .losses import rendering_geometry_loss
-from .ray_gaussians import MatchCache, RayBundle, gaussian_position_loss, pixel_errors
+from .ray_gaussians import MatchCache, RayBundle, gaussian_position_loss, pixel_errors, warmup_step_size
 from .startup import BaselineSchedule, baseline_schedule, ordinary_points, ray_prior, thin_prior, warm_up_prior
 
 RAY_KEYS = ("z", "ray_o", "ray_d", "is_ray", "is_match")
@@ -121,8 +121,8 @@ class SCGaussianModel(GaussianModel):
             lrs["z"] = cfg.z_lr * self.scene_scale
         elif cfg.schedule == "single-stage" and step < max(cfg.cache_until, 1):
             # the paper's single stage: z moves with the warm-up step size while caching
-            depth_range = float((self.bundle.far - self.bundle.near).median())
-            lrs["z"] = cfg.warmup_lr * depth_range * 0.5 ** (step // max(cfg.warmup_lr_halve_every, 1))
+            lr = warmup_step_size(cfg.warmup_lr, cfg.warmup_lr_unit, self.bundle)
+            lrs["z"] = lr * 0.5 ** (step // max(cfg.warmup_lr_halve_every, 1))
         else:
             ratio = lrs["means"] / max(self.config.optim.means_lr * self.scene_scale, 1e-30)
             lrs["z"] = cfg.z_lr * self.scene_scale * ratio

@@ -183,26 +183,32 @@ class MatchCache:
         return (self.best_err <= eta_px).repeat_interleave(2)
 
 
+def warmup_step_size(lr: float, unit: str, bundle: RayBundle) -> float:
+    """The warm-up's Adam step size of z in scene units: ``lr`` itself (``unit`` "scene", the official
+    code's), or ``lr`` times the median depth range (far - near) of the bundle's rays ("depth-range")."""
+    if unit == "scene":
+        return lr
+    return lr * float((bundle.far - bundle.near).median()) if len(bundle) else lr
+
+
 def warm_up(
     bundle: RayBundle,
     cameras: list[Camera],
     steps: int,
-    lr_fraction: float,
+    lr: float,
     halve_every: int,
     cache: MatchCache | None,
     on_step: Callable[[], None] | None = None,
 ) -> Tensor:
     """Stage 1 of the public code: optimise only z with L_gp.
 
-    The Adam step size is ``lr_fraction`` of the median depth range, halved every
+    The Adam step size is ``lr`` (scene units, see :func:`warmup_step_size`), halved every
     ``halve_every`` iterations. Returns the final z [G] (the cache, when given,
     holds the best z per match). ``on_step`` is called after each iteration (progress).
     """
     z = torch.nn.Parameter(bundle.z.clone())
     if steps <= 0 or len(bundle) == 0:
         return z.detach()
-    depth_range = float((bundle.far - bundle.near).median())
-    lr = lr_fraction * depth_range
     opt = torch.optim.Adam([z], lr=lr)
     sched = torch.optim.lr_scheduler.StepLR(opt, step_size=max(halve_every, 1), gamma=0.5)
     proj = partner_projections(bundle, cameras)

@@ -31,7 +31,7 @@ from splat_framework.plugin import (
     FALLBACK_POINTS, Camera, StrategyConfig, compute_match_set, config_3dgs, initial_points, match_pairs, phase, resolve_steps,
 )
 
-from .ray_gaussians import MatchCache, RayBundle, build_ray_bundle, warm_up
+from .ray_gaussians import MatchCache, RayBundle, build_ray_bundle, warm_up, warmup_step_size
 
 
 def ray_prior(config, datamanager, generator: torch.Generator, timing: dict) -> tuple[RayBundle | None, int]:
@@ -68,8 +68,8 @@ def warm_up_prior(bundle: RayBundle | None, cameras: list[Camera], cfg, timing: 
     if bundle is not None and cfg.schedule == "two-stage" and cfg.warmup_steps > 0:
         cache = MatchCache(bundle) if cfg.cache_filter else None
         with phase("SCGaussian warm-up", cfg.warmup_steps, unit="iterations") as progress:
-            z = warm_up(bundle, cameras, cfg.warmup_steps, cfg.warmup_lr, cfg.warmup_lr_halve_every, cache,
-                        on_step=progress.advance)
+            lr = warmup_step_size(cfg.warmup_lr, cfg.warmup_lr_unit, bundle)
+            z = warm_up(bundle, cameras, cfg.warmup_steps, lr, cfg.warmup_lr_halve_every, cache, on_step=progress.advance)
         if cache is not None:
             bundle.z = cache.best_z
             keep = cache.keep_mask(cfg.filter_eta_px)

@@ -337,7 +337,7 @@ def _missing_metric_lines(missing: list[str], lpips_note: str | None) -> list[st
     """Why the summary table leaves out each metric it could not compute: one line per reason."""
     reasons: dict[str, list[str]] = {}
     for k in missing:
-        if k == "lpips":
+        if k.startswith("lpips"):
             why = lpips_note or "not computed"
         elif k == "avg":
             why = "AVG combines PSNR, SSIM and LPIPS, and LPIPS was not computed"

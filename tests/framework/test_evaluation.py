@@ -3,6 +3,7 @@
 import json
 import subprocess
 import sys
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -10,7 +11,7 @@ import torch
 
 from splat_framework.errors import DataError
 from splat_framework.evaluation.held_out import evaluate
-from splat_framework.evaluation.metrics import DEPTH_KEYS, depth_metrics
+from splat_framework.evaluation.metrics import DEPTH_KEYS, avg_metric, depth_metrics
 from splat_framework.evaluation.pictures import label_panel
 from splat_framework.render import RenderOutput
 
@@ -52,11 +53,15 @@ def test_label_panel_draws_in_the_corner_only():
 def test_trained_run_reports_depth_metrics(run_dir):
     metrics = json.loads((run_dir / "metrics.json").read_text())
     mean = metrics["mean"]
-    assert set(mean) == {"psnr", "ssim", "lpips", "avg", "st_lpips", *DEPTH_KEYS}
-    from splat_framework.evaluation.metrics import LPIPSMetric, STLPIPSMetric
+    assert set(mean) == {"psnr", "ssim", "lpips", "lpips_alex", "avg", "st_lpips", *DEPTH_KEYS}
+    from splat_framework.evaluation.metrics import STLPIPSMetric, lpips_metrics
 
-    if not LPIPSMetric.available()[0] and STLPIPSMetric.available()[0]:  # ST-LPIPS stands in, under its own name
-        assert mean["lpips"] is None and 0 < mean["st_lpips"] < 1 and "ST-LPIPS" in metrics["lpips_note"]
+    if STLPIPSMetric.available()[0]:  # beside LPIPS or not, under its own name
+        assert 0 < mean["st_lpips"] < 1
+    usable, note = lpips_metrics()
+    assert metrics["lpips_note"] == note
+    for key in ("lpips", "lpips_alex"):
+        assert (mean[key] is None) == (key not in usable)
     assert 0 < mean["depth_abs_rel"] < 5
     assert 0 <= mean["depth_within_5pct"] <= 1
     assert 0 < mean["depth_coverage"] <= 1
@@ -239,11 +244,24 @@ def test_an_edited_or_unsigned_config_is_refused_unless_trusted(run_dir, tmp_pat
     assert r.returncode == 0, r.stderr
 
 
+class _GreyViews:
+    """Three held-out views of a uniform grey photo (64x64), no mask."""
+
+    scene = SimpleNamespace(masked_metrics=False)
+
+    def eval_views(self):
+        return [(SimpleNamespace(name=f"v{i}"), {"image": torch.full((64, 64, 3), 0.5), "index": i})
+                for i in range(3)]
+
+
+def _grey_render(value: float = 0.5) -> RenderOutput:
+    return RenderOutput(rgb=torch.full((64, 64, 3), value), depth=torch.ones(64, 64, 1), alpha=torch.ones(64, 64, 1))
+
+
 def test_render_fps_leaves_out_the_first_renders_warm_up():
     """A model whose first render pays a one-off cost (torch.compile) is timed on its
     steady renders: ``fps`` reflects 3 fast renders, not the 0.4 s warm-up."""
     import time
-    from types import SimpleNamespace
 
     class SlowFirst:
         calls = 0
@@ -251,20 +269,43 @@ def test_render_fps_leaves_out_the_first_renders_warm_up():
         def get_outputs(self, camera, background):
             SlowFirst.calls += 1
             time.sleep(0.4 if SlowFirst.calls == 1 else 0.01)
-            return RenderOutput(rgb=torch.full((64, 64, 3), 0.5), depth=torch.ones(64, 64, 1),
-                                alpha=torch.ones(64, 64, 1))
+            return _grey_render()
 
-    class Views:
-        scene = SimpleNamespace(masked_metrics=False)
-
-        def eval_views(self):
-            return [(SimpleNamespace(name=f"v{i}"), {"image": torch.full((64, 64, 3), 0.5), "index": i})
-                    for i in range(3)]
-
-    res = evaluate(SlowFirst(), Views(), torch.zeros(3))
+    res = evaluate(SlowFirst(), _GreyViews(), torch.zeros(3))
     assert SlowFirst.calls == 4  # one untimed warm-up, then one render per view
     assert res["fps"] > 3 / 0.4  # the warm-up counted would give < 7.5 FPS
     assert res["mean"]["psnr"] is not None
+
+
+def test_evaluate_reports_both_lpips_beside_st_lpips(monkeypatch):
+    """Where LPIPS can be computed, both backbones are reported (lpips: VGG, lpips_alex: AlexNet)
+    and ST-LPIPS beside them, each under its own name; AVG uses the VGG LPIPS."""
+    from splat_framework.evaluation import held_out
+
+    class Fixed:
+        """A metric giving one value (0.4 unless told: the ST-LPIPS stand-in), always available."""
+
+        def __init__(self, value=0.4, device=None):
+            self.value = value
+
+        def compute(self, pred, gt, mask=None):
+            return self.value
+
+        @staticmethod
+        def available():
+            return True, ""
+
+    monkeypatch.setattr(held_out, "lpips_metrics", lambda device=None: ({"lpips": Fixed(0.2), "lpips_alex": Fixed(0.3)}, None))
+    monkeypatch.setattr(held_out, "STLPIPSMetric", Fixed)
+
+    class Grey:
+        def get_outputs(self, camera, background):
+            return _grey_render(0.45)
+
+    res = evaluate(Grey(), _GreyViews(), torch.zeros(3))
+    mean = res["mean"]
+    assert (mean["lpips"], mean["lpips_alex"], mean["st_lpips"]) == pytest.approx((0.2, 0.3, 0.4)) and res["lpips_note"] is None
+    assert mean["avg"] == pytest.approx(avg_metric(mean["psnr"], mean["ssim"], 0.2))
 
 
 def test_splat_eval_fits_the_test_poses_when_asked(run_dir, tmp_path):

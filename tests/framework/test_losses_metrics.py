@@ -1,4 +1,4 @@
-"""Losses (L1, 3DGS SSIM, photometric) and metrics (PSNR, SSIM, LPIPS, AVG)."""
+"""Losses (L1, 3DGS SSIM, photometric) and metrics (PSNR, SSIM, LPIPS with VGG and AlexNet, AVG)."""
 
 from __future__ import annotations
 
@@ -166,30 +166,29 @@ def test_avg_metric_formula():
     assert avg_metric(math.inf, 1.0, 0.0) == 0.0
 
 
-def test_lpips_availability_reported():
-    ok, why = LPIPSMetric.available()
-    if ok:
-        a, b = images(h=64, w=64)
-        m = LPIPSMetric()
-        assert m.compute(a, a) == pytest.approx(0.0, abs=1e-4)
-        assert m.compute(a, b) > m.compute(a, a)
-        out = evaluate_images(a, b, lpips=m)
-        assert out["lpips"] is not None and out["avg"] is not None
-    else:
-        assert why
-        with pytest.raises(RuntimeError, match="LPIPS unavailable"):
-            LPIPSMetric().compute(*images())
-        out = evaluate_images(*images(), lpips=LPIPSMetric())
-        assert out["lpips"] is None and out["avg"] is None
+def _real_lpips() -> str | None:
+    """Why the real ``lpips`` package cannot run here (None when it can): not installed, or
+    torchvision built for another torch (a CUDA wheel beside a CPU torch fails to import)."""
+    try:
+        import lpips  # noqa: F401
+    except ModuleNotFoundError as e:
+        return f"the lpips extra is not installed (pip install -e '.[lpips]'): {e}"
+    except Exception as e:  # noqa: BLE001
+        return f"the lpips extra cannot be imported here ({type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''})"
+    return None
 
 
-def test_lpips_unavailable_without_backbone(monkeypatch, tmp_path):
-    """Even with both packages importable, a missing VGG file means unavailable (no download)."""
+def _fake_lpips_install(monkeypatch, tmp_path):
+    """``lpips`` and ``torchvision`` installed as far as the availability check sees (find_spec, the
+    linear weights, the import), and an empty torch hub cache under ``tmp_path / "hub"``."""
+    import sys
+    import types
+
     real = metrics.importlib.util.find_spec
     pkg = tmp_path / "lpips"
     (pkg / "weights" / "v0.1").mkdir(parents=True)
-    (pkg / "__init__.py").write_text("raise ImportError('must not be imported')")
-    (pkg / "weights" / "v0.1" / "vgg.pth").write_bytes(b"")
+    for net in metrics.BACKBONE_FILES:
+        (pkg / "weights" / "v0.1" / f"{net}.pth").write_bytes(b"")
 
     class Spec:
         origin = str(pkg / "__init__.py")
@@ -197,19 +196,96 @@ def test_lpips_unavailable_without_backbone(monkeypatch, tmp_path):
     monkeypatch.setattr(
         metrics.importlib.util, "find_spec", lambda n: Spec() if n in ("lpips", "torchvision") else real(n)
     )
+    monkeypatch.setitem(sys.modules, "lpips", types.ModuleType("lpips"))  # imports as installed, runs nothing
     monkeypatch.setattr(metrics.torch.hub, "get_dir", lambda: str(tmp_path / "hub"))
-    ok, why = LPIPSMetric.available()
-    assert not ok and "VGG16" in why
-    (tmp_path / "hub" / "checkpoints").mkdir(parents=True)
-    (tmp_path / "hub" / "checkpoints" / metrics.VGG16_FILE).write_bytes(b"")
-    assert LPIPSMetric.available() == (True, "")
+    return tmp_path / "hub" / "checkpoints"
+
+
+def test_lpips_availability_reported():
+    for net in metrics.BACKBONE_FILES:
+        ok, why = LPIPSMetric.available(net)
+        if ok:
+            a, b = images(h=64, w=64)
+            m = LPIPSMetric(net)
+            assert m.compute(a, a) == pytest.approx(0.0, abs=1e-4)
+            assert m.compute(a, b) > m.compute(a, a)
+        else:
+            assert why and "\n" not in why
+            with pytest.raises(RuntimeError, match="LPIPS unavailable"):
+                LPIPSMetric(net).compute(*images())
+    out = evaluate_images(*images(), lpips={})
+    assert out["lpips"] is None and out["lpips_alex"] is None and out["avg"] is None
+
+
+def test_lpips_unavailable_without_backbone_says_which_file_where(monkeypatch, tmp_path):
+    """Even with both packages installed, a missing backbone file means unavailable (no download); the
+    one line names the file and the folder it was looked for in, for each backbone."""
+    checkpoints = _fake_lpips_install(monkeypatch, tmp_path)
+    usable, note = metrics.lpips_metrics()
+    assert usable == {} and note == (f"torchvision's VGG16 and AlexNet weights not found in {checkpoints} "
+                                     "(vgg16-397923af.pth, alexnet-owt-7be5be79.pth; no download is attempted)")
+    checkpoints.mkdir(parents=True)
+    (checkpoints / metrics.BACKBONE_FILES["vgg"][1]).write_bytes(b"")
+    usable, note = metrics.lpips_metrics()
+    assert set(usable) == {"lpips"} and usable["lpips"].net_name == "vgg"
+    assert note == f"torchvision's AlexNet weights not found in {checkpoints} (alexnet-owt-7be5be79.pth; no download is attempted)"
+    (checkpoints / metrics.BACKBONE_FILES["alex"][1]).write_bytes(b"")
+    assert metrics.lpips_metrics()[1] is None and LPIPSMetric.available("alex") == (True, "")
+
+
+def test_lpips_missing_package_is_one_line_for_both_backbones(monkeypatch):
+    real = metrics.importlib.util.find_spec
+    monkeypatch.setattr(metrics.importlib.util, "find_spec", lambda n: None if n == "lpips" else real(n))
+    usable, note = metrics.lpips_metrics()
+    assert usable == {} and note == "package 'lpips' is not installed (the project's extra 'lpips' installs it)"
+
+
+def test_lpips_computed_with_locally_made_backbone_weights(monkeypatch, tmp_path):
+    """The real lpips package with torchvision backbones whose weights were made here (random, saved
+    where torchvision looks for its ImageNet weights): both LPIPS metrics and AVG are computed, and
+    nothing is downloaded. Proves the plumbing where the real weights cannot be had."""
+    why = _real_lpips()
+    if why:
+        pytest.skip(why)
+    import torchvision
+
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path))
+    checkpoints = tmp_path / "hub" / "checkpoints"
+    checkpoints.mkdir(parents=True)
+    torch.manual_seed(0)
+    torch.save(torchvision.models.vgg16().state_dict(), checkpoints / metrics.BACKBONE_FILES["vgg"][1])
+    torch.save(torchvision.models.alexnet().state_dict(), checkpoints / metrics.BACKBONE_FILES["alex"][1])
+    usable, note = metrics.lpips_metrics()
+    assert set(usable) == set(metrics.LPIPS_NETS) and note is None
+    a, b = images(h=64, w=64)
+    for m in usable.values():
+        assert m.compute(a, a) == pytest.approx(0.0, abs=1e-5)
+        assert m.compute(a, b) > 1e-4
+    out = evaluate_images(a, b, lpips=usable)
+    assert out["lpips"] > 0 and out["lpips_alex"] > 0 and out["lpips"] != out["lpips_alex"]
+    assert out["avg"] == pytest.approx(avg_metric(out["psnr"], out["ssim"], out["lpips"]))
+
+
+def test_lpips_with_the_real_weights():
+    """Both LPIPS metrics with torchvision's ImageNet weights, where this machine has them (the extra
+    installed and the weights in the torch hub cache; nothing is downloaded)."""
+    why = _real_lpips()
+    if why:
+        pytest.skip(why)
+    usable, note = metrics.lpips_metrics()
+    if note:
+        pytest.skip(f"LPIPS weights not on this machine: {note}")
+    a, b = images(h=64, w=64)
+    for m in usable.values():
+        assert m.compute(a, a) == pytest.approx(0.0, abs=1e-5)
+        assert 0.0 < m.compute(a, b) < 1.0
 
 
 def test_evaluate_images_keys():
     a, b = images()
     out = evaluate_images(a, b)
-    assert set(out) == {"psnr", "ssim", "lpips", "avg", "st_lpips"}
-    assert out["lpips"] is None and out["avg"] is None and out["st_lpips"] is None
+    assert set(out) == {"psnr", "ssim", "lpips", "lpips_alex", "avg", "st_lpips"} == set(metrics.IMAGE_METRICS)
+    assert out["lpips"] is None and out["lpips_alex"] is None and out["avg"] is None and out["st_lpips"] is None
     assert out["psnr"] == pytest.approx(psnr(a, b)) and out["ssim"] == pytest.approx(ssim_metric(a, b))
 
 

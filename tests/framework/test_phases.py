@@ -101,13 +101,13 @@ def test_the_training_clock_starts_at_the_first_step_and_no_eta_before_10_steps(
 def test_the_summary_leaves_out_what_it_could_not_compute_and_says_why(capsys, monkeypatch, tmp_path):
     monkeypatch.setattr(console_mod, "console", Console(file=sys.stderr, width=200))
     metrics = {"method": "3dgs", "data": "photos", "num_gaussians": 10, "steps": 2, "timing": {"total_s": 1.0},
-               "mean": {"psnr": 20.0, "ssim": 0.5, "lpips": None, "avg": None, "st_lpips": 0.7,
+               "mean": {"psnr": 20.0, "ssim": 0.5, "lpips": None, "lpips_alex": None, "avg": None, "st_lpips": 0.7,
                         "depth_abs_rel": None}, "lpips_note": "package 'lpips' is not installed"}
     console_mod.print_summary(metrics, tmp_path)
     out = capsys.readouterr()
     assert "n/a" not in out.out and "test psnr" in out.out and "test lpips" not in out.out
     assert out.err.splitlines() == [
-        "not in the table: lpips: package 'lpips' is not installed",
+        "not in the table: lpips, lpips_alex: package 'lpips' is not installed",
         "not in the table: avg: AVG combines PSNR, SSIM and LPIPS, and LPIPS was not computed",
         "not in the table: depth_abs_rel: the dataset has no ground-truth depth (the built-in scenes have)"]
 

@@ -17,6 +17,7 @@ from scg_plugin.ray_gaussians import (
     gaussian_position_loss,
     pixel_errors,
     warm_up,
+    warmup_step_size,
 )
 from splat_framework.config import apply_overrides
 from splat_framework.data import DataManager, load_scene
@@ -88,10 +89,22 @@ def test_warm_up_finds_the_true_depth_from_exact_matches(scene):
     true_pts = pts.float().repeat_interleave(2, dim=0)
     dist = (true_pts - bundle.origins).norm(dim=-1)
     before = (bundle.positions() - true_pts).norm(dim=-1) / dist
-    z = warm_up(bundle, cams, steps=600, lr_fraction=0.03, halve_every=150, cache=None)
+    z = warm_up(bundle, cams, steps=600, lr=warmup_step_size(0.03, "depth-range", bundle), halve_every=150, cache=None)
     rel = (bundle.positions(z) - true_pts).norm(dim=-1) / dist
     assert float(before.median()) > 0.1
     assert float(rel.quantile(0.95)) < 0.005, float(rel.quantile(0.95))
+
+
+def test_warm_up_step_size_in_scene_units_or_of_the_depth_range(scene):
+    """warmup_lr in the scene's own unit (the official code's 0.5) is the step itself; as a fraction
+    of the depth range it scales with the median far - near of the matched rays."""
+    _, dm, depths = scene
+    uv_a, uv_b, _ = true_correspondences(dm, depths)
+    bundle = build_ray_bundle([(0, 1, uv_a, uv_b)], dm.train_cameras, torch.Generator().manual_seed(0))
+    depth_range = float((bundle.far - bundle.near).median())
+    assert depth_range > 0 and depth_range != 1.0
+    assert warmup_step_size(0.5, "scene", bundle) == 0.5
+    assert warmup_step_size(0.03, "depth-range", bundle) == pytest.approx(0.03 * depth_range)
 
 
 def test_warm_up_with_real_matches_is_as_good_as_triangulation(scene):
@@ -116,7 +129,7 @@ def test_warm_up_with_real_matches_is_as_good_as_triangulation(scene):
         tri.append(((zc - gt).abs() / gt)[gt > 0])
     tri_median = float(torch.cat(tri).median())
     cache = MatchCache(bundle)
-    warm_up(bundle, cams, steps=600, lr_fraction=0.03, halve_every=150, cache=cache)
+    warm_up(bundle, cams, steps=600, lr=warmup_step_size(0.03, "depth-range", bundle), halve_every=150, cache=cache)
     keep = cache.keep_mask(2.0)
     assert keep.float().mean() > 0.8
     b = bundle.select(keep)

@@ -9,7 +9,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .metrics import DEPTH_KEYS, IMAGE_METRICS, LPIPSMetric, STLPIPSMetric, depth_metrics, evaluate_images, psnr
+from .metrics import DEPTH_KEYS, IMAGE_METRICS, STLPIPSMetric, depth_metrics, evaluate_images, lpips_metrics, psnr
 from .pictures import colorize_depth, error_map, label_panel, to_uint8, write_png
 from ..cameras import pose_differences
 from ..console import track
@@ -31,8 +31,9 @@ def view_name(datamanager, camera, index: int) -> str:
 
 @torch.no_grad()
 def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = None, pose_steps: int = 0) -> dict:
-    """Render every test view and compute PSNR, SSIM, LPIPS (when available) and AVG,
-    plus the depth error when the dataset has ground-truth depth (see :func:`depth_metrics`).
+    """Render every test view and compute PSNR, SSIM, LPIPS with VGG and AlexNet (when available),
+    AVG and ST-LPIPS (when its weights are installed), plus the depth error when the dataset has
+    ground-truth depth (see :func:`depth_metrics`).
 
     With ``pose_steps`` > 0, each test camera's pose is first fitted to its photo by that many
     steps of :func:`splat_framework.evaluation.pose_refine.refine_pose` (the protocol of pose-free methods;
@@ -48,20 +49,16 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
     ``<view>`` is the image's name (its file stem).
 
     Returns:
-        {"mean": {psnr, ssim, lpips, avg, st_lpips, depth_abs_rel, depth_within_5pct,
+        {"mean": {psnr, ssim, lpips, lpips_alex, avg, st_lpips, depth_abs_rel, depth_within_5pct,
         depth_coverage}, "per_view": [{"view": image name, "index", "split", metrics...}],
-        "fps": float, "lpips_note": str | None}.
+        "fps": float, "lpips_note": str | None (one line: why an LPIPS metric is missing)}.
         ``fps`` is rendering alone (no metrics, no file writing), after one untimed
         warm-up render of the first view.
-        A mean is None when a metric is unavailable (no LPIPS package, no GT depth;
-        ST-LPIPS is computed only when LPIPS is unavailable and its weights are installed).
+        A mean is None when a metric is unavailable (no LPIPS package or weights, no GT depth,
+        no ST-LPIPS weights).
     """
-    lpips = LPIPSMetric(device=background.device)
-    available, reason = lpips.available()
-    # ST-LPIPS stands in (under its own name) where LPIPS cannot be computed
-    st_lpips = STLPIPSMetric(device=background.device) if not available and STLPIPSMetric.available()[0] else None
-    if st_lpips is not None:
-        reason += "; ST-LPIPS reported instead (not comparable with papers' LPIPS)"
+    lpips, lpips_note = lpips_metrics(background.device)
+    st_lpips = STLPIPSMetric(device=background.device) if STLPIPSMetric.available()[0] else None
     per_view = []
     render_time = 0.0
     views, split = scored_views(datamanager)
@@ -82,7 +79,7 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
         render_time += time.perf_counter() - t0
         pred, gt = out.rgb.clamp(0, 1), batch["image"]
         depth = out.expected_depth
-        m = evaluate_images(pred, gt, mask=mask, lpips=lpips if available else None, st_lpips=st_lpips)
+        m = evaluate_images(pred, gt, mask=mask, lpips=lpips, st_lpips=st_lpips)
         m.update(depth_metrics(depth, out.alpha, batch.get("depth")))
         name = view_name(datamanager, camera, batch["index"])
         per_view.append({"view": name, "index": int(batch["index"]), "split": split, **m, **moved})
@@ -114,5 +111,5 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
         "mean": mean,
         "per_view": per_view,
         "fps": n / render_time if render_time > 0 else None,
-        "lpips_note": None if available else reason,
+        "lpips_note": lpips_note,
     }

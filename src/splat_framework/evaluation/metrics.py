@@ -1,4 +1,4 @@
-"""Evaluation metrics: PSNR, SSIM, LPIPS (VGG), ST-LPIPS (AlexNet) and the RegNeRF AVG score.
+"""Evaluation metrics: PSNR, SSIM, LPIPS (VGG and AlexNet), ST-LPIPS (AlexNet) and the RegNeRF AVG score.
 
 Images are [H, W, 3] (or [B, H, W, 3]) in [0, 1]; masks [H, W] / [H, W, 1],
 bool or float in [0, 1] (DTU protocol: 1 = object, fractions on the object's edge).
@@ -14,29 +14,36 @@ PSNR of identical images is ``math.inf`` (MSE 0), not a clipped constant, so
 it never silently enters a table as a plausible number; ``avg_metric`` turns
 it into an MSE of 0 (AVG 0).
 
-LPIPS never downloads anything: ``LPIPSMetric.available()`` checks that the
-``lpips`` and ``torchvision`` packages are importable and that both weight
-files (lpips' linear layers, shipped inside the package, and torchvision's
-VGG16 backbone in the torch hub cache) exist on disk before anything is built.
-Where it is unavailable, ST-LPIPS (``splat_framework.evaluation.st_lpips``, weights from the
-``stlpips-pytorch`` wheel) is reported instead, always under its own name: its
-values are not comparable with LPIPS values in papers, and AVG stays LPIPS's.
+LPIPS is reported with both backbones papers use (:data:`LPIPS_NETS`): ``lpips`` with VGG (the
+LLFF papers', SCGaussian's and RegNeRF's; AVG uses it) and ``lpips_alex`` with AlexNet. It never
+downloads anything: ``LPIPSMetric.available(net)`` checks that the ``lpips`` and ``torchvision``
+packages are installed (the project's extra ``lpips``) and that both weight files (lpips' linear
+layers, shipped inside the package, and torchvision's ImageNet backbone in the torch hub cache,
+:data:`BACKBONE_FILES`) exist on disk, then that the packages import, before anything is built.
+ST-LPIPS (``splat_framework.evaluation.st_lpips``, weights from the ``stlpips-pytorch`` wheel, a
+dependency) is reported beside them whenever its weights are installed, under its own name: its
+values are not comparable with LPIPS values in papers.
 """
 
 from __future__ import annotations
 
 import importlib.util
 import math
+import warnings
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import torch
 from torch import Tensor
 
 from splat_framework.losses import mask_bhw1, ssim
 
-VGG16_FILE = "vgg16-397923af.pth"  # torchvision VGG16_Weights.IMAGENET1K_V1
-IMAGE_METRICS = ("psnr", "ssim", "lpips", "avg", "st_lpips")
+LPIPS_NETS = {"lpips": "vgg", "lpips_alex": "alex"}
+"""The LPIPS metrics reported: metric key -> lpips' backbone (``lpips.LPIPS(net=...)``)."""
+BACKBONE_FILES = {"vgg": ("VGG16", "vgg16-397923af.pth"), "alex": ("AlexNet", "alexnet-owt-7be5be79.pth")}
+"""Each backbone's name and the file of its torchvision ImageNet weights (``VGG16_Weights`` /
+``AlexNet_Weights.IMAGENET1K_V1``), looked for in ``<torch hub dir>/checkpoints``."""
+IMAGE_METRICS = ("psnr", "ssim", *LPIPS_NETS, "avg", "st_lpips")
 """The image-quality keys of :func:`evaluate_images`, in table order."""
 
 
@@ -73,7 +80,7 @@ def ssim_metric(pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> float:
 
 
 class LPIPSMetric:
-    """LPIPS with the VGG backbone (the 3DGS/RegNeRF evaluation choice), if available offline."""
+    """LPIPS with one backbone (``net``: "vgg", the 3DGS/RegNeRF evaluation choice, or "alex"), if available offline."""
 
     def __init__(self, net: str = "vgg", device: torch.device | str | None = None) -> None:
         self.net_name = net
@@ -82,29 +89,35 @@ class LPIPSMetric:
 
     @staticmethod
     def available(net: str = "vgg") -> tuple[bool, str]:
-        """(True, "") when LPIPS can be built without any download, else (False, reason)."""
+        """(True, "") when LPIPS with backbone ``net`` can be built without any download, else
+        (False, one line saying why: the package missing, or the weight file and where it was looked for)."""
+        if net not in BACKBONE_FILES:
+            return False, f"unknown LPIPS backbone {net!r} (one of {', '.join(BACKBONE_FILES)})"
         for pkg in ("lpips", "torchvision"):
             if importlib.util.find_spec(pkg) is None:
-                return False, f"package {pkg!r} is not installed"
-        spec = importlib.util.find_spec("lpips")
-        lin = Path(spec.origin).parent / "weights" / "v0.1" / f"{net}.pth"
+                return False, f"package {pkg!r} is not installed (the project's extra 'lpips' installs it)"
+        lin = Path(importlib.util.find_spec("lpips").origin).parent / "weights" / "v0.1" / f"{net}.pth"
         if not lin.is_file():
-            return False, f"lpips linear weights not found at {lin}"
-        if net != "vgg":
-            return False, f"only net='vgg' is supported offline, got {net!r}"
-        backbone = Path(torch.hub.get_dir()) / "checkpoints" / VGG16_FILE
-        if not backbone.is_file():
-            return False, f"VGG16 backbone weights not found at {backbone} (no download is attempted)"
+            return False, f"lpips' linear weights not found at {lin}"
+        if not (Path(torch.hub.get_dir()) / "checkpoints" / BACKBONE_FILES[net][1]).is_file():
+            return False, _missing_backbones([net])
+        try:
+            import lpips  # noqa: F401, PLC0415  (heavy, optional: imports torchvision)
+        except Exception as e:  # noqa: BLE001 - e.g. a torchvision built for another torch
+            msg = str(e).splitlines()[0] if str(e) else ""
+            return False, f"package 'lpips' cannot be imported ({type(e).__name__}: {msg})"
         return True, ""
 
     def _build(self, device: torch.device) -> Any:
-        ok, why = self.available(self.net_name)
-        if not ok:
-            raise RuntimeError(f"LPIPS unavailable: {why}")
         if self._net is None:
+            ok, why = self.available(self.net_name)
+            if not ok:
+                raise RuntimeError(f"LPIPS unavailable: {why}")
             import lpips  # noqa: PLC0415  (heavy, optional)
 
-            self._net = lpips.LPIPS(net=self.net_name, verbose=False).eval()
+            with warnings.catch_warnings():  # lpips 0.1.4 asks torchvision for `pretrained=True`: two lines a backbone
+                warnings.filterwarnings("ignore", message=r".*('pretrained'|for 'weights') .*deprecated", category=UserWarning)
+                self._net = lpips.LPIPS(net=self.net_name, verbose=False).eval()
         return self._net.to(device)
 
     @torch.no_grad()
@@ -115,6 +128,34 @@ class LPIPSMetric:
         """
         net = self._build(pred.device if self.device is None else torch.device(self.device))
         return float(net(*_network_inputs(pred, gt, mask, net), normalize=True).mean())
+
+
+def lpips_metrics(device: torch.device | str | None = None) -> tuple[dict[str, LPIPSMetric], str | None]:
+    """The LPIPS metrics of :data:`LPIPS_NETS` that can be computed here ({metric key: metric}), and
+    one line saying why the others cannot (None when all can): their common reason, or each
+    key's own."""
+    usable, missing = {}, {}
+    for key, net in LPIPS_NETS.items():
+        ok, why = LPIPSMetric.available(net)
+        if ok:
+            usable[key] = LPIPSMetric(net, device)
+        else:
+            missing[key] = why
+    if not missing:
+        return usable, None
+    nets = [LPIPS_NETS[k] for k in missing]
+    if all(why == _missing_backbones([LPIPS_NETS[k]]) for k, why in missing.items()):
+        return usable, _missing_backbones(nets)
+    reasons = set(missing.values())
+    return usable, reasons.pop() if len(reasons) == 1 else "; ".join(f"{k}: {why}" for k, why in missing.items())
+
+
+def _missing_backbones(nets: list[str]) -> str:
+    """One line: torchvision's weights of these backbones are not in the torch hub cache, naming the files and the folder."""
+    folder = Path(torch.hub.get_dir()) / "checkpoints"
+    names = " and ".join(BACKBONE_FILES[n][0] for n in nets)
+    files = ", ".join(BACKBONE_FILES[n][1] for n in nets)
+    return f"torchvision's {names} weights not found in {folder} ({files}; no download is attempted)"
 
 
 def _network_inputs(pred: Tensor, gt: Tensor, mask: Tensor | None, net: torch.nn.Module) -> tuple[Tensor, Tensor]:
@@ -174,18 +215,18 @@ def evaluate_images(
     pred: Tensor,
     gt: Tensor,
     mask: Tensor | None = None,
-    lpips: LPIPSMetric | None = None,
+    lpips: Mapping[str, LPIPSMetric] | None = None,
     st_lpips: STLPIPSMetric | None = None,
 ) -> dict[str, float | None]:
-    """{"psnr", "ssim", "lpips", "avg", "st_lpips"}; lpips and avg are None when LPIPS is not given
-    or unavailable, st_lpips when ST-LPIPS is not given."""
+    """Every key of :data:`IMAGE_METRICS`: an LPIPS key is None unless ``lpips`` (metric key ->
+    metric, as :func:`lpips_metrics` gives) holds it, avg is None without ``lpips["lpips"]`` (VGG),
+    st_lpips is None when ST-LPIPS is not given."""
     p = psnr(pred, gt, mask)
     s = ssim_metric(pred, gt, mask)
-    lp = None
-    if lpips is not None and lpips.available(lpips.net_name)[0]:
-        lp = lpips.compute(pred, gt, mask)
+    lpips = lpips or {}
+    lp = {key: lpips[key].compute(pred, gt, mask) if key in lpips else None for key in LPIPS_NETS}
     st = st_lpips.compute(pred, gt, mask) if st_lpips is not None else None
-    return {"psnr": p, "ssim": s, "lpips": lp, "avg": avg_metric(p, s, lp), "st_lpips": st}
+    return {"psnr": p, "ssim": s, **lp, "avg": avg_metric(p, s, lp["lpips"]), "st_lpips": st}
 
 
 DEPTH_KEYS = ("depth_abs_rel", "depth_within_5pct", "depth_coverage")

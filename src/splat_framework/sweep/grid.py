@@ -11,7 +11,7 @@ from typing import Any, Iterable
 
 from ..errors import DataError
 
-METRICS = ("psnr", "ssim", "lpips", "avg", "st_lpips", "psnr_before_pose_fit")
+METRICS = ("psnr", "ssim", "lpips", "lpips_alex", "avg", "st_lpips", "psnr_before_pose_fit")
 """Test metrics reported per run (``metrics.json`` ``mean``; the last only with ``test_pose_steps``)."""
 PHASES = ("matching_s", "warmup_s", "train_s", "eval_s", "total_s")
 """Wall-time phases reported per run (``metrics.json`` ``timing``)."""

@@ -148,6 +148,7 @@ COLUMNS: list[tuple[str, str | None, str]] = [
     ("PSNR ↑", "psnr", ".2f"),
     ("SSIM ↑", "ssim", ".3f"),
     ("LPIPS ↓", "lpips", ".3f"),
+    ("LPIPS (Alex) ↓", "lpips_alex", ".3f"),
     ("AVG ↓", "avg", ".3f"),
     ("ST-LPIPS ↓", "st_lpips", ".3f"),
     ("Matching (s)", "matching_s", ".1f"),
