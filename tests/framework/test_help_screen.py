@@ -7,11 +7,12 @@ import contextlib
 import io
 import re
 from importlib.metadata import EntryPoint, entry_points
-from typing import Annotated, Literal
+from typing import Literal
 
 import pytest
 
-from splat_framework.config.init import KIND, RandomInitConfig
+from splat_framework.config import Kind
+from splat_framework.config.init import RandomInitConfig
 from splat_framework.registry import discover_methods
 
 COLUMNS = "100"
@@ -80,7 +81,7 @@ def test_an_unknown_group_is_one_line_naming_the_groups():
 class GridTestInit(RandomInitConfig):
     """A plugin's start kind (registered below through a fake entry point)."""
 
-    kind: Annotated[Literal["grid-test"], KIND] = "grid-test"
+    kind: Kind[Literal["grid-test"]] = "grid-test"
     """The start."""
 
 

@@ -112,6 +112,9 @@ def execute_run(spec: dict, threads: int | None = None) -> dict:
 
             if threads:
                 torch.set_num_threads(int(threads))
+                # a table's numbers must not depend on the load: the run keeps this count (a user's
+                # own SPLAT_THREADS wins), recorded in its metrics.json
+                os.environ.setdefault("SPLAT_THREADS", str(int(threads)))
             config = build_config(spec)
             cuda = str(config.device).startswith("cuda")
             from ..engine.trainer import TrainingInterrupted, train

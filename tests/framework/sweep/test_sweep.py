@@ -199,6 +199,7 @@ def test_live_table_renders(tmp_path):
 
 # ------------------------------------------------------------ end to end
 def test_local_backend_end_to_end_and_resume(tmp_path, monkeypatch, capsys):
+    monkeypatch.delenv("SPLAT_THREADS", raising=False)
     out = tmp_path / "sw"
     argv = ["--methods", "3dgs", "--data", "synthetic/forward-tiny", "--seeds", "0", "1", "--steps", "10",
             "--out", str(out), "--workers", "2", "--override", "model.init.num_points=300",
@@ -209,6 +210,8 @@ def test_local_backend_end_to_end_and_resume(tmp_path, monkeypatch, capsys):
         d = out / "runs/synthetic-forward-tiny/3dgs" / f"v3-s{seed}"
         m = json.loads((d / "metrics.json").read_text())
         assert m["steps"] == 10 and m["num_gaussians"] > 0
+        # a table's runs keep one thread count whatever the load (SPLAT_THREADS unset by the user)
+        assert m["threads"]["setting"] == str(m["threads"]["counts"][0]) and len(m["threads"]["counts"]) == 1
     row = res.rows[0]
     assert row["n_ok"] == 2 and row["psnr_mean"] > 5 and row["psnr_std"] is not None
     assert row["peak_rss_mb_mean"] > 50 and row["train_s_mean"] > 0 and row["render_fps_mean"] > 0
