@@ -101,10 +101,10 @@ def test_the_kind_flags_list_the_registered_strategies_and_start_kinds(monkeypat
     init_kinds.cache_clear()
     try:
         text = " ".join(help_of("3dgs", "--help").split())  # the help's lines joined: a list may wrap
-        assert "The strategy: default, ray-gaussian (each with its own flags)" in text
-        assert "The start: random, frustum, triangulated, sfm, ply, grid-test (each with its own flags)" in text
+        assert "The strategy's tag: default, ray-gaussian (each with its own flags)" in text
+        assert "The start's kind: random, frustum, triangulated, sfm, ply, grid-test (each with its own flags)" in text
         scg = " ".join(help_of("scgaussian", "--help").split())
-        assert "The start: random, frustum, ply (each" in scg and "The strategy: ray-gaussian. (default" in scg
+        assert "The start's kind: random, frustum, ply (each" in scg and "The strategy's tag: ray-gaussian. (default" in scg
     finally:
         strategy_kinds.cache_clear()
         init_kinds.cache_clear()

@@ -92,6 +92,7 @@ def test_a_flat_matching_block_of_an_old_run_loads_as_its_matchers_config(varian
     for key in at:
         section = section[key]
     section["matching"] = FLAT_MATCHING | {"matcher": block.kind} | edits  # as the old versions wrote it
+    payload["schema_version"] = 1  # the version those files carry
     payload.pop("checksum")
     atomic_write_json(tmp_path / "config.json", payload)  # signed, as those versions signed it
     method, loaded = load_saved_experiment(str(tmp_path / "config.json"), methods)

@@ -94,7 +94,7 @@ def test_the_methods_page_table_gives_the_same_values():
 
 def test_help_shows_the_official_values():
     env = dict(os.environ, COLUMNS="80", NO_COLOR="1", TERM="dumb")
-    r = subprocess.run([sys.executable, "-m", "splat_framework.cli.train", "scgaussian-paper", "--help"],
+    r = subprocess.run([sys.executable, "-m", "splat_framework.cli.train", "scgaussian-paper", "--help", "all"],
                        capture_output=True, text=True, timeout=120, env=env)
     assert r.returncode == 0, r.stderr
     text = re.sub(r"[│╭╮╰╯─]", " ", r.stdout)
