@@ -229,3 +229,12 @@ def test_on_macos_the_native_kernels_are_built_without_openmp(monkeypatch):
     mac = _native._flags()
     assert "-fopenmp" not in mac and "-march=native" not in mac and not _native._openmp()
     assert _native._build_dir(Path("/c")) != linux_dir  # a cache shared with a Linux build never mixes them
+
+
+def test_without_os_uname_the_native_build_folder_is_still_named(monkeypatch):
+    """Windows has no os.uname: naming the build folder and its flags must not need it (the build
+    then fails or falls back like any other, instead of crashing before it)."""
+    from splat_framework.render import _native
+
+    monkeypatch.delattr(os, "uname")
+    assert _native._flags() and _native._build_dir(Path("/c")).name.startswith("kernels-")

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import platform
 import shutil
 import sys
 import tempfile
@@ -43,7 +44,7 @@ def _flags() -> list[str]:
     torch's view of them, so a cache shared between machines never loads a wrong build), and
     OpenMP where the compiler has it (:func:`_openmp`)."""
     flags = ["-O3", "-fno-math-errno", "-fno-trapping-math"] + (["-fopenmp"] if _openmp() else [])
-    if sys.platform != "darwin" and os.uname().machine in ("x86_64", "AMD64", "aarch64", "arm64"):
+    if sys.platform != "darwin" and platform.machine() in ("x86_64", "AMD64", "aarch64", "arm64"):
         flags.append("-march=native")
     return flags
 
@@ -53,7 +54,7 @@ def _build_dir(cache_dir: Path | None) -> Path | None:
         return None
     key = hashlib.sha256(
         b"".join((_FOLDER / name).read_bytes() for name in _SOURCES) + " ".join(_flags()).encode() + torch.__version__.encode()
-        + torch.backends.cpu.get_cpu_capability().encode() + os.uname().machine.encode()
+        + torch.backends.cpu.get_cpu_capability().encode() + platform.machine().encode()
     ).hexdigest()[:16]
     return Path(cache_dir) / "native" / f"kernels-{key}"
 
