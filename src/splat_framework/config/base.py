@@ -13,7 +13,7 @@ import re
 import typing
 from contextlib import contextmanager
 from contextvars import ContextVar
-from typing import Annotated, Any, Iterator, Literal, TypeVar
+from typing import Annotated, Any, ContextManager, Iterator, Literal, TypeVar
 
 import tyro
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -119,14 +119,19 @@ class InvalidArguments(Exception):
 
 
 @contextmanager
-def cli_parsing() -> Iterator[None]:
-    """While active (around the argument parser only), a config constructed or validated with
-    invalid values raises :class:`InvalidArguments`."""
-    token = _CLI_PARSING.set(True)
+def _switched_on(switch: ContextVar[bool]) -> Iterator[None]:
+    """``switch`` True inside the block (this context's), as it was after."""
+    token = switch.set(True)
     try:
         yield
     finally:
-        _CLI_PARSING.reset(token)
+        switch.reset(token)
+
+
+def cli_parsing() -> ContextManager[None]:
+    """While active (around the argument parser only), a config constructed or validated with
+    invalid values raises :class:`InvalidArguments`."""
+    return _switched_on(_CLI_PARSING)
 
 
 class SplatConfig(BaseModel):
@@ -170,16 +175,11 @@ KIND_TAG = re.compile(r"[a-z0-9]+(-[a-z0-9]+)*")
 _DERIVED_VIEW: ContextVar[bool] = ContextVar("derived_view", default=False)
 
 
-@contextmanager
-def derived_views() -> Iterator[None]:
+def derived_views() -> ContextManager[None]:
     """Inside, classes derived from a kind's config (the help screen's views of a config, whose
     ``kind`` flag lists the kinds its field takes) skip :class:`KindConfig`'s check of the tag's
     declaration: they are views of a checked class, never registered."""
-    token = _DERIVED_VIEW.set(True)
-    try:
-        yield
-    finally:
-        _DERIVED_VIEW.reset(token)
+    return _switched_on(_DERIVED_VIEW)
 
 
 class KindConfig(SplatConfig):
