@@ -40,7 +40,6 @@ def run_local(
     env = dict(os.environ)
     for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         env[var] = str(threads)
-    env.setdefault("SPLAT_THREADS", str(threads))  # pinned: a table's numbers do not follow the load
     try:
         while queue or running:
             while queue and len(running) < workers:
