@@ -29,7 +29,7 @@ from torch import Tensor, nn
 
 from splat_framework.plugin import (
     Camera, GaussianModel, RenderOutput, adam, initial_points, knn_scale, log_lerp, photometric_loss, rasterize,
-    regulariser_terms, rgb_to_sh, run_fraction,
+    rgb_to_sh, run_fraction,
 )
 
 VIEW_MARGIN = 0.5
@@ -187,7 +187,7 @@ class ScaffoldModel(GaussianModel):
         """L1 + D-SSIM, the opt-in regularisers' terms (``model.reg``), and the volume regulariser on
         the rendered neural Gaussians' scales."""
         cfg = self.config.model
-        target, terms = regulariser_terms(self, outputs, batch, camera, step)
+        target, terms = self.regulariser_terms(outputs, batch, camera, step)
         losses = {"photometric": photometric_loss(outputs.rgb, target, lambda_dssim=cfg.lambda_dssim)} | terms
         scales = outputs.meta["neural_scales"]
         if cfg.lambda_scaling > 0 and scales.shape[0] > 0:

@@ -182,20 +182,24 @@ class SCGaussianModel(GaussianModel):
             count += 1
         return total / max(count, 1)
 
-    def after_optimizer_step(self, step: int, losses, optimizers=None, strategy_state=None) -> None:
+    def after_optimizer_step(self, step: int, losses, optimizers) -> ops.RowChange | None:
+        """Cache-and-filter: each match's z and reprojection error recorded until ``cache_until``,
+        then applied at its last step (:meth:`_apply_cache`; the rows it drops are the change)."""
         cfg = self.config.model
         if self.cache is None or self.bundle is None:
-            return
+            return None
         g = len(self.bundle)
         z = self.params["z"][:g].detach().cpu()
         if step < cfg.cache_until:
             self.cache.update(z, RayBundle(**{k: v.cpu() for k, v in self.bundle.to_dict().items()}), [c.to("cpu") for c in self.train_cameras])
         if step == cfg.cache_until - 1:
-            self._apply_cache(optimizers, strategy_state)
+            return self._apply_cache(optimizers)
+        return None
 
     @torch.no_grad()
-    def _apply_cache(self, optimizers, strategy_state) -> None:
-        """Move every match to its best cached z and drop matches above eta (single-stage)."""
+    def _apply_cache(self, optimizers) -> ops.RowChange | None:
+        """Move every match to its best cached z and drop matches above eta (single-stage); the
+        rows dropped, as a change (None when every match stays)."""
         cfg = self.config.model
         g = len(self.bundle)
         dev = self.params["z"].device
@@ -203,11 +207,11 @@ class SCGaussianModel(GaussianModel):
         keep = self.cache.keep_mask(cfg.filter_eta_px).to(dev)
         drop = torch.zeros(self.num_gaussians, dtype=torch.bool, device=dev)
         drop[:g] = ~keep
-        if drop.any():
-            ops.remove(self.params, optimizers or {}, strategy_state if strategy_state is not None else {}, drop)
+        change = ops.remove(self.params, optimizers, {}, drop) if drop.any() else None
         self.bundle = self.bundle.select(keep)
         self.bundle.z = self.params["z"].data[: len(self.bundle)].clone()
         self.cache = None
+        return change
 
     # ---------------------------------------------------------------- report
     def extra_state(self) -> dict:

@@ -21,7 +21,7 @@ the face holds what a method's own parts build on:
   ``kind``; ``AutoMatchConfig`` the default, ``MatchConfig`` their base), ``compute_match_set``
   (the verified matches of the training views, cached) and ``match_pairs`` (them, pair by pair);
 - losses: ``photometric_loss`` (L1 + D-SSIM) and ``regulariser_terms`` (the opt-in ``model.reg``
-  terms a ``get_loss_dict`` adds);
+  terms, given what they need; a ``GaussianModel`` subclass calls ``self.regulariser_terms``);
 - schedules: ``run_fraction`` and ``log_lerp`` (a learning rate decaying over the run),
   ``resolve_steps`` (a config's schedule rescaled to its ``--steps``), ``config_3dgs`` (the
   ``3dgs`` baseline's config, e.g. its densification schedule);

@@ -58,6 +58,8 @@ def test_run_writes_documented_outputs_and_learns(tmp_path, capsys):
     assert m["timing"]["total_s"] > 0 and {"data_s", "init_s", "train_s", "eval_s"} <= set(m["timing"])
     assert isinstance(m["num_gaussians"], int) and m["num_gaussians"] == trainer.model.num_gaussians
     assert m["skipped_steps"] == 0
+    # the strategy's returned counts, summed over the run
+    assert set(m["densified"]) == {"n_clone", "n_split", "n_prune"} and all(isinstance(v, int) for v in m["densified"].values())
     assert m["mean"]["psnr"] == pytest.approx(metrics["mean"]["psnr"])
     # renders
     pngs = list((run / "renders").glob("*.png"))
@@ -318,15 +320,16 @@ def test_the_config_picks_the_strategy_and_the_trainer_runs_any_strategy(tmp_pat
         def step_post_backward(self, params, optimizers, state, step, info):
             self.calls["post"] += 1
             state["seen"] += 1
-            return {}
+            return {"n_looked": 2, "n_moved": step % 2}  # what changed: summed into metrics.json
 
     assert isinstance(Trainer(tiny_config(tmp_path / "default", steps=4, progress=False)).strategy, DefaultStrategy)
     monkeypatch.setattr(DensifyConfig, "setup", lambda self: Counting())
     trainer = Trainer(tiny_config(tmp_path / "run", steps=12, progress=False))
     n0 = trainer.model.num_gaussians
-    trainer.train()
+    metrics = trainer.train()
     s = trainer.strategy
     assert isinstance(s, Counting) and s.calls == {"sanity": 1, "loss": 12, "pre": 12, "post": 12}
+    assert metrics["densified"] == {"n_looked": 24, "n_moved": 6}  # the returned counts, summed over the run
     assert trainer.strategy_state["seen"] == 12 and trainer.model.num_gaussians == n0  # never densified
     clash = Counting()
     clash.loss = lambda params, step: {"photometric": params["opacities"].sum()}
@@ -339,23 +342,29 @@ def test_the_config_picks_the_strategy_and_the_trainer_runs_any_strategy(tmp_pat
 
 
 def test_a_model_hook_that_resizes_the_model_is_said_and_counted(tmp_path, monkeypatch, capsys):
-    """When after_optimizer_step adds or removes rows, that step's densification is skipped (its
-    screen-space statistics no longer line up): one note the first time, the count in metrics.json,
-    and the strategy's rows_changed hook instead."""
+    """When after_optimizer_step removes rows it returns the RowChange, which the strategy is given
+    (rows_changed) to resize its own state; that step's densification is skipped (its screen-space
+    statistics no longer line up): one note the first time, the count in metrics.json."""
     from splat_framework.model import ops
     from splat_framework.model.gaussians import GaussianModel
     from splat_framework.model.strategy import DefaultStrategy
 
-    def drop_one_row(self, step, losses, optimizers, strategy_state):
+    def drop_one_row(self, step, losses, optimizers):
         if step in (3, 6):
             mask = torch.zeros(self.num_gaussians, dtype=torch.bool)
             mask[-1] = True
-            ops.remove(self.params, optimizers, strategy_state, mask)
+            return ops.remove(self.params, optimizers, {}, mask)
+        return None
 
     told = []
+    real = DefaultStrategy.rows_changed
+
+    def spy(self, params, opts, state, step, change):
+        told.append((step, params["means"].shape[0], change.old_rows, change.new_rows))
+        real(self, params, opts, state, step, change)
+
     monkeypatch.setattr(GaussianModel, "after_optimizer_step", drop_one_row)
-    monkeypatch.setattr(DefaultStrategy, "rows_changed", lambda self, params, opts, state, step: told.append(
-        (step, params["means"].shape[0])))
+    monkeypatch.setattr(DefaultStrategy, "rows_changed", spy)
     capsys.readouterr()
     trainer = Trainer(tiny_config(tmp_path / "run", steps=10, progress=False))
     n0 = trainer.model.num_gaussians
@@ -363,7 +372,49 @@ def test_a_model_hook_that_resizes_the_model_is_said_and_counted(tmp_path, monke
     notes = [ln for ln in capsys.readouterr().err.splitlines() if "densification skips" in ln]
     assert len(notes) == 1 and "step 3" in notes[0], notes
     assert metrics["densify_skipped_steps"] == 2
-    assert told == [(3, n0 - 1), (6, n0 - 2)]  # the strategy is told, after the rows changed
+    assert told == [(3, n0 - 1, n0, n0 - 1), (6, n0 - 2, n0 - 1, n0 - 2)]  # told after the rows changed
+    state = trainer.strategy_state
+    assert all(state[k] is None or state[k].shape[0] == trainer.model.num_gaussians for k in ("grad2d", "count", "radii"))
+
+
+def test_a_model_hook_must_say_how_the_rows_changed(tmp_path, monkeypatch):
+    """A hook that resizes the rows without returning the RowChange (or returning a wrong one) stops
+    the run with a message naming the hook and the counts: the strategy's state would silently
+    no longer line up with the rows."""
+    from splat_framework.model import ops
+    from splat_framework.model.gaussians import GaussianModel
+
+    def silent(self, step, losses, optimizers):
+        ops.remove(self.params, optimizers, {}, torch.arange(self.num_gaussians) == 0)
+
+    monkeypatch.setattr(GaussianModel, "after_optimizer_step", silent)
+    trainer = Trainer(tiny_config(tmp_path / "run", steps=4, progress=False))
+    n = trainer.model.num_gaussians
+    with pytest.raises(ValueError, match=rf"GaussianModel.after_optimizer_step changed the rows \({n} -> {n - 1}\) "
+                                         "but returned None"):
+        trainer.train_step(0)
+
+    def wrong(self, step, losses, optimizers):
+        change = ops.remove(self.params, optimizers, {}, torch.arange(self.num_gaussians) == 0)
+        return ops.RowChange(change.kept, added=1)
+
+    monkeypatch.setattr(GaussianModel, "after_optimizer_step", wrong)
+    with pytest.raises(ValueError, match=rf"returned a RowChange of {n - 1} -> {n - 1} rows, but the rows went "
+                                         rf"{n - 1} -> {n - 2}"):
+        trainer.train_step(1)
+
+
+def test_the_model_declares_its_batch_fields(tmp_path, monkeypatch):
+    """The data manager makes the optional batch fields the method's model class declares
+    (``batch_fields``), not what the trainer guesses from the config; a field no data manager
+    makes is refused in one line naming it."""
+    from splat_framework.model.gaussians import GaussianModel
+
+    assert GaussianModel.batch_fields(tiny_config(tmp_path / "a")) == frozenset()
+    assert GaussianModel.batch_fields(tiny_config(tmp_path / "b", model={"reg": {"backdrop_weight": 0.5}})) == {"backdrop"}
+    monkeypatch.setattr(GaussianModel, "batch_fields", classmethod(lambda cls, config: frozenset({"normals"})))
+    with pytest.raises(ValueError, match=r"DataManager makes no batch field \['normals'\]"):
+        Trainer(tiny_config(tmp_path / "run", steps=2, progress=False))
 
 
 def test_backdrop_loss_makes_the_backdrop_empty_and_black(tmp_path):

@@ -7,7 +7,8 @@ once, into float32 tensors on the device:
 - ``mask`` [H, W, 1] in {0, 1} when the scene has masks,
 - ``depth`` [H, W, 1] camera z (0 = no surface) when the scene has depth maps,
 - ``backdrop`` [H, W, 1] in {0, 1} (1 = unlit backdrop): training views of a
-  ``scene.dark_backdrop`` scene, when the DataManager is asked for it.
+  ``scene.dark_backdrop`` scene, when the DataManager is asked for it (``fields``; the
+  trainer asks for what the model's ``batch_fields`` names).
 
 A batch also carries ``index`` (the camera's index in the scene) and, for a training view
 (``next_train``, ``train_views``), ``train_position``: its position in ``train_indices``
@@ -31,6 +32,7 @@ Batches share the cached tensors: treat them as read-only.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Iterable
 
 import numpy as np
 import torch
@@ -43,6 +45,9 @@ from .images import dark_backdrop_mask, load_alpha, load_depth, load_image, load
 from .scene import DataError, SceneData
 
 Batch = dict
+
+OPTIONAL_FIELDS = ("backdrop",)
+"""Batch fields made only when asked for (``DataManager(fields=...)``); the others always are."""
 
 
 def view_bytes(scene: SceneData, i: int) -> int:
@@ -70,8 +75,8 @@ class DataManager:
         seed: seed of the training-view order.
         memory_budget_bytes: optional cap on decoded tensor memory; above it
             images are decoded on demand instead of cached.
-        backdrop: give training batches the ``backdrop`` mask on scenes with a dark
-            backdrop (only a loss that uses it needs it: ``model.reg.backdrop_weight > 0``).
+        fields: the optional batch fields to make (:data:`OPTIONAL_FIELDS`): ``backdrop``, the
+            mask of training views of scenes with a dark backdrop (only a loss that uses it needs it).
     """
 
     def __init__(
@@ -80,10 +85,13 @@ class DataManager:
         device: str | torch.device = "cpu",
         seed: int = 0,
         memory_budget_bytes: int | None = None,
-        backdrop: bool = False,
+        fields: Iterable[str] = (),
     ):
+        unknown = sorted(set(fields) - set(OPTIONAL_FIELDS))
+        if unknown:
+            raise ValueError(f"DataManager makes no batch field {unknown} (optional fields: {list(OPTIONAL_FIELDS)})")
         self.scene = scene
-        self.backdrop = bool(backdrop and scene.dark_backdrop)
+        self.backdrop = "backdrop" in fields and scene.dark_backdrop
         self.device = torch.device(device)
         self.seed = int(seed)
         n = len(scene.cameras)

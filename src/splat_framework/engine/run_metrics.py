@@ -22,6 +22,7 @@ def run_metrics(trainer, results: dict) -> dict:
         "render_fps": results["fps"],
         "skipped_steps": trainer.skipped_steps,
         "densify_skipped_steps": trainer.densify_skipped,
+        "densified": dict(trainer.densified),
         "restores": trainer.restores,
         "lpips_note": results["lpips_note"],
         "test_pose_steps": cfg.test_pose_steps,

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Any
 
 import torch
 
@@ -21,8 +22,40 @@ from ..runtime.rng import restore_rng_state, rng_state
 
 
 class TrainState:
-    """The checkpoint side of the Trainer (a base class of it): it reads and sets the trainer's
-    model, optimizers, strategy state, generator, counters and timing."""
+    """The checkpoint side of the Trainer (a base class of it): what a checkpoint saves and
+    restores, declared below (the Trainer sets each in its set-up)."""
+
+    config: Any
+    """The run's resolved TrainConfig (its experiment record goes into every checkpoint)."""
+    spec: Any
+    """The method's registration (MethodSpec), to check a checkpoint's record against."""
+    run_dir: Path
+    device: torch.device
+    model: Any
+    """The GaussianModel: its rows, networks and extra state."""
+    optimizers: dict[str, torch.optim.Optimizer]
+    strategy: Any
+    strategy_state: dict[str, Any]
+    """The strategy's own state; only the strategy edits it, the checkpoint saves and loads it."""
+    camera_refiner: Any
+    """The training cameras' pose corrections (a CameraRefiner), or None."""
+    generator: torch.Generator
+    timing: dict[str, float]
+    """Seconds per phase (data_s, matching_s, ..., train_s) for metrics.json."""
+    start_step: int
+    """The step the loop starts at (0, or a loaded checkpoint's)."""
+    lr_factor: float
+    """The learning rates' fault factor (halved at each restore after non-finite steps)."""
+    skipped_steps: int
+    densify_skipped: int
+    densified: dict[str, int]
+    """The strategy's counts (n_clone, n_split, n_prune, ...) summed over the run."""
+    restores: int
+    _config_verified: bool
+    """Whether config.json vouches for the checkpoints (``--resume`` without an edited config)."""
+    _train_prior_s: float
+    _train_t0: float | None
+    """perf_counter at the start of this process's training, None outside the loop."""
 
     @property
     def checkpoint_dir(self) -> Path:
@@ -61,6 +94,7 @@ class TrainState:
             "lr_factor": self.lr_factor,
             "skipped_steps": self.skipped_steps,
             "densify_skipped_steps": self.densify_skipped,
+            "densified": dict(self.densified),
             "restores": self.restores,
             "timing": timing,
         }
@@ -78,6 +112,7 @@ class TrainState:
             self.camera_refiner.load_state_dict(ck["camera_refine"])
         restore_rng_state(ck, self.generator, dev)
         self.lr_factor = float(ck.get("lr_factor", 1.0))
+        self.densified = {str(k): int(v) for k, v in ck.get("densified", {}).items()}  # as at that step
         self.start_step = int(ck["step"])
         if self.start_step > 0:  # the per-step state (SH degree, open levels) of the step the checkpoint ends
             self.model.on_step_start(self.start_step - 1)  # so a finished run evaluates as it did

@@ -122,6 +122,25 @@ def extreme_values_hint(config) -> str:
     return f" (check {', '.join(found)})" if found else " (check the loss weights and learning rates)"
 
 
+def row_count(model) -> int:
+    """The rows of ``model.params`` (Gaussians; anchors of an anchor-based model)."""
+    return next(iter(model.params.values())).shape[0]
+
+
+def check_row_change(model, n_before: int, change) -> None:
+    """ValueError unless ``model.after_optimizer_step``'s return ``change`` (a RowChange or None)
+    says how the rows of ``model.params`` went from ``n_before`` to their count now."""
+    n = row_count(model)
+    name = f"{type(model).__name__}.after_optimizer_step"
+    if change is None:
+        if n != n_before:
+            raise ValueError(f"{name} changed the rows ({n_before} -> {n}) but returned None: return the "
+                             "RowChange that ops.remove / ops.append gave, so the strategy resizes its state")
+    elif (change.old_rows, change.new_rows) != (n_before, n):
+        raise ValueError(f"{name} returned a RowChange of {change.old_rows} -> {change.new_rows} rows, but the "
+                         f"rows went {n_before} -> {n}")
+
+
 class _Restart(Exception):
     """Internal: a checkpoint was restored; continue the loop from ``Trainer.start_step``."""
 
@@ -182,7 +201,7 @@ class Trainer(TrainState):
             budget = plan_memory(scene, self.config, image_memory_budget())
             self.datamanager = DataManager(
                 scene, device=self.device, seed=self.config.seed, memory_budget_bytes=budget,
-                backdrop=self.config.model.reg.backdrop_weight > 0,
+                fields=self.spec.model_class().batch_fields(self.config),
             )
         self.config = record_data(self.config, scene)  # config.json names the folder and split: eval from any shell
         split = describe_split(scene, self.config.views)
@@ -210,6 +229,7 @@ class Trainer(TrainState):
         self.nonfinite_streak = 0
         self.skipped_steps = 0
         self.densify_skipped = 0  # steps whose model hook resized the model, so the strategy did not run
+        self.densified: dict[str, int] = {}  # the strategy's counts (n_clone, ...) summed over the run
         self.restores = 0
         self.lr_factor = 1.0
         self.stop_reason: str | None = None
@@ -316,22 +336,25 @@ class Trainer(TrainState):
         if bad is not None:
             return self._fault(step, f"parameter {bad}", corrupted=True)
         self.nonfinite_streak = 0
-        n_before = model.num_gaussians
+        n_before, gaussians_before = row_count(model), model.num_gaussians
         with section("model hooks"):
-            model.after_optimizer_step(step, losses, self.optimizers, self.strategy_state)
-        # a hook that added/removed rows (e.g. SCGaussian's match filter) resized the
-        # strategy state itself; this step's screen-space statistics no longer line up
-        if densify and model.num_gaussians != n_before:
-            if not self.densify_skipped:
-                say(f"note: step {step}: {type(model).__name__}.after_optimizer_step changed the Gaussians "
-                     f"({n_before} -> {model.num_gaussians}); densification skips such steps (counted in metrics.json)")
-            self.densify_skipped += 1
-            self.strategy.rows_changed(model.params, self.optimizers, self.strategy_state, step)
+            change = model.after_optimizer_step(step, losses, self.optimizers)
+        check_row_change(model, n_before, change)
+        if change is not None:  # e.g. SCGaussian's match filter: the strategy resizes its own state
+            self.strategy.rows_changed(model.params, self.optimizers, self.strategy_state, step, change)
+            if densify:  # this step's screen-space statistics no longer line up with the rows
+                if not self.densify_skipped:
+                    say(f"note: step {step}: {type(model).__name__}.after_optimizer_step changed the Gaussians "
+                        f"({gaussians_before} -> {model.num_gaussians}); densification skips such steps (counted in metrics.json)")
+                self.densify_skipped += 1
         elif densify:
             with section("densification"):
                 with torch.no_grad():
                     model.prepare_for_strategy()
-                self.strategy.step_post_backward(model.params, self.optimizers, self.strategy_state, step, outputs.meta)
+                counts = self.strategy.step_post_backward(model.params, self.optimizers, self.strategy_state, step,
+                                                          outputs.meta)
+            for k, v in (counts or {}).items():
+                self.densified[k] = self.densified.get(k, 0) + int(v)
         with section("metrics"), torch.no_grad():
             train_psnr = float(psnr(outputs.rgb.detach().clamp(0, 1), batch["image"]))
             return {k: float(v.detach()) for k, v in losses.items()} | {"loss": float(loss.detach())}, train_psnr

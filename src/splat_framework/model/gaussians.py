@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import inspect
 import math
+from contextlib import nullcontext
 from types import MappingProxyType
 from typing import Any, Mapping
 
@@ -30,11 +31,13 @@ from torch import Tensor, nn
 
 from ..cameras import Camera
 from ..config import TrainConfig
+from ..console import phase
 from ..losses import photometric_loss
 from ..runtime.profiling import section
 from ..render import RenderOutput, rasterize, rgb_to_sh
 from ..runtime.rng import keyed_generator
 from .init import initial_points
+from .ops import RowChange
 from .optim import adam
 from .regularisers import regulariser_terms
 
@@ -76,6 +79,9 @@ class GaussianModel(nn.Module):
     hook (receives)                                             returns / does
     ==========================================================  =====================================
     **set-up**
+    ``batch_fields(config)`` (classmethod, before the data)     the optional batch fields its loss
+                                                                reads (``backdrop``), so the data
+                                                                manager makes them
     ``from_data(config, datamanager, generator)``               the model; builds it with ``__init__``,
     (classmethod)                                               which calls ``init_params(points,
                                                                 colors)`` (rows) and ``build_networks()``
@@ -95,10 +101,13 @@ class GaussianModel(nn.Module):
                                                                 ``train_position`` and the masks
     ``gaussian_log_scales(outputs)`` (from ``get_loss_dict``    [N, 3] log-scales the scale regularisers
     when ``model.reg.anisotropy_weight`` > 0)                   of ``model.reg`` act on
+                                                                (:meth:`regulariser_terms` hands
+                                                                them and a re-render to them)
     ``densify_now(step)``                                       bool: the strategy runs this step
     ``trainable_keys(step)``                                    optimizer names to step (None: all)
-    ``after_optimizer_step(step, losses, optimizers,            None (may resize rows with ``ops``)
-    strategy_state)``
+    ``after_optimizer_step(step, losses, optimizers)``          a ``ops.RowChange`` when it resized
+                                                                the rows (``ops.remove``, ``append``
+                                                                with an empty state), else None
     ``prepare_for_strategy()`` (when densifying)                None (``params["means"]`` true)
     **checkpoint**
     ``extra_state()``                                           dict of state beyond rows and networks
@@ -139,8 +148,10 @@ class GaussianModel(nn.Module):
         self.scene_scale = float(scene_scale)
         self.active_sh_degree = 0
         try:
-            self.params = nn.ParameterDict(self.init_params(points, colors) if rows is None else self.as_params(rows))
-            self.networks = self.build_networks()
+            # a phase of its own: hundreds of thousands of start points take seconds (nearest neighbours)
+            with phase(f"building the model ({points.shape[0]} start points)") if rows is None else nullcontext():
+                self.params = nn.ParameterDict(self.init_params(points, colors) if rows is None else self.as_params(rows))
+                self.networks = self.build_networks()
         except AttributeError as e:  # the usual cause: a subclass sets what they read after super().__init__()
             raise AttributeError(f"{e} (building {type(self).__name__}: set every attribute init_params and "
                                  "build_networks read before calling super().__init__())") from e
@@ -156,6 +167,13 @@ class GaussianModel(nn.Module):
                                 "the model with a checkpoint's rows (pass rows=rows on to super().__init__)")
 
     # ------------------------------------------------------------------ build
+    @classmethod
+    def batch_fields(cls, config: TrainConfig) -> frozenset[str]:
+        """The optional fields this model's training batches must carry, so the data manager makes
+        them (``image``, ``index``, ``train_position`` and a scene's masks and depths are always
+        there): ``backdrop`` when ``model.reg.backdrop_weight`` > 0. Called before the data is loaded."""
+        return frozenset({"backdrop"} if config.model.reg.backdrop_weight > 0 else ())
+
     @classmethod
     def from_data(cls, config: TrainConfig, datamanager, generator: torch.Generator) -> "GaussianModel":
         """Build the model for a dataset, from the start ``config.model.init`` describes
@@ -264,9 +282,11 @@ class GaussianModel(nn.Module):
         """Make ``params['means']`` hold every row's true position (subclasses with
         other parameterisations override this)."""
 
-    def after_optimizer_step(self, step: int, losses: dict[str, Tensor], optimizers: dict, strategy_state: dict) -> None:
-        """Hook after the optimizers stepped (caching, filtering). A hook that adds or
-        removes rows must resize ``optimizers`` and ``strategy_state`` with ``model.ops``."""
+    def after_optimizer_step(self, step: int, losses: dict[str, Tensor], optimizers: dict) -> RowChange | None:
+        """Hook after the optimizers stepped (caching, filtering); None, or the :class:`~.ops.RowChange`
+        of a hook that added or removed rows (with ``ops.remove`` / ``ops.append`` on ``self.params``,
+        ``optimizers`` and an empty state, ``{}``): the trainer hands it to the strategy, which
+        resizes its own state (``Strategy.rows_changed``)."""
 
     # ------------------------------------------------------- state, report
     def extra_state(self) -> dict:
@@ -322,9 +342,20 @@ class GaussianModel(nn.Module):
         """Loss terms; the trainer minimises their sum: ``photometric`` (against the image, its
         backdrop blacked out when that regulariser is on), then the terms of the opt-in regularisers
         ``model.reg`` switches on (:func:`~splat_framework.model.regularisers.regulariser_terms`)."""
-        target, terms = regulariser_terms(self, outputs, batch, camera, step)
+        target, terms = self.regulariser_terms(outputs, batch, camera, step)
         with section("photometric"):
             return {"photometric": photometric_loss(outputs.rgb, target, lambda_dssim=self.config.model.lambda_dssim)} | terms
+
+    def regulariser_terms(self, outputs: RenderOutput, batch: dict, camera: Camera, step: int) -> tuple[Tensor, dict[str, Tensor]]:
+        """(photometric target, {term: scalar}) of the opt-in regularisers ``model.reg`` switches on
+        (:func:`~splat_framework.model.regularisers.regulariser_terms`), given what they need from
+        this model: the run's seed and length, :meth:`gaussian_log_scales` and a training re-render
+        of another camera (the stereo term's partner view)."""
+        return regulariser_terms(
+            self.config.model.reg, outputs, batch, camera, step, seed=self.config.seed,
+            total_steps=self.config.total_steps, log_scales=lambda: self.gaussian_log_scales(outputs),
+            render=lambda view: self.get_outputs(view, outputs.meta.get("background"), step=step),
+        )
 
     def gaussian_log_scales(self, outputs: RenderOutput) -> Tensor:
         """[N, 3] log-scales of the Gaussians the scale regularisers act on (``reg.anisotropy_weight``):

@@ -29,11 +29,15 @@ Conventions:
   rows are zero; moments of removed rows are dropped; ``step`` is kept.
 - ``child_values`` (``duplicate``/``split``): ``{key: value}`` written into the
   appended rows of ``params[key]`` only, e.g. ``{"is_ray": 0.0}``.
+- ``remove`` and ``append`` return a :class:`RowChange`: what a model hook that resized the
+  rows outside the strategy returns, so that the strategy resizes its own state
+  (``Strategy.rows_changed``); such a hook passes an empty ``state`` (``{}``).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Callable, Mapping, MutableMapping
 
 import torch
@@ -93,6 +97,35 @@ def _resize_state(state: MutableMapping, n_old: int, fn: Callable[[Tensor], Tens
     for k, v in state.items():
         if isinstance(v, Tensor) and v.dim() > 0 and v.shape[0] == n_old:
             state[k] = fn(v)
+
+
+@dataclass(frozen=True)
+class RowChange:
+    """How the rows changed: the old rows where ``kept`` [N_old] (bool) is True stay, in order,
+    then ``added`` new rows follow (``N_new = kept.sum() + added``)."""
+
+    kept: Tensor
+    added: int = 0
+
+    @property
+    def old_rows(self) -> int:
+        return int(self.kept.shape[0])
+
+    @property
+    def new_rows(self) -> int:
+        return int(self.kept.sum()) + self.added
+
+    def resize(self, state: MutableMapping) -> None:
+        """Resize, in place, every tensor of ``state`` with one row per old row (leading dim
+        ``old_rows``): its kept rows, then ``added`` rows of zeros."""
+        keep = torch.where(self.kept)[0]
+        m = self.added
+
+        def fn(v: Tensor) -> Tensor:
+            v = v[keep]
+            return torch.cat([v, v.new_zeros((m, *v.shape[1:]))]) if m else v
+
+        _resize_state(state, self.old_rows, fn)
 
 
 def _num_rows(params: Params) -> int:
@@ -179,9 +212,9 @@ def split(
 
 
 @torch.no_grad()
-def append(params: Params, optimizers: Optimizers, state: MutableMapping, rows: Mapping[str, Tensor]) -> None:
+def append(params: Params, optimizers: Optimizers, state: MutableMapping, rows: Mapping[str, Tensor]) -> RowChange:
     """Append new rows: ``rows[key]`` [M, ...] for every key of ``params`` (new moments zero,
-    per-row state tensors padded with zeros)."""
+    per-row state tensors padded with zeros); the change."""
     missing = set(params) - set(rows)
     if missing:
         raise ValueError(f"append: no new rows for {sorted(missing)}")
@@ -198,7 +231,9 @@ def append(params: Params, optimizers: Optimizers, state: MutableMapping, rows: 
         return torch.cat([v, v.new_zeros((m, *v.shape[1:]))])
 
     _update_param_with_optimizer(param_fn, optimizer_fn, params, optimizers)
-    _resize_state(state, n, lambda v: torch.cat([v, v.new_zeros((m, *v.shape[1:]))]))
+    change = RowChange(torch.ones(n, dtype=torch.bool, device=next(iter(params.values())).device), m)
+    change.resize(state)
+    return change
 
 
 @torch.no_grad()
@@ -241,12 +276,13 @@ def rewrite(
 
 
 @torch.no_grad()
-def remove(params: Params, optimizers: Optimizers, state: MutableMapping, mask: Tensor) -> None:
-    """Drop every row where ``mask`` [N] is True, with its moments and state."""
+def remove(params: Params, optimizers: Optimizers, state: MutableMapping, mask: Tensor) -> RowChange:
+    """Drop every row where ``mask`` [N] is True, with its moments and state; the change."""
     keep = torch.where(~mask)[0]
-    n = _num_rows(params)
     _update_param_with_optimizer(lambda _, p: p[keep], lambda _, v: v[keep], params, optimizers)
-    _resize_state(state, n, lambda v: v[keep])
+    change = RowChange(~mask)
+    change.resize(state)
+    return change
 
 
 @torch.no_grad()

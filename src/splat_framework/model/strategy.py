@@ -18,6 +18,8 @@ Typical loop::
         # them into params["means"] before this call: prepare_for_strategy).
         # The statistics come from info (the render's meta), not from .grad.
         counts = strategy.step_post_backward(params, optimizers, state, step, out.meta)
+        # a model hook that resized the rows returns a RowChange instead:
+        # strategy.rows_changed(params, optimizers, state, step, change)
 
 Extension points of :class:`DefaultStrategy` for models with extra per-row
 parameters (SCGaussian's ray flags): ``protected_rows`` marks rows that are never
@@ -34,7 +36,7 @@ import torch
 from torch import Tensor
 
 from splat_framework.config import DensifyConfig
-from splat_framework.model.ops import decay_opa, duplicate, remove, reset_opa, split
+from splat_framework.model.ops import RowChange, decay_opa, duplicate, remove, reset_opa, split
 from splat_framework.render import request_absgrad
 
 __all__ = ["DefaultStrategy", "DensifyConfig", "Strategy", "check_rows", "unplain_state"]
@@ -84,12 +86,13 @@ class Strategy:
     strategy sees plain dicts only, never the model: ``params`` (name -> [N, ...]
     tensors, one row per Gaussian), ``optimizers`` (name -> optimizer of that one
     tensor), its own ``state`` (checkpointed by the trainer and loaded with ``weights_only=True``:
-    tensors and plain values only, see :func:`unplain_state`; tensors with one row
-    per Gaussian must be resized by whoever adds or removes rows) and ``info``
-    (the rasterizer's meta dict). The trainer calls, each step: :meth:`loss` (added to
-    the model's loss), :meth:`step_pre_backward` and, after the optimizers stepped,
-    :meth:`step_post_backward` (or :meth:`rows_changed`) on the steps the model
-    densifies. Every method has a do-nothing default, so a
+    tensors and plain values only, see :func:`unplain_state`; only the strategy edits it) and
+    ``info`` (the rasterizer's meta dict). The trainer calls, each step: :meth:`loss` (added to
+    the model's loss); on the steps the model densifies, :meth:`step_pre_backward` and, after
+    the optimizers stepped, :meth:`step_post_backward`, which returns counts of what it
+    changed (summed in metrics.json's ``densified``); and :meth:`rows_changed` instead, at any
+    step where a model hook resized the rows. Every method has a do-nothing
+    default (``rows_changed``: resize the per-row tensors), so a
     subclass overrides only what it needs; this base used as is never densifies.
     """
 
@@ -125,7 +128,8 @@ class Strategy:
         info: Mapping[str, Any],
     ) -> dict[str, int]:
         """After the optimizers stepped: grow / prune rows in place (resizing ``optimizers``
-        and ``state`` with ``model.ops``); returns counts of what changed (for logs)."""
+        and ``state`` with ``model.ops``); returns counts of what changed (name -> int, e.g.
+        ``n_clone``), which the trainer sums over the run into metrics.json's ``densified``."""
         return {}
 
     def rows_changed(
@@ -134,12 +138,16 @@ class Strategy:
         optimizers: Mapping[str, torch.optim.Optimizer],
         state: MutableMapping[str, Any],
         step: int,
+        change: RowChange,
     ) -> None:
-        """Called instead of :meth:`step_post_backward` at a step where something else (a model
-        hook, e.g. SCGaussian's match filter) added or removed rows, as gaussian-splatting-lightning's
-        ``after_density_changed``. The ``model.ops`` call that did it has already resized the
-        per-row tensors of ``state``; a strategy with other bookkeeping (row counts, index maps)
-        updates it here. Default: nothing."""
+        """Something other than this strategy (a model hook, e.g. SCGaussian's match filter) added or
+        removed rows at ``step``, as ``change`` says (as gaussian-splatting-lightning's
+        ``after_density_changed``); ``params`` and ``optimizers`` already have the new rows. The
+        strategy brings its ``state`` in line; on a densify step this is called instead of
+        :meth:`step_post_backward` (the step's statistics no longer line up). Default: every
+        per-row tensor of ``state`` resized with :meth:`RowChange.resize`; a strategy with other
+        bookkeeping (row counts, index maps) extends it."""
+        change.resize(state)
 
 
 class DefaultStrategy(Strategy):

@@ -134,13 +134,13 @@ def test_backdrop_only_on_scenes_that_declare_one(tmp_path):
         img[:5] = 0
         cv2.imwrite(str(root / "images_4" / f"{i:06d}.png"), img)
     assert "backdrop" not in DataManager(load_scene(root, views=3)).next_train(0)[1]  # not asked for
-    dm = DataManager(load_scene(root, views=3), backdrop=True)
+    dm = DataManager(load_scene(root, views=3), fields={"backdrop"})
     assert "backdrop" not in dm.batch(dm.test_indices[0])
     _, batch = dm.next_train(0)
     expect = dark_backdrop_mask(batch["image"].numpy())
     assert batch["backdrop"].shape == (12, 16, 1) and expect[:5].all()
     assert torch.equal(batch["backdrop"][..., 0].bool(), torch.from_numpy(expect))
-    llff = DataManager(load_scene(make_llff(tmp_path / "l", 10), views=3), backdrop=True)
+    llff = DataManager(load_scene(make_llff(tmp_path / "l", 10), views=3), fields={"backdrop"})
     assert "backdrop" not in llff.next_train(0)[1]
 
 

@@ -80,3 +80,34 @@ def test_the_stereo_term_joins_the_loss_after_its_start_and_reaches_the_gaussian
     assert term.item() != pytest.approx(losses(46)["stereo"].item())
     term.backward()
     assert model.params["sh0"].grad.abs().sum() > 0 and model.params["means"].grad.abs().sum() > 0
+
+
+def test_the_regularisers_get_what_they_need_not_the_model(dm):
+    """``regulariser_terms`` reads a config, the render and the batch, and calls back only what it is
+    handed: the log-scales (when the anisotropy term is on) and one re-render, of the camera moved
+    sideways (the stereo term's partner); each is called once per step, never when its term is off."""
+    from splat_framework.config import RegularisersConfig
+    from splat_framework.model.regularisers import regulariser_terms
+
+    cfg = apply_overrides(get_method("3dgs").default_config(), {"model": {"init": {"num_points": 2000}}})
+    model = GaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
+    cam, batch = next(iter(dm.train_views()))
+    out = model.get_outputs(cam, step=10)
+    calls = []
+
+    def log_scales():
+        calls.append("scales")
+        return model.params["scales"]
+
+    def render(view):
+        calls.append(float((view.center - cam.center).norm()))
+        return model.get_outputs(view, step=10)
+
+    reg = RegularisersConfig(anisotropy_weight=0.1, max_anisotropy=1.0, stereo_weight=1.0, stereo_start=0.0)
+    target, terms = regulariser_terms(reg, out, batch, cam, 10, seed=0, total_steps=100, log_scales=log_scales, render=render)
+    assert target is batch["image"] and sorted(terms) == ["anisotropy", "stereo"]
+    assert calls[0] == "scales" and len(calls) == 2 and calls[1] > 0  # the partner camera moved
+    calls.clear()
+    _, terms = regulariser_terms(RegularisersConfig(), out, batch, cam, 10, seed=0, total_steps=100,
+                                 log_scales=log_scales, render=render)
+    assert terms == {} and calls == []
