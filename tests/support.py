@@ -91,9 +91,13 @@ def gl_c2w_looking_at_origin(eye) -> np.ndarray:
     return c2w_cv @ np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV -> OpenGL (its own inverse)
 
 
-def make_blender(root: Path, n_train: int = 10, n_test: int = 16, *, size: int = 8, angle: float = 0.7) -> Path:
+def make_blender(root: Path, n_train: int = 10, n_test: int = 16, *, size: int = 8, angle: float = 0.7,
+                 n_val: int = 0) -> Path:
+    """A Blender scene of ``n_train`` / ``n_test`` / ``n_val`` frames on a circle (no val file when 0)."""
     root.mkdir(parents=True, exist_ok=True)
-    for split, n in (("train", n_train), ("test", n_test)):
+    for split, n in (("train", n_train), ("test", n_test), ("val", n_val)):
+        if n == 0:
+            continue
         frames = []
         for i in range(n):
             a = 2 * math.pi * i / n + (0.1 if split == "test" else 0.0)

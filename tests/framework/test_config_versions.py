@@ -23,9 +23,17 @@ def test_every_version_below_the_current_one_has_one_step():
 
 def written_at(version: int, tmp_path: Path) -> list[Path]:
     """config.json files of schema ``version``: version 1's layouts before issue 41 (``old_init_configs``),
-    and one holding today's layout, as every run wrote it until version 2 (also without a version at all)."""
-    assert version == 1, "a new version needs its sample files here"
+    and one holding version 2's layout, as every run wrote it until version 2 (also without a version
+    at all); version 2's: a run's record of its dataset, resolved before ``eval_split`` existed."""
+    assert version in (1, 2), "a new version needs its sample files here"
     today = json.loads(json.dumps(config_payload(get_method("scaffold-gs").default_config())))
+    today["config"].pop("eval_split")
+    if version == 2:
+        cfg = today["config"]
+        source = {k: cfg[k] for k in ("data", "format", "views", "downscale", "train_poses", "photos")}
+        cfg["resolved_data"] = {"path": str(tmp_path), "train": ["a"], "test": ["b"], "train_poses": None, "source": source}
+        atomic_write_json(tmp_path / "v2.json", {**today, "schema_version": 2})
+        return [tmp_path / "v2.json"]
     files = sorted(OLD.glob("*.json"))
     for name, payload in (("today.json", {**today, "schema_version": 1}), ("unversioned.json", today["config"])):
         atomic_write_json(tmp_path / name, payload if name == "today.json" else {"config": payload})
@@ -45,8 +53,10 @@ def test_a_file_of_each_old_version_upgrades_to_the_current_config(version, tmp_
         save_config(config, tmp_path / "again.json")
         _, again, now = read_config_json(tmp_path / "again.json")
         assert now == SCHEMA_VERSION and type(defaults).model_validate(again) == config, path
-        if path.name == "today.json":  # a file already in today's layout: upgraded to itself
+        if path.name == "today.json":  # a file already in version 2's layout: upgraded to itself
             assert config == type(defaults).model_validate(json.loads(path.read_text())["config"])
+        if config.resolved_data is not None:  # the record still names the run's data
+            assert config.resolved_data.resolves(config) and config.eval_split == "test", path
 
 
 @pytest.mark.bad_input("a run's `config.json` written by a newer splat (a higher schema version)",

@@ -58,6 +58,7 @@ def test_run_writes_documented_outputs_and_learns(tmp_path, capsys):
     assert m["timing"]["total_s"] > 0 and {"data_s", "init_s", "train_s", "eval_s"} <= set(m["timing"])
     assert isinstance(m["num_gaussians"], int) and m["num_gaussians"] == trainer.model.num_gaussians
     assert m["skipped_steps"] == 0
+    assert m["eval_split"] == "test"
     # the strategy's returned counts, summed over the run
     assert set(m["densified"]) == {"n_clone", "n_split", "n_prune"} and all(isinstance(v, int) for v in m["densified"].values())
     assert m["mean"]["psnr"] == pytest.approx(metrics["mean"]["psnr"])

@@ -26,7 +26,7 @@ class PhotoPosesConfig(SplatConfig):
     """Frames taken from a video (the sharpest of each equal span)."""
 
 
-SOURCE_FIELDS = ("data", "format", "views", "downscale", "train_poses", "photos")
+SOURCE_FIELDS = ("data", "format", "views", "downscale", "eval_split", "train_poses", "photos")
 """The TrainConfig fields a :class:`ResolvedData` was resolved from."""
 
 

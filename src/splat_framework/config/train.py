@@ -47,6 +47,8 @@ class TrainConfig(SplatConfig):
     """Training views, or all (default: 3 on LLFF, Blender, DTU; else all)."""
     downscale: Positive | None = None
     """Image downscale factor (default: the dataset's, 8 on LLFF, 2 on Blender)."""
+    eval_split: Literal["test", "val"] = "test"
+    """Score the test views, or the validation views (neither trained nor tested: choose defaults on these)."""
     train_poses: Annotated[Path | None, FOLDED] = None
     """Pose file (JSON) replacing the training views' cameras."""
     photos: PhotoPosesConfig = Field(default_factory=PhotoPosesConfig)

@@ -15,7 +15,10 @@ Versions:
    (:func:`init_layout`), flat regularisers in ``model`` (:func:`reg_layout`), the fields of the
    model/optim split (:func:`regroup_fields`), one flat ``matching`` block whose ``matcher`` named
    the matcher, holding every matcher's options (:func:`match_layout`).
-2. Today's layout.
+2. The layout before validation views: ``resolved_data.source`` (the fields a run's recorded
+   dataset was resolved from) has no ``eval_split``; every such run scored its test views
+   (:func:`from_version_2`).
+3. Today's layout.
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ from .merge import deep_merge
 from .model import GaussianModelConfig, ModelConfig, OptimConfig, RegularisersConfig
 from .train import TrainConfig
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 """Version of the ``config.json`` layout this build writes (see the module docstring)."""
 
 UNVERSIONED = 1
@@ -171,8 +174,19 @@ def from_version_1(cfg: dict, defaults: dict) -> dict:
     return regroup_fields(out, defaults)
 
 
+def from_version_2(cfg: dict, defaults: dict) -> dict:
+    """Version 2 to 3: a recorded dataset's source gains ``eval_split`` "test" (what every run of
+    version 2 scored), so the record still resolves the run's config."""
+    record = cfg.get("resolved_data")
+    if isinstance(record, dict) and isinstance(record.get("source"), dict):
+        source = {**record["source"], "eval_split": record["source"].get("eval_split", "test")}
+        cfg = {**cfg, "resolved_data": {**record, "source": source}}
+    return cfg
+
+
 UPGRADES: dict[int, Callable[[dict, dict], dict]] = {
     1: from_version_1,
+    2: from_version_2,
 }
 """Version N -> the step taking a config dict of version N to N + 1, given the method's default
 config (as a dict); ordered, one per version below :data:`SCHEMA_VERSION`."""

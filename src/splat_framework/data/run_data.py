@@ -36,6 +36,19 @@ def with_split(scene: SceneData, train: list[str], test: list[str]) -> SceneData
     return replace(scene, train_indices=train_idx, test_indices=test_idx, scene_center=center, scene_radius=radius)
 
 
+def held_out_views(scene: SceneData, split: str) -> SceneData:
+    """``scene`` scoring the views of ``split``: its test views ("test", unchanged), or its
+    validation views ("val": :attr:`SceneData.validation_indices`, neither trained nor tested) in
+    their place; a DataError naming the folder when it has none."""
+    if split == "test":
+        return scene
+    val = scene.validation_indices
+    if not val:
+        raise DataError(f"{scene.root}: no validation views (every view is a training or a test view); "
+                        "score the test views (--eval-split test)")
+    return replace(scene, test_indices=val, held_out="val")
+
+
 def record_data(config, scene: SceneData):
     """``config`` with ``resolved_data`` recording ``scene``: its absolute folder, its split by image name."""
     record = ResolvedData(
@@ -109,6 +122,8 @@ def describe_split(scene: SceneData, views) -> str | None:
     line += _names(scene, scene.train_indices)
     if not scene.test_indices:
         return line + "; nothing is held out, so the metrics are training-view metrics"
+    if scene.held_out == "val":
+        return line + f"; {_counted(scene.test_indices, 'validation view')} scored (neither trained on nor tested)"
     held_out = _counted(scene.test_indices, "test view")
     return line + f"; {held_out} held out (every {LLFF_HOLDOUT}th image){_names(scene, scene.test_indices)}"
 

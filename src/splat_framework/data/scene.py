@@ -22,7 +22,12 @@ class SceneData:
             images will be decoded (after ``image_scale``).
         image_paths: one image file per camera.
         train_indices: indices into ``cameras`` used for training.
-        test_indices: indices into ``cameras`` held out for evaluation.
+        test_indices: indices into ``cameras`` held out for evaluation (the views scored).
+        val_indices: the validation views, neither trained on nor tested, on which defaults are
+            chosen (``--eval-split val`` scores them instead of the test views); None: every
+            view that is neither (:attr:`validation_indices`).
+        held_out: which views ``test_indices`` holds: "test" (the protocol's), or "val" when the
+            run scores the validation views (:func:`~splat_framework.data.run_data.held_out_views`).
         image_scale: resize factor applied when decoding (1.0 = as stored).
         white_background: composite RGBA images on white (Blender) instead of black.
         mask_paths: optional per-image foreground masks (DTU); None where absent.
@@ -46,6 +51,8 @@ class SceneData:
     image_paths: list[Path]
     train_indices: list[int]
     test_indices: list[int]
+    val_indices: list[int] | None = None
+    held_out: str = "test"
     image_scale: float = 1.0
     white_background: bool = False
     mask_paths: list[Path] | None = None
@@ -56,6 +63,15 @@ class SceneData:
     dark_backdrop: bool = False
     content_box: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
     extras: dict = field(default_factory=dict)
+
+    @property
+    def validation_indices(self) -> list[int]:
+        """The validation views: ``val_indices`` where the parser chose them (Blender's ``val``
+        split), else every view that is neither a training nor a test view, in order."""
+        if self.val_indices is not None:
+            return list(self.val_indices)
+        used = {*self.train_indices, *self.test_indices}
+        return [i for i in range(len(self.cameras)) if i not in used]
 
     @property
     def train_cameras(self) -> list[Camera]:

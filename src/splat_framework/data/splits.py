@@ -14,6 +14,10 @@ sorted-as-specified lists of indices into the parser's camera list.
 
 ``views="all"`` trains on every non-test image (the dense setting).
 
+Validation views (``--eval-split val``; choose defaults on these, report the test views): every
+view that is neither a training nor a test view (LLFF, DTU, one's own scenes); on Blender, every
+8th frame of ``transforms_val.json``, or, without that file, of the training frames not trained on.
+
 Without ``--views`` a scene trains on :func:`default_views`: the papers' few-shot
 :data:`FEW_SHOT_VIEWS` on the benchmark formats, every view elsewhere (COLMAP and
 transforms.json scenes: one's own captures).
@@ -36,6 +40,8 @@ from .scene import DataError
 Views = int | Literal["all"]
 
 LLFF_HOLDOUT = 8
+BLENDER_TEST_EVERY = 8
+"""Blender scores every this-many-th frame of its test split (and of its val split, for validation)."""
 BLENDER_DIETNERF_8 = [2, 16, 26, 55, 73, 76, 86, 93]
 DTU_TRAIN_ORDER = [25, 22, 28, 40, 44, 48, 0, 8, 13]
 FEW_PHOTOS = 8
@@ -114,7 +120,7 @@ def own_scene_split(n_images: int, views: Views = "all") -> tuple[list[int], lis
 
 
 def blender_split(
-    train_pool: Sequence[int], test_pool: Sequence[int], views: Views = "all", test_every: int = 8
+    train_pool: Sequence[int], test_pool: Sequence[int], views: Views = "all", test_every: int = BLENDER_TEST_EVERY
 ) -> tuple[list[int], list[int]]:
     """Blender split; pools are camera indices of the train / test frames in file order."""
     views = check_views(views)

@@ -14,6 +14,7 @@ def run_metrics(trainer, results: dict) -> dict:
         "method": cfg.method,
         "data": cfg.data,
         "steps": cfg.total_steps,
+        "eval_split": cfg.eval_split,
         "mean": results["mean"],
         "per_view": results["per_view"],
         "timing": trainer.timing,

@@ -3,19 +3,20 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 from ..data.parsers import load_scene
 from ..data.pose_file import apply_pose_file
-from ..data.run_data import resolve_views, with_split
+from ..data.run_data import held_out_views, resolve_views, with_split
 from ..data.scene import DataError, SceneData
 from ..sfm.own_photos import resolve_data_path
 
 
 def load_config_scene(config) -> SceneData:
     """The scene a training config names (``data``, ``format``, ``views``, ``downscale``; a folder of
-    photos or a video posed with ``photos``), its training cameras replaced from ``train_poses`` when
-    set. With ``resolved_data`` recorded for these fields: its folder (``data`` again where that
+    photos or a video posed with ``photos``), scoring the views ``eval_split`` names, its training
+    cameras replaced from ``train_poses`` when set. With ``resolved_data`` recorded for these fields: its folder (``data`` again where that
     folder is gone) and its split, by image name. Unset ``views`` are settled first (:func:`resolve_views`)."""
     config = resolve_views(config)
     record = config.resolved_data if config.resolved_data is not None and config.resolved_data.resolves(config) else None
@@ -29,7 +30,10 @@ def load_config_scene(config) -> SceneData:
                 raise
             raise DataError(f"{record.path}: the run's dataset folder is gone, and {e}") from None
     scene = load_scene(root, format=config.format, views=config.views, downscale=config.downscale)
-    if record is not None:
+    if record is not None:  # its test views are the views it scored, validation views included
         scene = with_split(scene, record.train, record.test)
+        scene = replace(scene, held_out=config.eval_split)
+    else:
+        scene = held_out_views(scene, config.eval_split)
     poses = record.train_poses if record is not None else config.train_poses
     return apply_pose_file(scene, poses) if poses is not None else scene

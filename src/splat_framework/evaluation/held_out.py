@@ -18,10 +18,11 @@ from ..runtime.profiling import synchronize
 
 
 def scored_views(datamanager) -> tuple[list, str]:
-    """The views that are scored and pictured, and their split: the held-out views ("test"), or,
-    where nothing is held out (a few photos of one's own, all trained on), the training views ("train")."""
+    """The views that are scored and pictured, and their split: the held-out views ("test", or "val"
+    for a run scored on its validation views), or, where nothing is held out (a few photos of one's
+    own, all trained on), the training views ("train")."""
     views = datamanager.eval_views()
-    return (views, "test") if views else (datamanager.train_views(), "train")
+    return (views, datamanager.scene.held_out) if views else (datamanager.train_views(), "train")
 
 
 def view_name(datamanager, camera, index: int) -> str:
@@ -42,7 +43,8 @@ def evaluate(model, datamanager, background: Tensor, render_dir: Path | None = N
     pose as given (also averaged in ``mean``).
 
     A scene with no held-out view (a few photos of one's own, all trained on) is scored on its
-    training views instead, each per-view entry saying ``"split": "train"`` ("test" otherwise).
+    training views instead, each per-view entry saying ``"split": "train"`` ("test", or "val" on a
+    run scored on its validation views, otherwise).
 
     With ``render_dir``, writes per view ``<view>_render.png``, ``<view>_gt.png``,
     ``<view>_depth.png`` and a labelled ``<view>_grid.png`` (GT | render | depth | error);

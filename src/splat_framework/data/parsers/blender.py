@@ -1,4 +1,4 @@
-"""NeRF-synthetic ("Blender") scenes: ``transforms_{train,test}.json``.
+"""NeRF-synthetic ("Blender") scenes: ``transforms_{train,test,val}.json`` (val: validation views).
 
 Camera-to-world matrices are OpenGL (x right, y up, looking down -z) and are
 converted with ``c2w_cv = c2w_gl @ diag(1, -1, -1, 1)``. Focal length comes
@@ -18,7 +18,7 @@ import numpy as np
 
 from ..images import IMAGE_SUFFIXES
 from ..scene import DataError, SceneData
-from ..splits import Views, blender_split
+from ..splits import BLENDER_TEST_EVERY, Views, blender_split
 from .common import check_downscale, check_same_size, decoded_size, make_camera, build_scene
 
 NEAR, FAR = 2.0, 6.0
@@ -164,6 +164,7 @@ def load_blender(root: Path, *, views: Views = "all", downscale: float | None = 
 
     train_json, angle_tr, train_frames = _frames(root, "train", required=True)
     test_json, angle_te, test_frames = _frames(root, "test", required=False)
+    val_json, angle_va, val_frames = _frames(root, "val", required=False)
     if not test_frames:
         warnings.warn(f"{test_json}: not found; the scene has no test views", stacklevel=3)
     if angle_tr is None:
@@ -171,6 +172,7 @@ def load_blender(root: Path, *, views: Views = "all", downscale: float | None = 
 
     entries = [(train_json, angle_tr, fp, m, "train") for fp, m in train_frames]
     entries += [(test_json, angle_te if angle_te is not None else angle_tr, fp, m, "test") for fp, m in test_frames]
+    entries += [(val_json, angle_va if angle_va is not None else angle_tr, fp, m, "val") for fp, m in val_frames]
 
     paths = [frame_image(root, fp, js) for js, _, fp, _, _ in entries]
     stored = check_same_size(paths)
@@ -194,10 +196,11 @@ def load_blender(root: Path, *, views: Views = "all", downscale: float | None = 
         cameras.append(make_camera(c2w[:3, :3], c2w[:3, 3], fx, fy, w / 2.0, h / 2.0, w, h, NEAR, FAR,
                                    frame_name(p, root), where))
 
-    n_train = len(train_frames)
+    n_train, n_test = len(train_frames), len(test_frames)
     train_pool = list(range(n_train))
-    test_pool = list(range(n_train, len(entries)))
+    test_pool = list(range(n_train, n_train + n_test))
     train, test = blender_split(train_pool, test_pool, views)
+    val_pool = list(range(n_train + n_test, len(entries))) or [i for i in train_pool if i not in set(train)]
     return build_scene(
         root,
         "blender",
@@ -205,6 +208,7 @@ def load_blender(root: Path, *, views: Views = "all", downscale: float | None = 
         paths,
         train,
         test,
+        val_indices=val_pool[::BLENDER_TEST_EVERY],
         image_scale=image_scale,
         white_background=True,
         depth_paths=depth_paths,
