@@ -49,11 +49,12 @@ def timed(cmd: list[str], env: dict) -> dict:
     record = {"command": " ".join(cmd), "load_before": loadavg()}
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    stamps, tail = [], []
+    stamps, tail, lines = [], [], []
 
     def read():
         for line in proc.stdout:
             stamps.append(time.perf_counter() - t0)
+            lines.append(line.strip()[:160])
             tail.append(line)
             del tail[:-15]
 
@@ -63,6 +64,7 @@ def timed(cmd: list[str], env: dict) -> dict:
     reader.join()
     record["wall_s"] = time.perf_counter() - t0
     record["longest_silence_s"] = longest_gap(stamps, record["wall_s"])
+    record["silence_after"] = silence_after(stamps, lines, record["wall_s"])
     record["tail"] = "".join(tail)
     return record
 
@@ -71,6 +73,14 @@ def longest_gap(stamps: list[float], end: float) -> float:
     """The longest time between launch (0), each output line's time in ``stamps`` and ``end``."""
     points = [0.0, *stamps, end]
     return max(b - a for a, b in zip(points, points[1:]))
+
+
+def silence_after(stamps: list[float], lines: list[str], end: float) -> str:
+    """The output line the longest silence followed ("(launch)" when it came before the first line)."""
+    points = [0.0, *stamps, end]
+    gaps = [b - a for a, b in zip(points, points[1:])]
+    i = max(range(len(gaps)), key=gaps.__getitem__)
+    return "(launch)" if i == 0 else lines[i - 1]
 
 
 def phases_of(run: Path) -> dict:
@@ -125,6 +135,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
             shutil.rmtree(fresh, ignore_errors=True)
             rec = timed(train("scgaussian", "--data", "synthetic/forward", out="first"), dict(env, SPLAT_CACHE=str(fresh)))
             run = work / "first"
+            if not (cache / "native").exists():  # the other jobs run with the kernels built, as on a machine used before
+                shutil.copytree(fresh / "native", cache / "native")
         elif job == "fern":
             rec = timed(train("scgaussian", "--data", "llff/fern", out="fern"), env)
             run = work / "fern"
@@ -132,8 +144,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
             if job == "photos":
                 for sub in ("photos", "matches"):
                     shutil.rmtree(cache / sub, ignore_errors=True)
-            rec = timed(train("scgaussian", "--data", str(photos), out=job), env)
-            run = work / job
+            rec = timed(train("scgaussian", "--data", str(photos), out=f"run-{job}"), env)  # not into the photos
+            run = work / f"run-{job}"
         elif job == "export":
             rec = timed([str(bin_dir / "splat-export"), str(work / "fern"), "--ply", str(work / "fern.ply"), "--overwrite"], env)
         else:
@@ -142,7 +154,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
             run = work / "3dgs-again"
         rec["job"] = job
         rec["phases"] = phases_of(run) if run is not None else {}
-        print(f"{job}: {rec['wall_s']:.1f} s, longest silence {rec['longest_silence_s']:.1f} s, exit {rec['exit']}",
+        print(f"{job}: {rec['wall_s']:.1f} s, longest silence {rec['longest_silence_s']:.1f} s "
+              f"(after: {rec['silence_after']}), exit {rec['exit']}",
               flush=True)
         records.append(rec)
     date = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")

@@ -100,6 +100,9 @@ def test_first_hour_finds_the_longest_silence_and_tables_each_job(tmp_path):
     assert first_hour.longest_gap([1.0, 7.5, 8.0], 9.0) == 6.5  # between two lines
     assert first_hour.longest_gap([], 3.0) == 3.0  # a silent command: launch to exit
     assert first_hour.longest_gap([0.5], 12.0) == 11.5  # the last line to exit
+    assert first_hour.silence_after([1.0, 7.5, 8.0], ["a", "b", "c"], 9.0) == "a"  # the line it followed
+    assert first_hour.silence_after([6.0], ["a"], 7.0) == "(launch)"
+    assert first_hour.silence_after([0.5], ["last"], 12.0) == "last"
     run = tmp_path / "run"
     run.mkdir()
     (run / "metrics.json").write_text(json.dumps({"timing": {"train_s": 81.04, "eval_s": 2.96, "other": 1}}))

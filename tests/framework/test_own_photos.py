@@ -241,3 +241,30 @@ def test_a_folder_that_is_neither_a_dataset_nor_photos_points_at_splat_process(t
     (tmp_path / "notes" / "readme.txt").write_text("hi")
     run_cli("train", "3dgs", "--data", tmp_path / "notes", "--output", tmp_path / "run", code=2,
             match=("neither a dataset", "nor a folder of photos", "splat-process"), watch=[tmp_path / "notes"])
+
+
+def test_two_runs_posing_the_same_photos_at_once_both_finish(photo_run, tmp_path):
+    """Two runs pose the same photos at the same time (two terminals, a sweep): the one that finishes
+    second finds the first one's entry in place; it keeps it when it verifies (found by the
+    first-hour benchmark: ``OSError: Directory not empty`` and a traceback before), and never keeps
+    one that does not verify."""
+    from splat_framework.runtime.trusted import write_folder_manifest
+    from splat_framework.sfm.own_photos import _install_private
+
+    _, _, _, env = photo_run
+    cache = tmp_path / "cache"
+    shutil.copytree(env["SPLAT_CACHE"], cache)
+    (entry,) = (cache / "photos").iterdir()
+    built = tmp_path / "built"  # what the second run built: the same files
+    shutil.copytree(entry, built)
+    before = sorted(p.relative_to(entry) for p in entry.rglob("*"))
+    second = tmp_path / "second-work"
+    shutil.copytree(built, second)
+    _install_private(second, entry)  # the first one's entry stands
+    assert sorted(p.relative_to(entry) for p in entry.rglob("*")) == before
+    (entry / "scene" / "stray.txt").write_text("not in the manifest")
+    third = tmp_path / "third-work"
+    shutil.copytree(built, third)
+    write_folder_manifest(third)
+    with pytest.raises(OSError):
+        _install_private(third, entry)

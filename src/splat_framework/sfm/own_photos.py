@@ -108,8 +108,16 @@ def _say_left_out(lines: list[str]) -> None:
 
 
 def _install_private(work: Path, entry: Path) -> None:
-    """Move a finished cache entry into place, readable by the user alone, with the manifest of its files."""
+    """Move a finished cache entry into place, readable by the user alone, with the manifest of its files.
+
+    Two runs posing the same photos at once both build the entry; the one that finishes second
+    keeps the first one's when it verifies (the same photos and options: an equal estimate), and
+    its own work folder is removed with the rest of its scratch."""
     write_folder_manifest(work)
     os.chmod(work, 0o700)
-    os.replace(work, entry)
+    try:
+        os.replace(work, entry)
+    except OSError:
+        if not entry.is_dir() or folder_mismatch(entry, entry.parent.parent) is not None:
+            raise
 
