@@ -247,7 +247,7 @@ def test_an_edited_or_unsigned_config_is_refused_unless_trusted(run_dir, tmp_pat
 class _GreyViews:
     """Three held-out views of a uniform grey photo (64x64), no mask."""
 
-    scene = SimpleNamespace(masked_metrics=False)
+    scene = SimpleNamespace(masked_metrics=False, held_out="test")
 
     def eval_views(self):
         return [(SimpleNamespace(name=f"v{i}"), {"image": torch.full((64, 64, 3), 0.5), "index": i})
