@@ -87,7 +87,8 @@ class DataManager:
         memory_budget_bytes: int | None = None,
         fields: Iterable[str] = (),
     ):
-        unknown = sorted(set(fields) - set(OPTIONAL_FIELDS))
+        fields = frozenset(fields)
+        unknown = sorted(fields - set(OPTIONAL_FIELDS))
         if unknown:
             raise ValueError(f"DataManager makes no batch field {unknown} (optional fields: {list(OPTIONAL_FIELDS)})")
         self.scene = scene

@@ -149,7 +149,7 @@ class GaussianModel(nn.Module):
         self.active_sh_degree = 0
         try:
             # a phase of its own: hundreds of thousands of start points take seconds (nearest neighbours)
-            with phase(f"building the model ({points.shape[0]} start points)") if rows is None else nullcontext():
+            with phase("building the model") if rows is None else nullcontext():
                 self.params = nn.ParameterDict(self.init_params(points, colors) if rows is None else self.as_params(rows))
                 self.networks = self.build_networks()
         except AttributeError as e:  # the usual cause: a subclass sets what they read after super().__init__()

@@ -197,3 +197,9 @@ def test_device_and_cameras(llff_scene):
     cam, batch = dm.next_train(3)
     assert cam.device.type == "cpu" and batch["image"].device.type == "cpu"
     assert len(dm.train_cameras) == dm.num_train == 4 and dm.num_eval == 2
+
+
+def test_the_fields_asked_for_may_be_any_iterable(tmp_path):
+    """``fields`` is read twice (checked, then used): a generator asking for the backdrop still gets it."""
+    dm = DataManager(load_scene(make_dtu(tmp_path / "scan", 49), views=3), fields=(f for f in ["backdrop"]))
+    assert "backdrop" in dm.next_train(0)[1]

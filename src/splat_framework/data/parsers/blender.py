@@ -200,7 +200,8 @@ def load_blender(root: Path, *, views: Views = "all", downscale: float | None = 
     train_pool = list(range(n_train))
     test_pool = list(range(n_train, n_train + n_test))
     train, test = blender_split(train_pool, test_pool, views)
-    val_pool = list(range(n_train + n_test, len(entries))) or [i for i in train_pool if i not in set(train)]
+    trained = set(train)
+    val_pool = list(range(n_train + n_test, len(entries))) or [i for i in train_pool if i not in trained]
     return build_scene(
         root,
         "blender",
