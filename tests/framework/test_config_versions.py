@@ -24,8 +24,14 @@ def test_every_version_below_the_current_one_has_one_step():
 def written_at(version: int, tmp_path: Path) -> list[Path]:
     """config.json files of schema ``version``: version 1's layouts before issue 41 (``old_init_configs``),
     and one holding version 2's layout, as every run wrote it until version 2 (also without a version
-    at all); version 2's: a run's record of its dataset, resolved before ``eval_split`` existed."""
-    assert version in (1, 2), "a new version needs its sample files here"
+    at all); version 2's: a run's record of its dataset, resolved before ``eval_split`` existed;
+    version 3's: an SCGaussian run whose matching prior had no total budget."""
+    assert version in (1, 2, 3), "a new version needs its sample files here"
+    if version == 3:
+        cfg = json.loads(json.dumps(config_payload(get_method("scgaussian").default_config())))
+        del cfg["config"]["model"]["matching"]["max_total_matches"]
+        atomic_write_json(tmp_path / "v3.json", {**cfg, "schema_version": 3})
+        return [tmp_path / "v3.json"]
     today = json.loads(json.dumps(config_payload(get_method("scaffold-gs").default_config())))
     today["config"].pop("eval_split")
     if version == 2:
@@ -55,6 +61,8 @@ def test_a_file_of_each_old_version_upgrades_to_the_current_config(version, tmp_
         assert now == SCHEMA_VERSION and type(defaults).model_validate(again) == config, path
         if path.name == "today.json":  # a file already in version 2's layout: upgraded to itself
             assert config == type(defaults).model_validate(json.loads(path.read_text())["config"])
+        if path.name == "v3.json":  # its prior keeps every pair's matches, as it was trained
+            assert config.model.matching.max_total_matches == 0 and config.model.matching.max_matches == 12000
         if config.resolved_data is not None:  # the record still names the run's data
             assert config.resolved_data.resolves(config) and config.eval_split == "test", path
 

@@ -498,6 +498,42 @@ def test_weights_found_in_installed_package():
 
 
 @needs_packaged
+def test_a_total_budget_shares_the_matches_among_the_pairs(capsys):
+    """``max_total_matches`` caps all pairs together: 3 pairs sharing 1,500 keep at most 500 each, and
+    a line says so; without it each keeps up to ``max_matches``. The default keeps 2 and 3 views' pairs
+    at 12,000 each, as before the budget."""
+    assert all(match_config().pair_cap(n) == 12000 for n in (1, 3))
+    budget = match_config(max_total_matches=36000)
+    assert [budget.pair_cap(n) for n in (1, 3, 6, 28)] == [12000, 12000, 6000, 1285]
+    assert match_config(max_total_matches=0).pair_cap(28) == 12000
+    assert match_config(max_matches=0, max_total_matches=36000).pair_cap(28) == 1285
+    assert match_config(max_matches=0, max_total_matches=0).pair_cap(28) == 0 and budget.pair_cap(10**6) == 1
+    d, tw, th = 4.0, 900, 700
+    tex = _texture(tw, th)
+    cams = [_camera(eye, d) for eye in ([0.0, 0.0, 0.0], [0.45, -0.12, 0.3], [-0.3, 0.15, 0.2])]
+    imgs = [_render(tex, _tex_to_image(c, tw, th, d / 280.0, d)) for c in cams]
+    capsys.readouterr()
+    shared = compute_matches(imgs, cams, [0, 1, 2], match_config("dense", cache=False, max_matches=2000,
+                                                                 max_total_matches=1500))
+    assert shared.meta["config"]["max_matches"] == 500
+    assert [shared.count(a, b) for a, b in shared.pairs()] == [500, 500, 500]
+    assert "matching: 3 pairs share 1,500 matches: at most 500 a pair" in capsys.readouterr().err
+    own = compute_matches(imgs, cams, [0, 1, 2], match_config("dense", cache=False, max_matches=2000,
+                                                              max_total_matches=0))
+    assert all(500 < own.count(a, b) <= 2000 for a, b in own.pairs()) and "share" not in capsys.readouterr().err
+
+
+def test_auto_keeps_dense_flow_that_fills_a_pair_cap_below_its_minimum(plane_scene, monkeypatch):
+    """A pair whose cap (its share of the budget) is below ``auto_min_matches`` and that dense flow fills
+    is not thin: the learned matcher is not run on it."""
+    imgs, cams, ids = _plane_pair(plane_scene)
+    monkeypatch.setattr(M.registry, "learned_available", lambda config: True)
+    monkeypatch.setitem(MATCHERS, M.AUTO_LEARNED, None)  # would fail if built
+    cfg = match_config(cache=False, auto_guided_flow_max_views=0, max_total_matches=300)
+    ms = compute_matches(imgs, cams, ids, cfg)
+    assert ms.meta["pair_matchers"] == {"0-1": "dense"} and ms.count(0, 1) == 300
+
+
 def test_auto_adds_the_learned_matcher_where_dense_flow_is_thin(plane_scene, monkeypatch):
     imgs, cams, ids = _plane_pair(plane_scene)
     monkeypatch.setattr(M.DenseFlowMatcher, "match", lambda self, a, b: M.no_matches())

@@ -43,9 +43,10 @@ def test_old_config_json_is_todays_experiment(name):
     # rescaled with the schedule since then; these files hold it unscaled)
     later = {k: raw["strategy"][k] for k in ("grow_grad2d", "opacity_decay") if k in raw["strategy"]}
     now = apply_overrides(now, {"strategy": later})
-    # and the matching prior's cap on matches per pair (12,000 since 2026-11-27; these files hold 4,000)
-    assert {m.max_matches for m in sub_configs(old, MatchConfig)} <= {4000}
-    now = apply_overrides(now, overrides_in_every(now, MatchConfig, {"max_matches": 4000}))
+    # and the matching prior's cap on matches per pair (12,000 since 2026-11-27; these files hold 4,000),
+    # with no total budget over the pairs (schema 4, 2026-11-28)
+    assert {(m.max_matches, m.max_total_matches) for m in sub_configs(old, MatchConfig)} <= {(4000, 0)}
+    now = apply_overrides(now, overrides_in_every(now, MatchConfig, {"max_matches": 4000, "max_total_matches": 0}))
     keep = experiment_fields(type(now))
     assert old.model_dump(include=keep) == now.model_dump(include=keep)
     rates = type(old.optim).model_fields

@@ -32,7 +32,7 @@ OFFICIAL = {
     "model.init.kind": "random", "model.init.num_points": 0,
     "model.reg.backdrop_weight": 1.0, "model.reg.depth_smoothness": 0.0, "model.reg.stereo_weight": 0.0,
     "model.reg.anisotropy_weight": 0.0, "model.reg.drop_rate": 0.0, "model.reg.opacity_noise": 0.0,
-    "model.matching.kind": "aliked-lightglue", "model.matching.max_matches": 2000,
+    "model.matching.kind": "aliked-lightglue", "model.matching.max_matches": 2000, "model.matching.max_total_matches": 0,
     "model.matching.magsac_threshold": 1.0, "model.matching.magsac_confidence": 0.999999,
     "model.matching.epipolar_check": False, "model.matching.alpha_mask": True,
     "strategy.enabled": True, "strategy.prune_opa": 0.005, "strategy.grow_grad2d": 0.0004,

@@ -28,6 +28,8 @@ class MatchConfig(SplatConfig):
     """The matcher: auto, dense, sift, loftr, aliked-lightglue or disk-lightglue."""
     max_matches: int = Field(12000, ge=0, le=MAX_MATCHES)
     """Cap on verified matches per pair, spatially balanced (0 = no cap)."""
+    max_total_matches: int = Field(100_000, ge=0, le=MAX_MATCHES)
+    """Cap on all pairs' matches together: each pair keeps at most this / pairs (0 = no cap)."""
     grid_cell: int = Field(16, ge=1, le=4096)
     """Side in pixels of the balanced sampler's grid cells."""
     magsac_threshold: float = Field(1.0, gt=0.0)
@@ -44,6 +46,16 @@ class MatchConfig(SplatConfig):
     """Seed of the balanced samplers (0 to 2^32 - 1)."""
     cache: bool = True
     """Cache matches on disk, keyed by these settings, the views and the images."""
+
+    def pair_cap(self, n_pairs: int) -> int:
+        """The most verified matches one of ``n_pairs`` pairs keeps (0 = all): ``max_matches``, lowered
+        to the pair's share of ``max_total_matches`` (at least 1) when that is smaller."""
+        share = max(self.max_total_matches // max(n_pairs, 1), 1) if self.max_total_matches > 0 else 0
+        return min((c for c in (self.max_matches, share) if c > 0), default=0)
+
+    def for_pairs(self, n_pairs: int) -> "MatchConfig":
+        """This config as its matcher runs on ``n_pairs`` pairs: ``max_matches`` is :meth:`pair_cap`."""
+        return self.model_copy(update={"max_matches": self.pair_cap(n_pairs)})
 
     @field_validator("kind")
     @classmethod

@@ -18,7 +18,9 @@ Versions:
 2. The layout before validation views: ``resolved_data.source`` (the fields a run's recorded
    dataset was resolved from) has no ``eval_split``; every such run scored its test views
    (:func:`from_version_2`).
-3. Today's layout.
+3. The layout before the total match budget: a ``matching`` block has no ``max_total_matches``, and
+   every pair kept up to ``max_matches`` whatever the number of pairs (:func:`from_version_3`).
+4. Today's layout.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ from .merge import deep_merge
 from .model import GaussianModelConfig, ModelConfig, OptimConfig, RegularisersConfig
 from .train import TrainConfig
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 """Version of the ``config.json`` layout this build writes (see the module docstring)."""
 
 UNVERSIONED = 1
@@ -184,9 +186,29 @@ def from_version_2(cfg: dict, defaults: dict) -> dict:
     return cfg
 
 
+def without_match_budget(value):
+    """``value`` (part of a saved config) with ``max_total_matches`` 0 in every matching block (a dict
+    holding ``max_matches``) that names none."""
+    if isinstance(value, list):
+        return [without_match_budget(v) for v in value]
+    if not isinstance(value, dict):
+        return value
+    out = {k: without_match_budget(v) for k, v in value.items()}
+    if "max_matches" in out and "max_total_matches" not in out:
+        out["max_total_matches"] = 0
+    return out
+
+
+def from_version_3(cfg: dict, defaults: dict) -> dict:
+    """Version 3 to 4: every matching block gains ``max_total_matches`` 0 (no total budget: what
+    every run of version 3 had), so an old run's prior is rebuilt as it was trained."""
+    return without_match_budget(cfg)
+
+
 UPGRADES: dict[int, Callable[[dict, dict], dict]] = {
     1: from_version_1,
     2: from_version_2,
+    3: from_version_3,
 }
 """Version N -> the step taking a config dict of version N to N + 1, given the method's default
 config (as a dict); ordered, one per version below :data:`SCHEMA_VERSION`."""

@@ -17,7 +17,8 @@ from .pipeline import compute_matches
 
 def _match(images: list[np.ndarray], matcher: str) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray]]:
     """{(i, j): (pts_i, pts_j)} over every pair of ``images`` ([H, W, 3] uint8 RGB), continuous coordinates."""
-    ms = compute_matches(images, None, list(range(len(images))), match_config(matcher, max_matches=0, cache=False))
+    uncapped = match_config(matcher, max_matches=0, max_total_matches=0, cache=False)
+    ms = compute_matches(images, None, list(range(len(images))), uncapped)
     return {pair: ms.get(*pair) for pair in ms.pairs()}
 
 

@@ -11,9 +11,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..console import Phase, phase
+from ..console import Phase, phase, say
 from . import registry
 from .base import KnownMatches, Matcher, Pts, inside_mask, to_hwc
+from ..config.base import MAX_MATCHES
 from ..config.matching import MatchConfig, match_config
 from .guided import GuidedFlowMatcher
 from .geometry import as_numpy, fundamental_from_cameras, verify_pair, view_angle
@@ -139,6 +140,12 @@ def compute_matches(
                 raise ValueError(f"view {names[v]}: camera is {cam.width}x{cam.height} "
                                  f"but image is {im.shape[1]}x{im.shape[0]}")
 
+    n_pairs = len(ids) * (len(ids) - 1) // 2
+    capped = config.for_pairs(n_pairs)
+    if capped.max_matches != config.max_matches:
+        say(f"matching: {n_pairs} pairs share {config.max_total_matches:,} matches: at most "
+            f"{capped.max_matches:,} a pair (--model.matching.max-total-matches)")
+    config = capped
     known = known or {}
     key = cache_key(imgs, cams, ids, config, fg, known)
     cache_path = None
@@ -156,7 +163,6 @@ def compute_matches(
 
     from ..runtime.rng import rng_untouched  # torch, imported only when matching runs
 
-    n_pairs = len(ids) * (len(ids) - 1) // 2
     # a learned matcher's random init must not move the run's random state
     with rng_untouched(), phase("matching", n_pairs, unit="pairs") as progress:
         ms = _match_all_pairs(ids, imgs, cams, fg, config, key, progress, known, names)
@@ -198,6 +204,8 @@ def _match_all_pairs(ids: list[int], imgs: list[np.ndarray], cams, fg: list, con
         return KnownMatches(*known[pair]) if pair in known else auto_learned(pair, why)
 
     guided = config.kind == AUTO and len(ids) <= config.auto_guided_flow_max_views
+    # flow "keeps too few" below auto_min_matches, or below the pair's cap when that is lower
+    min_dense = min(getattr(config, "auto_min_matches", 0), config.max_matches or MAX_MATCHES)
     for a in range(len(ids)):
         for b in range(a + 1, len(ids)):
             pair = (ids[a], ids[b])
@@ -214,7 +222,7 @@ def _match_all_pairs(ids: list[int], imgs: list[np.ndarray], cams, fg: list, con
             else:
                 own = KnownMatches(*known[pair]) if config.kind != AUTO and pair in known else matcher
                 pa, pb, counts, warn = _verified(own, imgs[a], imgs[b], F_known, config, seed, pair_masks)
-                if (config.kind == AUTO and counts["final"] < config.auto_min_matches
+                if (config.kind == AUTO and counts["final"] < min_dense
                         and (sparse := sparse_for(pair, f"keeps only {counts['final']} dense matches")) is not None):
                     alt = _verified(sparse, imgs[a], imgs[b], F_known, config, seed, pair_masks)
                     if alt[2]["final"] > counts["final"]:
