@@ -4,7 +4,8 @@ config from each version to the next (torch-free; never executes code from the f
 A change of the saved layout (a field renamed, moved or regrouped) bumps :data:`SCHEMA_VERSION`
 and adds one step to :data:`UPGRADES`, keyed by the version it upgrades from: step N takes a
 config dict of version N to version N + 1, reading only the fields of version N. A field added
-with a default needs no step (a saved config without it takes the method's default).
+with a default needs no step (a saved config without it takes the method's default), unless that
+default changes what an old run did: then the step writes the value the old runs had (version 3).
 
 Versions:
 
