@@ -9,7 +9,9 @@ exit, and from launch to their first training step:
     hog        one run beside a 1-thread Python busy loop  hog-1     the run with SPLAT_THREADS=1
 
 and compares: two runs together against running them back to back (twice ``alone``), a run
-beside the busy loop against the 1-thread run on the idle machine (``alone-1``). Scenarios are
+beside the busy loop against the 1-thread run on the idle machine (``alone-1``). Every run has the
+same seed, so its test PSNR (from its metrics.json) says whether the load moved the result: with a
+pinned thread count (the ``-1`` scenarios) it must not, to the last digit. Scenarios are
 repeated ``--reps`` times, alternated (all scenarios, then all again), the machine's load
 (runnable threads, /proc/loadavg) recorded before each and sampled during it. A first run
 fills the compile cache (not timed) unless ``--no-warm``.
@@ -26,6 +28,7 @@ Usage:
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import subprocess
@@ -106,14 +109,15 @@ def run_scenario(args, name: str, work: Path) -> dict:
         if busy:
             time.sleep(1.0)  # the busy loop is running before training starts
         started = [launch(args, threads, work / f"{name}-{k}") for k in range(count)]
-        walls, first = [], []
-        for proc, record in started:
+        walls, first, psnrs = [], [], []
+        for k, (proc, record) in enumerate(started):
             rc = proc.wait()
             record["reader"].join()
             if rc != 0:
                 raise SystemExit(f"{name}: splat-train failed (exit {rc}):\n{record['tail']}")
             walls.append(time.perf_counter() - record["t0"])
             first.append(record["first_step_s"])
+            psnrs.append(json.loads((work / f"{name}-{k}" / "metrics.json").read_text())["mean"]["psnr"])
     finally:
         if busy:
             busy.kill()
@@ -121,7 +125,8 @@ def run_scenario(args, name: str, work: Path) -> dict:
         sampler.stop.set()
         sampler.join()
     during = statistics.fmean(sampler.samples) if sampler.samples else float("nan")
-    return {"scenario": name, "walls_s": walls, "first_step_s": first, "before": before, "runnable_during": during}
+    return {"scenario": name, "walls_s": walls, "first_step_s": first, "psnr": psnrs, "before": before,
+            "runnable_during": during}
 
 
 def summarise(records: list[dict], reps: int) -> dict:
@@ -143,6 +148,10 @@ def summarise(records: list[dict], reps: int) -> dict:
             if wall(hog) and wall("alone-1"):
                 ratios.setdefault(f"{hog} / alone-1", []).append(wall(hog) / wall("alone-1"))
     out["ratios"] = ratios
+    psnrs = {k: sorted({p for r in v for p in r.get("psnr", [])}) for k, v in by.items()}
+    out["psnr"] = psnrs
+    pinned = sorted({p for k, v in psnrs.items() if k.endswith("-1") for p in v})
+    out["pinned_same_psnr"] = len(pinned) == 1 if pinned else None  # every 1-thread run gave the same digits
     return out
 
 
@@ -154,8 +163,8 @@ def markdown(result: dict, command: str) -> str:
         f"`{result['method']}` on `{result['data']}`, {result['views']} views, {result['steps']} iterations, "
         f"{result['reps']} repetitions (each cell: one value per repetition){result['env_note']}.",
         "",
-        "| how it ran | SPLAT_THREADS | wall s (slowest run) | launch to step 1, s | against | load before / runnable during |",
-        "|---|---|---|---|---|---|",
+        "| how it ran | SPLAT_THREADS | wall s (slowest run) | launch to step 1, s | against | load before / runnable during | test PSNR (seed 0) |",
+        "|---|---|---|---|---|---|---|",
     ]
     described = {"alone": "alone", "pair": "two runs started together", "hog": "beside a 1-thread busy loop"}
     for name in SCENARIOS:
@@ -168,8 +177,13 @@ def markdown(result: dict, command: str) -> str:
         load = " ; ".join(f"{r['before']['loadavg']:.1f} / {r['runnable_during']:.1f}" for r in rows)
         lines.append(
             f"| {described[name.split('-')[0]]} | {'1' if name.endswith('-1') else 'default'} | {fmt(walls)} "
-            f"| {fmt(firsts, 1)} | {fmt(ratio, 2) + 'x ' + against[name].split(' / ')[1] if ratio else ''} | {load} |"
+            f"| {fmt(firsts, 1)} | {fmt(ratio, 2) + 'x ' + against[name].split(' / ')[1] if ratio else ''} | {load} "
+            f"| {fmt(result['summary'].get('psnr', {}).get(name, []), 6)} |"
         )
+    same = result["summary"].get("pinned_same_psnr")
+    if same is not None:
+        lines += ["", "Every run with `SPLAT_THREADS=1`, alone, beside another or beside the busy loop, gave "
+                  + ("the same test PSNR to every digit." if same else "**not** the same test PSNR.")]
     lines += ["", f"Machine: {result['machine']}; {result['date']}.", f"Reproduce: `{command}`", ""]
     return "\n".join(lines)
 

@@ -5,6 +5,6 @@ tests use too (importable from every test folder, ``pythonpath = ["tests"]``)::
     run_cli("export", run, "--ply", target, code=2, match="exists", watch=[tmp_path])
 """
 
-from splat_framework.testing import CliResult, changed_paths, cli_env, run_cli, snapshot, stop_training
+from splat_framework.testing import CliResult, changed_paths, cli_env, message_lines, run_cli, snapshot, stop_training
 
-__all__ = ["CliResult", "changed_paths", "cli_env", "run_cli", "snapshot", "stop_training"]
+__all__ = ["CliResult", "changed_paths", "cli_env", "message_lines", "run_cli", "snapshot", "stop_training"]

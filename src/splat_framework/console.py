@@ -156,6 +156,19 @@ def phase(name: str, total: int | None = None, *, completed: int = 0, unit: str 
             ph.display.close(ph, ok)
 
 
+@contextmanager
+def starting(*, compiler: bool = False) -> Iterator[None]:
+    """The start of a command that loads or trains a model, as a phase of its own: importing PyTorch
+    takes 3-6 s on a 2-core CPU (and its compiler, which every optimiser's first use imports, 2 s
+    more), which would otherwise be a silence at launch. The caller does its own heavy imports inside."""
+    with phase("starting", info="loading PyTorch"):
+        import torch  # noqa: F401
+
+        if compiler:
+            import torch._dynamo  # noqa: F401
+        yield
+
+
 def track(items: Sequence, name: str, unit: str = "") -> Iterator:
     """Iterate ``items`` inside ``phase(name, len(items))``, one unit per item."""
     with phase(name, len(items), unit=unit) as ph:

@@ -45,12 +45,13 @@ def test_train_step_compare_reports_mean_speedup_per_snapshot_and_fills_the_read
 def test_contention_compares_pairs_with_back_to_back_and_the_busy_loop_with_one_idle_thread(tmp_path):
     contention = load_script("contention")
 
-    def rec(name, *walls):
-        return {"scenario": name, "walls_s": list(walls), "first_step_s": [4.0] * len(walls),
+    def rec(name, *walls, psnr=22.5):
+        return {"scenario": name, "walls_s": list(walls), "first_step_s": [4.0] * len(walls), "psnr": [psnr] * len(walls),
                 "before": {"loadavg": 0.2, "runnable": 1}, "runnable_during": 2.0}
 
-    records = [rec("alone", 100.0), rec("alone-1", 150.0), rec("pair", 170.0, 180.0), rec("hog", 160.0),
-               rec("alone", 110.0), rec("alone-1", 140.0), rec("pair", 200.0, 190.0), rec("hog", 147.0)]
+    records = [rec("alone", 100.0), rec("alone-1", 150.0), rec("pair", 170.0, 180.0), rec("hog", 160.0, psnr=22.4),
+               rec("alone", 110.0), rec("alone-1", 140.0), rec("pair", 200.0, 190.0), rec("hog", 147.0),
+               rec("hog-1", 152.0), rec("hog-1", 151.0)]
     summary = contention.summarise(records, reps=2)
     assert summary["ratios"]["pair / back to back"] == [180.0 / 200.0, 200.0 / 220.0]  # the slower of the two runs
     assert summary["ratios"]["hog / alone-1"] == [160.0 / 150.0, 147.0 / 140.0]
@@ -59,6 +60,10 @@ def test_contention_compares_pairs_with_back_to_back_and_the_busy_loop_with_one_
     table = contention.markdown(result, "python benchmarks/contention.py")
     assert "| two runs started together | default | 180 / 200 | 4.0 / 4.0 | 0.90 / 0.91x back to back |" in table
     assert "| beside a 1-thread busy loop | default | 160 / 147 | 4.0 / 4.0 | 1.07 / 1.05x alone-1 |" in table
+    assert "| 22.400000 / 22.500000 |" in table  # the default thread count moved the digits: both shown
+    assert summary["pinned_same_psnr"] is True and "gave the same test PSNR to every digit" in table
+    records.append(rec("pair-1", 150.0, 150.0, psnr=22.500001))
+    assert contention.summarise(records, reps=2)["pinned_same_psnr"] is False
 
 
 def test_coverage_counts_a_training_view_as_seen_wherever_it_rendered_something(tmp_path):

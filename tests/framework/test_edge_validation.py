@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from cli_harness import cli_env, run_cli
+from cli_harness import cli_env, message_lines, run_cli
 from config_walk import DEFAULTS, FIELDS, METHODS, members, nested
 from pydantic import ValidationError
 
@@ -197,7 +197,7 @@ def test_cli_export_falls_back_from_a_nan_checkpoint_with_one_warning_line(run_c
     bad = _write_raw(checkpoint_path(folder, 30), {**ck, "step": 30, "params": _nan(ck["params"])})
     out = tmp_path / "g.ply"
     r = run_cli("export", run_copy, "--ply", out, code=0, watch=[tmp_path], allowed=[out])
-    warned = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    warned = message_lines(r.stderr)
     assert len(warned) == 1 and bad.name in warned[0] and "non-finite" in warned[0], r.stderr
     assert out.is_file()
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from rich.console import Console
 
-from cli_harness import cli_env, run_cli
+from cli_harness import cli_env, message_lines, run_cli
 from splat_framework import console as console_mod
 
 README = Path(__file__).resolve().parents[2] / "README.md"
@@ -73,6 +73,23 @@ def test_a_log_gets_a_line_every_few_seconds_or_5_percent(monkeypatch):
     counted = [ln for ln in lines if ln.startswith("counted: ")]
     assert counted[0].startswith("counted: 1/100 (1%)") and counted[-1].startswith("counted: 100/100, done in")
     assert 19 <= len(counted) <= 22, counted  # the first, every 5 %, the summary
+
+
+def test_a_commands_start_is_a_phase_and_the_cli_harness_reads_errors_past_it(monkeypatch):
+    """Importing PyTorch takes 3-6 s on a 2-core CPU: ``starting`` (the first phase of splat-train,
+    -eval, -export, -render) shows it like any phase, so a log hears from a command within 2 s of its
+    arguments being read; the CLI tests' one-line error is the one line besides such progress."""
+    buf = io.StringIO()
+    monkeypatch.setattr(console_mod, "console", Console(file=buf, force_terminal=False, width=200))
+    monkeypatch.setattr(console_mod, "_SHOW", {"enabled": True})
+    with console_mod.starting():
+        time.sleep(console_mod.PLAIN_QUIET_S + 1.2)
+    lines = buf.getvalue().splitlines()
+    assert lines[0].startswith("starting: 0:00:0") and lines[0].endswith(", loading PyTorch"), lines
+    assert lines[-1].startswith("starting: done in 0:00:0"), lines
+    error = "error: runs/x: is not empty and is not a run folder written by splat-train"
+    assert message_lines(buf.getvalue() + "\n" + error + "\n") == [error]
+    assert message_lines("training: 3/60 steps (5%), 0:00:01, 2.1 it/s\nwarning: a.png: dark") == ["warning: a.png: dark"]
 
 
 def test_the_training_clock_starts_at_the_first_step_and_no_eta_before_10_steps(terminal):

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 from pydantic import ValidationError
+from cli_harness import message_lines
 
 from splat_framework import registry
 from splat_framework.config import (
@@ -368,7 +369,7 @@ def test_bad_cli_values_exit_2_with_one_line(tmp_path):
         capture_output=True, text=True, timeout=120,
     )
     assert r.returncode == 2, r.stderr
-    assert r.stderr.strip().count("\n") == 0 and "missing" in r.stderr and "Traceback" not in r.stderr
+    assert len(message_lines(r.stderr)) == 1 and "missing" in r.stderr and "Traceback" not in r.stderr
 
 
 @pytest.mark.parametrize("args, field", [
@@ -392,7 +393,7 @@ def test_out_of_range_numbers_and_devices_exit_2_naming_the_field(tmp_path, args
         capture_output=True, text=True, timeout=300,
     )
     assert r.returncode == 2, (r.returncode, r.stderr[-2000:])
-    assert r.stderr.strip().count("\n") == 0 and field in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert len(message_lines(r.stderr)) == 1 and field in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert not (tmp_path / "run").exists()  # rejected before anything is written
 
 
@@ -417,7 +418,7 @@ def test_invalid_values_of_nested_configs_name_their_dotted_path(tmp_path):
          "--output", str(tmp_path / "run"), "--model.matching.max-matches", "-3"],
         capture_output=True, text=True, timeout=300,
     )
-    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0, r.stderr
+    assert r.returncode == 2 and len(message_lines(r.stderr)) == 1, r.stderr
     assert r.stderr.startswith("error: invalid config: model.matching.max_matches: "), r.stderr
     assert not (tmp_path / "run").exists()
     private = [p for p in (REPO / "src").rglob("*.py") if "tyro._" in p.read_text()]

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from cli_harness import stop_training
+from cli_harness import message_lines, stop_training
 
 import splat_framework.engine.trainer as trainer_mod
 from splat_framework.engine.checkpoint import (
@@ -456,8 +456,7 @@ def test_sigterm_writes_checkpoint_exits_130_and_resume_finishes(tmp_path):
     args = ["3dgs", "--data", "synthetic/forward-tiny", "--steps", "60", "--output", str(out), "--no-progress",
             "--checkpoint-every", "50", "--model.init.num-points", "300", "--no-save-renders"]
     stderr = stop_training(*args, checkpoints=str(out / "checkpoints" / "step-*.ckpt"), env=env).stderr
-    # (a loaded machine may take over 2 s to generate the scene: that phase then prints its lines)
-    lines = [line for line in stderr.splitlines() if line.strip() and not line.startswith("generating the built-in scene")]
+    lines = message_lines(stderr)  # (a loaded machine may take over 2 s to start: that phase then prints its lines)
     assert len(lines) == 2 and lines[0].startswith("SIGTERM: stopping after this step"), stderr
     assert lines[1].startswith("stopped: SIGTERM at step "), stderr
     assert lines[1].endswith("; continue with: " + shlex.join(["splat-train", *args, "--resume"])), stderr
@@ -466,7 +465,7 @@ def test_sigterm_writes_checkpoint_exits_130_and_resume_finishes(tmp_path):
     assert not (out / "metrics.json").exists()
     # the same command line without --resume refuses to overwrite the run
     again = _cli(args, env, timeout=300)
-    assert again.returncode == 2 and again.stderr.strip().count("\n") == 0
+    assert again.returncode == 2 and len(message_lines(again.stderr)) == 1, again.stderr
     assert "not empty" in again.stderr and "Traceback" not in again.stderr
     done = _cli([*args, "--resume"], env, timeout=600)
     assert done.returncode == 0, done.stderr
@@ -491,7 +490,7 @@ def test_existing_output_without_flags_exits_2(tmp_path):
     (out / "something").write_text("x")
     res = _cli(["3dgs", "--data", "synthetic/forward-tiny", "--output", str(out)], _env(tmp_path), timeout=120)
     assert res.returncode == 2
-    lines = res.stderr.strip().splitlines()
+    lines = message_lines(res.stderr)
     assert len(lines) == 1 and "not a run folder" in lines[0]  # --overwrite would not replace it either
     assert sorted(p.name for p in out.iterdir()) == ["something"]
 

@@ -30,9 +30,12 @@ def main(args: ExportArgs) -> Path:
     check_output(out, PLY_FILE, overwrite=args.overwrite or args.ply is None, inputs=run_inputs(args.run_dir),
                  flag="--ply")  # before torch loads
 
-    from ..export.ply import export_ply
-    from ..engine.run import load_trained_model
-    from ..files.run_lock import owned, writes_inside
+    from ..console import starting
+
+    with starting():
+        from ..export.ply import export_ply
+        from ..engine.run import load_trained_model
+        from ..files.run_lock import owned, writes_inside
 
     with owned(args.run_dir, writes=writes_inside(args.run_dir, out)):  # a PLY elsewhere only reads the run
         _, model = load_trained_model(args.run_dir, args.device, trust_edits=args.trust_edited_config)

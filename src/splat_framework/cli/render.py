@@ -73,13 +73,15 @@ def main(args: RenderArgs) -> Path:
 def render_run(args: RenderArgs, replace: bool, check_video, inputs) -> Path:
     """Load the run and write what ``args`` asks for (its targets already checked against ``inputs``,
     or checked by ``check_video`` once ``--path auto`` names the video)."""
-    import torch
+    from ..console import starting, track
 
-    from ..console import track
-    from ..evaluation.held_out import scored_views, view_name
-    from ..evaluation.pictures import colorize_depth, to_uint8, write_png
-    from ..files.output_paths import RENDER_FOLDER, claim_output
-    from ..engine.run import background_for, load_run
+    with starting():
+        import torch
+
+        from ..evaluation.held_out import scored_views, view_name
+        from ..evaluation.pictures import colorize_depth, to_uint8, write_png
+        from ..files.output_paths import RENDER_FOLDER, claim_output
+        from ..engine.run import background_for, load_run
 
     config, dm, model = load_run(args.run_dir, args.device, args.trust_edited_config)
     bg = background_for(dm.scene, config.device)

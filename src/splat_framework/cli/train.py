@@ -144,8 +144,12 @@ def main(args: list[str] | None = None) -> dict:
         description="Train a Gaussian-splatting method. Run 'splat-train METHOD --help' for its options; "
         f"'splat-train {LOAD_CONFIG_FLAG} RUN/config.json [options]' re-runs a saved experiment into a new folder.",
     )
-    from ..engine.run_folder import resume_unfinished
-    from ..engine.trainer import train
+    from ..console import show_progress, starting
+
+    show_progress(config.progress)
+    with starting(compiler=True):  # every run builds an Adam, whose first use imports torch's compiler
+        from ..engine.run_folder import resume_unfinished
+        from ..engine.trainer import train
 
     if config.resume and config.output is None and not config.overwrite:  # the run this command started
         config = resume_unfinished(config)

@@ -15,8 +15,8 @@ A plugin's test, with the plugin installed (``pip install -e .``: its entry poin
                 "--no-progress", code=0, env=env)
 """
 
-from .cli import COMMANDS, CliResult, changed_paths, cli_env, run_cli, snapshot, stop_training
+from .cli import COMMANDS, CliResult, changed_paths, cli_env, message_lines, run_cli, snapshot, stop_training
 from .scenes import TINY_SCENES, tiny_scene
 
-__all__ = ["COMMANDS", "TINY_SCENES", "CliResult", "changed_paths", "cli_env", "run_cli", "snapshot", "stop_training",
-           "tiny_scene"]
+__all__ = ["COMMANDS", "TINY_SCENES", "CliResult", "changed_paths", "cli_env", "message_lines", "run_cli", "snapshot",
+           "stop_training", "tiny_scene"]

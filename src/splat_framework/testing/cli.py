@@ -4,8 +4,10 @@ A CLI test says which command, its arguments, the exit code it expects and which
 folders it watches; :func:`run_cli` then asserts, for a failure:
 
 - the exit code;
-- at most ``max_lines`` lines on stderr (one, by default: the promise of the README's
-  bad-input table), none of them a Python traceback;
+- at most ``max_lines`` lines on stderr besides progress lines (one, by default: the promise of
+  the README's bad-input table), none of them a Python traceback; a command's progress (its
+  ``starting`` phase while PyTorch loads, a built-in scene's generation) shows after 2 s, so on a
+  loaded machine it can precede an error;
 - optionally, that the message contains each of ``match``;
 
 and, for any outcome, that nothing changed under the watched folders except the
@@ -63,6 +65,15 @@ def snapshot(folder: Path) -> dict[str, tuple]:
     return out
 
 
+_PROGRESS_LINE = re.compile(r"^[^:]+: (\d+/\d+[^,]*, )?(done in )?\d+:\d\d:\d\d\b")
+"""A phase's plain progress line: ``NAME: [DONE/TOTAL UNIT (P%), ]H:MM:SS[, ...]`` or ``NAME: ..., done in H:MM:SS``."""
+
+
+def message_lines(stderr: str) -> list[str]:
+    """A command's stderr without blank lines and progress lines (:data:`_PROGRESS_LINE`)."""
+    return [line for line in stderr.splitlines() if line.strip() and not _PROGRESS_LINE.match(line)]
+
+
 def changed_paths(before: dict[str, tuple], after: dict[str, tuple]) -> set[str]:
     """Relative paths added, removed or changed between two snapshots."""
     return {p for p in before.keys() | after.keys() if before.get(p) != after.get(p)}
@@ -83,8 +94,8 @@ class CliResult:
 
     @property
     def message(self) -> str:
-        """stderr without blank lines (the one-line error, when the command failed)."""
-        return "\n".join(line for line in self.stderr.splitlines() if line.strip())
+        """stderr without blank lines and progress lines (the one-line error, when the command failed)."""
+        return "\n".join(message_lines(self.stderr))
 
 
 def cli_env(**extra: str) -> dict[str, str]:
