@@ -10,6 +10,7 @@ terminal, plain lines at a steady cadence in a log.
 from __future__ import annotations
 
 import math
+import re
 import threading
 import time
 from contextlib import contextmanager
@@ -116,6 +117,11 @@ class Phase:
         if self.info:
             parts.append(self.info)
         return f"{self.name}: " + ", ".join(parts)
+
+
+PROGRESS_LINE = re.compile(r"^[^:]+: (\d+/\d+[^,]*, )?(done in )?\d+:\d\d:\d\d\b")
+"""What :meth:`Phase.line` prints, for readers of a log (the CLI tests): ``NAME: [DONE/TOTAL UNIT (P%),
+]H:MM:SS[, ...]`` or ``NAME: [DONE/TOTAL UNIT, ]done in H:MM:SS[, ...]``."""
 
 
 def _speed(rate: float, unit: str) -> str:

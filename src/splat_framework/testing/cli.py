@@ -36,6 +36,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..console import PROGRESS_LINE
+
 COMMANDS = ("train", "eval", "render", "view", "export", "process", "scene", "match", "sweep")
 """The ``splat-*`` commands: ``splat_framework.cli.<name>``."""
 
@@ -65,13 +67,9 @@ def snapshot(folder: Path) -> dict[str, tuple]:
     return out
 
 
-_PROGRESS_LINE = re.compile(r"^[^:]+: (\d+/\d+[^,]*, )?(done in )?\d+:\d\d:\d\d\b")
-"""A phase's plain progress line: ``NAME: [DONE/TOTAL UNIT (P%), ]H:MM:SS[, ...]`` or ``NAME: ..., done in H:MM:SS``."""
-
-
 def message_lines(stderr: str) -> list[str]:
-    """A command's stderr without blank lines and progress lines (:data:`_PROGRESS_LINE`)."""
-    return [line for line in stderr.splitlines() if line.strip() and not _PROGRESS_LINE.match(line)]
+    """A command's stderr without blank lines and progress lines (:data:`splat_framework.console.PROGRESS_LINE`)."""
+    return [line for line in stderr.splitlines() if line.strip() and not PROGRESS_LINE.match(line)]
 
 
 def changed_paths(before: dict[str, tuple], after: dict[str, tuple]) -> set[str]:
