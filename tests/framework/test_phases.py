@@ -297,3 +297,24 @@ def test_a_commands_exit_leaves_its_objects_to_the_garbage_collectors_freeze():
     assert lines[0] == "before exit 0", out.stdout  # nothing is frozen while the command runs
     frozen = int(lines[1].split()[1])
     assert frozen > 1000, out.stdout  # the modules, configs and everything else left at exit
+
+
+def test_a_mistyped_data_is_refused_before_pytorch_loads(tmp_path):
+    """``splat-train``'s ``--data`` that names nothing: the run's own one-line error, with its
+    suggestion, before the ``starting`` phase imports PyTorch (at once, not after 3-6 s)."""
+    (tmp_path / "llff" / "fern").mkdir(parents=True)
+    code = (
+        "import sys\n"
+        "from splat_framework.cli.train import main\n"
+        "try:\n"
+        "    main(['3dgs', '--data', 'llff/fren', '--steps', '3'])\n"
+        "except Exception as e:\n"
+        "    print(type(e).__name__, e)\n"
+        "print('loaded:', sorted(m for m in ('torch', 'cv2', 'numpy') if m in sys.modules))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                         env=cli_env(SPLAT_DATA=str(tmp_path)))
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.strip().split("\n")
+    assert lines[0].startswith("DataError llff/fren: no such dataset folder (did you mean 'llff/fern'?)"), out.stdout
+    assert lines[1] == "loaded: []", out.stdout

@@ -115,6 +115,17 @@ def load_saved_experiment(path: str, methods: dict):
     return method, saved.model_copy(update=run_options)
 
 
+def check_data_before_loading(data: str) -> None:
+    """A ``--data`` that names nothing is the same one-line DataError as the run's own check
+    (``data.resolve.locate_data``), found before PyTorch loads: at once, not after 3-6 s of
+    ``starting``. The built-in scenes (``synthetic/NAME``) are generated, so left to the run."""
+    from ..data.builtin_scenes import SYNTHETIC_PREFIX
+    from ..data.resolve import locate_data
+
+    if not str(data).replace("\\", "/").startswith(SYNTHETIC_PREFIX):
+        locate_data(data)
+
+
 def main(args: list[str] | None = None) -> dict:
     from .common import ArgumentsError, parse_cli
     from .help_screen import help_group as help_group_of
@@ -146,6 +157,7 @@ def main(args: list[str] | None = None) -> dict:
     )
     from ..console import show_progress, starting
 
+    check_data_before_loading(config.data)
     show_progress(config.progress)
     with starting(compiler=True):  # every run builds an Adam, whose first use imports torch's compiler
         from ..engine.run_folder import resume_unfinished

@@ -6,11 +6,9 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from ..errors import did_you_mean
+from ..errors import DataError, did_you_mean
 from ..files.output_paths import data_inputs
-from .scene import DataError
-
-SYNTHETIC_PREFIX = "synthetic/"
+from .builtin_scenes import NAMED_SCENES, SYNTHETIC_PREFIX
 
 
 def locate_data(spec: str | Path) -> Path:
@@ -57,8 +55,6 @@ def dataset_names(asked: Path, data_root: Path | None) -> list[str]:
     """Names that ``--data asked`` could have meant: the folders beside ``asked`` (from the current
     folder and from ``data_root``, ``$SPLAT_DATA``), those one and two levels under ``data_root``
     (``llff/fern``), and the synthetic scenes."""
-    from .synthetic.generate import NAMED_SCENES
-
     names = [SYNTHETIC_PREFIX + n for n in NAMED_SCENES]
     for root in (Path.cwd(), data_root):
         if root is not None:

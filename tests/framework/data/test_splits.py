@@ -24,6 +24,10 @@ def test_llff_fern_protocol_numbers():
     train, test = llff_split(20, 3)
     assert train == [1, 10, 19]
     assert test == [0, 8, 16]
+    # the 2- and 5-view rows of the literature (RegNeRF's np.round(np.linspace(0, 16, k)) over
+    # the 17 non-test images): fern's images 1 and 19; 1, 5, 10, 14 and 19
+    assert llff_split(20, 2) == ([1, 19], [0, 8, 16])
+    assert llff_split(20, 5) == ([1, 5, 10, 14, 19], [0, 8, 16])
 
 
 def test_own_scene_with_too_few_photos_trains_on_all_of_them():

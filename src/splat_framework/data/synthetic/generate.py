@@ -13,6 +13,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
+from ..builtin_scenes import NAMED_SCENES
 from ..cache_dir import user_cache_dir
 from ...console import phase
 from ...errors import did_you_mean
@@ -42,13 +43,6 @@ DEFAULTS: dict[str, dict] = {
     "object": dict(width=400, height=400, n_views=100),
 }
 
-NAMED_SCENES: dict[str, dict] = {
-    "forward": dict(kind="forward", width=504, height=378, n_views=20, seed=0),
-    "object": dict(kind="object", width=400, height=400, n_views=100, seed=0),
-    "forward-tiny": dict(kind="forward", width=64, height=48, n_views=20, seed=0),
-    "object-tiny": dict(kind="object", width=64, height=64, n_views=100, seed=0),
-}
-"""Scenes that :func:`ensure_scene` knows by name."""
 
 
 def n_test_for(n_train: int) -> int:

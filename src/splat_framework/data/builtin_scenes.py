@@ -1,0 +1,16 @@
+"""The built-in scenes' names and generator parameters (``--data synthetic/NAME``), in a module
+of their own that imports nothing heavy: ``data.resolve`` suggests them for a mistyped ``--data``
+before PyTorch, NumPy or OpenCV load; ``data.synthetic`` generates them."""
+
+from __future__ import annotations
+
+SYNTHETIC_PREFIX = "synthetic/"
+"""What a ``--data`` naming a built-in scene starts with."""
+
+NAMED_SCENES: dict[str, dict] = {
+    "forward": dict(kind="forward", width=504, height=378, n_views=20, seed=0),
+    "object": dict(kind="object", width=400, height=400, n_views=100, seed=0),
+    "forward-tiny": dict(kind="forward", width=64, height=48, n_views=20, seed=0),
+    "object-tiny": dict(kind="object", width=64, height=64, n_views=100, seed=0),
+}
+"""Scenes that :func:`splat_framework.data.synthetic.ensure_scene` knows by name."""
