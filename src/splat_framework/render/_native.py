@@ -59,6 +59,27 @@ def _build_dir(cache_dir: Path | None) -> Path | None:
     return Path(cache_dir) / "native" / f"kernels-{key}"
 
 
+def _staged_sources(build: Path | None) -> Path:
+    """The source file to build from: with a cache, the package's sources copied into
+    ``build/src`` (rewritten only where their bytes differ, so an unchanged copy keeps its time),
+    so that the build rules name the same path from every checkout or environment sharing the
+    cache. Built from the package's own folder instead, a second checkout's path made ninja
+    rebuild the library, and a process loading it meanwhile found it missing and fell back to the
+    torch kernels. Without a cache, the package's folder."""
+    if build is None:
+        return _FOLDER / _SOURCES[0]
+    staged = build / "src"
+    staged.mkdir(exist_ok=True)
+    for name in _SOURCES:
+        data = (_FOLDER / name).read_bytes()
+        target = staged / name
+        if not target.is_file() or target.read_bytes() != data:
+            part = staged / f".{name}.{os.getpid()}.part"
+            part.write_bytes(data)
+            os.replace(part, target)
+    return staged / _SOURCES[0]
+
+
 def _ninja_on_path() -> None:
     """torch's extension builder runs ``ninja`` from PATH: add the ninja package's (a dependency)
     where no ninja is found, e.g. a virtual environment's tools run without activating it."""
@@ -140,7 +161,7 @@ def native_kernels(cache_dir: Path | None = None):
         with phase("loading the native rasterizer kernels" if ready
                    else "building the native rasterizer kernels (once per machine)"):
             _STATE["module"] = cpp_extension.load(
-                name="splat_native", sources=[str(_FOLDER / _SOURCES[0])], extra_cflags=_flags(),
+                name="splat_native", sources=[str(_staged_sources(build))], extra_cflags=_flags(),
                 extra_ldflags=["-fopenmp"] if _openmp() else [],
                 build_directory=str(build) if build is not None else None, verbose=False,
             )

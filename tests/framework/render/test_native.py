@@ -218,3 +218,41 @@ def test_native_gradients_are_the_same_bits_for_any_thread_count(native):
     for other in grads[1:]:
         for a, b in zip(grads[0], other):
             assert torch.equal(a, b)
+
+
+def test_two_checkouts_sharing_a_cache_build_from_the_same_staged_sources(tmp_path, monkeypatch):
+    """The build rules name ``build/src/module.cpp`` whichever checkout (package folder) builds:
+    a second checkout (a worktree, another environment) with the same sources loads the library
+    its neighbour built instead of rebuilding it (and a process loading it meanwhile no longer
+    finds it missing and falls back to the torch kernels)."""
+    from torch.utils import cpp_extension
+
+    build = tmp_path / "cache" / "native" / "kernels-x"
+    build.mkdir(parents=True)
+    staged = []
+    for checkout in ("one", "two"):
+        folder = tmp_path / checkout / "native"
+        shutil.copytree(_native._FOLDER, folder)
+        monkeypatch.setattr(_native, "_FOLDER", folder)
+        staged.append(_native._staged_sources(build))
+        if checkout == "one":
+            stamps = {p.name: p.stat().st_mtime_ns for p in (build / "src").iterdir()}
+    assert staged[0] == staged[1] == build / "src" / "module.cpp"
+    assert {p.name: p.stat().st_mtime_ns for p in (build / "src").iterdir()} == stamps  # same bytes: untouched
+    (build / "src" / "composite.cpp").write_text("// edited in the cache\n")
+    _native._staged_sources(build)  # what is compiled is always the package's own sources
+    assert (build / "src" / "composite.cpp").read_bytes() == (_native._FOLDER / "composite.cpp").read_bytes()
+    assert not list((build / "src").glob(".*.part"))
+
+    seen = []
+
+    def fake_load(**kwargs):
+        seen.append(kwargs)
+        raise RuntimeError("not building in a test")
+
+    monkeypatch.setattr(cpp_extension, "load", fake_load)
+    monkeypatch.setattr(_native, "_STATE", {"module": None, "failed": False})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        _native.native_kernels(tmp_path / "cache")
+    assert seen and seen[0]["sources"] == [str(_native._build_dir(tmp_path / "cache") / "src" / "module.cpp")]
