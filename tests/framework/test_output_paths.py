@@ -56,6 +56,13 @@ def test_process_refuses_the_photo_folder_as_its_output(tmp_path):
             code=2, match="inside the input", watch=[tmp_path])
 
 
+def test_train_with_a_data_that_names_nothing_leaves_the_output_alone_even_with_overwrite(tmp_path):
+    run = _fake_run(tmp_path / "run")
+    run_cli("train", "3dgs", "--data", tmp_path / "no-such-data", "--output", run, "--overwrite",
+            code=2, match="no-such-data: no such dataset folder", watch=[tmp_path])  # nothing changed
+    assert (run / "checkpoints" / "step-0000010.ckpt").read_bytes() == b"old run"
+
+
 @pytest.mark.bad_input("an existing folder or file that the command did not write (a dataset for `splat-scene --out`, a user's folder for `--output`/`--out`, someone's PLY or video)", "exit 2, one line; never replaced, `--overwrite` or not")
 def test_process_overwrite_refuses_a_folder_it_did_not_write(tmp_path):
     from support import write_png
@@ -112,8 +119,11 @@ def test_train_overwrite_unlinks_a_checkpoints_symlink_and_never_follows_it(tmp_
     run = _fake_run(tmp_path / "run")
     shutil.rmtree(run / "checkpoints")
     os.symlink(other / "checkpoints", run / "checkpoints")
-    run_cli("train", "3dgs", "--data", tmp_path / "no-such-data", "--output", run, "--overwrite",
-            code=2, match="no-such-data", watch=[tmp_path], allowed=[run])
+    # a folder that is no dataset: found after the output is cleared (a --data that names nothing
+    # is refused before, leaving the output alone)
+    (tmp_path / "not-a-dataset").mkdir()
+    run_cli("train", "3dgs", "--data", tmp_path / "not-a-dataset", "--output", run, "--overwrite",
+            code=2, match="not-a-dataset: empty folder", watch=[tmp_path], allowed=[run])
     assert not os.path.lexists(run / "checkpoints") and not (run / "config.json").exists()
     assert (other / "checkpoints" / "step-0000010.ckpt").read_bytes() == b"old run"
 
@@ -121,7 +131,8 @@ def test_train_overwrite_unlinks_a_checkpoints_symlink_and_never_follows_it(tmp_
 @pytest.mark.bad_input("an existing folder or file that the command did not write (a dataset for `splat-scene --out`, a user's folder for `--output`/`--out`, someone's PLY or video)", "exit 2, one line; never replaced, `--overwrite` or not")
 def test_train_overwrite_refuses_a_folder_that_is_not_a_run(tmp_path):
     folder = user_folder(tmp_path / "results", **{"config.json": '{"mine": 1}', "metrics.json": '{"psnr": 30}'})
-    run_cli("train", "3dgs", "--data", tmp_path / "no-such-data", "--output", folder, "--overwrite",
+    (tmp_path / "not-a-dataset").mkdir()  # the output is checked before the data is read
+    run_cli("train", "3dgs", "--data", tmp_path / "not-a-dataset", "--output", folder, "--overwrite",
             code=2, match="not a run folder written by splat-train", watch=[tmp_path])
 
 
