@@ -119,10 +119,10 @@ def check_data_before_loading(data: str) -> None:
     """A ``--data`` that names nothing is the same one-line DataError as the run's own check
     (``data.resolve.locate_data``), found before PyTorch loads: at once, not after 3-6 s of
     ``starting``. The built-in scenes (``synthetic/NAME``) are generated, so left to the run."""
-    from ..data.builtin_scenes import SYNTHETIC_PREFIX
+    from ..data.builtin_scenes import builtin_scene_name
     from ..data.resolve import locate_data
 
-    if not str(data).replace("\\", "/").startswith(SYNTHETIC_PREFIX):
+    if builtin_scene_name(data) is None:
         locate_data(data)
 
 

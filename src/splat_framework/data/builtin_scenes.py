@@ -14,3 +14,10 @@ NAMED_SCENES: dict[str, dict] = {
     "object-tiny": dict(kind="object", width=64, height=64, n_views=100, seed=0),
 }
 """Scenes that :func:`splat_framework.data.synthetic.ensure_scene` knows by name."""
+
+
+def builtin_scene_name(spec: object) -> str | None:
+    """The NAME of a ``synthetic/NAME`` spec (either slash; "" when the name is missing), or None
+    when ``spec`` does not name a built-in scene."""
+    posix = str(spec).replace("\\", "/")
+    return posix[len(SYNTHETIC_PREFIX):].strip("/") if posix.startswith(SYNTHETIC_PREFIX) else None

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..errors import DataError, did_you_mean
 from ..files.output_paths import data_inputs
-from .builtin_scenes import NAMED_SCENES, SYNTHETIC_PREFIX
+from .builtin_scenes import NAMED_SCENES, SYNTHETIC_PREFIX, builtin_scene_name
 
 
 def locate_data(spec: str | Path) -> Path:
@@ -24,9 +24,8 @@ def locate_data(spec: str | Path) -> Path:
     path = Path(text).expanduser()
     if path.exists():
         return path
-    posix = text.replace("\\", "/")
-    if posix.startswith(SYNTHETIC_PREFIX):
-        name = posix[len(SYNTHETIC_PREFIX) :].strip("/")
+    name = builtin_scene_name(text)
+    if name is not None:
         if not name:
             raise DataError(f"{text}: missing synthetic scene name (synthetic/<name>)")
         from . import synthetic  # lazy: written separately, heavy

@@ -25,6 +25,7 @@ from pathlib import Path
 import torch
 
 from ..console import phase, say
+from ..runtime.io import atomic_write_bytes
 from ..runtime.trusted import manifest_mismatch, private_folder, write_manifest
 from ._kernels import compile_requested, kernel_cache_dir
 
@@ -69,14 +70,11 @@ def _staged_sources(build: Path | None) -> Path:
     if build is None:
         return _FOLDER / _SOURCES[0]
     staged = build / "src"
-    staged.mkdir(exist_ok=True)
     for name in _SOURCES:
         data = (_FOLDER / name).read_bytes()
         target = staged / name
         if not target.is_file() or target.read_bytes() != data:
-            part = staged / f".{name}.{os.getpid()}.part"
-            part.write_bytes(data)
-            os.replace(part, target)
+            atomic_write_bytes(target, data)
     return staged / _SOURCES[0]
 
 

@@ -242,7 +242,7 @@ def test_two_checkouts_sharing_a_cache_build_from_the_same_staged_sources(tmp_pa
     (build / "src" / "composite.cpp").write_text("// edited in the cache\n")
     _native._staged_sources(build)  # what is compiled is always the package's own sources
     assert (build / "src" / "composite.cpp").read_bytes() == (_native._FOLDER / "composite.cpp").read_bytes()
-    assert not list((build / "src").glob(".*.part"))
+    assert not list((build / "src").glob(".*"))  # no temporary file left behind
 
     seen = []
 
