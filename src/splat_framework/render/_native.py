@@ -18,7 +18,6 @@ import platform
 import shutil
 import sys
 import tempfile
-import time
 import warnings
 from pathlib import Path
 
@@ -89,21 +88,27 @@ def _ninja_on_path() -> None:
         os.environ["PATH"] = os.pathsep.join([ninja.BIN_DIR, os.environ.get("PATH", "")])
 
 
-#: a build lock older than this was left by a build that was killed (a build takes under a minute)
-STALE_LOCK_S = 600.0
+def _build_guard(build: Path):
+    """An exclusive operating-system lock on ``native/kernels-KEY.building`` (beside the build
+    folder), held while this process checks, builds or loads that folder: the system drops it
+    when its holder dies (a killed build, kill -9), so a waiting process never waits on a dead
+    one. A process that finds another holding it says so and waits (the phase line shows the
+    time). Under the guard, a ``lock`` file of torch's extension builder in the folder was left by
+    a build that was killed (torch's builder would wait for it forever, without a word): removed."""
+    from filelock import FileLock, Timeout
 
-
-def _clear_stale_lock(build: Path) -> None:
-    """Remove the build folder's lock when a killed build left it: torch's extension builder would
-    otherwise wait for it forever, without a word."""
-    lock = build / "lock"
+    guard = FileLock(build.parent / f"{build.name}.building", mode=0o600)
     try:
-        age = time.time() - lock.stat().st_mtime
-    except FileNotFoundError:
-        return
-    if age > STALE_LOCK_S:
-        say(f"note: {lock}: removed a build lock left {age / 60:.0f} min ago by a build that did not finish")
-        lock.unlink(missing_ok=True)
+        guard.acquire(timeout=0)
+    except Timeout:
+        with phase(f"waiting for another process building the native rasterizer kernels ({guard.lock_file})",
+                   quiet_s=0):
+            guard.acquire()
+    baton = build / "lock"
+    if baton.exists():
+        say(f"note: {baton}: removed a build lock left by a build that did not finish")
+        baton.unlink(missing_ok=True)
+    return guard
 
 
 def _checked_build(build: Path, root: Path) -> Path:
@@ -146,11 +151,12 @@ def native_kernels(cache_dir: Path | None = None):
 
     _ninja_on_path()
     build = _build_dir(cache_dir)
+    guard = None
     try:
         if build is not None:
             private_folder(build)
+            guard = _build_guard(build)
             build = _checked_build(build, Path(cache_dir))
-            _clear_stale_lock(build)
         ready = build is not None and any(build.glob("*.so"))
         before = _library_stamps(build)
         if not ready and not _openmp():
@@ -170,6 +176,9 @@ def native_kernels(cache_dir: Path | None = None):
         first = (str(exc).strip().splitlines() or [""])[0][:200]
         warnings.warn(f"could not build the native rasterizer kernels ({type(exc).__name__}: {first}); "
                       "using the torch ones")
+    finally:
+        if guard is not None:
+            guard.release()
     return _STATE["module"]
 
 

@@ -160,21 +160,69 @@ def test_a_failed_build_warns_once_and_falls_back(monkeypatch, tmp_path):
     assert _native.native_for(torch.device("cpu")) is None  # renders take the torch.compile kernels
 
 
-def test_a_lock_left_by_a_killed_build_is_removed_and_a_fresh_one_kept(tmp_path, capsys):
-    import os
-    import time
+def _recording_load(monkeypatch, build):
+    """cpp_extension.load replaced by one that records whether torch's build lock was in the folder
+    (torch's builder would wait on it forever) and then fails (the test builds nothing)."""
+    from torch.utils import cpp_extension
 
-    build = tmp_path / "build"
-    build.mkdir()
-    lock = build / "lock"
-    lock.touch()
-    _native._clear_stale_lock(build)
-    assert lock.exists()  # a build may be running in another process
-    old = time.time() - _native.STALE_LOCK_S - 60
-    os.utime(lock, (old, old))
-    _native._clear_stale_lock(build)
-    assert not lock.exists()  # torch's builder would have waited for it forever
-    assert "removed a build lock" in capsys.readouterr().err
+    seen = []
+
+    def fake_load(**kwargs):
+        seen.append((build / "lock").exists())
+        raise RuntimeError("not building in a test")
+
+    monkeypatch.setattr(cpp_extension, "load", fake_load)
+    monkeypatch.setattr(_native, "_STATE", {"module": None, "failed": False})
+    return seen
+
+
+def test_a_build_lock_left_by_a_killed_build_is_removed_however_young(tmp_path, monkeypatch, capsys):
+    # a build killed a minute ago leaves torch's "lock" file: the next run used to wait on it
+    # (42 minutes once, until an age limit of 10 minutes that it checked only before waiting)
+    build = _native._build_dir(tmp_path)
+    build.mkdir(parents=True)
+    (build / "lock").touch()
+    seen = _recording_load(monkeypatch, build)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        _native.native_kernels(tmp_path)
+    assert seen == [False]
+    assert "removed a build lock left by a build that did not finish" in capsys.readouterr().err
+
+
+def test_a_process_waits_for_a_live_builder_and_goes_on_when_it_dies(tmp_path, monkeypatch, capsys):
+    import subprocess
+    import sys
+    import threading
+
+    build = _native._build_dir(tmp_path)
+    build.mkdir(parents=True)
+    guard = build.parent / f"{build.name}.building"
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time, filelock; l = filelock.FileLock(sys.argv[1]); l.acquire(); "
+         "(open(sys.argv[2], 'w').close(), time.sleep(60))", str(guard), str(tmp_path / "held")])
+    try:
+        for _ in range(200):
+            if (tmp_path / "held").exists():
+                break
+            holder.poll()
+            assert holder.returncode is None
+            threading.Event().wait(0.05)
+        (build / "lock").touch()  # the holder's build is running: its lock is not touched while it lives
+        killer = threading.Timer(1.0, holder.kill)  # the build is killed mid-way
+        killer.start()
+        seen = _recording_load(monkeypatch, build)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            _native.native_kernels(tmp_path)
+        assert holder.poll() is not None  # it waited until the holder was gone
+        assert seen == [False]
+        err = capsys.readouterr().err
+        assert "waiting for another process building the native rasterizer kernels" in err
+        assert str(guard) in err
+    finally:
+        holder.kill()
+        holder.wait()
 
 
 def test_the_ninja_package_goes_on_path_only_where_no_ninja_is_found(monkeypatch):
