@@ -135,12 +135,14 @@ def test_a_planted_native_library_is_never_loaded_and_the_kernels_are_built_agai
         "building them again")
     assert built == [str(build)] and manifest_mismatch(build, ["splat_native.so"], cache) is None
 
-    # what was built here is loaded without a word; the same library swapped afterwards is not
+    # what was built here is loaded without a word (imported as it is: no build tool asked); the
+    # same library swapped afterwards is not
     monkeypatch.setattr(_native, "_STATE", {"module": None, "failed": False})
-    monkeypatch.setattr(cpp_extension, "load", lambda **kw: "loaded")
+    monkeypatch.setattr(cpp_extension, "load", lambda **kw: pytest.fail("a checked library is not built again"))
+    monkeypatch.setattr(_native, "_import_library", lambda library: f"loaded {library.name}")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert _native.native_kernels(cache) == "loaded"
+        assert _native.native_kernels(cache) == "loaded splat_native.so"
     _planted_library(build / "splat_native.so", marker)
     monkeypatch.setattr(_native, "_STATE", {"module": None, "failed": False})
     monkeypatch.setattr(cpp_extension, "load", fake_load)

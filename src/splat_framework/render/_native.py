@@ -31,6 +31,7 @@ from ._kernels import compile_requested, kernel_cache_dir
 _FOLDER = Path(__file__).with_name("native")
 _SOURCES = ("module.cpp", "binning.cpp", "composite.cpp", "project.cpp", "loss.cpp")  # module.cpp includes the others: one unit
 _STATE: dict = {"module": None, "failed": False}
+_NAME = "splat_native"
 
 
 def _openmp() -> bool:
@@ -130,6 +131,19 @@ def _checked_build(build: Path, root: Path) -> Path:
         return Path(tempfile.mkdtemp(prefix="splat-native-"))
 
 
+def _import_library(library: Path):
+    """The built extension at ``library``, imported as it is: its folder is keyed by the sources,
+    flags, torch and CPU (:func:`_build_dir`) and its manifest was checked, so nothing is asked of
+    ninja. Asking it (``cpp_extension.load`` on a built folder) rebuilt the library in every later
+    process once its ``.ninja_deps`` was cut short (a build killed while writing it): 60-75 s a run."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(_NAME, library)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def _library_stamps(build: Path | None) -> dict[str, tuple[int, int]]:
     """Name -> (size, mtime) of the built libraries: whether a load built or rebuilt one (only then
     is the manifest written again; a library loaded as checked is not hashed twice)."""
@@ -157,15 +171,18 @@ def native_kernels(cache_dir: Path | None = None):
             private_folder(build)
             guard = _build_guard(build)
             build = _checked_build(build, Path(cache_dir))
-        ready = build is not None and any(build.glob("*.so"))
+        library = build / f"{_NAME}.so" if build is not None else None
+        if library is not None and library.is_file():  # vouched for by its manifest (_checked_build)
+            with phase("loading the native rasterizer kernels"):
+                _STATE["module"] = _import_library(library)
+            return _STATE["module"]
         before = _library_stamps(build)
-        if not ready and not _openmp():
+        if not _openmp():
             say("note: the native rasterizer kernels are built without OpenMP here (Apple's compiler has none): "
                 "they run on one thread")
-        with phase("loading the native rasterizer kernels" if ready
-                   else "building the native rasterizer kernels (once per machine)"):
+        with phase("building the native rasterizer kernels (once per machine)"):
             _STATE["module"] = cpp_extension.load(
-                name="splat_native", sources=[str(_staged_sources(build))], extra_cflags=_flags(),
+                name=_NAME, sources=[str(_staged_sources(build))], extra_cflags=_flags(),
                 extra_ldflags=["-fopenmp"] if _openmp() else [],
                 build_directory=str(build) if build is not None else None, verbose=False,
             )

@@ -4,8 +4,10 @@ binning against the torch binning; and how they are chosen, built and given up o
 
 from __future__ import annotations
 
+import os
 import shutil
 import warnings
+from pathlib import Path
 
 import pytest
 import torch
@@ -223,6 +225,30 @@ def test_a_process_waits_for_a_live_builder_and_goes_on_when_it_dies(tmp_path, m
     finally:
         holder.kill()
         holder.wait()
+
+
+def test_a_built_library_is_loaded_as_it_is_whatever_the_build_tools_state(native_module, tmp_path):
+    """A later process imports the checked library without asking ninja: with the build's
+    ``.ninja_deps`` cut short (a build killed while writing it), ninja rebuilt it in every process
+    (60-75 s a run), and without any compiler at all it still loads."""
+    import subprocess
+    import sys
+
+    built = Path(native_module.__file__).parent
+    cache = tmp_path / "cache"
+    build = _native._build_dir(cache)
+    shutil.copytree(built, build)  # the same key: the same sources, flags, torch and CPU
+    (build / ".ninja_deps").write_bytes(b"# ninjadeps\n\x04\x00\x00\x00cut")
+    stamp = (build / "splat_native.so").stat().st_mtime_ns
+    code = ("import sys, warnings; warnings.simplefilter('error'); from pathlib import Path; "
+            "from torch.utils import cpp_extension; from splat_framework.render import _native; "
+            "cpp_extension.load = None; "  # any call to the builder fails
+            "m = _native.native_kernels(Path(sys.argv[1])); print(Path(m.__file__).name, hasattr(m, 'composite_forward'))")
+    env = dict(os.environ, PATH="/nowhere")  # no compiler, no ninja
+    out = subprocess.run([sys.executable, "-c", code, str(cache)], capture_output=True, text=True, env=env, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["splat_native.so", "True"]
+    assert (build / "splat_native.so").stat().st_mtime_ns == stamp
 
 
 def test_the_ninja_package_goes_on_path_only_where_no_ninja_is_found(monkeypatch):
