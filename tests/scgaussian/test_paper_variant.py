@@ -141,3 +141,26 @@ def test_the_recipe_trains_on_the_tiny_scene(tmp_path):
     assert metrics["method"] == "scgaussian-paper" and metrics["init_stats"]["num_matches"] > 0
     assert metrics["mean"]["psnr"] > 0
     assert json.dumps(saved).count('"warmup_lr_unit": "scene"') == 1
+
+
+def test_another_matcher_on_the_recipe_keeps_the_recipes_matching_values():
+    """``splat-train scgaussian-paper --model.matching.kind auto``: the matcher changes, the recipe's
+    2,000 matches a pair, no budget, MAGSAC settings and no epipolar check stay (before 2026-11-28 the
+    switch gave the new kind's defaults: 12,000 a pair, a 100,000 budget, the epipolar check)."""
+    from splat_framework.cli.common import parse_cli
+    from splat_framework.cli.train import build_parser_type
+
+    argv = ["scgaussian-paper", "--model.matching.kind", "auto", "--model.matching.dense-preset", "fast"]
+    parsed = parse_cli(build_parser_type(METHODS, argv, "scgaussian-paper"), prog="splat-train", args=argv,
+                       subcommands=METHODS, description="")
+    matching = flat(parsed.model.matching.model_dump())
+    assert matching["kind"] == "auto" and matching["dense_preset"] == "fast"
+    for key, value in OFFICIAL.items():
+        if key.startswith("model.matching.") and key != "model.matching.kind":
+            assert matching[key.removeprefix("model.matching.")] == value, key
+    # a kind's own fields start from its defaults; a default config switched keeps the defaults
+    default = METHODS["scgaussian"].default_config().model.matching
+    argv = ["scgaussian", "--model.matching.kind", "sift"]
+    sift = parse_cli(build_parser_type(METHODS, argv, "scgaussian"), prog="splat-train", args=argv,
+                     subcommands=METHODS, description="").model.matching
+    assert sift.kind == "sift" and (sift.max_matches, sift.max_total_matches) == (default.max_matches, default.max_total_matches)

@@ -63,9 +63,22 @@ def flag_value(argv: list[str], flag: str) -> str | None:
     return found
 
 
+def switched_kind(value: BaseModel | None, cls: type[BaseModel]) -> BaseModel:
+    """``value`` switched to the config class ``cls`` (another kind): the kind's defaults, except the
+    fields both kinds have, which keep what ``value`` set (a variant's values or a saved run's).
+    ``splat-train scgaussian-paper --model.matching.kind auto`` keeps the recipe's 2,000 matches a
+    pair and its MAGSAC settings, and changes the matcher alone; the kind's own fields start from
+    its defaults (the kinds declare no shared field with different defaults)."""
+    kept = {}
+    if isinstance(value, BaseModel):
+        shared = (set(type(value).model_fields) & set(cls.model_fields)) - {"kind"}
+        kept = {name: getattr(value, name) for name in shared & value.model_fields_set}
+    return cls.model_construct(**kept)
+
+
 def choose_kinds(config: BaseModel, argv: list[str], prefix: str = "") -> BaseModel:
     """``config`` with every tagged-union field named by a ``--PATH.kind K`` flag of ``argv`` holding
-    kind ``K``: its current value when already of that kind, else the kind's defaults (a field
+    kind ``K``: its current value when already of that kind, else :func:`switched_kind` (a field
     without a default stays unset, so the parser asks for it). An unknown kind raises
     :class:`~splat_framework.cli.common.ArgumentsError` (one line naming the choices)."""
     from .common import ArgumentsError, did_you_mean
@@ -81,7 +94,7 @@ def choose_kinds(config: BaseModel, argv: list[str], prefix: str = "") -> BaseMo
                     f"--{prefix}{name}.kind: {chosen!r} is not one of {', '.join(kinds)}"
                     f"{did_you_mean(chosen, kinds)}"
                 )
-            value = kinds[chosen].model_construct()
+            value = switched_kind(value, kinds[chosen])
         if isinstance(value, BaseModel):
             value = choose_kinds(value, argv, f"{prefix}{name}.")
         if value is not getattr(config, name, None):
