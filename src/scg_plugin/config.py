@@ -80,6 +80,9 @@ class SCGModelConfig(GaussianModelConfig):
     """eta: drop matches whose best reprojection error exceeds this (px)."""
     z_lr: LearningRate = 1.6e-4
     """Learning rate of ray depths, times the scene scale."""
+    z_lr_final: LearningRate | None = None
+    """Final rate of ray depths, reached as the position rate's decay reaches its own (None: z
+    follows the position rate's decay: z_lr x means_lr_final / means_lr)."""
     min_matches: int = Field(50, ge=0, le=MAX_MATCHES)
     """Fewer verified matches than this: no prior, ordinary Gaussians only."""
     sparse_matches: int = Field(1000, ge=0, le=MAX_MATCHES)

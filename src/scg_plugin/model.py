@@ -13,7 +13,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from splat_framework.plugin import Camera, GaussianModel, ops, section
+from splat_framework.plugin import Camera, GaussianModel, log_lerp, ops, run_fraction, section
 
 from .losses import rendering_geometry_loss
 from .ray_gaussians import MatchCache, RayBundle, gaussian_position_loss, pixel_errors, warmup_step_size
@@ -114,7 +114,8 @@ class SCGaussianModel(GaussianModel):
     # --------------------------------------------------------------- optimise
     def learning_rates(self, step: int) -> dict[str, float]:
         """3DGS's rates, and ``z``'s: while the single stage caches, the warm-up step size halving
-        every ``warmup_lr_halve_every`` steps; else ``z_lr`` following the position rate's decay."""
+        every ``warmup_lr_halve_every`` steps; else ``z_lr`` decaying to ``z_lr_final`` over the run
+        as the position rate decays (without ``z_lr_final``, following the position rate's decay)."""
         lrs = super().learning_rates(step)
         cfg = self.config.model
         if self.bundle is None:
@@ -123,6 +124,8 @@ class SCGaussianModel(GaussianModel):
             # the paper's single stage: z moves with the warm-up step size while caching
             lr = warmup_step_size(cfg.warmup_lr, cfg.warmup_lr_unit, self.bundle)
             lrs["z"] = lr * 0.5 ** (step // max(cfg.warmup_lr_halve_every, 1))
+        elif cfg.z_lr_final is not None:
+            lrs["z"] = log_lerp(cfg.z_lr, cfg.z_lr_final, run_fraction(step, self.config.total_steps)) * self.scene_scale
         else:
             ratio = lrs["means"] / max(self.config.optim.means_lr * self.scene_scale, 1e-30)
             lrs["z"] = cfg.z_lr * self.scene_scale * ratio

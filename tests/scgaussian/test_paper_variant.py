@@ -28,7 +28,7 @@ OFFICIAL = {
     "model.warmup_lr_halve_every": 500,
     "model.lambda_gp": 0.0, "model.lambda_rg": 0.3, "model.rg_start": 0,
     "model.cache_filter": True, "model.cache_until": 0, "model.filter_eta_px": 75.6,
-    "model.z_lr": 1.6e-4, "model.sparse_matches": 0, "model.thin_prior_baseline": False,
+    "model.z_lr": 1.6e-4, "model.z_lr_final": 1.6e-6, "model.sparse_matches": 0, "model.thin_prior_baseline": False,
     "model.init.kind": "random", "model.init.num_points": 0,
     "model.reg.backdrop_weight": 1.0, "model.reg.depth_smoothness": 0.0, "model.reg.stereo_weight": 0.0,
     "model.reg.anisotropy_weight": 0.0, "model.reg.drop_rate": 0.0, "model.reg.opacity_noise": 0.0,
@@ -41,7 +41,7 @@ OFFICIAL = {
     "strategy.refine_start_iter": 500, "strategy.refine_stop_iter": 2000, "strategy.reset_every": 200,
     "strategy.opacity_decay": 1.0, "strategy.refine_every": 100, "strategy.pause_refine_after_reset": 0,
     "strategy.absgrad": False, "strategy.revised_opacity": False,
-    "optim.means_lr": 1.6e-4, "optim.means_lr_final": 1.6e-6, "optim.scales_lr": 0.0055,
+    "optim.means_lr": 1.6e-4, "optim.means_lr_final": 1.6e-4, "optim.scales_lr": 0.0055,
     "optim.quats_lr": 0.0015, "optim.opacities_lr": 0.055, "optim.sh0_lr": 0.002, "optim.shN_lr": 1e-4,
 }
 """The official code's values, as this project's fields (docs/methods.md says where each is)."""
@@ -131,11 +131,18 @@ def test_the_recipe_trains_on_the_tiny_scene(tmp_path):
 
     if M.packaged_weights_dir() is None:
         pytest.skip(f"{M.WEIGHTS_PACKAGE} not installed ({M.WEIGHTS_INSTALL}): the recipe matches with ALIKED + LightGlue")
-    from splat_framework.engine.trainer import train
+    from splat_framework.engine.trainer import Trainer
 
     cfg = METHODS["scgaussian-paper"].default_config().model_copy(
         update=dict(data="synthetic/forward-tiny", steps=10, output=tmp_path / "run", progress=False))
-    train(cfg, spec=METHODS["scgaussian-paper"])
+    trainer = Trainer(cfg, spec=METHODS["scgaussian-paper"])
+    trainer.train()
+    # the official schedules: z decays from 1.6e-4 to 1.6e-6 (times the scale), the ordinary
+    # Gaussians' positions keep 1.6e-4 (its update_learning_rate returns after z's group)
+    model = trainer.model
+    first, last = model.learning_rates(0), model.learning_rates(10)
+    assert first["z"] == pytest.approx(1.6e-4 * model.scene_scale) and last["z"] == pytest.approx(1.6e-6 * model.scene_scale)
+    assert first["means"] == last["means"] == pytest.approx(1.6e-4 * model.scene_scale)
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     saved = json.loads((tmp_path / "run" / "config.json").read_text())
     assert metrics["method"] == "scgaussian-paper" and metrics["init_stats"]["num_matches"] > 0
