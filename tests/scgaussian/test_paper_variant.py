@@ -32,7 +32,7 @@ OFFICIAL = {
     "model.init.kind": "random", "model.init.num_points": 0,
     "model.reg.backdrop_weight": 1.0, "model.reg.depth_smoothness": 0.0, "model.reg.stereo_weight": 0.0,
     "model.reg.anisotropy_weight": 0.0, "model.reg.drop_rate": 0.0, "model.reg.opacity_noise": 0.0,
-    "model.matching.kind": "aliked-lightglue", "model.matching.max_matches": 2000, "model.matching.max_total_matches": 0,
+    "model.matching.kind": "auto", "model.matching.max_matches": 2000, "model.matching.max_total_matches": 0,
     "model.matching.magsac_threshold": 1.0, "model.matching.magsac_confidence": 0.999999,
     "model.matching.epipolar_check": False, "model.matching.alpha_mask": True,
     "strategy.enabled": True, "strategy.prune_opa": 0.005, "strategy.grow_grad2d": 0.0004,
@@ -151,17 +151,17 @@ def test_the_recipe_trains_on_the_tiny_scene(tmp_path):
 
 
 def test_another_matcher_on_the_recipe_keeps_the_recipes_matching_values():
-    """``splat-train scgaussian-paper --model.matching.kind auto``: the matcher changes, the recipe's
+    """``splat-train scgaussian-paper --model.matching.kind dense``: the matcher changes, the recipe's
     2,000 matches a pair, no budget, MAGSAC settings and no epipolar check stay (before 2026-11-28 the
     switch gave the new kind's defaults: 12,000 a pair, a 100,000 budget, the epipolar check)."""
     from splat_framework.cli.common import parse_cli
     from splat_framework.cli.train import build_parser_type
 
-    argv = ["scgaussian-paper", "--model.matching.kind", "auto", "--model.matching.dense-preset", "fast"]
+    argv = ["scgaussian-paper", "--model.matching.kind", "dense", "--model.matching.dense-preset", "fast"]
     parsed = parse_cli(build_parser_type(METHODS, argv, "scgaussian-paper"), prog="splat-train", args=argv,
                        subcommands=METHODS, description="")
     matching = flat(parsed.model.matching.model_dump())
-    assert matching["kind"] == "auto" and matching["dense_preset"] == "fast"
+    assert matching["kind"] == "dense" and matching["dense_preset"] == "fast"
     for key, value in OFFICIAL.items():
         if key.startswith("model.matching.") and key != "model.matching.kind":
             assert matching[key.removeprefix("model.matching.")] == value, key
