@@ -81,8 +81,8 @@ class SCGModelConfig(GaussianModelConfig):
     z_lr: LearningRate = 1.6e-4
     """Learning rate of ray depths, times the scene scale."""
     z_lr_final: LearningRate | None = None
-    """Final rate of ray depths, reached as the position rate's decay reaches its own (None: z
-    follows the position rate's decay: z_lr x means_lr_final / means_lr)."""
+    """Final rate of ray depths, reached at the end of the run (None: z follows the position
+    rate's decay, to z_lr x means_lr_final / means_lr)."""
     min_matches: int = Field(50, ge=0, le=MAX_MATCHES)
     """Fewer verified matches than this: no prior, ordinary Gaussians only."""
     sparse_matches: int = Field(1000, ge=0, le=MAX_MATCHES)
