@@ -101,9 +101,9 @@ def _build_guard(build: Path):
     guard = FileLock(build.parent / f"{build.name}.building", mode=0o600)
     try:
         guard.acquire(timeout=0)
-    except Timeout:
-        with phase(f"waiting for another process building the native rasterizer kernels ({guard.lock_file})",
-                   quiet_s=0):
+    except Timeout:  # one line even where progress is off, then the phase's elapsed time
+        say(f"note: another process is building the native rasterizer kernels; waiting for it ({guard.lock_file})")
+        with phase("waiting for another process building the native rasterizer kernels"):
             guard.acquire()
     baton = build / "lock"
     if baton.exists():
