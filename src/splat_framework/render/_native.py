@@ -144,14 +144,6 @@ def _import_library(library: Path):
     return module
 
 
-def _library_stamps(build: Path | None) -> dict[str, tuple[int, int]]:
-    """Name -> (size, mtime) of the built libraries: whether a load built or rebuilt one (only then
-    is the manifest written again; a library loaded as checked is not hashed twice)."""
-    if build is None:
-        return {}
-    return {p.name: (p.stat().st_size, p.stat().st_mtime_ns) for p in build.glob("*.so")}
-
-
 def native_kernels(cache_dir: Path | None = None):
     """The loaded extension (``composite_forward``, ``composite_backward``, ``bin_chunk``, ...), built
     when missing; None when it cannot be built on this machine (warned once).
@@ -176,7 +168,6 @@ def native_kernels(cache_dir: Path | None = None):
             with phase("loading the native rasterizer kernels"):
                 _STATE["module"] = _import_library(library)
             return _STATE["module"]
-        before = _library_stamps(build)
         if not _openmp():
             say("note: the native rasterizer kernels are built without OpenMP here (Apple's compiler has none): "
                 "they run on one thread")
@@ -186,7 +177,7 @@ def native_kernels(cache_dir: Path | None = None):
                 extra_ldflags=["-fopenmp"] if _openmp() else [],
                 build_directory=str(build) if build is not None else None, verbose=False,
             )
-        if build is not None and _library_stamps(build) != before:  # built (or rebuilt by ninja) just now
+        if build is not None:  # built just now (a checked library was imported above)
             write_manifest(build, sorted(p.name for p in build.glob("*.so")))
     except Exception as exc:  # depends on the toolchain
         _STATE["failed"] = True
