@@ -90,6 +90,32 @@ def test_transforms_json_distortion_is_ignored_with_a_warning_and_fisheye_refuse
         load_scene(bare)
 
 
+def test_transforms_json_reads_each_frames_own_intrinsics_over_the_top_levels(built_in, tmp_path):
+    """nerfstudio's per-frame intrinsics (several cameras of one image size): a frame's fl_x, fl_y,
+    cx, cy, w, h (and distortion) are its own; what a frame lacks comes from the top level."""
+    root = write_transforms(built_in, tmp_path / "pf")
+    meta = json.loads((root / "transforms.json").read_text())
+    K = np.array(exact_cameras(built_in)[0]["K"])
+    by_path = {fr["file_path"]: fr for fr in meta["frames"]}
+    by_path["images/image003.png"].update(fl_x=2 * K[0, 0], fl_y=2 * K[1, 1])  # a zoomed second camera
+    by_path["images/image005.png"].update(cx=K[0, 2] + 3.0, k1=0.02)
+    for key in ("fl_x", "fl_y", "cx", "cy"):  # image007 states all four itself; no top-level fl_x left ...
+        by_path["images/image007.png"][key] = meta[key]
+    (root / "transforms.json").write_text(json.dumps(meta))
+    with pytest.warns(UserWarning, match=r"transforms.json: distortion \(k1\) is ignored"):
+        scene = load_scene(root)
+    Ks = {c.name: c.K for c in scene.cameras}
+    assert torch.allclose(Ks["image003"][:2, :2], 2 * torch.tensor(K[:2, :2], dtype=torch.float32), atol=1e-4)
+    assert torch.allclose(Ks["image003"][:2, 2], torch.tensor(K[:2, 2], dtype=torch.float32), atol=1e-4)
+    assert abs(float(Ks["image005"][0, 2]) - (K[0, 2] + 3.0)) < 1e-4 and abs(float(Ks["image005"][0, 0]) - K[0, 0]) < 1e-4
+    assert torch.allclose(Ks["image000"], torch.tensor(K, dtype=torch.float32), atol=1e-4)
+    for key in ("fl_x", "fl_y", "cx", "cy"):  # ... so a frame without its own has none, and the error names it
+        meta.pop(key)
+    (root / "transforms.json").write_text(json.dumps(meta))
+    with pytest.raises(DataError, match=r"transforms.json: frame 'images/image000.png': no intrinsics"):
+        load_scene(root)
+
+
 def test_nerfstudio_colmap_sparse_0_layout_is_recognised(tmp_path):
     root = make_colmap(tmp_path / "ns", binary=True, sparse_sub="colmap/sparse/0")
     assert detect_format(root) == "colmap"

@@ -1,11 +1,13 @@
 """nerfstudio / instant-ngp scenes: one ``transforms.json`` beside the images.
 
 Its ``frames`` hold ``file_path`` (relative to the folder) and ``transform_matrix``
-(camera-to-world in OpenGL axes, read as Blender's: :mod:`.blender`). The intrinsics are global:
+(camera-to-world in OpenGL axes, read as Blender's: :mod:`.blender`). The intrinsics are
 ``fl_x``, ``fl_y``, ``cx``, ``cy`` in pixels of a ``w`` x ``h`` image (nerfstudio copies them from
-COLMAP, whose pixel centres are at +0.5 like ours, so the principal point is used as stored), or
-``camera_angle_x`` (and ``camera_angle_y``) with the principal point at the centre. Distortion
-coefficients (``k1`` ... ``p2``) are ignored with a warning (undistort first for exact results);
+COLMAP, whose pixel centres are at +0.5 like ours, so the principal point is used as stored), each
+read from the frame where the frame has it (nerfstudio's per-frame intrinsics, e.g. several
+cameras of one size), else from the top level; or ``camera_angle_x`` (and ``camera_angle_y``) with
+the principal point at the centre. Distortion coefficients (``k1`` ... ``p2``, at the top level or
+in a frame) are ignored with a warning (undistort first for exact results);
 fisheye and panoramic cameras are refused. Frames are taken in natural order of their paths and
 split as a COLMAP scene is (:func:`~..splits.own_scene_split`: every 8th held out); images
 are decoded at full resolution unless ``--downscale`` says otherwise.
@@ -30,6 +32,8 @@ TRANSFORMS = "transforms.json"
 PERSPECTIVE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
 """nerfstudio's ``camera_model`` values read as pinhole cameras (any distortion ignored)."""
 DISTORTION = ("k1", "k2", "k3", "k4", "p1", "p2")
+PER_FRAME = ("fl_x", "fl_y", "cx", "cy", "w", "h", *DISTORTION)
+"""The keys a frame may give for itself (as nerfstudio's parser reads them), over the top level's."""
 MIN_CONVERGENCE = 1e-3
 """Least mean squared sine between the optical axes and their common direction for them to meet
 in a point the cameras look at (below it they are parallel: a forward-facing capture)."""
@@ -41,30 +45,33 @@ def load_transforms(root: Path, *, views: Views = "all", downscale: float | None
     if not path.is_file():
         raise DataError(f"{path}: file not found")
     meta = read_json_object(path)
-    frames = sorted(transform_frames(meta, path), key=lambda f: natural_key(f[0]))
+    entries = sorted(zip(transform_frames(meta, path), meta["frames"]), key=lambda e: natural_key(e[0][0]))
+    frames = [frame for frame, _ in entries]
+    own = [{k: raw[k] for k in PER_FRAME if k in raw} for _, raw in entries]  # each frame's own intrinsics
     f = check_downscale(downscale, root)
     image_scale = 1.0 / (1.0 if f is None else f)
     paths = [frame_image(root, fp, path) for fp, _ in frames]
     stored = check_same_size(paths)
     w, h = decoded_size(stored, image_scale)
-    fx, fy, cx, cy, width, height = _intrinsics(meta, path, stored)
-    sx, sy = pixel_ratios((w, h), (width, height), str(path), "its w, h give")
+    _check_camera_model(meta, path, [f"{path}: frame {fp!r}" for fp, _ in frames], own)
     c2ws = [opencv_camera_to_world(m) for _, m in frames]
     near, far = _depth_bounds(c2ws)
-    cameras = [
-        make_camera(c2w[:3, :3], c2w[:3, 3], fx * sx, fy * sy, cx * sx, cy * sy, w, h, near, far, name,
-                    f"{path}: frame {fp!r}")
-        for (fp, _), c2w, name in zip(frames, c2ws, _camera_names(paths, root))
-    ]
+    cameras = []
+    for (fp, _), values, c2w, name in zip(frames, own, c2ws, _camera_names(paths, root)):
+        where = f"{path}: frame {fp!r}" if any(own) else str(path)  # global intrinsics: the file is the culprit
+        fx, fy, cx, cy, width, height = _intrinsics({**meta, **values}, where, stored)
+        sx, sy = pixel_ratios((w, h), (width, height), where, "its w, h give")
+        cameras.append(make_camera(c2w[:3, :3], c2w[:3, 3], fx * sx, fy * sy, cx * sx, cy * sy, w, h, near, far,
+                                   name, f"{path}: frame {fp!r}"))
     train, test = own_scene_split(len(cameras), views)
     return build_scene(root, "transforms", cameras, paths, train, test, image_scale=image_scale)
 
 
-def _intrinsics(meta: dict, path: Path, stored: tuple[int, int]) -> tuple[float, float, float, float, float, float]:
-    """(fx, fy, cx, cy, width, height) of the camera as the file states it: from ``fl_x`` (``fl_y``,
-    ``cx``, ``cy``, ``w``, ``h`` default to ``fl_x``, the centre and the stored image size), else from
+def _intrinsics(meta: dict, path: str, stored: tuple[int, int]) -> tuple[float, float, float, float, float, float]:
+    """(fx, fy, cx, cy, width, height) of a camera as ``meta`` (the top level with one frame's own
+    keys over it; ``path`` names it in errors) states it: from ``fl_x`` (``fl_y``, ``cx``, ``cy``,
+    ``w``, ``h`` default to ``fl_x``, the centre and the stored image size), else from
     ``camera_angle_x`` (``camera_angle_y``) over the stored size."""
-    _check_camera_model(meta, path)
 
     def value(key: str, default: float) -> float:
         return number(meta[key], f"{path}: {key}") if key in meta else default
@@ -77,8 +84,8 @@ def _intrinsics(meta: dict, path: Path, stored: tuple[int, int]) -> tuple[float,
         return fx, value("fl_y", fx), value("cx", width / 2), value("cy", height / 2), width, height
     angle_x = camera_angle(meta, path)
     if angle_x is None:
-        raise DataError(f"{path}: no intrinsics (global fl_x, fl_y, cx, cy, w, h, or camera_angle_x); "
-                        "per-frame intrinsics are not read")
+        raise DataError(f"{path}: no intrinsics (fl_x, fl_y, cx, cy, w, h at the top level or in the frame, "
+                        "or camera_angle_x)")
     width, height = stored
     fx = focal_length(width, angle_x)
     angle_y = camera_angle(meta, path, "camera_angle_y")
@@ -86,16 +93,19 @@ def _intrinsics(meta: dict, path: Path, stored: tuple[int, int]) -> tuple[float,
     return fx, fy, width / 2, height / 2, width, height
 
 
-def _check_camera_model(meta: dict, path: Path) -> None:
-    """A DataError for a camera model that is not a pinhole one; one warning when the file gives
-    distortion coefficients, which are ignored."""
+def _check_camera_model(meta: dict, path: Path, wheres: list[str], own: list[dict]) -> None:
+    """A DataError for a camera model that is not a pinhole one; one warning when the file (its top
+    level or any frame, ``own[i]`` the keys of the frame ``wheres[i]`` names) gives distortion
+    coefficients, which are ignored."""
     model = meta.get("camera_model", "PINHOLE")
     if model not in PERSPECTIVE_MODELS:
         raise DataError(f"{path}: camera_model {model!r} is not supported (use {', '.join(PERSPECTIVE_MODELS)})")
-    given = [k for k in DISTORTION if k in meta and number(meta[k], f"{path}: {k}") != 0.0]
+    given = {k for values, where in [(meta, str(path)), *zip(own, wheres)] for k in DISTORTION
+             if k in values and number(values[k], f"{where}: {k}") != 0.0}
     if given:
-        warnings.warn(f"{path}: distortion ({', '.join(given)}) is ignored; undistort the images first for exact "
-                      "results", stacklevel=4)
+        names = ", ".join(k for k in DISTORTION if k in given)
+        warnings.warn(f"{path}: distortion ({names}) is ignored; undistort the images first for exact results",
+                      stacklevel=3)
 
 
 def _depth_bounds(c2ws: list[np.ndarray]) -> tuple[float, float]:
