@@ -294,6 +294,33 @@ def test_pages_of_other_sites_and_rebinding_names_get_403_for_the_socket_and_eve
         v.close()
 
 
+@pytest.mark.bad_input("a page of any site showing the viewer in a frame (clickjacking)",
+                       "refused by the browser: every HTTP answer says X-Frame-Options DENY and CSP frame-ancestors 'none'")
+def test_no_page_may_show_the_viewer_in_a_frame():
+    """Clickjacking: a page of another site could show the viewer (its own socket allowed) in a
+    frame and have the user click its buttons unseen. Every HTTP answer forbids framing."""
+    from splat_framework.viewer.scene_viewer import Viewer
+
+    v = Viewer(port=0)
+    try:
+        for path, host, status in (("/", f"127.0.0.1:{v.port}", 200), ("/index.html", f"localhost:{v.port}", 200),
+                                   ("/nosuch.js", f"127.0.0.1:{v.port}", 404), ("/", f"evil.example:{v.port}", 403)):
+            conn = http.client.HTTPConnection("127.0.0.1", v.port, timeout=10)
+            try:
+                conn.putrequest("GET", path, skip_host=True, skip_accept_encoding=True)
+                conn.putheader("Host", host)
+                conn.endheaders()
+                response = conn.getresponse()
+                response.read()
+            finally:
+                conn.close()
+            assert response.status == status, (path, host)
+            assert response.getheader("X-Frame-Options") == "DENY", (path, response.getheaders())
+            assert "frame-ancestors 'none'" in response.getheader("Content-Security-Policy", ""), path
+    finally:
+        v.close()
+
+
 def _viser_client(port: int, origin: str) -> int | str:
     """What a viser client connecting from a page of ``origin`` gets first: "message" (the scene),
     or the HTTP status refusing its handshake."""

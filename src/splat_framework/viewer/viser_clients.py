@@ -33,6 +33,10 @@ log = logging.getLogger(__name__)
 REFUSED = "this page may not use the viewer (only the viewer's own page may)\n"
 """The body of the 403 answering a refused request."""
 
+NO_FRAMING = (("X-Frame-Options", "DENY"), ("Content-Security-Policy", "frame-ancestors 'none'"))
+"""Headers of every HTTP answer: no page (of any site) may show the viewer in a frame, where it could
+have the user click its buttons unseen (clickjacking); the page's own socket would be allowed."""
+
 _LOCK = threading.Lock()
 _STARTING: Counter = Counter()
 """Hosts on which :func:`start_checked` is starting a server now (how many)."""
@@ -93,14 +97,20 @@ def refuse_foreign(host: str, process_request=None):
     """A websockets ``process_request`` for a server listening on ``host``: 403 (:data:`REFUSED`) for
     a request :func:`~splat_framework.viewer.serving.client_allowed` refuses or that repeats its
     ``Host`` or ``Origin``; else ``process_request``'s answer (viser's: the page and its assets; None,
-    the websocket handshake, for an upgrade)."""
+    the websocket handshake, for an upgrade). Every HTTP answer carries :data:`NO_FRAMING`."""
 
     def process(connection, request):
         hosts, origins = request.headers.get_all("Host"), request.headers.get_all("Origin")
         if len(hosts) != 1 or len(origins) > 1 or not client_allowed(host, hosts[0], origins[0] if origins else None):
             log.debug("viewer refused a request: Host %r, Origin %r", hosts, origins)
-            return connection.respond(http.HTTPStatus.FORBIDDEN, REFUSED)
-        return process_request(connection, request) if process_request is not None else None
+            response = connection.respond(http.HTTPStatus.FORBIDDEN, REFUSED)
+        else:
+            response = process_request(connection, request) if process_request is not None else None
+        if response is not None:
+            for name, value in NO_FRAMING:
+                if name not in response.headers:
+                    response.headers[name] = value
+        return response
 
     return process
 
