@@ -228,6 +228,13 @@ def test_malformed_websocket_messages_print_no_traceback(run_dir, capfd, recwarn
 
 def _get(port: int, headers: list[tuple[str, str]], path: str = "/", address: str = "127.0.0.1") -> tuple[int, bytes]:
     """Status and body of a GET of ``path`` at ``address:port`` sent with exactly ``headers`` (Host among them)."""
+    status, _, body = _get_with_headers(port, headers, path, address)
+    return status, body
+
+
+def _get_with_headers(port: int, headers: list[tuple[str, str]], path: str = "/",
+                      address: str = "127.0.0.1") -> tuple[int, dict[str, str], bytes]:
+    """:func:`_get`, with the answer's headers."""
     conn = http.client.HTTPConnection(address, port, timeout=10)
     try:
         conn.putrequest("GET", path, skip_host=True, skip_accept_encoding=True)
@@ -235,7 +242,7 @@ def _get(port: int, headers: list[tuple[str, str]], path: str = "/", address: st
             conn.putheader(name, value)
         conn.endheaders()
         response = conn.getresponse()
-        return response.status, response.read()
+        return response.status, dict(response.getheaders()), response.read()
     finally:
         conn.close()
 
@@ -305,18 +312,10 @@ def test_no_page_may_show_the_viewer_in_a_frame():
     try:
         for path, host, status in (("/", f"127.0.0.1:{v.port}", 200), ("/index.html", f"localhost:{v.port}", 200),
                                    ("/nosuch.js", f"127.0.0.1:{v.port}", 404), ("/", f"evil.example:{v.port}", 403)):
-            conn = http.client.HTTPConnection("127.0.0.1", v.port, timeout=10)
-            try:
-                conn.putrequest("GET", path, skip_host=True, skip_accept_encoding=True)
-                conn.putheader("Host", host)
-                conn.endheaders()
-                response = conn.getresponse()
-                response.read()
-            finally:
-                conn.close()
-            assert response.status == status, (path, host)
-            assert response.getheader("X-Frame-Options") == "DENY", (path, response.getheaders())
-            assert "frame-ancestors 'none'" in response.getheader("Content-Security-Policy", ""), path
+            got, answer, _ = _get_with_headers(v.port, [("Host", host)], path)
+            assert got == status, (path, host)
+            assert answer.get("X-Frame-Options") == "DENY", (path, answer)
+            assert "frame-ancestors 'none'" in answer.get("Content-Security-Policy", ""), path
     finally:
         v.close()
 

@@ -53,16 +53,18 @@ def load_transforms(root: Path, *, views: Views = "all", downscale: float | None
     paths = [frame_image(root, fp, path) for fp, _ in frames]
     stored = check_same_size(paths)
     w, h = decoded_size(stored, image_scale)
-    _check_camera_model(meta, path, [f"{path}: frame {fp!r}" for fp, _ in frames], own)
+    names = [f"{path}: frame {fp!r}" for fp, _ in frames]  # how errors and warnings name each frame
+    _check_camera_model(meta, path, names, own)
     c2ws = [opencv_camera_to_world(m) for _, m in frames]
     near, far = _depth_bounds(c2ws)
+    per_frame = any(own)  # else the intrinsics are global: an error about them names the file
     cameras = []
-    for (fp, _), values, c2w, name in zip(frames, own, c2ws, _camera_names(paths, root)):
-        where = f"{path}: frame {fp!r}" if any(own) else str(path)  # global intrinsics: the file is the culprit
-        fx, fy, cx, cy, width, height = _intrinsics({**meta, **values}, where, stored)
-        sx, sy = pixel_ratios((w, h), (width, height), where, "its w, h give")
+    for values, c2w, name, where in zip(own, c2ws, _camera_names(paths, root), names):
+        stated_by = where if per_frame else str(path)
+        fx, fy, cx, cy, width, height = _intrinsics({**meta, **values}, stated_by, stored)
+        sx, sy = pixel_ratios((w, h), (width, height), stated_by, "its w, h give")
         cameras.append(make_camera(c2w[:3, :3], c2w[:3, 3], fx * sx, fy * sy, cx * sx, cy * sy, w, h, near, far,
-                                   name, f"{path}: frame {fp!r}"))
+                                   name, where))
     train, test = own_scene_split(len(cameras), views)
     return build_scene(root, "transforms", cameras, paths, train, test, image_scale=image_scale)
 
