@@ -170,17 +170,21 @@ class SCGaussianModel(GaussianModel):
 
     def _rg_loss(self, outputs, camera: Camera, view: int | None) -> Tensor:
         """L_rg for the matches seen from the rendered training view, at ``view`` in the training
-        split (the batch's ``train_position``; None: not a training view, no term)."""
+        split (the batch's ``train_position``; None: not a training view, no term). ``camera`` may
+        be the view's camera resized (the trainer's coarse steps): the matched pixels, kept at the
+        view's own size, are scaled to it."""
         b = self.bundle
         total, count = outputs.depth.sum() * 0.0, 0
         if view is None:
             return total
         depth = outputs.expected_depth
+        own = self.train_cameras[view]
+        to_render = b.uv.new_tensor([camera.width / own.width, camera.height / own.height])
         sel_view = b.view == view
         for partner in torch.unique(b.partner_view[sel_view]).tolist():
             sel = sel_view & (b.partner_view == partner)
             total = total + rendering_geometry_loss(
-                depth, camera, b.uv[sel], self.train_cameras[partner], b.partner_uv[sel]
+                depth, camera, b.uv[sel] * to_render, self.train_cameras[partner], b.partner_uv[sel]
             )
             count += 1
         return total / max(count, 1)

@@ -73,6 +73,15 @@ class Camera:
             height=int(round(self.height * factor)),
         )
 
+    def resized(self, width: int, height: int) -> "Camera":
+        """The same camera for its image resampled to ``width`` x ``height``: each axis of the
+        intrinsics scaled by its own ratio (new size / old size), so that every pixel's footprint
+        maps exactly (an area-averaged image of any size lines up with it)."""
+        K = self.K.clone()
+        K[0] *= width / self.width
+        K[1] *= height / self.height
+        return replace(self, K=K, width=int(width), height=int(height))
+
     def with_focal_factor(self, factor: "float | Tensor") -> "Camera":
         """The same camera with its focal lengths (fx, fy) times ``factor`` (a float, or a 0-d tensor
         that gradients flow through); the principal point and the image size are kept."""

@@ -37,6 +37,7 @@ READ_IN_ANOTHER_MODE = {
     "camera_refine.lr_rotation": "--camera-refine.mode on, or auto with estimated training poses (off by default), "
                                  "as its help says",
     "camera_refine.focal": "--camera-refine.mode on, or auto with estimated training poses",
+    "coarse_scale": "--coarse-steps above 0 only (methods that leave it 0 train at full size), as its help says",
 }
 """Flags read only in a mode that another value of the method's config picks, and which."""
 

@@ -465,3 +465,40 @@ def test_the_training_step_renders_with_drop_gaussian_and_evaluation_without(tmp
     step, after = run("a")
     assert (step == 0).float().mean() == pytest.approx(0.9 * 3 / 4, abs=0.1) and torch.all(after == 1)
     assert torch.equal(step, run("b")[0])
+
+
+def test_coarse_steps_train_on_area_averaged_images_with_cameras_scaled_to_match(tmp_path, monkeypatch):
+    """``coarse_steps``: the steps before it render the training view resized by ``coarse_scale``
+    (each axis by its own ratio) against the image averaged over each coarse pixel's area; later
+    steps render the view as it is."""
+    half = get_method("3dgs").default_config().default_steps // 2  # a schedule field: --steps 6 makes it 3
+    trainer = Trainer(tiny_config(tmp_path / "run", steps=6, progress=False, coarse_steps=half, coarse_scale=0.5))
+    assert trainer.config.coarse_steps == 3
+    model, dm = trainer.model, trainer.datamanager
+    render = model.get_outputs
+    seen = []
+
+    def spy(camera, background=None, step=None):
+        seen.append((step, camera))
+        return render(camera, background, step=step)
+
+    monkeypatch.setattr(model, "get_outputs", spy)
+    for step in range(6):
+        assert trainer.train_step(step) is not None
+    full, batch = dm.next_train(0)
+    coarse, small = dm.coarse_view(full, batch, 0.5)
+    w, h = round(full.width * 0.5), round(full.height * 0.5)
+    assert (coarse.width, coarse.height) == (w, h) and small["image"].shape == (h, w, 3)
+    assert [cam.width for _, cam in seen] == [w, w, w, full.width, full.width, full.width]
+    # a coarse camera sees a world point where the full one does, at its own pixel size
+    point = full.cam_to_world @ torch.tensor([0.1, -0.05, 3.0, 1.0])
+    uv_full, _ = full.project(point[None, :3])
+    uv_coarse, _ = coarse.project(point[None, :3])
+    assert torch.allclose(uv_coarse, uv_full * torch.tensor([w / full.width, h / full.height]), atol=1e-4)
+    # the coarse image is the area average of the full one (checked on 2x2 blocks where they are whole)
+    img = batch["image"]
+    blocks = img[: 2 * (img.shape[0] // 2), : 2 * (img.shape[1] // 2)]
+    blocks = blocks.reshape(img.shape[0] // 2, 2, img.shape[1] // 2, 2, 3).mean((1, 3))
+    if img.shape[0] % 2 == 0 and img.shape[1] % 2 == 0:
+        assert torch.allclose(small["image"], blocks, atol=1e-6)
+    assert dm.coarse_view(full, batch, 0.5)[1]["image"] is small["image"]  # made once, then kept

@@ -1,6 +1,7 @@
 """SCGaussian on a built-in synthetic scene with exact depth: losses, warm-up, hybrid densification."""
 
 import warnings
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -10,6 +11,7 @@ from splat_framework.config import match_config
 from splat_framework.matching import compute_matches
 from splat_framework.matching.prior import triangulate
 from scg_plugin.method import config_scgaussian
+from scg_plugin.losses import rendering_geometry_loss
 from scg_plugin.model import SCGaussianModel
 from scg_plugin.ray_gaussians import (
     MatchCache,
@@ -21,6 +23,7 @@ from scg_plugin.ray_gaussians import (
 )
 from splat_framework.config import apply_overrides
 from splat_framework.data import DataManager, load_scene
+from splat_framework.data.datamanager import area_resized
 from splat_framework.data.synthetic import generate_scene
 
 
@@ -361,3 +364,29 @@ def test_scgaussian_trains_from_a_ply_on_the_command_line(run_dir, tmp_path):
             "--no-progress", "--model.init.kind", "ply", "--model.init.path", ply, code=0)
     saved = json.loads((tmp_path / "run" / "config.json").read_text())["config"]["model"]["init"]
     assert saved == {"kind": "ply", "path": str(ply)} and (tmp_path / "run" / "metrics.json").is_file()
+
+
+def test_rendering_geometry_loss_reads_a_coarse_render_at_its_own_pixel_size(scene):
+    """The trainer's coarse steps (``coarse_steps``) hand the model its view's camera resized: L_rg
+    scales the matched pixels (kept at the view's own size) to it, so the true depth costs (almost)
+    nothing at either size, and the pixels left unscaled would cost a lot."""
+    _, dm, depths = scene
+    cams = dm.train_cameras
+    uv_a, uv_b, _ = true_correspondences(dm, depths)
+    bundle = build_ray_bundle([(0, 1, uv_a, uv_b)], cams, torch.Generator().manual_seed(0))
+    imgs = [b["image"] for _, b in dm.train_views()]
+    free = torch.rand(6, 3) + torch.tensor([0.0, 0.0, 4.0])
+    model = SCGaussianModel(config_scgaussian(), 1.0, free, torch.rand(6, 3), bundle, cams, imgs)
+    full_cam, batch = dm.train_view(0)
+    coarse_cam, _ = dm.coarse_view(full_cam, batch, 0.5)
+    depth = torch.tensor(depths[0], dtype=torch.float32)[..., None]
+    coarse_depth = area_resized(depth, coarse_cam.width, coarse_cam.height)
+
+    def rendered(d):
+        return SimpleNamespace(depth=d, expected_depth=d)
+
+    full = float(model._rg_loss(rendered(depth), full_cam, 0))
+    coarse = float(model._rg_loss(rendered(coarse_depth), coarse_cam, 0))
+    sel = bundle.view == 0
+    unscaled = float(rendering_geometry_loss(coarse_depth, coarse_cam, bundle.uv[sel], cams[1], bundle.partner_uv[sel]))
+    assert full < 2e-3 and coarse < 2e-3 and unscaled > 20 * coarse

@@ -14,7 +14,7 @@ from typing import Annotated, Literal
 import tyro
 from pydantic import Field
 
-from .base import FOLDED, MAX_STEPS, MAX_VIEWS, RUN_OPTION, Device, Interval, Positive, SplatConfig, Steps
+from .base import FOLDED, MAX_STEPS, MAX_VIEWS, RUN_OPTION, Device, Interval, Positive, SplatConfig, StartSteps, Steps
 from .data import PhotoPosesConfig, ResolvedData
 from .model import GaussianModelConfig, OptimConfig
 from .strategy import DensifyConfig, RegisteredStrategies
@@ -65,6 +65,10 @@ class TrainConfig(SplatConfig):
     """The method's own total iterations, which its schedule fields are written for."""
     schedule_views: tyro.conf.Suppress[Annotated[int, Field(ge=0, le=MAX_VIEWS)]] = 0
     """The number of training views the method's default schedule is written for: without --steps, a run of N > this views (an integer --views) trains default_steps x N / this iterations, its whole schedule rescaled as --steps would (0 = default_steps whatever N)."""
+    coarse_steps: Annotated[StartSteps, FOLDED] = 0
+    """The first iterations train on the images downscaled by coarse_scale (area average, cameras scaled to match): cheaper steps while the model takes its coarse shape (0 = off)."""
+    coarse_scale: Annotated[float, FOLDED, Field(gt=0, lt=1, allow_inf_nan=False)] = 0.5
+    """Image scale of the coarse iterations (coarse_steps)."""
     output: Annotated[Path | None, RUN_OPTION] = None
     """Run folder (default outputs/<scene>/<method>/<timestamp>)."""
     seed: int = Field(0, ge=0, lt=2**32)

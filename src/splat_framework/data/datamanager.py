@@ -50,6 +50,12 @@ OPTIONAL_FIELDS = ("backdrop",)
 """Batch fields made only when asked for (``DataManager(fields=...)``); the others always are."""
 
 
+def area_resized(x: Tensor, width: int, height: int) -> Tensor:
+    """[H, W, C] -> [height, width, C]: each output pixel the mean of the input area it covers."""
+    y = torch.nn.functional.interpolate(x.permute(2, 0, 1)[None], size=(height, width), mode="area")
+    return y[0].permute(1, 2, 0).contiguous()
+
+
 def view_bytes(scene: SceneData, i: int) -> int:
     """Bytes of the decoded float32 tensors (image, mask, depth, backdrop) of camera ``i``
     (an upper bound: the backdrop mask is counted for training views, whether or not it is asked for)."""
@@ -132,6 +138,7 @@ class DataManager:
                     room -= size
         self._perm_epoch = -1
         self._perm: list[int] = []
+        self._coarse: dict[tuple[int, float], Batch] = {}  # (camera index, scale) -> its downscaled fields
 
     # ------------------------------------------------------------ decoding
     def _check_size(self, i: int) -> None:
@@ -204,6 +211,21 @@ class DataManager:
         """The training view at ``position`` in ``train_indices``, its batch carrying ``train_position``."""
         idx = self.train_indices[position]
         return self.cameras[idx], self.batch(idx) | {"train_position": position}
+
+    def coarse_view(self, camera: Camera, batch: Batch, scale: float) -> tuple[Camera, Batch]:
+        """``camera`` and ``batch`` for the image downscaled by ``scale`` (0 < scale < 1): every
+        [H, W, C] field (image, masks, depth) area-averaged to round(W scale) x round(H scale), the
+        camera resized to match (:meth:`Camera.resized`). Made once per view and scale, then kept."""
+        key = (batch["index"], scale)
+        if key not in self._coarse:
+            width, height = max(1, round(camera.width * scale)), max(1, round(camera.height * scale))
+            self._coarse[key] = {
+                k: area_resized(v, width, height) for k, v in batch.items()
+                if isinstance(v, Tensor) and v.dim() == 3 and v.shape[:2] == (camera.height, camera.width)
+            }
+        coarse = self._coarse[key]
+        first = next(iter(coarse.values()))
+        return camera.resized(first.shape[1], first.shape[0]), batch | coarse
 
     def train_views(self) -> list[tuple[Camera, Batch]]:
         """All training views, in split order."""

@@ -300,6 +300,8 @@ class Trainer(TrainState):
         model.on_step_start(step)
         self._set_learning_rates(step)
         camera, batch = self.datamanager.next_train(step)
+        if step < self.config.coarse_steps:
+            camera, batch = self.datamanager.coarse_view(camera, batch, self.config.coarse_scale)
         if self.camera_refiner is not None:
             camera = self.camera_refiner.apply(camera, batch["train_position"])
         with section("forward"):
