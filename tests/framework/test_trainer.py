@@ -467,7 +467,7 @@ def test_the_training_step_renders_with_drop_gaussian_and_evaluation_without(tmp
     assert torch.equal(step, run("b")[0])
 
 
-def test_coarse_steps_train_on_area_averaged_images_with_cameras_scaled_to_match(tmp_path, monkeypatch):
+def test_coarse_steps_train_on_area_averaged_images_with_cameras_scaled_to_match(tmp_path, monkeypatch, capsys):
     """``coarse_steps``: the steps before it render the training view resized by ``coarse_scale``
     (each axis by its own ratio) against the image averaged over each coarse pixel's area; later
     steps render the view as it is."""
@@ -490,6 +490,7 @@ def test_coarse_steps_train_on_area_averaged_images_with_cameras_scaled_to_match
     w, h = round(full.width * 0.5), round(full.height * 0.5)
     assert (coarse.width, coarse.height) == (w, h) and small["image"].shape == (h, w, 3)
     assert [cam.width for _, cam in seen] == [w, w, w, full.width, full.width, full.width]
+    assert "step 3: the 3 coarse steps (images at 0.5x) are done" in capsys.readouterr().err
     # a coarse camera sees a world point where the full one does, at its own pixel size
     point = full.cam_to_world @ torch.tensor([0.1, -0.05, 3.0, 1.0])
     uv_full, _ = full.project(point[None, :3])

@@ -302,6 +302,9 @@ class Trainer(TrainState):
         camera, batch = self.datamanager.next_train(step)
         if step < self.config.coarse_steps:
             camera, batch = self.datamanager.coarse_view(camera, batch, self.config.coarse_scale)
+        elif step == self.config.coarse_steps > 0:
+            say(f"step {step}: the {step} coarse steps (images at {self.config.coarse_scale:g}x) are done; "
+                "the steps from here train at the images' own size and take longer")
         if self.camera_refiner is not None:
             camera = self.camera_refiner.apply(camera, batch["train_position"])
         with section("forward"):
