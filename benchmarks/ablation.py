@@ -86,6 +86,7 @@ TABLES: dict[str, tuple[str, list[str]]] = {
     "paper": ("The paper's ablation on the official code's recipe (scgaussian-paper; docs/methods.md)",
               ["3dgs", "3dgs-triang", *PAPER_ROWS]),
     "paper-recipe": ("The official code's recipe (scgaussian-paper; docs/methods.md)", ["scgaussian-paper"]),
+    "default": ("The default `scgaussian`", ["scgaussian"]),
     "comp-tria": ("Triangulated initialisation across representations (the paper's Tab. comp_tria)",
                   ["3dgs", "3dgs-triang", "scaffold-gs-triang", "octree-gs-triang", "scgaussian"]),
 }
