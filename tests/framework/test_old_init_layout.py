@@ -47,6 +47,9 @@ def test_old_config_json_is_todays_experiment(name):
     # with no total budget over the pairs (schema 4, 2026-11-28)
     assert {(m.max_matches, m.max_total_matches) for m in sub_configs(old, MatchConfig)} <= {(4000, 0)}
     now = apply_overrides(now, overrides_in_every(now, MatchConfig, {"max_matches": 4000, "max_total_matches": 0}))
+    # and every iteration at the images' own size (scgaussian's coarse steps since schema 5, 2026-11-28)
+    assert old.coarse_steps == 0
+    now = apply_overrides(now, {"coarse_steps": 0})
     keep = experiment_fields(type(now))
     assert old.model_dump(include=keep) == now.model_dump(include=keep)
     rates = type(old.optim).model_fields

@@ -21,7 +21,9 @@ Versions:
    (:func:`from_version_2`).
 3. The layout before the total match budget: a ``matching`` block has no ``max_total_matches``, and
    every pair kept up to ``max_matches`` whatever the number of pairs (:func:`from_version_3`).
-4. Today's layout.
+4. The layout before coarse steps: there is no ``coarse_steps``, and every run trained every
+   iteration at the images' own size (:func:`from_version_4`).
+5. Today's layout.
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ from .merge import deep_merge
 from .model import GaussianModelConfig, ModelConfig, OptimConfig, RegularisersConfig
 from .train import TrainConfig
 
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 """Version of the ``config.json`` layout this build writes (see the module docstring)."""
 
 UNVERSIONED = 1
@@ -206,10 +208,18 @@ def from_version_3(cfg: dict, defaults: dict) -> dict:
     return without_match_budget(cfg)
 
 
+def from_version_4(cfg: dict, defaults: dict) -> dict:
+    """Version 4 to 5: the config gains ``coarse_steps`` 0 (every iteration at the images' own size:
+    what every run of version 4 did; SCGaussian's default is 500 since), so an old run resumes as it
+    was trained."""
+    return {**cfg, "coarse_steps": cfg.get("coarse_steps", 0)}
+
+
 UPGRADES: dict[int, Callable[[dict, dict], dict]] = {
     1: from_version_1,
     2: from_version_2,
     3: from_version_3,
+    4: from_version_4,
 }
 """Version N -> the step taking a config dict of version N to N + 1, given the method's default
 config (as a dict); ordered, one per version below :data:`SCHEMA_VERSION`."""
