@@ -63,15 +63,9 @@ class Camera:
         return -R.T @ t
 
     def scaled(self, factor: float) -> "Camera":
-        """The same camera for an image resized by ``factor`` (0.5 halves it)."""
-        K = self.K.clone()
-        K[:2] *= factor
-        return replace(
-            self,
-            K=K,
-            width=int(round(self.width * factor)),
-            height=int(round(self.height * factor)),
-        )
+        """The same camera for an image resized by ``factor`` (0.5 halves it; the size rounded as
+        :func:`~splat_framework.data.images.scaled_size` rounds it): :meth:`resized` to that size."""
+        return self.resized(max(1, int(round(self.width * factor))), max(1, int(round(self.height * factor))))
 
     def resized(self, width: int, height: int) -> "Camera":
         """The same camera for its image resampled to ``width`` x ``height``: each axis of the

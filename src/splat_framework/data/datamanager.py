@@ -51,8 +51,11 @@ OPTIONAL_FIELDS = ("backdrop",)
 
 
 def area_resized(x: Tensor, width: int, height: int) -> Tensor:
-    """[H, W, C] -> [height, width, C]: each output pixel the mean of the input area it covers."""
-    y = torch.nn.functional.interpolate(x.permute(2, 0, 1)[None], size=(height, width), mode="area")
+    """[H, W, C] -> [height, width, C] float: each output pixel the mean of the input area it covers
+    (``x`` itself when it has that size)."""
+    if x.shape[:2] == (height, width):
+        return x
+    y = torch.nn.functional.interpolate(x.permute(2, 0, 1)[None].float(), size=(height, width), mode="area")
     return y[0].permute(1, 2, 0).contiguous()
 
 
@@ -216,16 +219,14 @@ class DataManager:
         """``camera`` and ``batch`` for the image downscaled by ``scale`` (0 < scale < 1): every
         [H, W, C] field (image, masks, depth) area-averaged to round(W scale) x round(H scale), the
         camera resized to match (:meth:`Camera.resized`). Made once per view and scale, then kept."""
+        width, height = scaled_size(camera.width, camera.height, scale)
         key = (batch["index"], scale)
         if key not in self._coarse:
-            width, height = max(1, round(camera.width * scale)), max(1, round(camera.height * scale))
             self._coarse[key] = {
                 k: area_resized(v, width, height) for k, v in batch.items()
                 if isinstance(v, Tensor) and v.dim() == 3 and v.shape[:2] == (camera.height, camera.width)
             }
-        coarse = self._coarse[key]
-        first = next(iter(coarse.values()))
-        return camera.resized(first.shape[1], first.shape[0]), batch | coarse
+        return camera.resized(width, height), batch | self._coarse[key]
 
     def train_views(self) -> list[tuple[Camera, Batch]]:
         """All training views, in split order."""

@@ -142,14 +142,6 @@ def panel_camera(camera):
     return camera if factor >= 1 else camera.scaled(factor)
 
 
-def _resized(photo: torch.Tensor, height: int, width: int) -> torch.Tensor:
-    """[H, W, 3] -> [height, width, 3], pixel areas averaged."""
-    if photo.shape[:2] == (height, width):
-        return photo
-    chw = photo.permute(2, 0, 1)[None].float()
-    return torch.nn.functional.interpolate(chw, size=(height, width), mode="area")[0].permute(1, 2, 0)
-
-
 def _thumbnail(image: torch.Tensor) -> np.ndarray:
     import cv2
 
@@ -342,6 +334,7 @@ class Viewer:
         """Render dataset camera ``label``, scaled down by :func:`panel_camera`, with this project's
         rasterizer into the side panel: [h, w*3, 3] uint8 (RGB | depth | |error| against the photo,
         or the RGB again without one)."""
+        from ..data.datamanager import area_resized
         from ..evaluation.pictures import colorize_depth, error_map, to_uint8
 
         if label not in self._cameras:
@@ -356,7 +349,7 @@ class Viewer:
         rgb = out.rgb.clamp(0, 1)
         depth = colorize_depth(out.expected_depth, out.alpha)
         if photo is not None:
-            err = error_map(rgb, _resized(photo, camera.height, camera.width).to(rgb.device))
+            err = error_map(rgb, area_resized(photo, camera.width, camera.height).to(rgb.device))
         else:
             err = to_uint8(rgb)
         panel = np.concatenate([to_uint8(rgb), depth, err], axis=1)
