@@ -157,7 +157,13 @@ def pixel_errors(positions: Tensor, bundle: RayBundle, cameras: list[Camera], pr
     """[M] worse-of-both-directions reprojection error in pixels for each match (rows 2m, 2m+1)."""
     P, _ = proj if proj is not None else partner_projections(bundle, cameras)
     uv, z = _project_rows(positions, P)
-    e = (uv - bundle.partner_uv.to(uv)).norm(dim=-1)
+    return _match_pixel_errors((uv - bundle.partner_uv.to(uv)).T, z)
+
+
+def _match_pixel_errors(d: Tensor, z: Tensor) -> Tensor:
+    """[M] the worse of each match's two rows' distances d [2, G] (component-major) from their
+    partner pixels, at camera depth z [G]; inf where a row is behind its partner camera."""
+    e = torch.hypot(d[0], d[1])
     e = torch.where(z > 0, e, torch.full_like(e, float("inf")))
     return e.view(-1, 2).amax(dim=1)
 
@@ -172,7 +178,12 @@ class MatchCache:
 
     @torch.no_grad()
     def update(self, z: Tensor, bundle: RayBundle, cameras: list[Camera], proj=None) -> None:
-        err = pixel_errors(bundle.positions(z.detach()), bundle, cameras, proj).cpu()
+        self.keep_best(pixel_errors(bundle.positions(z.detach()), bundle, cameras, proj), z)
+
+    @torch.no_grad()
+    def keep_best(self, err: Tensor, z: Tensor) -> None:
+        """Keep z [G] for the matches whose pixel error err [M] is below their best so far."""
+        err = err.cpu()
         better = err < self.best_err
         self.best_err = torch.where(better, err, self.best_err)
         rows = better.repeat_interleave(2)
@@ -204,29 +215,51 @@ def warm_up(
 
     The Adam step size is ``lr`` (scene units, see :func:`warmup_step_size`), halved every
     ``halve_every`` iterations. Returns the final z [G] (the cache, when given,
-    holds the best z per match). ``on_step`` is called after each iteration (progress).
+    holds the best z per match, seen after each iteration). ``on_step`` is called after each
+    iteration (progress).
+
+    Each L_gp term depends on its own row's z alone, and the projection is affine in z, so the
+    gradient is taken in closed form (:func:`_position_error_grad`) from the same projection
+    that gives the cache its pixel errors: one projection an iteration, no autograd graph.
     """
     z = torch.nn.Parameter(bundle.z.clone())
     if steps <= 0 or len(bundle) == 0:
         return z.detach()
     opt = torch.optim.Adam([z], lr=lr)
     sched = torch.optim.lr_scheduler.StepLR(opt, step_size=max(halve_every, 1), gamma=0.5)
-    proj = partner_projections(bundle, cameras)
-    P, size = proj
-    # projection is affine in z: h = (P o + P_4) + z (P d), precomputed once
-    h0 = (P[:, :, :3] * bundle.origins[:, None, :]).sum(-1) + P[:, :, 3]
-    h1 = (P[:, :, :3] * bundle.dirs[:, None, :]).sum(-1)
-    for _ in range(steps):
-        uv, zc = _dehomogenise(h0 + z[:, None] * h1)
-        loss = _normalised_error(uv, zc, bundle, size).mean()
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        sched.step()
-        with torch.no_grad():
+    P, size = partner_projections(bundle, cameras)
+    # projection is affine in z: h = (P o + P_4) + z (P d), precomputed once; component-major
+    # [3, G] (rows of length G vectorise; an inner dimension of 3 does not)
+    h0 = ((P[:, :, :3] * bundle.origins[:, None, :]).sum(-1) + P[:, :, 3]).T.contiguous()
+    h1 = (P[:, :, :3] * bundle.dirs[:, None, :]).sum(-1).T.contiguous()
+    target = bundle.partner_uv.to(h0).T.contiguous()
+    inv_size = size.reciprocal().T.contiguous()
+    with torch.no_grad():
+        for it in range(steps + 1):
+            h = torch.addcmul(h0, z, h1)  # at z after `it` iterations
+            uv = h[:2] / h[2].clamp(min=1e-9)
+            d = uv - target
+            if cache is not None and it > 0:
+                cache.keep_best(_match_pixel_errors(d, h[2]), z)
+                if on_step is not None:
+                    on_step()
+            if it == steps:
+                break
+            z.grad = _position_error_grad(uv, d, h[2], h1, inv_size).div_(len(bundle))
+            opt.step()
+            sched.step()
             z.clamp_(min=1e-3)
-        if cache is not None:
-            cache.update(z, bundle, cameras, proj)
-        if on_step is not None:
-            on_step()
+            if cache is None and on_step is not None:
+                on_step()
     return z.detach()
+
+
+def _position_error_grad(uv: Tensor, d: Tensor, zc: Tensor, h1: Tensor, inv_size: Tensor) -> Tensor:
+    """[G] d/dz of each row's L_gp term (:func:`_normalised_error`), component-major: at uv [2, G]
+    (camera depth zc [G]), d = uv - its partner pixel [2, G], with h1 [3, G] = d h / dz and
+    1 / image size inv_size [2, G]: the sum over u, v of sign(d) / size * d uv / dz,
+    where d uv / dz = (h1_uv - uv h1_z) / zc; -h1_z for a row behind its partner camera (the
+    term 1 - zc)."""
+    duv = (h1[:2] - uv * h1[2]) * (torch.sign(d) * inv_size)
+    grad = duv.sum(0) / zc.clamp(min=1e-6)
+    return torch.where(zc <= 1e-6, -h1[2], grad)

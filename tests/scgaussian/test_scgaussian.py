@@ -15,9 +15,12 @@ from scg_plugin.losses import rendering_geometry_loss
 from scg_plugin.model import SCGaussianModel
 from scg_plugin.ray_gaussians import (
     MatchCache,
+    _position_error_grad,
     build_ray_bundle,
     gaussian_position_loss,
+    partner_projections,
     pixel_errors,
+    position_errors,
     warm_up,
     warmup_step_size,
 )
@@ -96,6 +99,51 @@ def test_warm_up_finds_the_true_depth_from_exact_matches(scene):
     rel = (bundle.positions(z) - true_pts).norm(dim=-1) / dist
     assert float(before.median()) > 0.1
     assert float(rel.quantile(0.95)) < 0.005, float(rel.quantile(0.95))
+
+
+def test_warm_up_gradient_in_closed_form_is_autograds_of_the_position_loss(scene):
+    """The warm-up's closed-form d/dz of each L_gp term equals autograd's through
+    position_errors (float64), for rows in front of and behind their partner camera; 20
+    warm-up iterations follow an autograd Adam loop on gaussian_position_loss (float64), and the
+    cache keeps, per match, the z of the iteration with the lowest pixel error."""
+    _, dm, depths = scene
+    cams = dm.train_cameras
+    uv_a, uv_b, _ = true_correspondences(dm, depths)
+    bundle = build_ray_bundle([(0, 1, uv_a, uv_b)], cams, torch.Generator().manual_seed(0))
+    z = bundle.z.double().clone()
+    z[:40] = -z[:40]  # behind both cameras
+    b64 = type(bundle)(**{k: (v.double() if v.is_floating_point() else v) for k, v in bundle.to_dict().items()})
+    zr = z.clone().requires_grad_(True)
+    position_errors(b64.positions(zr), b64, cams).sum().backward()
+    P, size = (t.double() for t in partner_projections(b64, cams))
+    h0 = ((P[:, :, :3] * b64.origins[:, None, :]).sum(-1) + P[:, :, 3]).T
+    h1 = (P[:, :, :3] * b64.dirs[:, None, :]).sum(-1).T
+    h = h0 + z * h1
+    uv = h[:2] / h[2].clamp(min=1e-9)
+    grad = _position_error_grad(uv, uv - b64.partner_uv.T, h[2], h1, size.reciprocal().T)
+    assert bool((h[2] <= 0).any()) and bool((h[2] > 0).any())
+    torch.testing.assert_close(grad, zr.grad, rtol=1e-9, atol=1e-12)
+
+    lr = warmup_step_size(0.03, "depth-range", b64)
+    ref = torch.nn.Parameter(b64.z.clone())
+    opt = torch.optim.Adam([ref], lr=lr)
+    sched = torch.optim.lr_scheduler.StepLR(opt, step_size=5, gamma=0.5)
+    seen = []
+    for _ in range(20):
+        opt.zero_grad()
+        gaussian_position_loss(b64.positions(ref), b64, cams).backward()
+        opt.step()
+        sched.step()
+        with torch.no_grad():
+            ref.clamp_(min=1e-3)
+        seen.append(ref.detach().clone())
+    cache = MatchCache(b64)
+    z = warm_up(b64, cams, steps=20, lr=lr, halve_every=5, cache=cache)
+    torch.testing.assert_close(z, seen[-1], rtol=1e-4, atol=1e-5)
+    errs = torch.stack([pixel_errors(b64.positions(s), b64, cams) for s in seen])
+    best = errs.argmin(0).repeat_interleave(2)
+    expect = torch.stack(seen)[best, torch.arange(len(b64))]
+    torch.testing.assert_close(cache.best_z, expect, rtol=1e-4, atol=1e-5)
 
 
 def test_warm_up_step_size_in_scene_units_or_of_the_depth_range(scene):
