@@ -343,6 +343,9 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
         table.add_row("render fps", f"{metrics['render_fps']:.1f}")
     for k, v in metrics["timing"].items():
         table.add_row(k, f"{v:.1f}")
+    if st := metrics.get("step_times"):
+        ratio = f", {st['max_over_median']:.1f}x the median {st['median_s']:.2f} s" if st["max_over_median"] else ""
+        table.add_row("slowest step", f"{st['max_s']:.2f} s (step {st['slowest_step']}{ratio})")
     table.add_row("run folder", str(run_dir))
     Console().print(table)
     if split == "train":

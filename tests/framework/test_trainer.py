@@ -74,6 +74,31 @@ def test_run_writes_documented_outputs_and_learns(tmp_path, capsys):
     assert "Traceback" not in err
 
 
+def test_metrics_and_summary_name_the_slowest_step_against_the_median(tmp_path, capsys, monkeypatch):
+    """metrics.json's step_times: the median and the slowest of the process's steps after its
+    first (which builds what later steps reuse), the slowest step counted from 1 as the progress
+    bar counts; the summary table has a row for it."""
+    import time
+
+    slow_index = 6  # the 7th step sleeps, and so does the first (left out of the spread)
+    real_step = Trainer.train_step
+
+    def train_step(self, step):
+        if step in (0, slow_index):
+            time.sleep(0.4)
+        return real_step(self, step)
+
+    monkeypatch.setattr(Trainer, "train_step", train_step)
+    m = Trainer(tiny_config(tmp_path / "run", steps=12)).train()
+    st = m["step_times"]
+    assert st["slowest_step"] == slow_index + 1
+    assert st["max_s"] >= 0.4 > st["median_s"]
+    assert st["max_over_median"] == pytest.approx(st["max_s"] / st["median_s"])
+    assert read_json(tmp_path / "run" / "metrics.json", require_checksum=True)["step_times"] == st
+    out = capsys.readouterr().out
+    assert f"(step {slow_index + 1}, " in out and "slowest step" in out
+
+
 @pytest.mark.bad_input("`splat-scene --out FILE`, `splat-export --ply DIR`, `--data some/dir/..`", "exit 2 with one line; run folders never leave `outputs/`")
 def test_default_run_dirs_are_new_timestamped_folders(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import statistics
+
 from ..runtime.io import atomic_write_json
 from ..runtime.threads import threads_record
 
@@ -28,6 +30,7 @@ def run_metrics(trainer, results: dict) -> dict:
         "lpips_note": results["lpips_note"],
         "test_pose_steps": cfg.test_pose_steps,
         "threads": threads_record(),
+        "step_times": step_times(trainer.step_seconds),
     }
     metrics["init_stats"] = dict(trainer.model.init_stats)
     report = trainer.model.report(trainer.datamanager)
@@ -37,3 +40,16 @@ def run_metrics(trainer, results: dict) -> dict:
         metrics["camera_refine"] = trainer.camera_refiner.report(trainer.datamanager.train_cameras)
     atomic_write_json(trainer.run_dir / "metrics.json", metrics)  # OSError (disk full): one line in the CLI
     return metrics
+
+
+def step_times(seconds: list[tuple[int, float]]) -> dict | None:
+    """The spread of the wall time of this process's training steps, ``seconds`` [(step, s)]
+    in the order run, the first left out (it builds what later steps reuse): the median, the
+    slowest and its step, and slowest / median; None with fewer than two steps."""
+    later = seconds[1:]
+    if not later:
+        return None
+    median = statistics.median(s for _, s in later)
+    step, slowest = max(later, key=lambda t: t[1])
+    return {"median_s": median, "max_s": slowest, "slowest_step": step,
+            "max_over_median": slowest / median if median > 0 else None}

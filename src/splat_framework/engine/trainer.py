@@ -231,6 +231,7 @@ class Trainer(TrainState):
         self.densify_skipped = 0  # steps whose model hook resized the model, so the strategy did not run
         self.densified: dict[str, int] = {}  # the strategy's counts (n_clone, ...) summed over the run
         self.restores = 0
+        self.step_seconds: list[tuple[int, float]] = []  # (step, counted from 1; wall s) of this process's steps
         self.lr_factor = 1.0
         self.stop_reason: str | None = None
         self.saving = False  # a checkpoint is being written (a second stop signal waits for it)
@@ -457,6 +458,7 @@ class Trainer(TrainState):
         cfg, total = self.config, self.config.total_steps
         step = self.start_step
         while step < total:
+            t0 = time.perf_counter()
             try:
                 out = self.train_step(step)
             except _Restart:
@@ -464,6 +466,7 @@ class Trainer(TrainState):
                 progress.update(step, info=self._step_info(None))
                 continue
             step += 1
+            self.step_seconds.append((step, time.perf_counter() - t0))
             if out is not None:
                 progress.update(step, info=self._step_info(out))
             else:
