@@ -141,10 +141,9 @@ class SCGaussianModel(GaussianModel):
             self.active_sh_degree = min(step // max(self.baseline.sh_degree_interval, 1), self.config.model.sh_degree)
 
     def prepare_for_strategy(self) -> None:
-        p = self.params
-        bound = p["is_ray"] > 0.5
-        if bound.any():
-            p["means"].data[bound] = (p["ray_o"] + p["z"][:, None] * p["ray_d"])[bound]
+        if self.bundle is not None:  # one select, not a masked write (a nonzero and a scatter a step)
+            with torch.no_grad():
+                self.params["means"].copy_(self.positions())
 
     def positions(self) -> Tensor:
         p = self.params
