@@ -15,7 +15,8 @@ Jobs (each a real command in its own process, on an idle machine):
 - ``3dgs-again``: ``splat-train 3dgs --data llff/fern --steps 15``, run twice; the second is timed.
 
 Each record has the wall time, the longest stretch without an output line (a command must not be
-silent for more than 5 s), the run's phase times from its metrics.json, and the load average
+silent for more than 5 s), the run's phase times and slowest training step against the median
+(``step_times``) from its metrics.json, and the load average
 before it started; the Markdown table goes to ``--md`` and the records to ``--json``.
 """
 
@@ -83,20 +84,33 @@ def silence_after(stamps: list[float], lines: list[str], end: float) -> str:
     return "(launch)" if i == 0 else lines[i - 1]
 
 
-def phases_of(run: Path) -> dict:
-    """The phase times a run folder's metrics.json records (empty when it has none)."""
+def _metrics(run: Path) -> dict:
     try:
-        timing = json.loads((run / "metrics.json").read_text()).get("timing", {})
+        return json.loads((run / "metrics.json").read_text())
     except (OSError, ValueError):
         return {}
+
+
+def phases_of(run: Path) -> dict:
+    """The phase times a run folder's metrics.json records (empty when it has none)."""
+    timing = _metrics(run).get("timing", {})
     return {k: round(float(timing[k]), 1) for k in PHASES if k in timing}
 
 
+def slowest_step_of(run: Path) -> dict | None:
+    """The run's step_times (its slowest training step against the median; None when not recorded)."""
+    return _metrics(run).get("step_times")
+
+
 def markdown(records: list[dict], machine: str, date: str) -> str:
-    rows = ["| job | wall (s) | longest silence (s) | phases (s) | load before | exit |", "|---|--:|--:|---|--:|--:|"]
+    rows = ["| job | wall (s) | longest silence (s) | phases (s) | slowest step | load before | exit |",
+            "|---|--:|--:|---|---|--:|--:|"]
     for r in records:
         phases = ", ".join(f"{k.removesuffix('_s')} {v:g}" for k, v in r.get("phases", {}).items()) or "-"
-        rows.append(f"| {r['job']} | {r['wall_s']:.1f} | {r['longest_silence_s']:.1f} | {phases} | "
+        st = r.get("step_times")
+        slowest = (f"{st['max_s']:.2f} s, step {st['slowest_step']}, {st['max_over_median']:.1f}x the median"
+                   if st and st.get("max_over_median") else "-")
+        rows.append(f"| {r['job']} | {r['wall_s']:.1f} | {r['longest_silence_s']:.1f} | {phases} | {slowest} | "
                     f"{r['load_before']:.2f} | {r['exit']} |")
     return "\n".join(rows + ["", f"{machine}; {date}; `python benchmarks/first_hour.py`"]) + "\n"
 
@@ -154,6 +168,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
             run = work / "3dgs-again"
         rec["job"] = job
         rec["phases"] = phases_of(run) if run is not None else {}
+        rec["step_times"] = slowest_step_of(run) if run is not None else None
         print(f"{job}: {rec['wall_s']:.1f} s, longest silence {rec['longest_silence_s']:.1f} s "
               f"(after: {rec['silence_after']}), exit {rec['exit']}",
               flush=True)

@@ -289,12 +289,14 @@ class _Plain:
         if ph.completed != ph.total and self._due(ph, now, bool(due)):  # the end has its summary line
             self._print(ph, now)
 
-    def _due(self, ph: Phase, now: float, progressed: bool) -> bool:
+    def _due(self, ph: Phase, now: float, progressed: bool, ahead: float = 0.0) -> bool:
+        """Whether ``ph`` prints a line at ``now``; ``ahead``: the ticker's period, so a heartbeat that
+        would be late at the next tick prints at this one (lines at most PLAIN_EVERY_S apart)."""
         if now - ph.t0 < ph.quiet_s:
             return False
         if ph.printed_at is None:
             return True
-        return progressed or now - ph.printed_at >= PLAIN_EVERY_S
+        return progressed or now + ahead - ph.printed_at >= PLAIN_EVERY_S
 
     def restart(self, ph: Phase) -> None:
         """The clock restarted: a plain line needs nothing (each line reads the phase's clock)."""
@@ -312,13 +314,14 @@ class _Plain:
 
     def _tick(self) -> None:
         while True:
-            time.sleep(min(1.0, PLAIN_EVERY_S / 4))
+            period = min(1.0, PLAIN_EVERY_S / 4)
+            time.sleep(period)
             with self.lock:
                 if not self.open_phases:
                     self.thread = None
                     return
                 now, ph = time.perf_counter(), self.open_phases[-1]  # the innermost: the outer ones wait for it
-                if self._due(ph, now, False):
+                if self._due(ph, now, False, ahead=period):
                     self._print(ph, now)
 
 
@@ -344,8 +347,8 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
     for k, v in metrics["timing"].items():
         table.add_row(k, f"{v:.1f}")
     if st := metrics.get("step_times"):
-        ratio = f", {st['max_over_median']:.1f}x the median {st['median_s']:.2f} s" if st["max_over_median"] else ""
-        table.add_row("slowest step", f"{st['max_s']:.2f} s (step {st['slowest_step']}{ratio})")
+        ratio = f", {st['max_over_median']:.1f}x median" if st["max_over_median"] else ""
+        table.add_row("slowest step", f"{st['max_s']:.2f} s at {st['slowest_step']}{ratio}")
     table.add_row("run folder", str(run_dir))
     Console().print(table)
     if split == "train":

@@ -113,9 +113,14 @@ def test_first_hour_finds_the_longest_silence_and_tables_each_job(tmp_path):
     (run / "metrics.json").write_text(json.dumps({"timing": {"train_s": 81.04, "eval_s": 2.96, "other": 1}}))
     assert first_hour.phases_of(run) == {"train_s": 81.0, "eval_s": 3.0}
     assert first_hour.phases_of(tmp_path / "none") == {}
+    assert first_hour.slowest_step_of(run) is None
+    st = {"median_s": 0.1, "max_s": 0.25, "slowest_step": 601, "max_over_median": 2.5}
+    (run / "metrics.json").write_text(json.dumps({"timing": {}, "step_times": st}))
+    assert first_hour.slowest_step_of(run) == st
     records = [{"job": "fern", "wall_s": 95.04, "longest_silence_s": 2.5, "phases": {"train_s": 81.0},
-                "load_before": 0.1, "exit": 0},
-               {"job": "export", "wall_s": 3.2, "longest_silence_s": 3.2, "phases": {}, "load_before": 0.2, "exit": 0}]
+                "step_times": st, "load_before": 0.1, "exit": 0},
+               {"job": "export", "wall_s": 3.2, "longest_silence_s": 3.2, "phases": {}, "step_times": None,
+                "load_before": 0.2, "exit": 0}]
     table = first_hour.markdown(records, "cpu, 2 cores", "2026-11-27 14:00 UTC")
-    assert "| fern | 95.0 | 2.5 | train 81 | 0.10 | 0 |" in table
-    assert "| export | 3.2 | 3.2 | - | 0.20 | 0 |" in table and "cpu, 2 cores; 2026-11-27 14:00 UTC" in table
+    assert "| fern | 95.0 | 2.5 | train 81 | 0.25 s, step 601, 2.5x the median | 0.10 | 0 |" in table
+    assert "| export | 3.2 | 3.2 | - | - | 0.20 | 0 |" in table and "cpu, 2 cores; 2026-11-27 14:00 UTC" in table

@@ -77,6 +77,20 @@ def test_a_log_gets_a_line_every_few_seconds_or_5_percent(monkeypatch):
     assert 19 <= len(counted) <= 22, counted  # the first, every 5 %, the summary
 
 
+def test_the_ticker_prints_a_heartbeat_that_would_be_late_at_its_next_tick():
+    """The plain ticker wakes every `period` s: a heartbeat due before its next wake-up prints now,
+    so two lines of a silent phase are at most PLAIN_EVERY_S apart, not PLAIN_EVERY_S + period
+    (the 5.9 s silences the first-hour benchmark measured inside a matching phase)."""
+    from types import SimpleNamespace
+
+    plain, every, period = console_mod._Plain(), console_mod.PLAIN_EVERY_S, 1.0
+    ph = SimpleNamespace(t0=0.0, quiet_s=2.0, printed_at=10.0)
+    assert not plain._due(ph, 10.0 + every - period - 0.01, False, ahead=period)
+    assert plain._due(ph, 10.0 + every - period + 0.01, False, ahead=period)
+    assert not plain._due(ph, 10.0 + every - 0.01, False)  # a progress update never looks ahead
+    assert not plain._due(SimpleNamespace(t0=0.0, quiet_s=2.0, printed_at=None), 1.5, False, ahead=period)
+
+
 def test_a_commands_start_is_a_phase_and_the_cli_harness_reads_errors_past_it(monkeypatch):
     """Importing PyTorch takes 3-6 s on a 2-core CPU: ``starting`` (the first phase of splat-train,
     -eval, -export, -render) shows it like any phase, so a log hears from a command within 2 s of its

@@ -96,7 +96,7 @@ def test_metrics_and_summary_name_the_slowest_step_against_the_median(tmp_path, 
     assert st["max_over_median"] == pytest.approx(st["max_s"] / st["median_s"])
     assert read_json(tmp_path / "run" / "metrics.json", require_checksum=True)["step_times"] == st
     out = capsys.readouterr().out
-    assert f"(step {slow_index + 1}, " in out and "slowest step" in out
+    assert f"s at {slow_index + 1}, " in out and "slowest step" in out
 
 
 @pytest.mark.bad_input("`splat-scene --out FILE`, `splat-export --ply DIR`, `--data some/dir/..`", "exit 2 with one line; run folders never leave `outputs/`")
