@@ -241,15 +241,13 @@ def warm_up(
             d = uv - target
             if cache is not None and it > 0:
                 cache.keep_best(_match_pixel_errors(d, h[2]), z)
-                if on_step is not None:
-                    on_step()
             if it == steps:
                 break
             z.grad = _position_error_grad(uv, d, h[2], h1, inv_size).div_(len(bundle))
             opt.step()
             sched.step()
             z.clamp_(min=1e-3)
-            if cache is None and on_step is not None:
+            if on_step is not None:
                 on_step()
     return z.detach()
 

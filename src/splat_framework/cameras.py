@@ -20,6 +20,16 @@ import torch
 from torch import Tensor
 
 
+def scaled_size(width: int, height: int, scale: float) -> tuple[int, int]:
+    """(width, height) of an image of ``width`` x ``height`` resized by ``scale``.
+
+    The single rounding rule shared by cameras, parsers (camera sizes) and decoders.
+    """
+    if scale == 1.0:
+        return int(width), int(height)
+    return max(1, int(round(width * scale))), max(1, int(round(height * scale)))
+
+
 @dataclass(frozen=True)
 class Camera:
     """One posed pinhole camera.
@@ -63,9 +73,9 @@ class Camera:
         return -R.T @ t
 
     def scaled(self, factor: float) -> "Camera":
-        """The same camera for an image resized by ``factor`` (0.5 halves it; the size rounded as
-        :func:`~splat_framework.data.images.scaled_size` rounds it): :meth:`resized` to that size."""
-        return self.resized(max(1, int(round(self.width * factor))), max(1, int(round(self.height * factor))))
+        """The same camera for an image resized by ``factor`` (0.5 halves it; the size from
+        :func:`scaled_size`, the one rounding rule): :meth:`resized`."""
+        return self.resized(*scaled_size(self.width, self.height, factor))
 
     def resized(self, width: int, height: int) -> "Camera":
         """The same camera for its image resampled to ``width`` x ``height``: each axis of the

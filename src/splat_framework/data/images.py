@@ -14,19 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..cameras import scaled_size
 from .scene import DataError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".exr")
 
 
-def scaled_size(width: int, height: int, scale: float) -> tuple[int, int]:
-    """(width, height) of an image of ``width`` x ``height`` resized by ``scale``.
-
-    The single rounding rule shared by parsers (camera sizes) and decoders.
-    """
-    if scale == 1.0:
-        return int(width), int(height)
-    return max(1, int(round(width * scale))), max(1, int(round(height * scale)))
 
 
 def _read_bytes(path: Path) -> bytes:
