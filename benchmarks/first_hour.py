@@ -1,7 +1,8 @@
 """What a new user waits for, launch to exit: the commands of a first hour, timed one after another.
 
     SPLAT_DATA=../shared/data python benchmarks/first_hour.py [--work /tmp/first-hour] \
-        [--jobs first fern photos photos-warm export 3dgs-again] [--json docs/measurements/first_hour.json]
+        [--jobs first fern photos photos-warm export 3dgs-again] [--json docs/measurements/first_hour.json] \
+        [--against SRC --rounds 2]
 
 Jobs (each a real command in its own process, on an idle machine):
 
@@ -13,6 +14,13 @@ Jobs (each a real command in its own process, on an idle machine):
   prior's matching, training; ``photos-warm``: the same command again (poses and matches cached).
 - ``export``: ``splat-export`` of the ``fern`` run.
 - ``3dgs-again``: ``splat-train 3dgs --data llff/fern --steps 15``, run twice; the second is timed.
+
+``--against SRC`` (another source tree, e.g. ``git worktree add --detach /tmp/old COMMIT``) makes the
+``fern`` job an alternated comparison: the fern default (``--seed 0``) runs ``--rounds`` times on each
+tree, SRC first, then this tree, and so on, each tree's kernels built and fern's matches cached first
+by an untimed ``--steps 3`` run; both trees run from their ``src`` on ``PYTHONPATH``. The table then
+has a row per run and the ratio of the means, and each of this tree's runs against the mean of
+SRC's runs around it (the load drifts, so the neighbours are the fair comparison).
 
 Each record has the wall time, the longest stretch without an output line (a command must not be
 silent for more than 5 s), the run's phase times and slowest training step against the median
@@ -102,7 +110,38 @@ def slowest_step_of(run: Path) -> dict | None:
     return _metrics(run).get("step_times")
 
 
-def markdown(records: list[dict], machine: str, date: str) -> str:
+def tree_label(tree: Path) -> str:
+    """A source tree's commit (short hash, ``+`` when it has uncommitted changes), else its path."""
+    def git(*words):
+        return subprocess.run(["git", "-C", str(tree), *words], capture_output=True, text=True)
+
+    head = git("rev-parse", "--short", "HEAD")
+    if head.returncode != 0:
+        return str(tree)
+    dirty = git("status", "--porcelain", "--untracked-files=no", "--", "src").stdout.strip()
+    return head.stdout.strip() + ("+" if dirty else "")
+
+
+def alternated_ratio(records: list[dict], this: str, other: str) -> str:
+    """One line: the mean wall time of ``this`` tree's runs over ``other``'s, and each of this tree's
+    runs against the mean of the other tree's runs just before and after it (records in run order)."""
+    walls = [(r["tree"], r["wall_s"]) for r in records if r.get("tree") in (this, other)]
+    mine = [w for t, w in walls if t == this]
+    theirs = [w for t, w in walls if t == other]
+    if not mine or not theirs:
+        return ""
+    each = []
+    for i, (t, w) in enumerate(walls):
+        if t != this:
+            continue
+        around = [walls[j][1] for j in (i - 1, i + 1) if 0 <= j < len(walls) and walls[j][0] == other]
+        each.append(f"{w / (sum(around) / len(around)):.2f}x")
+    ratio = (sum(mine) / len(mine)) / (sum(theirs) / len(theirs))
+    return (f"fern, alternated: {this} {ratio:.2f}x the wall time of {other} (means {sum(mine) / len(mine):.1f} s "
+            f"and {sum(theirs) / len(theirs):.1f} s; each run against its neighbours: {', '.join(each)})")
+
+
+def markdown(records: list[dict], machine: str, date: str, note: str = "") -> str:
     rows = ["| job | wall (s) | longest silence (s) | phases (s) | slowest step | load before | exit |",
             "|---|--:|--:|---|---|--:|--:|"]
     for r in records:
@@ -110,9 +149,10 @@ def markdown(records: list[dict], machine: str, date: str) -> str:
         st = r.get("step_times")
         slowest = (f"{st['max_s']:.2f} s, step {st['slowest_step']}, {st['max_over_median']:.1f}x the median"
                    if st and st.get("max_over_median") else "-")
-        rows.append(f"| {r['job']} | {r['wall_s']:.1f} | {r['longest_silence_s']:.1f} | {phases} | {slowest} | "
+        job = f"{r['job']} ({r['tree']})" if r.get("tree") else r["job"]
+        rows.append(f"| {job} | {r['wall_s']:.1f} | {r['longest_silence_s']:.1f} | {phases} | {slowest} | "
                     f"{r['load_before']:.2f} | {r['exit']} |")
-    return "\n".join(rows + ["", f"{machine}; {date}; `python benchmarks/first_hour.py`"]) + "\n"
+    return "\n".join(rows + ["", *([note, ""] if note else []), f"{machine}; {date}; `python benchmarks/first_hour.py`"]) + "\n"
 
 
 def main(argv: list[str] | None = None) -> list[dict]:
@@ -121,7 +161,12 @@ def main(argv: list[str] | None = None) -> list[dict]:
     ap.add_argument("--jobs", nargs="+", choices=JOBS, default=list(JOBS))
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--md", type=Path, default=None)
+    ap.add_argument("--against", type=Path, default=None, metavar="SRC",
+                    help="another source tree: the fern job alternates between it and this tree")
+    ap.add_argument("--rounds", type=int, default=2, help="with --against: fern runs on each tree")
     args = ap.parse_args(argv)
+    if args.against is not None and not (args.against / "src" / "splat_framework").is_dir():
+        ap.error(f"--against {args.against}: no src/splat_framework there (give a checkout of this project)")
     sys.path.insert(0, str(Path(__file__).parent))
     from full_run import machine
 
@@ -142,7 +187,28 @@ def main(argv: list[str] | None = None) -> list[dict]:
         for p in sorted((data / "llff" / "fern" / "images_8").glob("*.png"))[:8]:
             shutil.copy(p, photos / p.name)
     records = []
+    this_tree = Path(__file__).resolve().parents[1]
+    trees = {tree_label(this_tree): this_tree}
+    if args.against is not None:
+        trees = {tree_label(args.against.resolve()): args.against.resolve(), **trees}
     for job in args.jobs:
+        if job == "fern" and args.against is not None:
+            def fern(tree: Path, out: str, *more: str) -> dict:
+                cmd = [sys.executable, "-m", "splat_framework.cli.train", "scgaussian", "--data", "llff/fern",
+                       "--seed", "0", *more, "--output", str(work / out), "--overwrite"]
+                return timed(cmd, dict(env, PYTHONPATH=str(tree / "src")))
+
+            for label, tree in trees.items():  # kernels built, matches cached: untimed
+                fern(tree, "fern-prepare", "--steps", "3")
+            for _ in range(args.rounds):
+                for label, tree in trees.items():
+                    out = "fern" if tree == this_tree else "fern-against"  # the export job reads "fern"
+                    rec = fern(tree, out)
+                    rec.update(job="fern", tree=label, phases=phases_of(work / out),
+                               step_times=slowest_step_of(work / out))
+                    print(f"fern ({label}): {rec['wall_s']:.1f} s, exit {rec['exit']}", flush=True)
+                    records.append(rec)
+            continue
         run = None
         if job == "first":
             fresh = work / "empty-cache"
@@ -174,10 +240,13 @@ def main(argv: list[str] | None = None) -> list[dict]:
               flush=True)
         records.append(rec)
     date = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    table = markdown(records, machine(), date)
+    labels = list(trees)
+    note = alternated_ratio(records, labels[-1], labels[0]) if len(labels) == 2 else ""
+    table = markdown(records, machine(), date, note)
     print(table)
     if args.json:
-        args.json.write_text(json.dumps({"machine": machine(), "date": date, "records": records}, indent=1))
+        args.json.write_text(json.dumps({"machine": machine(), "date": date, "records": records, "ratio": note},
+                                        indent=1))
     if args.md:
         args.md.write_text(table)
     return records

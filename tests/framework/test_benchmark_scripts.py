@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import subprocess
 from pathlib import Path
+
+import pytest
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -124,3 +127,32 @@ def test_first_hour_finds_the_longest_silence_and_tables_each_job(tmp_path):
     table = first_hour.markdown(records, "cpu, 2 cores", "2026-11-27 14:00 UTC")
     assert "| fern | 95.0 | 2.5 | train 81 | 0.25 s, step 601, 2.5x the median | 0.10 | 0 |" in table
     assert "| export | 3.2 | 3.2 | - | - | 0.20 | 0 |" in table and "cpu, 2 cores; 2026-11-27 14:00 UTC" in table
+
+
+def test_first_hour_against_another_tree_gives_the_alternated_ratio_and_names_each_trees_commit(tmp_path):
+    first_hour = load_script("first_hour")
+    # run order: the other tree, this tree, the other, this; the load drifts, so each of this tree's runs
+    # is set against the other tree's runs just before and after it
+    records = [{"job": "fern", "tree": t, "wall_s": w, "longest_silence_s": 1.0, "phases": {}, "step_times": None,
+                "load_before": 0.1, "exit": 0}
+               for t, w in [("old", 200.0), ("new", 140.0), ("old", 210.0), ("new", 130.0)]]
+    line = first_hour.alternated_ratio(records, "new", "old")
+    assert line.startswith("fern, alternated: new 0.66x the wall time of old (means 135.0 s and 205.0 s")
+    assert line.endswith("each run against its neighbours: 0.68x, 0.62x)")
+    assert first_hour.alternated_ratio(records, "new", "missing") == ""
+    table = first_hour.markdown(records, "cpu", "2026-11-28 22:00 UTC", line)
+    assert "| fern (old) | 200.0 |" in table and "| fern (new) | 130.0 |" in table and line in table
+    # a tree is named by its commit, "+" when its sources have uncommitted changes; else by its path
+    assert first_hour.tree_label(tmp_path) == str(tmp_path)
+    git = ["git", "-C", str(tmp_path), "-c", "user.name=t", "-c", "user.email=t@t"]
+    (tmp_path / "src").mkdir()
+    (tmp_path / "src" / "a.py").write_text("x = 1\n")
+    subprocess.run([*git, "init", "-q"], check=True)
+    subprocess.run([*git, "add", "."], check=True)
+    subprocess.run([*git, "commit", "-qm", "one"], check=True)
+    head = subprocess.run([*git, "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+    assert first_hour.tree_label(tmp_path) == head
+    (tmp_path / "src" / "a.py").write_text("x = 2\n")
+    assert first_hour.tree_label(tmp_path) == head + "+"
+    with pytest.raises(SystemExit):  # not a checkout of the project: refused before any run
+        first_hour.main(["--against", str(tmp_path), "--jobs", "fern", "--work", str(tmp_path / "w")])

@@ -110,7 +110,11 @@ def tile_footprints(
     cov2d: Tensor,
     qmax: Tensor,
     grid: TileGrid,
+    native=None,
 ) -> Footprints:
+    """The visible Gaussians front to back and their tile rectangles; with ``native`` (the loaded
+    kernels) the depth order comes from its radix sort (the same permutation as torch's stable
+    argsort, ~10x faster on CPU)."""
     width, height, tile = grid.width, grid.height, grid.tile
     u = means2d[:, 0].detach()
     v = means2d[:, 1].detach()
@@ -129,7 +133,8 @@ def tile_footprints(
         & (py0 <= py1)
     )
     ids = torch.nonzero(hit).squeeze(1)
-    ids = _at(ids, torch.argsort(_at(depths.detach(), ids), stable=True))  # front to back
+    keys = _at(depths.detach(), ids)
+    ids = _at(ids, native.stable_order(keys) if native is not None else torch.argsort(keys, stable=True))
     tx0 = _at(px0, ids).clamp(0, width - 1).long() // tile
     tx1 = _at(px1, ids).clamp(0, width - 1).long() // tile
     ty0 = _at(py0, ids).clamp(0, height - 1).long() // tile

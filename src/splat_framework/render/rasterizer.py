@@ -263,8 +263,9 @@ def _rasterize(
         width=width,
         height=height,
     )
+    native = native_for(device)
     with section("binning"):
-        fp = tile_footprints(means2d, ext_x, ext_y, ok, depths, cov2d, qmax, grid)
+        fp = tile_footprints(means2d, ext_x, ext_y, ok, depths, cov2d, qmax, grid, native)
 
     # --------------------------------------------------------- compositing
     basis = pixel_basis(tile_size, device, dtype)
@@ -275,7 +276,7 @@ def _rasterize(
     with section("compositing"):
         rgb, depth, alpha = composite(
             means2d, conics, opacities, rgb_g.to(dtype), depths, background, fp, grid, basis, block,
-            chunk_pairs, native_for(device),
+            chunk_pairs, native,
         )
     if depth_mode == "expected":
         depth = torch.where(alpha > 0, depth / alpha.clamp_min(1e-12), torch.zeros_like(depth))

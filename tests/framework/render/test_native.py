@@ -96,6 +96,26 @@ def test_native_float32_exp_is_accurate(native):
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_native_depth_order_is_torchs_stable_argsort(native_module, dtype):
+    # depths with ties (equal depths keep their input order), a wide range, negatives, -0 and +0
+    gen = torch.Generator().manual_seed(3)
+    keys = torch.cat([torch.rand(50_000, generator=gen, dtype=dtype) * 40 + 0.01,
+                      torch.randint(0, 50, (20_000,), generator=gen).to(dtype) / 8,
+                      torch.logspace(-30, 30, 1000, dtype=dtype), -torch.rand(500, generator=gen, dtype=dtype),
+                      torch.tensor([0.0, -0.0, 0.0, -0.0, 1e-40], dtype=dtype)])  # 1e-40: a float32 denormal
+    keys = keys[torch.randperm(keys.numel(), generator=gen)]
+    order = native_module.stable_order(keys)
+    assert order.dtype == torch.int64
+    assert torch.equal(order, torch.argsort(keys, stable=True))
+    # depths within one octave share their top digits: those passes are skipped, the order is the same
+    near = 5 + torch.rand(3000, generator=gen, dtype=dtype)
+    assert torch.equal(native_module.stable_order(near), torch.argsort(near, stable=True))
+    assert native_module.stable_order(torch.empty(0, dtype=dtype)).numel() == 0
+    with pytest.raises(RuntimeError, match="float32 or float64"):
+        native_module.stable_order(torch.arange(4))
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_native_binning_gives_the_torch_binnings_pairs_in_the_same_order(native, dtype):
     # the same chunks, the same (tile, Gaussian) pairs sorted by (tile, depth), with and without
     # finished tiles, for chunks that start at the first Gaussian and further on
