@@ -330,6 +330,34 @@ def test_cache_hit_invalidation_and_corruption(tmp_path, monkeypatch, plane_scen
     assert len(calls) == 4
 
 
+def test_matches_are_computed_on_the_machines_cores_and_keyed_by_that_count(tmp_path, monkeypatch, plane_scene):
+    # whatever the run's own count (the load's, or pinned): the cache then holds the same bits for every run
+    img_a, img_b, cam_a, cam_b, _ = plane_scene
+    seen = []
+
+    class Recording(M.SiftMatcher):
+        def match(self, a, b):
+            seen.append(torch.get_num_threads())
+            return super().match(a, b)
+
+    monkeypatch.setitem(MATCHERS, "sift", Recording)
+    monkeypatch.delenv("SPLAT_THREADS", raising=False)
+    from splat_framework.runtime import threads
+
+    cores = threads.available_cores()
+    cfg = match_config("sift", max_matches=500)
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        ms = compute_matches([img_a, img_b], [cam_a, cam_b], [0, 1], cfg, cache_dir=tmp_path)
+        assert seen == [cores] and ms.meta["threads"] == cores and torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(before)
+    key = M.cache_key([img_a, img_b], [cam_a, cam_b], [0, 1], cfg)
+    monkeypatch.setattr(threads, "available_cores", lambda: cores + 1)  # another core count: another key
+    assert M.cache_key([img_a, img_b], [cam_a, cam_b], [0, 1], cfg) != key
+
+
 def test_draw_matches(tmp_path, plane_scene):
     img_a, img_b, *_ = plane_scene
     pts = np.random.default_rng(0).uniform([0, 0], [W, H], (500, 2)).astype(np.float32)

@@ -187,3 +187,25 @@ def test_without_proc_or_affinity_the_policy_leaves_the_count_alone(policy, monk
     for t in range(3):
         assert policy.follow(now=1e9 + t) is None
     assert torch.get_num_threads() == before
+
+
+def test_matching_runs_on_the_machines_cores_whatever_the_load_or_the_pin(policy, monkeypatch):
+    # the matches depend on the thread count (torch's sums split by thread) and are cached for every
+    # later run, so they are computed on the machine's cores: alone, under load or pinned, the same
+    monkeypatch.setattr(threads, "POLICY", policy)
+    monkeypatch.setattr(policy.meter, "read", lambda: 3.1)  # one core free
+    policy.counts.append(1)  # the load left the run one thread
+    with threads.machine_threads() as n:
+        assert n == 4 and torch.get_num_threads() == 4
+        assert [policy.follow(now=float(t)) for t in range(4)] == [None] * 4  # the load is not followed inside
+    assert torch.get_num_threads() == 1 and policy.held == 0  # the count before, following again
+    assert policy.follow(now=10.0) is None and policy.follow(now=11.0) is None  # 1 free: already 1
+    monkeypatch.setenv("SPLAT_THREADS", "2")
+    policy.counts.append(2)
+    with threads.machine_threads() as n:
+        assert n == 4 and torch.get_num_threads() == 4
+    assert torch.get_num_threads() == 2
+    monkeypatch.setenv("SPLAT_THREADS", "off")  # off never touches the count
+    with threads.machine_threads() as n:
+        assert n == 2 and policy.counts[-1] == 2
+    assert threads.machine_thread_count() == 2

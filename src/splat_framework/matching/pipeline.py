@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..console import Phase, phase, say
+from ..runtime.threads import machine_thread_count, machine_threads
 from . import registry
 from .base import KnownMatches, Matcher, Pts, inside_mask, to_hwc
 from ..config.base import MAX_MATCHES
@@ -36,10 +37,11 @@ def cache_key(
     known: dict[Pair, tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> str:
     """sha1 over (pipeline version, config, view ids, image bytes, camera matrices, foreground masks,
-    sparse matches given by a posing); for "auto" also whether the learned weights are installed (its
-    result depends on it)."""
+    sparse matches given by a posing, the thread count matching runs on: its sums, so its matches,
+    depend on it); for "auto" also whether the learned weights are installed (its result depends on it)."""
     h = hashlib.sha1()
-    head = {"version": CACHE_VERSION, "config": config.model_dump(mode="json"), "view_ids": [int(v) for v in view_ids]}
+    head = {"version": CACHE_VERSION, "config": config.model_dump(mode="json"), "view_ids": [int(v) for v in view_ids],
+            "threads": machine_thread_count()}
     if config.kind == AUTO:
         head["learned_available"] = registry.learned_available(config)
     h.update(json.dumps(head, sort_keys=True).encode())
@@ -164,8 +166,10 @@ def compute_matches(
     from ..runtime.rng import rng_untouched  # torch, imported only when matching runs
 
     # a learned matcher's random init must not move the run's random state
-    with rng_untouched(), phase("matching", n_pairs, unit="pairs") as progress:
+    # on the machine's cores whatever the load: the same matches alone, beside other work or pinned
+    with rng_untouched(), machine_threads() as threads, phase("matching", n_pairs, unit="pairs") as progress:
         ms = _match_all_pairs(ids, imgs, cams, fg, config, key, progress, known, names)
+    ms.meta["threads"] = threads
     if cache_path is not None:
         ms.save(cache_path)
     ms.meta["cache_hit"] = False

@@ -27,6 +27,7 @@ from ..console import phase
 from ..errors import DataError
 from ..files.output_paths import PROCESSED_SCENE, check_output, install_output
 from ..files.work_folder import scratch
+from ..runtime.threads import machine_threads
 from .colmap import load_pycolmap, verified_pair_counts, write_matches
 from .photo_matchers import AUTO_MATCHER, AUTO_PREFERRED, choose_matcher, photo_matchers
 from .photos import stage_images
@@ -133,7 +134,8 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
 
             rgb = [cv2.imread(str(work / "input" / f), cv2.IMREAD_COLOR)[..., ::-1].copy() for f in staged]
             try:
-                with phase(f"matching ({matcher}, {len(rgb) * (len(rgb) - 1) // 2} pairs)"):
+                # on the machine's cores whatever the load: the same matches (so poses) alone or not
+                with machine_threads(), phase(f"matching ({matcher}, {len(rgb) * (len(rgb) - 1) // 2} pairs)"):
                     found = plugins[matcher].load()(rgb)
                 write_matches(pycolmap, db, staged, found)
             except FileNotFoundError as e:  # the matcher's weights are not installed
