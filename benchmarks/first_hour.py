@@ -190,7 +190,10 @@ def main(argv: list[str] | None = None) -> list[dict]:
     this_tree = Path(__file__).resolve().parents[1]
     trees = {tree_label(this_tree): this_tree}
     if args.against is not None:
-        trees = {tree_label(args.against.resolve()): args.against.resolve(), **trees}
+        other = tree_label(args.against.resolve())
+        if other in trees:  # the same commit checked out twice: tell the rows apart by path
+            other = f"{other} {args.against.resolve()}"
+        trees = {other: args.against.resolve(), **trees}
     for job in args.jobs:
         if job == "fern" and args.against is not None:
             def fern(tree: Path, out: str, *more: str) -> dict:
@@ -198,7 +201,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
                        "--seed", "0", *more, "--output", str(work / out), "--overwrite"]
                 return timed(cmd, dict(env, PYTHONPATH=str(tree / "src")))
 
-            for label, tree in trees.items():  # kernels built, matches cached: untimed
+            for tree in trees.values():  # kernels built, matches cached: untimed
                 fern(tree, "fern-prepare", "--steps", "3")
             for _ in range(args.rounds):
                 for label, tree in trees.items():

@@ -20,8 +20,6 @@ from .scene import DataError
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".exr")
 
 
-
-
 def _read_bytes(path: Path) -> bytes:
     path = Path(path)
     if not path.exists():
