@@ -150,6 +150,39 @@ def test_native_binning_gives_the_torch_binnings_pairs_in_the_same_order(native,
     assert checked > 5000
 
 
+def test_native_binning_on_two_threads_gives_the_same_pairs_call_after_call(native):
+    # chunks big enough to be listed in two slices (over 16,384 pairs), binned again and again
+    # with the lists kept from call to call (larger, smaller, larger): the torch binning's pairs
+    from splat_framework.render import _composite as comp
+    from splat_framework.render._project import footprint, project_and_shade
+
+    width, height = 200, 150
+    viewmat, K = ref.make_camera(width, height)
+    means, quats, scales, opac, colors = ref.random_scene(6000, 4, dtype=torch.float32)
+    means2d, _, cov2d, depths, valid, _ = project_and_shade(means, quats, scales, colors, viewmat, K, width, height,
+                                                            0.01, 1e10, 0.3, None)
+    ext_x, ext_y, ok, qmax = footprint(cov2d, opac, valid)
+    grid = comp.TileGrid(tile=8, ntx=25, nty=19, width=width, height=height)
+    fp = comp.tile_footprints(means2d, ext_x, ext_y, ok, depths, cov2d, qmax, grid)
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        sizes = []
+        for chunk_pairs, pos in ((60_000, 0), (20_000, 500), (60_000, 0), (3_000, 2000)):
+            tile_done = torch.zeros(grid.n_tiles, dtype=torch.bool)
+            expected, next_pos = comp._torch_chunk(fp, grid, chunk_pairs, tile_done, pos, pos == 0)
+            gid, count, offset, native_next = native.bin_chunk(fp.ids, fp.tx0, fp.tx1, fp.ty0, fp.ty1, fp.ell,
+                                                               tile_done, pos, chunk_pairs, grid.tile, grid.ntx,
+                                                               grid.nty, grid.width, grid.height)
+            assert native_next == next_pos
+            for a, b in zip(expected, (gid, count, offset)):
+                assert torch.equal(a, b)
+            sizes.append(gid.numel())
+    finally:
+        torch.set_num_threads(before)
+    assert max(sizes) > 16_384 and min(sizes) < 16_384  # two slices and one
+
+
 def test_native_kernels_are_chosen_for_cpu_renders_while_compiling(native_module, monkeypatch):
     monkeypatch.setattr(_native, "native_kernels", lambda cache_dir=None: native_module)
     monkeypatch.setenv("SPLAT_COMPILE", "1")

@@ -92,16 +92,31 @@ std::tuple<torch::Tensor, torch::Tensor, torch::Tensor, int64_t> bin_impl(
   // and counts them per tile; a stable counting sort by tile then keeps the depth order within each
   // tile (slice s's pairs of a tile come after those of slices < s).
   const int64_t slices = std::max<int64_t>(1, std::min<int64_t>(at::get_num_threads(), cum / 16384 + 1));
-  std::vector<std::vector<int64_t>> pair_tile(slices), pair_gid(slices);
-  std::vector<std::vector<int64_t>> slice_cnt(slices, std::vector<int64_t>(n_tiles, 0));
+  // The lists live from call to call in the calling thread (a step bins a few chunks of about
+  // the same size): fresh pages for them on every call were faulted in one thread at a time, and
+  // two threads binned no faster than one. Named here, as references: inside the parallel region
+  // a thread_local's own name is each worker's copy.
+  thread_local std::vector<std::vector<int32_t>> kept_tile, kept_pos;
+  thread_local std::vector<std::vector<int64_t>> kept_cnt;
+  std::vector<std::vector<int32_t>>& pair_tile = kept_tile;  // [slices][pairs] tile
+  std::vector<std::vector<int32_t>>& pair_pos = kept_pos;    // [slices][pairs] position in ids
+  std::vector<std::vector<int64_t>>& slice_cnt = kept_cnt;   // [slices][T] pairs per tile
+  if (int64_t(pair_tile.size()) < slices) {
+    pair_tile.resize(slices);
+    pair_pos.resize(slices);
+    slice_cnt.resize(slices);
+  }
   const int64_t len = end - pos;
   at::parallel_for(0, slices, 1, [&](int64_t s0, int64_t s1) {
     for (int64_t s = s0; s < s1; ++s) {
-      std::vector<int64_t>& tiles = pair_tile[s];
-      std::vector<int64_t>& gids = pair_gid[s];
-      int64_t* cnt = slice_cnt[s].data();
+      std::vector<int32_t>& tiles = pair_tile[s];
+      std::vector<int32_t>& where = pair_pos[s];
+      tiles.clear();
+      where.clear();
       tiles.reserve(cum / slices + 1024);
-      gids.reserve(cum / slices + 1024);
+      where.reserve(cum / slices + 1024);
+      slice_cnt[s].assign(n_tiles, 0);
+      int64_t* cnt = slice_cnt[s].data();
       for (int64_t j = pos + len * s / slices; j < pos + len * (s + 1) / slices; ++j) {
         if (alive_in(j) == 0) continue;
         for (int64_t row = y0[j]; row <= y1[j]; ++row) {
@@ -112,8 +127,8 @@ std::tuple<torch::Tensor, torch::Tensor, torch::Tensor, int64_t> bin_impl(
           for (int64_t c = c0; c <= c1; ++c) {
             const int64_t t = row * ntx + c;
             if (done[t]) continue;
-            tiles.push_back(t);
-            gids.push_back(id[j]);
+            tiles.push_back(int32_t(t));
+            where.push_back(int32_t(j));
             ++cnt[t];
           }
         }
@@ -139,9 +154,9 @@ std::tuple<torch::Tensor, torch::Tensor, torch::Tensor, int64_t> bin_impl(
   at::parallel_for(0, slices, 1, [&](int64_t s0, int64_t s1) {
     for (int64_t s = s0; s < s1; ++s) {
       int64_t* cursor = slice_cnt[s].data();
-      const std::vector<int64_t>& tiles = pair_tile[s];
-      const std::vector<int64_t>& gids = pair_gid[s];
-      for (size_t p = 0; p < tiles.size(); ++p) g[cursor[tiles[p]]++] = gids[p];
+      const std::vector<int32_t>& tiles = pair_tile[s];
+      const std::vector<int32_t>& where = pair_pos[s];
+      for (size_t p = 0; p < tiles.size(); ++p) g[cursor[tiles[p]]++] = id[where[p]];
     }
   });
   return {gid, count, offset, end};
@@ -216,6 +231,8 @@ std::tuple<torch::Tensor, torch::Tensor, torch::Tensor, int64_t> bin_chunk(
   TORCH_CHECK(tile_done.scalar_type() == torch::kBool && tile_done.numel() == ntx * nty, "tile_done must be [ntx * nty] bool");
   TORCH_CHECK(ell.dim() == 2 && ell.size(1) == 6 && ell.size(0) == ids.size(0), "ell must be [V, 6]");
   TORCH_CHECK(tile > 0 && pos >= 0 && pos <= ids.size(0), "bad tile size or position");
+  TORCH_CHECK(ids.size(0) < (int64_t(1) << 31) && ntx * nty < (int64_t(1) << 31),
+              "binning lists positions and tiles as 32-bit integers");
   std::tuple<torch::Tensor, torch::Tensor, torch::Tensor, int64_t> result;
   AT_DISPATCH_FLOATING_TYPES(ell.scalar_type(), "bin_chunk", [&] {
     result = bin_impl<scalar_t>(ids.contiguous(), tx0.contiguous(), tx1.contiguous(), ty0.contiguous(),
