@@ -113,9 +113,14 @@ def tile_footprints(
     native=None,
 ) -> Footprints:
     """The visible Gaussians front to back and their tile rectangles; with ``native`` (the loaded
-    kernels) the depth order comes from its radix sort (the same permutation as torch's stable
-    argsort, ~10x faster on CPU)."""
+    kernels) all of it in one native pass, the same numbers (its depth order a radix sort: the
+    same permutation as torch's stable argsort, ~10x faster on CPU)."""
     width, height, tile = grid.width, grid.height, grid.tile
+    if native is not None:
+        ids, tx0, tx1, ty0, ty1, ell, hit = native.footprints(
+            means2d.detach(), ext_x.detach(), ext_y.detach(), ok, depths.detach(), cov2d.detach(), qmax.detach(),
+            width, height, tile)
+        return Footprints(ids, tx0, tx1, ty0, ty1, ell, hit)
     u = means2d[:, 0].detach()
     v = means2d[:, 1].detach()
     # integer pixel index ranges whose centres (p + 0.5) may be inside the footprint
@@ -133,8 +138,7 @@ def tile_footprints(
         & (py0 <= py1)
     )
     ids = torch.nonzero(hit).squeeze(1)
-    keys = _at(depths.detach(), ids)
-    ids = _at(ids, native.stable_order(keys) if native is not None else torch.argsort(keys, stable=True))
+    ids = _at(ids, torch.argsort(_at(depths.detach(), ids), stable=True))
     tx0 = _at(px0, ids).clamp(0, width - 1).long() // tile
     tx1 = _at(px1, ids).clamp(0, width - 1).long() // tile
     ty0 = _at(py0, ids).clamp(0, height - 1).long() // tile

@@ -116,6 +116,36 @@ def test_native_depth_order_is_torchs_stable_argsort(native_module, dtype):
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_native_footprints_are_the_torch_ones(native_module, dtype):
+    # the same visible Gaussians in the same depth order (ties in depth, invalid ones, ones off
+    # each side of the image, extents at whole pixels) and the same rectangles and rows
+    from splat_framework.render import _composite as comp
+
+    gen = torch.Generator().manual_seed(5)
+    n, width, height = 20_000, 130, 90
+    means2d = torch.rand(n, 2, generator=gen, dtype=dtype) * torch.tensor([width * 1.4, height * 1.4], dtype=dtype)
+    means2d -= torch.tensor([width * 0.2, height * 0.2], dtype=dtype)
+    means2d[:200] = means2d[:200].round() + 0.5  # centres on pixel centres, extents at whole pixels
+    ext_x = torch.rand(n, generator=gen, dtype=dtype) * 12
+    ext_y = torch.rand(n, generator=gen, dtype=dtype) * 12
+    ext_x[:100], ext_y[100:200] = 1.0, 2.0
+    ok = torch.rand(n, generator=gen) > 0.1
+    depths = torch.randint(1, 400, (n,), generator=gen).to(dtype) / 16  # many ties
+    cov2d = torch.rand(n, 3, generator=gen, dtype=dtype)
+    qmax = torch.rand(n, generator=gen, dtype=dtype) * 11
+    grid = comp.TileGrid(tile=8, ntx=17, nty=12, width=width, height=height)
+    want = comp.tile_footprints(means2d, ext_x, ext_y, ok, depths, cov2d, qmax, grid)
+    got = comp.tile_footprints(means2d, ext_x, ext_y, ok, depths, cov2d, qmax, grid, native=native_module)
+    assert 1000 < want.ids.numel() < n
+    for name in ("ids", "tx0", "tx1", "ty0", "ty1", "ell", "hit"):
+        a, b = getattr(want, name), getattr(got, name)
+        assert a.dtype == b.dtype and torch.equal(a, b), name
+    none = comp.tile_footprints(means2d, ext_x, ext_y, torch.zeros_like(ok), depths, cov2d, qmax, grid,
+                                native=native_module)
+    assert none.ids.numel() == 0 and none.ell.shape == (0, 6) and not bool(none.hit.any())
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_native_binning_gives_the_torch_binnings_pairs_in_the_same_order(native, dtype):
     # the same chunks, the same (tile, Gaussian) pairs sorted by (tile, depth), with and without
     # finished tiles, for chunks that start at the first Gaussian and further on

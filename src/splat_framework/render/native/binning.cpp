@@ -212,6 +212,72 @@ torch::Tensor order_impl(const torch::Tensor& keys) {
   return order;
 }
 
+// The visible Gaussians front to back and their tile rectangles, the arithmetic of
+// _composite.tile_footprints in the same precision: pixel index ranges whose centres may be
+// inside (u +- ext_x - 0.5 rounded inwards), the Gaussians whose range meets the image, their
+// stable depth order (order_impl) and the rows gathered in that order.
+template <typename S, typename U>
+std::vector<torch::Tensor> footprints_impl(const torch::Tensor& means2d, const torch::Tensor& ext_x,
+                                           const torch::Tensor& ext_y, const torch::Tensor& ok,
+                                           const torch::Tensor& depths, const torch::Tensor& cov2d,
+                                           const torch::Tensor& qmax, int64_t width, int64_t height, int64_t tile) {
+  const int64_t n = means2d.size(0);
+  const S* m = means2d.data_ptr<S>();
+  const S *ex = ext_x.data_ptr<S>(), *ey = ext_y.data_ptr<S>(), *d = depths.data_ptr<S>();
+  const S *cv = cov2d.data_ptr<S>(), *q = qmax.data_ptr<S>();
+  const bool* good = ok.data_ptr<bool>();
+  auto hit = torch::empty({n}, ok.options());
+  bool* h = hit.data_ptr<bool>();
+  std::vector<S> rect(size_t(n) * 4);  // px0, px1, py0, py1
+  std::vector<int64_t> visible;
+  visible.reserve(n);
+  const S half = S(0.5), right = S(width - 1), bottom = S(height - 1);
+  for (int64_t i = 0; i < n; ++i) {
+    const S u = m[2 * i], v = m[2 * i + 1];
+    const S px0 = std::ceil(u - ex[i] - half), px1 = std::floor(u + ex[i] - half);
+    const S py0 = std::ceil(v - ey[i] - half), py1 = std::floor(v + ey[i] - half);
+    S* r = rect.data() + 4 * i;
+    r[0] = px0;
+    r[1] = px1;
+    r[2] = py0;
+    r[3] = py1;
+    h[i] = good[i] && px1 >= S(0) && px0 <= right && py1 >= S(0) && py0 <= bottom && px0 <= px1 && py0 <= py1;
+    if (h[i]) visible.push_back(i);
+  }
+  const int64_t nv = int64_t(visible.size());
+  auto long_opts = means2d.options().dtype(torch::kInt64);
+  auto keys = torch::empty({nv}, depths.options());
+  S* k = keys.data_ptr<S>();
+  for (int64_t j = 0; j < nv; ++j) k[j] = d[visible[j]];
+  const torch::Tensor order = order_impl<S, U>(keys);
+  const int64_t* o = order.data_ptr<int64_t>();
+  auto ids = torch::empty({nv}, long_opts);
+  auto tx0 = torch::empty({nv}, long_opts), tx1 = torch::empty({nv}, long_opts);
+  auto ty0 = torch::empty({nv}, long_opts), ty1 = torch::empty({nv}, long_opts);
+  auto ell = torch::empty({nv, 6}, means2d.options());
+  int64_t *id = ids.data_ptr<int64_t>(), *x0 = tx0.data_ptr<int64_t>(), *x1 = tx1.data_ptr<int64_t>();
+  int64_t *y0 = ty0.data_ptr<int64_t>(), *y1 = ty1.data_ptr<int64_t>();
+  S* e = ell.data_ptr<S>();
+  const auto tile_of = [&](S p, S hi) { return int64_t(std::min(std::max(p, S(0)), hi)) / tile; };
+  for (int64_t j = 0; j < nv; ++j) {
+    const int64_t i = visible[o[j]];
+    const S* r = rect.data() + 4 * i;
+    id[j] = i;
+    x0[j] = tile_of(r[0], right);
+    x1[j] = tile_of(r[1], right);
+    y0[j] = tile_of(r[2], bottom);
+    y1[j] = tile_of(r[3], bottom);
+    S* row = e + 6 * j;
+    row[0] = m[2 * i];
+    row[1] = m[2 * i + 1];
+    row[2] = cv[3 * i];
+    row[3] = cv[3 * i + 1];
+    row[4] = cv[3 * i + 2];
+    row[5] = q[i];
+  }
+  return {ids, tx0, tx1, ty0, ty1, ell, hit};
+}
+
 }  // namespace
 
 // keys [V] (finite) -> [V] int64, the stable ascending order (torch.argsort(keys, stable=True))
@@ -240,4 +306,26 @@ std::tuple<torch::Tensor, torch::Tensor, torch::Tensor, int64_t> bin_chunk(
                                 ntx, nty, width, height);
   });
   return result;
+}
+
+// (means2d [N, 2], ext_x, ext_y [N], ok [N] bool, depths [N], cov2d [N, 3], qmax [N]) ->
+// [ids, tx0, tx1, ty0, ty1 [V] int64, ell [V, 6], hit [N] bool]: _composite.tile_footprints
+std::vector<torch::Tensor> footprints(torch::Tensor means2d, torch::Tensor ext_x, torch::Tensor ext_y, torch::Tensor ok,
+                                      torch::Tensor depths, torch::Tensor cov2d, torch::Tensor qmax, int64_t width,
+                                      int64_t height, int64_t tile) {
+  const int64_t n = means2d.size(0);
+  TORCH_CHECK(means2d.device().is_cpu() && means2d.dim() == 2 && means2d.size(1) == 2, "means2d must be [N, 2] on the CPU");
+  TORCH_CHECK(cov2d.dim() == 2 && cov2d.size(0) == n && cov2d.size(1) == 3, "cov2d must be [N, 3]");
+  TORCH_CHECK(ext_x.numel() == n && ext_y.numel() == n && depths.numel() == n && qmax.numel() == n && ok.numel() == n,
+              "one extent, depth, qmax and flag per Gaussian");
+  TORCH_CHECK(ok.scalar_type() == torch::kBool && tile > 0, "ok must be bool, tile positive");
+  const auto st = means2d.scalar_type();
+  for (const auto* t : {&ext_x, &ext_y, &depths, &cov2d, &qmax})
+    TORCH_CHECK(t->scalar_type() == st, "footprints: every float input in the dtype of means2d");
+  if (st == torch::kFloat)
+    return footprints_impl<float, uint32_t>(means2d.contiguous(), ext_x.contiguous(), ext_y.contiguous(), ok.contiguous(),
+                                            depths.contiguous(), cov2d.contiguous(), qmax.contiguous(), width, height, tile);
+  TORCH_CHECK(st == torch::kDouble, "footprints: float32 or float64");
+  return footprints_impl<double, uint64_t>(means2d.contiguous(), ext_x.contiguous(), ext_y.contiguous(), ok.contiguous(),
+                                           depths.contiguous(), cov2d.contiguous(), qmax.contiguous(), width, height, tile);
 }

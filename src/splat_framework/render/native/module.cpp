@@ -13,5 +13,6 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("photometric_forward", &photometric_forward, "(1 - lambda) L1 + lambda (1 - SSIM) of one image, forward");
   m.def("photometric_backward", &photometric_backward, "(1 - lambda) L1 + lambda (1 - SSIM) of one image, backward");
   m.def("stable_order", &stable_order, "the stable ascending order of 1-D float keys (a radix sort)");
+  m.def("footprints", &footprints, "the visible Gaussians front to back and their tile rectangles");
   m.def("bin_chunk", &bin_chunk, "the next depth chunk's (tile, Gaussian) pairs, sorted by (tile, depth)");
 }
