@@ -81,6 +81,7 @@ def test_the_run_folder_evaluates_from_another_folder_and_shell(photo_run, tmp_p
 
 def test_the_same_photos_are_posed_once_and_a_changed_photo_again(photo_run, tmp_path, monkeypatch, capsys):
     from splat_framework.data.photos import photo_source
+    from splat_framework.runtime import threads
     from splat_framework.sfm.own_photos import photos_key, posed_photos
 
     _, run, photos, env = photo_run
@@ -93,6 +94,10 @@ def test_the_same_photos_are_posed_once_and_a_changed_photo_again(photo_run, tmp
     key = photos_key(files, "photos", options)
     assert photos_key(files, "photos", PhotoPosesConfig(matcher="sift", mapper="global")) != key
     assert photos_key(files, "photos", PhotoPosesConfig(matcher="sift", frames=5)) == key  # frames: videos only
+    cores = threads.machine_thread_count()
+    with monkeypatch.context() as m:
+        m.setattr(threads, "machine_thread_count", lambda: cores + 1)
+        assert photos_key(files, "photos", options) != key  # posed on another core count: other matches
     changed = tmp_path / "changed"
     shutil.copytree(photos, changed)
     (changed / "IMG_27.png").write_bytes((changed / "IMG_27.png").read_bytes() + b"\0")

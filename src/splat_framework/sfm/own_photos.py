@@ -41,9 +41,13 @@ def resolve_data_path(spec: str | Path, photos: PhotoPosesConfig | None = None) 
 
 
 def photos_key(files: list[Path], kind: PhotoSource, options: PhotoPosesConfig) -> str:
-    """Hex digest of the files' names and bytes (in the given order) and of the pose options that apply."""
+    """Hex digest of the files' names and bytes (in the given order), of the pose options that apply
+    and of the thread count the learned matching runs on (:func:`machine_thread_count`: its matches,
+    so the poses, differ in their last bits from one count to another, as the prior's do)."""
+    from ..runtime.threads import machine_thread_count
+
     used = options.model_dump(mode="json", exclude=set() if kind == "video" else {"frames"})
-    h = hashlib.sha256(json.dumps([KEY_VERSION, kind, used], sort_keys=True).encode())
+    h = hashlib.sha256(json.dumps([KEY_VERSION, kind, used, machine_thread_count()], sort_keys=True).encode())
     for f in files:
         h.update(f"\0{f.name}\0{f.stat().st_size}\0".encode())
         with open(f, "rb") as src:
