@@ -269,6 +269,21 @@ def test_balanced_sample_deterministic_and_balanced():
     assert np.array_equal(balanced_sample(pts[:10], 1000), np.arange(10))
 
 
+def test_balanced_sample_keeps_its_subset_when_a_few_points_come_or_go():
+    """Matches computed on another thread count differ by a few points: the kept subset must not
+    reshuffle (a random draw per cell kept 8 % of it here), and the input's order must not matter."""
+    rng = np.random.default_rng(1)
+    xs, ys = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)  # a dense flow's pixel centres
+    pts = np.stack([xs.ravel(), ys.ravel()], 1)[rng.random(W * H) < 0.5]
+    kept = lambda p: {tuple(q) for q in p[balanced_sample(p, 3000, W, H, cell=16, seed=3)].tolist()}  # noqa: E731
+    base = kept(pts)
+    fewer = kept(pts[rng.random(len(pts)) > 0.01])  # 1 % of the points gone
+    more = kept(np.r_[pts, rng.uniform([0, 0], [W, H], (len(pts) // 100, 2))])  # 1 % new ones
+    assert len(base) == 3000
+    assert len(base & fewer) > 0.95 * 3000 and len(base & more) > 0.95 * 3000
+    assert kept(pts[rng.permutation(len(pts))]) == base
+
+
 # ------------------------------------------------------------ MatchSet + cache
 def _toy_set() -> MatchSet:
     rng = np.random.default_rng(0)

@@ -13,7 +13,7 @@ import numpy as np
 from ..runtime.io import atomic_write_bytes
 
 #: Bump when the matching pipeline changes in a way that invalidates caches.
-CACHE_VERSION = 4
+CACHE_VERSION = 5
 
 
 Pair = tuple[int, int]
