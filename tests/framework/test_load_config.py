@@ -98,11 +98,14 @@ def test_a_flat_matching_block_of_an_old_run_loads_as_its_matchers_config(varian
     method, loaded = load_saved_experiment(str(tmp_path / "config.json"), methods)
     keep = experiment_fields(type(config))
     got, want = loaded.model_dump(include=keep), config.model_dump(include=keep)
-    budgets = []
+    budgets, guided = [], []
     for dump in (got, want):
         for key in at:
             dump = dump[key]
         budgets.append(dump["matching"].pop("max_total_matches"))
+        guided.append(dump["matching"].pop("auto_guided_flow_max_views", "n/a"))
     assert got == want and budgets == [0, block.max_total_matches]  # those versions had no total budget (schema 4)
+    # the run's own view limit of guided flow is kept (today's default: any number of views)
+    assert guided == ([4, None] if block.kind == "auto" else ["n/a", "n/a"])
     matching = loaded.model.init.matching if variant.endswith("-triang") else loaded.model.matching
     assert type(matching) is type(block) and all(getattr(matching, k) == v for k, v in edits.items())

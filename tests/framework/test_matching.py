@@ -467,6 +467,10 @@ def test_auto_picks_the_matcher_by_view_angle(plane_scene, monkeypatch):
     ms = compute_matches(imgs, cams, ids, match_config(cache=False, auto_flow_max_angle=5.0, auto_guided_flow_max_views=0))
     assert ms.meta["pair_matchers"] == {"0-1": M.AUTO_LEARNED} and calls == ["learned"] and ms.count(0, 1) >= 100
     ms = compute_matches(imgs, cams, ids, match_config(cache=False))  # 2 views: the narrow pair too is guided
+    # guided flow at any view count by default (lego's 8 views and LLFF's 5 scored better on validation views)
+    assert M.takes_guided_flow(match_config(), 100) and M.takes_guided_flow(match_config(), 3)
+    assert not M.takes_guided_flow(match_config(auto_guided_flow_max_views=4), 5)
+    assert not M.takes_guided_flow(match_config(kind="dense"), 3)
     assert ms.meta["pair_matchers"] == {"0-1": M.AUTO_GUIDED} and calls == ["learned"] * 2 and ms.count(0, 1) >= 100
     monkeypatch.setattr(M.registry, "learned_available", lambda config: False)  # wide pair, no weights: dense + one notice
     with pytest.warns(UserWarning, match=r"matcher auto: pair IMG_1-IMG_2 is wide \(7 degrees\).*not installed"):

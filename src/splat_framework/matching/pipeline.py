@@ -66,6 +66,13 @@ def cache_key(
     return h.hexdigest()
 
 
+def takes_guided_flow(config: MatchConfig, n_views: int) -> bool:
+    """Whether matcher "auto" matches every pair of ``n_views`` views by guided flow (its
+    ``auto_guided_flow_max_views``: None = any number of views)."""
+    limit = getattr(config, "auto_guided_flow_max_views", 0)
+    return config.kind == AUTO and (limit is None or n_views <= limit)
+
+
 def on_foreground(pts: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
     """[M] bool: ``mask`` [H, W] (alpha, 0 = background) is > 0 at the pixel holding each continuous point [M, 2]
     (all True without a mask)."""
@@ -207,7 +214,7 @@ def _match_all_pairs(ids: list[int], imgs: list[np.ndarray], cams, fg: list, con
         """The pair's learned matches: those the posing kept, else the learned matcher of "auto"."""
         return KnownMatches(*known[pair]) if pair in known else auto_learned(pair, why)
 
-    guided = config.kind == AUTO and len(ids) <= config.auto_guided_flow_max_views
+    guided = takes_guided_flow(config, len(ids))
     # flow "keeps too few" below auto_min_matches, or below the pair's cap when that is lower
     min_dense = min(getattr(config, "auto_min_matches", 0), config.max_matches or MAX_MATCHES)
     for a in range(len(ids)):
