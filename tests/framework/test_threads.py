@@ -53,8 +53,8 @@ def test_the_count_follows_the_load_after_two_readings_a_second_apart(policy, mo
     assert policy.follow(now=4.0) is None
     assert policy.follow(now=5.0) == 4 and policy.counts == [1, 4]
     assert policy.changes == 2
-    # metrics.json keeps the setting, every count the run used, and the gradient slots
-    assert policy.record() == {"setting": "auto", "counts": [1, 4], "gradient_slots": 4}
+    # metrics.json keeps the setting, every count the run used, the gradient slots and the matches' count
+    assert policy.record() == {"setting": "auto", "counts": [1, 4], "gradient_slots": 4, "matching": 4}
 
 
 def test_a_pinned_count_is_set_once_for_the_whole_process_and_never_follows(policy, monkeypatch):
@@ -63,7 +63,7 @@ def test_a_pinned_count_is_set_once_for_the_whole_process_and_never_follows(poli
     assert policy.start() == 2 and policy.counts == [2]
     for t in range(5):
         assert policy.follow(now=float(t)) is None
-    assert policy.record() == {"setting": "2", "counts": [2], "gradient_slots": 4}
+    assert policy.record() == {"setting": "2", "counts": [2], "gradient_slots": 4, "matching": 4}
     monkeypatch.setenv("SPLAT_THREADS", "off")
     assert policy.start() is None
     assert [policy.follow(now=10.0 + t) for t in range(3)] == [None] * 3 and policy.counts == [2]

@@ -137,10 +137,13 @@ class ThreadPolicy:
 
     def record(self) -> dict:
         """What a run's metrics.json keeps of its threads: the setting, every count used (under "auto"
-        they follow the load), and the gradient slots of the native compositing, which, not the
-        thread count, fix the order of its sums (one per core the process may use)."""
+        they follow the load), the gradient slots of the native compositing, which, not the
+        thread count, fix the order of its sums (one per core the process may use), and the count
+        the matches are computed on (:func:`machine_thread_count`): the last bits of the learned
+        matches, so the prior and the scores, depend on it (docs/results.md)."""
         setting = mode()
-        return {"setting": str(setting), "counts": sorted(self.used), "gradient_slots": available_cores()}
+        return {"setting": str(setting), "counts": sorted(self.used), "gradient_slots": available_cores(),
+                "matching": machine_thread_count()}
 
 
 def _match_opencv(n: int) -> None:
