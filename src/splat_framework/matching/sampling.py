@@ -22,8 +22,7 @@ def point_keys(points: np.ndarray, seed: int = 0) -> np.ndarray:
     rounded to 1/:data:`KEY_RESOLUTION` px, so a point's rank does not depend on which other points there are,
     nor on their order."""
     q = np.round(np.asarray(points, np.float64).reshape(-1, 2) * KEY_RESOLUTION).astype(np.int64).view(np.uint64)
-    s = np.full(len(q), int(seed) & 0xFFFF_FFFF_FFFF_FFFF, np.uint64)
-    return _mix(_mix(q[:, 0] ^ s) ^ q[:, 1])
+    return _mix(_mix(q[:, 0] ^ np.uint64(int(seed) & 0xFFFF_FFFF_FFFF_FFFF)) ^ q[:, 1])
 
 
 def balanced_sample(
