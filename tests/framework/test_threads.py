@@ -135,8 +135,34 @@ def test_a_run_starts_with_the_cores_free_at_that_moment(policy, monkeypatch):
     assert policy.counts == [1]
 
 
+def test_the_cpu_meter_subtracts_this_process_s_own_time(monkeypatch):
+    """The reading is the machine's busy time less this process's own, per second of wall time."""
+    from splat_framework.runtime import resources
+
+    samples = iter([(10.0, 100.0, 3.0), (12.5, 101.0, 3.9), (12.5, 101.0, 3.9)])  # (busy, wall, own)
+    monkeypatch.setattr(resources, "_cpu_sample", lambda: next(samples))
+    meter = resources.CpuMeter()
+    assert meter.read() is None  # the first reading has nothing to compare with
+    assert meter.read() == pytest.approx(1.6)  # 2.5 busy core-seconds, 0.9 of them this process's
+    assert meter.read() is None  # no wall time passed
+
+
+def _cpu_seconds(pid: int) -> float:
+    """User + system CPU seconds of process ``pid`` (Linux /proc)."""
+    import os
+
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def test_the_cpu_meter_counts_other_processes_busy_cores_not_this_one():
-    """A busy loop in this process is not load from elsewhere; a busy child process is."""
+    """On the real /proc: a busy child's CPU time shows in the reading, this process's own does not.
+
+    Bounds that hold at any load (CI runs two test workers on two cores): the reading is at least
+    the child's share of the interval, and at most the cores left when this process's share is
+    taken away."""
+    import os
     import time
 
     from splat_framework.runtime.resources import CpuMeter
@@ -144,20 +170,28 @@ def test_the_cpu_meter_counts_other_processes_busy_cores_not_this_one():
     meter = CpuMeter()
     if meter.read() is None and meter.last is None:
         pytest.skip("no /proc/stat on this system")
-    end = time.monotonic() + 0.6
+    cores = len(os.sched_getaffinity(0))
+    slack = 0.15  # clock ticks (10 ms) over about a second, and the readings' few microseconds apart
+    own, start = time.process_time(), time.monotonic()
+    end = start + 0.8
     while time.monotonic() < end:
         pass
     mine = meter.read()
-    child = subprocess.Popen([sys.executable, "-c", "import time\nend = time.monotonic() + 3\nwhile time.monotonic() < end: pass"])
+    own_share = (time.process_time() - own) / (time.monotonic() - start)
+    assert mine is not None and mine <= cores - own_share + slack
+    child = subprocess.Popen([sys.executable, "-c", "import time\nend = time.monotonic() + 5\nwhile time.monotonic() < end: pass"])
     try:
-        time.sleep(1.5)
+        time.sleep(1.0)  # the interpreter's start-up is over
         meter.read()
+        before, start = _cpu_seconds(child.pid), time.monotonic()
         time.sleep(1.0)
         theirs = meter.read()
+        child_share = (_cpu_seconds(child.pid) - before) / (time.monotonic() - start)
     finally:
         child.kill()
         child.wait()
-    assert theirs - mine > 0.5  # the child's core shows (the rest of the machine's load is in both)
+    assert child_share > 0.05  # the child ran at all
+    assert theirs is not None and theirs >= child_share - slack
 
 
 def test_without_proc_or_affinity_the_policy_leaves_the_count_alone(policy, monkeypatch):
