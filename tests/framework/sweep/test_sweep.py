@@ -352,18 +352,27 @@ def test_comparison_figure_per_scene_from_finished_runs(tmp_path):
     assert fig is not None and fig.shape[0] > 3 * 12 and fig.shape[1] > 2 * 16  # GT row + 2 method rows, 2 views
 
 
-def test_ablation_named_table_has_its_rows_title_and_readme_markers(tmp_path):
-    """--table comp-tria: the paper's comparison rows in its order (the default --methods), its title,
-    and README markers of its own beside the scene's ablation table."""
+@pytest.mark.parametrize("table, title, configs, label", [
+    ("comp-tria", "Triangulated initialisation across representations (the paper's Tab. comp_tria)",
+     ["3dgs", "3dgs-triang", "scaffold-gs-triang", "octree-gs-triang", "scgaussian"], "Triang. init + Octree-GS"),
+    ("default-ablation", "The paper's ablation on the default `scgaussian` (its additions kept)",
+     ["3dgs", "3dgs-triang", "scgaussian-hybrid", "scgaussian-hybrid-rg", "scgaussian-hybrid-rg-dual", "scgaussian",
+      "scgaussian-single-stage", "scgaussian-only-ray", "scgaussian-only-nonstructure"], "+ dual optimisation (z warm-up)"),
+])
+def test_ablation_named_table_has_its_rows_title_and_readme_markers(tmp_path, table, title, configs, label):
+    """--table NAME: the table's rows in its order (the default --methods), its title, and README markers
+    of its own beside the scene's ablation table (comp-tria: the paper's comparison rows; default-ablation:
+    the paper's ablation rows built on the default, apart from the 3dgs-against-scgaussian table)."""
     ablation = load_ablation_script()
-    key = "synthetic-forward-tiny-v3-comp-tria"
+    key = f"synthetic-forward-tiny-v3-{table}"
     readme = tmp_path / "README.md"
-    readme.write_text(f"<!-- ablation:{key} -->\nOLD TABLE\n<!-- /ablation:{key} -->\n")
-    md = ablation.main(["--table", "comp-tria", "--data", "synthetic/forward-tiny", "--views", "3", "--seeds", "0",
+    readme.write_text(f"<!-- ablation:{key} -->\nOLD TABLE\n<!-- /ablation:{key} -->\n"
+                      "<!-- ablation:synthetic-forward-tiny-v3 -->\nKEPT\n<!-- /ablation:synthetic-forward-tiny-v3 -->\n")
+    md = ablation.main(["--table", table, "--data", "synthetic/forward-tiny", "--views", "3", "--seeds", "0",
                         "--out", str(tmp_path / "abl"), "--md", str(tmp_path / "t.md"), "--readme", str(readme),
                         "--no-live", "--no-train"])
     text = md.read_text()
-    assert "### Triangulated initialisation across representations (the paper's Tab. comp_tria) on " in text
-    configs = [ln.split("|")[2].strip() for ln in text.splitlines() if ln.startswith("| ") and "`" in ln.split("|")[2]]
-    assert configs == ["`3dgs`", "`3dgs-triang`", "`scaffold-gs-triang`", "`octree-gs-triang`", "`scgaussian`"]
-    assert "Triang. init + Octree-GS" in text and "OLD TABLE" not in readme.read_text()
+    assert f"### {title} on " in text
+    rows = [ln.split("|")[2].strip() for ln in text.splitlines() if ln.startswith("| ") and "`" in ln.split("|")[2]]
+    assert rows == [f"`{c}`" for c in configs]
+    assert label in text and "OLD TABLE" not in readme.read_text() and "KEPT" in readme.read_text()
