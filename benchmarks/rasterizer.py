@@ -48,6 +48,7 @@ KERNELS = {
     "eager": "SPLAT_COMPILE=0: the eager per-round torch kernels",
     "compiled": "SPLAT_COMPILE=1, native kernels off: the torch.compile'd per-round kernels",
     "native": "SPLAT_COMPILE=1 on a CPU: the native C++ kernels",
+    "triton": "SPLAT_RASTERIZER=triton: the Triton kernels (CUDA; a CPU under TRITON_INTERPRET=1)",
 }
 
 
@@ -98,11 +99,13 @@ def run_one(n: int, device: str, repeats: int, warmup: int, scene: str = "opaque
     import torch
 
     from splat_framework.data.cache_dir import user_cache_dir
-    from splat_framework.render import rasterize, rasterizer, set_compile
+    from splat_framework.render import rasterize, set_compile
 
     set_compile(kernels != "eager", user_cache_dir())
-    if kernels == "compiled":
-        rasterizer.native_for = lambda device: None
+    if kernels in ("compiled", "triton", "native"):  # the torch.compile'd rounds, or the named kernels
+        from splat_framework.render import set_rasterizer
+
+        set_rasterizer({"compiled": "torch"}.get(kernels, kernels))
 
     def sync():
         if device == "cuda":

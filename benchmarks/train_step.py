@@ -203,11 +203,16 @@ def measure(method: str, args: argparse.Namespace) -> list[dict]:
     else:
         compiled = compile_requested()
     try:
-        from splat_framework.render._native import native_for
-    except ImportError:  # older code: no native kernels
-        kernels = "compiled" if compiled else "eager"
+        from splat_framework.render import backend_name
+    except ImportError:  # older code: native or torch kernels only
+        try:
+            from splat_framework.render._native import native_for
+        except ImportError:  # older code: no native kernels
+            kernels = "compiled" if compiled else "eager"
+        else:
+            kernels = "native" if native_for(trainer.device) is not None else ("compiled" if compiled else "eager")
     else:
-        kernels = "native" if native_for(trainer.device) is not None else ("compiled" if compiled else "eager")
+        kernels = backend_name(trainer.device)
     records = []
     for at, path in sorted(snaps.items()):
         load_snapshot(trainer, path)

@@ -344,6 +344,8 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
         table.add_row("skipped steps", str(metrics["skipped_steps"]))
     if metrics.get("render_fps"):
         table.add_row("render fps", f"{metrics['render_fps']:.1f}")
+    if metrics.get("rasterizer"):
+        table.add_row("rasterizer", metrics["rasterizer"])
     for k, v in metrics["timing"].items():
         table.add_row(k, f"{v:.1f}")
     if st := metrics.get("step_times"):

@@ -22,6 +22,9 @@ VARIABLES: dict[str, str] = {
                    "`$SPLAT_CACHE/inductor`.",
     "SPLAT_COMPILE": "`0` or `1`: compile the rasterizer's kernels (native C++ on a CPU, torch.compile elsewhere) "
                      "or run them eagerly, whatever `--compile` says.",
+    "SPLAT_RASTERIZER": "Which kernels render: `auto` (the default: native C++ on a CPU, Triton on CUDA, torch "
+                        "elsewhere, while kernels are compiled), `native`, `triton` (CUDA, or a CPU under "
+                        "`TRITON_INTERPRET=1`) or `torch`; `--rasterizer` other than auto wins.",
     "SPLAT_THREADS": "CPU threads of the whole process (torch and OpenCV, every phase): `auto` (the default) "
                      "follows the cores other processes leave free, re-read every second; a whole number (1 or more) pins the "
                      "count; `off` leaves it alone.",
@@ -77,6 +80,16 @@ def compile_setting(value: str | None) -> bool | None:
     return _SWITCH[text]
 
 
+def rasterizer_setting(value: str | None) -> str | None:
+    """``SPLAT_RASTERIZER``: auto, native, triton or torch (any case); None when unset or empty."""
+    text = (value or "").strip().lower()
+    if not text:
+        return None
+    if text not in ("auto", "native", "triton", "torch"):
+        raise _bad("SPLAT_RASTERIZER", value or "", "expected auto, native, triton or torch")
+    return text
+
+
 _OBJECT_PATH = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*")
 
 
@@ -115,6 +128,7 @@ def check_environment(environ=None) -> None:
     checks = {
         "SPLAT_THREADS": threads_setting,
         "SPLAT_COMPILE": compile_setting,
+        "SPLAT_RASTERIZER": rasterizer_setting,
         "SPLAT_IMAGE_MEMORY_BUDGET": lambda v: v.strip() and size_bytes("SPLAT_IMAGE_MEMORY_BUDGET", v),
         "SPLAT_CACHE": lambda v: _folder("SPLAT_CACHE", v, must_exist=False),
         "SPLAT_DATA": lambda v: _folder("SPLAT_DATA", v, must_exist=False),

@@ -115,9 +115,9 @@ def _native_loss(pred: Tensor, gt: Tensor):
     one [H, W, C] prediction on a CPU against a constant photo, where they could be built; else None."""
     if pred.dim() != 3 or pred.shape != gt.shape or gt.requires_grad or pred.dtype != gt.dtype:
         return None
-    from .render import native_for
+    from .render import backend
 
-    native = native_for(pred.device)
+    native = backend.native_for(pred.device)
     return native if native is not None and hasattr(native, "photometric_forward") else None
 
 

@@ -98,7 +98,9 @@ class TrainConfig(SplatConfig):
     viewer_every: Annotated[Interval, RUN_OPTION, FOLDED] = 100
     """Send the model to the training viewer every this many iterations."""
     compile: Annotated[bool, RUN_OPTION, FOLDED] = True
-    """Compile the rasterizer's kernels (native C++ on a CPU, else torch.compile)."""
+    """Compile the rasterizer's kernels (native C++ on a CPU, Triton on CUDA, else torch.compile)."""
+    rasterizer: Annotated[Literal["auto", "native", "triton", "torch"], RUN_OPTION, FOLDED] = "auto"
+    """Which kernels render: auto (native C++ on a CPU, Triton on CUDA, torch elsewhere; SPLAT_RASTERIZER when set), native, triton (CUDA; a CPU under TRITON_INTERPRET=1) or torch."""
     model: GaussianModelConfig = Field(default_factory=GaussianModelConfig)
     """Model options."""
     strategy: RegisteredStrategies = Field(default_factory=DensifyConfig)

@@ -30,8 +30,13 @@ def run_metrics(trainer, results: dict) -> dict:
         "lpips_note": results["lpips_note"],
         "test_pose_steps": cfg.test_pose_steps,
         "threads": threads_record(),
+        "rasterizer": trainer.rasterizer,
         "step_times": step_times(trainer.step_seconds),
     }
+    if trainer.device.type == "cuda":  # the whole process's peak, training and evaluation
+        import torch
+
+        metrics["peak_gpu_memory_mib"] = torch.cuda.max_memory_allocated(trainer.device) / 2**20
     metrics["init_stats"] = dict(trainer.model.init_stats)
     report = trainer.model.report(trainer.datamanager)
     if report is not None:

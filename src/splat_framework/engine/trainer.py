@@ -72,7 +72,7 @@ from ..evaluation.metrics import psnr
 from ..model.strategy import Strategy
 from .numerics import first_nonfinite as _first_nonfinite, optimized_tensors, trainable_tensors
 from ..runtime.profiling import section
-from ..render import native_for, set_compile
+from ..render import prepare_kernels, set_compile, set_rasterizer
 from ..runtime.allocator import keep_freed_memory
 from ..runtime.threads import apply_process_threads
 from ..registry import MethodSpec, get_method
@@ -190,7 +190,10 @@ class Trainer(TrainState):
     def _setup(self) -> None:
         """Data, model (SCGaussian: matching, warm-up), optimizers and strategy."""
         set_compile(self.config.compile, user_cache_dir())
-        native_for(self.device)  # built or loaded now, a phase of its own, not inside the first training step
+        set_rasterizer(self.config.rasterizer)
+        # built, loaded or compiled now, a phase of its own, not inside the first training step; a
+        # rasterizer named that cannot run here is one line (DataError) before anything is loaded
+        self.rasterizer = prepare_kernels(self.device)
         self.timing: dict[str, float] = {}
         self.generator = seed_everything(self.config.seed)
         t0 = time.perf_counter()

@@ -282,7 +282,7 @@ def _chunk_pairs(fp: Footprints, sel: Tensor, grid: TileGrid, tile_done: Tensor)
 
 class _Composite(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, colors, depths, background, fp, grid, basis, block, chunk_pairs, native):  # type: ignore[override]
+    def forward(ctx, means2d, conics, opacities, colors, depths, background, fp, grid, basis, block, chunk_pairs, kernels):  # type: ignore[override]
         ctx.set_materialize_grads(False)
         device, dtype = means2d.device, means2d.dtype
         n = means2d.shape[0]
@@ -314,9 +314,9 @@ class _Composite(torch.autograd.Function):
         t_state = torch.ones(n_tiles, npx, device=device, dtype=dtype)  # 0 once a pixel stopped
         tile_done = torch.zeros(n_tiles, dtype=torch.bool, device=device)
         keep_rounds = any(ctx.needs_input_grad[:6])  # the backward replays the rounds
-        ctx.native = native
-        if native is not None:
-            ctx.rounds = _native_forward(native, table, fp, grid, chunk_pairs, tile_centers, t_state, out,
+        ctx.kernels = kernels
+        if kernels is not None:
+            ctx.rounds = _kernel_forward(kernels, table, fp, grid, chunk_pairs, tile_centers, t_state, out,
                                          tile_done, keep_rounds)
         else:
             ctx.rounds = _round_forward(table, fp, grid, chunk_pairs, tile_centers, basis, t_state, out,
@@ -355,15 +355,18 @@ class _Composite(torch.autograd.Function):
         prefix = torch.zeros_like(total)
         absgrad = getattr(ctx.means2d, ABSGRAD_REQUEST, False)
         width = 6 + f + (2 if absgrad else 0)  # the table's columns, then |dL/du|, |dL/dv| summed over pixels
-        if ctx.native is not None:
-            # one [N + 1, width] table per core the process may use (no atomics), summed; slot s adds
-            # the tiles s, s + slots, ... in order, whichever thread runs it: the gradients are the same
-            # bits run after run (exact resume) and for any thread count the load leaves the run
-            slots = torch.zeros(available_cores(), n + 1, width, device=table.device, dtype=table.dtype)
+        kernels = ctx.kernels
+        if kernels is not None:
+            # native: one [N + 1, width] table per core the process may use (no atomics), summed; slot s
+            # adds the tiles s, s + slots, ... in order, whichever thread runs it: the gradients are the
+            # same bits run after run (exact resume) and for any thread count the load leaves the run.
+            # Triton: one table, atomic adds.
+            n_slots = available_cores() if kernels.slots is None else kernels.slots
+            slots = torch.zeros(n_slots, n + 1, width, device=table.device, dtype=table.dtype)
             for active, gid_sorted, tile_offset, t_entry, n_incl in ctx.rounds:
-                ctx.native.composite_backward(table, gid_sorted, tile_offset, active, tile_centers, t_entry, n_incl,
-                                              g_out, total, prefix, slots, grid.tile)
-            grads = slots.sum(0)[:n]
+                kernels.composite.composite_backward(table, gid_sorted, tile_offset, active, tile_centers, t_entry,
+                                                     n_incl, g_out, total, prefix, slots, grid.tile)
+            grads = slots.sum(0)[:n] if n_slots > 1 else slots[0, :n]
         else:
             grads = _round_backward(ctx.rounds, table, tile_centers, basis, g_out, total, prefix, n, width, absgrad)
         if absgrad:
@@ -424,16 +427,17 @@ def _round_backward(rounds, table, tile_centers, basis, g_out, total, prefix, n,
     return grads_t.T[:n]
 
 
-def _native_forward(native, table, fp, grid, chunk_pairs, tile_centers, t_state, out, tile_done, keep_rounds):
-    """The chunks composited by the native kernels, state updated in place; what the backward
-    replays: [(active tiles, the chunk's ids, tile offsets, entry transmittance [nA, npx],
-    pairs each pixel included [nA, npx])]."""
+def _kernel_forward(kernels, table, fp, grid, chunk_pairs, tile_centers, t_state, out, tile_done, keep_rounds):
+    """The chunks composited by ``kernels`` (:class:`.backend.Kernels`: native or Triton; binned by
+    the native kernels or torch ops), state updated in place; what the backward replays: [(active
+    tiles, the chunk's ids, tile offsets, entry transmittance [nA, npx], pairs each pixel included
+    [nA, npx])]."""
     chunks = []
-    for gid_sorted, tile_count, tile_offset in _iter_chunks(fp, grid, chunk_pairs, tile_done, native):
+    for gid_sorted, tile_count, tile_offset in _iter_chunks(fp, grid, chunk_pairs, tile_done, kernels.binning):
         active = torch.nonzero(tile_count > 0).squeeze(1)
         t_entry = _at(t_state, active) if keep_rounds else None
-        n_incl = native.composite_forward(table, gid_sorted, tile_offset, tile_count, active, tile_centers,
-                                          t_state, out, grid.tile)
+        n_incl = kernels.composite.composite_forward(table, gid_sorted, tile_offset, tile_count, active,
+                                                     tile_centers, t_state, out, grid.tile)
         if keep_rounds:
             chunks.append((active, gid_sorted, tile_offset, t_entry, n_incl))
         tile_done |= ~(t_state > 0).any(1)  # read by _iter_chunks before the next chunk
@@ -452,14 +456,14 @@ def composite(
     basis: Tensor,
     block: int,
     chunk_pairs: int,
-    native=None,
+    kernels=None,
 ) -> tuple[Tensor, Tensor, Tensor]:
     """(rgb [H, W, 3] with background, accumulated depth [H, W, 1], alpha [H, W, 1]).
 
-    ``native``: the native kernels (:func:`._native.native_kernels`) for CPU tensors, or None
-    for the per-round torch kernels (:func:`._kernels.get_kernels`)."""
+    ``kernels``: the compositing kernels (:func:`.backend.kernels_for`: native for CPU tensors,
+    Triton for CUDA ones), or None for the per-round torch kernels (:func:`._kernels.get_kernels`)."""
     return _Composite.apply(
-        means2d, conics, opacities, colors, depths, background, fp, grid, basis, block, chunk_pairs, native
+        means2d, conics, opacities, colors, depths, background, fp, grid, basis, block, chunk_pairs, kernels
     )
 
 

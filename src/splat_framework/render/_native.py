@@ -26,7 +26,6 @@ import torch
 from ..console import phase, say
 from ..runtime.io import atomic_write_bytes
 from ..runtime.trusted import manifest_mismatch, private_folder, write_manifest
-from ._kernels import compile_requested, kernel_cache_dir
 
 _FOLDER = Path(__file__).with_name("native")
 _SOURCES = ("module.cpp", "binning.cpp", "composite.cpp", "project.cpp", "loss.cpp")  # module.cpp includes the others: one unit
@@ -190,11 +189,4 @@ def native_kernels(cache_dir: Path | None = None):
     return _STATE["module"]
 
 
-def native_for(device: torch.device):
-    """The native kernels for renders on ``device`` while kernels are compiled, else None."""
-    if device.type != "cpu" or not compile_requested():
-        return None
-    return native_kernels(kernel_cache_dir())
-
-
-__all__ = ["native_for", "native_kernels"]
+__all__ = ["native_kernels"]

@@ -148,9 +148,9 @@ def native_projection(device: torch.device):
     """The native kernels' projection (``project_forward`` / ``project_backward``, native/project.cpp:
     no tracing, any number of Gaussians and SH degree, the same result for any thread count) while
     kernels are compiled on a CPU where they could be built; else None."""
-    from ._native import native_for
+    from . import backend
 
-    native = native_for(device)
+    native = backend.native_for(device)
     return native if native is not None and hasattr(native, "project_forward") else None
 
 

@@ -6,8 +6,9 @@ depth chunks and front-to-back compositing in rounds with a hand-written
 backward (``_composite.py``); the per-round kernels (``_kernels.py``) run eagerly
 by default. While kernels are compiled (training and rendering runs, or
 ``SPLAT_COMPILE=1``), the projection is compiled by ``torch.compile``, and the
-binning and compositing run as native C++ kernels on a CPU (``_native.py``) or
-as ``torch.compile``'d rounds elsewhere.
+binning and compositing run as native C++ kernels on a CPU (``_native.py``),
+the compositing as Triton kernels on CUDA (``_triton.py``), or as
+``torch.compile``'d rounds elsewhere (the choice: ``backend.py``).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from torch import Tensor
 
 from ._composite import ABSGRAD_REQUEST, TileGrid, composite, pixel_basis, tile_footprints
 from ._kernels import compile_requested
-from ._native import native_for
+from .backend import kernels_for
 from ._project import ProjectFn, footprint, project, reference_radii
 from ..runtime.profiling import section
 from ..runtime.threads import follow_load
@@ -151,9 +152,12 @@ def rasterize(
     Environment:
         SPLAT_COMPILE=0/1: eager per-round compositing kernels, or compiled
             ones: the native C++ kernels for CPU tensors (:mod:`._native`),
-            torch.compile'd per-round kernels on other devices or where the
-            native ones cannot be built (default: what ``set_compile`` chose,
-            eager until called; eager fallback on any compile failure).
+            the Triton kernels for CUDA tensors (:mod:`._triton`),
+            torch.compile'd per-round kernels elsewhere or where neither can
+            run (default: what ``set_compile`` chose, eager until called;
+            eager fallback on any compile failure).
+        SPLAT_RASTERIZER=auto/native/triton/torch: which of those kernels
+            (:mod:`.backend`; ``set_rasterizer`` wins unless "auto").
         SPLAT_THREADS: the process's CPU threads (:mod:`splat_framework.runtime.threads`);
             each CPU call lets the "auto" count follow the machine's load.
 
@@ -263,20 +267,21 @@ def _rasterize(
         width=width,
         height=height,
     )
-    native = native_for(device)
+    kernels = kernels_for(device)
     with section("binning"):
-        fp = tile_footprints(means2d, ext_x, ext_y, ok, depths, cov2d, qmax, grid, native)
+        fp = tile_footprints(means2d, ext_x, ext_y, ok, depths, cov2d, qmax, grid,
+                             kernels.binning if kernels is not None else None)
 
     # --------------------------------------------------------- compositing
     basis = pixel_basis(tile_size, device, dtype)
     if chunk_pairs is None:
-        chunk_pairs = 128 * grid.n_tiles
+        chunk_pairs = (kernels.chunk_pairs_per_tile if kernels is not None else 128) * grid.n_tiles
     if block is None:
         block = 8 if compile_requested() else 4
     with section("compositing"):
         rgb, depth, alpha = composite(
             means2d, conics, opacities, rgb_g.to(dtype), depths, background, fp, grid, basis, block,
-            chunk_pairs, native,
+            chunk_pairs, kernels,
         )
     if depth_mode == "expected":
         depth = torch.where(alpha > 0, depth / alpha.clamp_min(1e-12), torch.zeros_like(depth))

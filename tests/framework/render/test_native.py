@@ -13,12 +13,13 @@ import pytest
 import torch
 
 import test_rasterizer as ref
-from splat_framework.render import _native, rasterizer
+from splat_framework.render import _native, backend, rasterizer
 
 @pytest.fixture
 def native(native_module, monkeypatch):
     """Every rasterize() of the test composites with the native kernels."""
-    monkeypatch.setattr(rasterizer, "native_for", lambda device: native_module if device.type == "cpu" else None)
+    monkeypatch.setattr(backend, "native_for", lambda device: native_module if device.type == "cpu" else None)
+    monkeypatch.setattr(backend, "choose", lambda device: "native" if device.type == "cpu" else "torch")
     return native_module
 
 
@@ -216,10 +217,12 @@ def test_native_binning_on_two_threads_gives_the_same_pairs_call_after_call(nati
 def test_native_kernels_are_chosen_for_cpu_renders_while_compiling(native_module, monkeypatch):
     monkeypatch.setattr(_native, "native_kernels", lambda cache_dir=None: native_module)
     monkeypatch.setenv("SPLAT_COMPILE", "1")
-    assert _native.native_for(torch.device("cpu")) is native_module
-    assert _native.native_for(torch.device("meta")) is None  # another device: the torch kernels
+    monkeypatch.delenv("SPLAT_RASTERIZER", raising=False)
+    assert backend.native_for(torch.device("cpu")) is native_module
+    assert backend.kernels_for(torch.device("cpu")).composite is native_module
+    assert backend.native_for(torch.device("meta")) is None  # another device: the torch kernels
     monkeypatch.setenv("SPLAT_COMPILE", "0")
-    assert _native.native_for(torch.device("cpu")) is None  # eager: the torch kernels
+    assert backend.native_for(torch.device("cpu")) is None  # eager: the torch kernels
 
 
 def test_a_failed_build_warns_once_and_falls_back(monkeypatch, tmp_path):
@@ -242,7 +245,8 @@ def test_a_failed_build_warns_once_and_falls_back(monkeypatch, tmp_path):
     assert messages == ["could not build the native rasterizer kernels (RuntimeError: Ninja is required to load "
                         "C++ extensions); using the torch ones"]
     monkeypatch.setenv("SPLAT_COMPILE", "1")
-    assert _native.native_for(torch.device("cpu")) is None  # renders take the torch.compile kernels
+    assert backend.native_for(torch.device("cpu")) is None  # renders take the torch.compile kernels
+    assert backend.kernels_for(torch.device("cpu")) is None
 
 
 def _recording_load(monkeypatch, build):

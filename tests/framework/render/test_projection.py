@@ -23,7 +23,8 @@ def native(native_module, monkeypatch):
     kernels, as in a training run on a CPU."""
     monkeypatch.setenv("SPLAT_COMPILE", "1")
     monkeypatch.setattr(_project, "native_projection", lambda device: native_module if device.type == "cpu" else None)
-    monkeypatch.setattr("splat_framework.render.rasterizer.native_for", lambda device: native_module)
+    monkeypatch.setattr("splat_framework.render.backend.native_for", lambda device: native_module)
+    monkeypatch.setattr("splat_framework.render.backend.choose", lambda device: "native")
     monkeypatch.setattr(losses, "_native_loss", lambda pred, gt: native_module)
     return native_module
 
