@@ -54,3 +54,11 @@ def test_the_project_has_a_licence_a_free_name_and_a_citation():
              if p.suffix in (".py", ".md", ".toml") and p.name != "test_docs.py"
              and re.search(r"""pip install ["']?splat\[""", p.read_text())]
     assert stale == [] and 'pip install "splat[' not in (ROOT / "README.md").read_text()
+
+
+def test_no_user_facing_page_points_at_the_development_machines_shared_folder():
+    # ../shared exists only on the developers' machines; users are told of $SPLAT_DATA and the data page
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+    found = [f"{p.relative_to(ROOT)}:{i}" for p in pages
+             for i, line in enumerate(p.read_text().splitlines(), 1) if "../shared" in line]
+    assert found == []

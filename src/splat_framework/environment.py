@@ -16,7 +16,7 @@ from .errors import DataError
 
 VARIABLES: dict[str, str] = {
     "SPLAT_DATA": "Folder under which a relative `--data` name that does not exist is looked up "
-                  "(`splat-train 3dgs --data llff/fern` with `SPLAT_DATA=../shared/data`).",
+                  "(`splat-train 3dgs --data llff/fern` with `SPLAT_DATA=~/data` reads `~/data/llff/fern`).",
     "SPLAT_CACHE": "Where generated scenes, match caches and compiled kernels go (default `~/.cache/splat`); "
                    "the native rasterizer kernels are built under `$SPLAT_CACHE/native`, torch.compile's under "
                    "`$SPLAT_CACHE/inductor`.",

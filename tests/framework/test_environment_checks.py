@@ -15,6 +15,7 @@ from splat_framework.errors import DataError
 INVALID = {
     "SPLAT_THREADS": ["-1", "0", "abc", "2.5"],
     "SPLAT_COMPILE": ["2", "maybe"],
+    "SPLAT_RASTERIZER": ["cuda", "gsplat", "1"],
     "SPLAT_IMAGE_MEMORY_BUDGET": ["lots", "0", "-5G"],
     "SPLAT_CACHE": ["FILE"],
     "SPLAT_DATA": ["FILE"],
@@ -24,6 +25,7 @@ INVALID = {
 VALID = {
     "SPLAT_THREADS": ["auto", "off", "1", "16", " Auto ", ""],
     "SPLAT_COMPILE": ["1", "0", "true", "Off", ""],
+    "SPLAT_RASTERIZER": ["auto", "native", "Triton", "torch", ""],
     "SPLAT_IMAGE_MEMORY_BUDGET": ["2G", "512M", "1.5GiB", "800000000", ""],
     "SPLAT_CACHE": ["NEW"],
     "SPLAT_DATA": ["NEW"],

@@ -1,9 +1,9 @@
 """Differentiable Gaussian rendering: the shared rasterizer and SH evaluation."""
 
 from ._kernels import compile_requested, compiled_or_eager, set_compile
-from .backend import RASTERIZERS, backend_name, native_for, prepare_kernels, set_rasterizer
+from .backend import RASTERIZERS, backend_name, native_for, set_rasterizer
 from ._project import quat_to_rotmat
-from .rasterizer import RenderOutput, rasterize, request_absgrad
+from .rasterizer import RenderOutput, prepare_kernels, rasterize, request_absgrad
 from .sh import eval_sh, rgb_to_sh, sh_to_color, sh_to_rgb
 
 __all__ = [

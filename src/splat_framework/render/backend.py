@@ -152,35 +152,6 @@ def _triton_kernels():
 _CACHE: dict = {}
 
 
-def prepare_kernels(device: torch.device) -> str:
-    """Build or load the native kernels, or compile the Triton ones (one tiny render, a phase line;
-    Triton keeps what it compiled in its cache), so that no training step pays for it; returns
-    :func:`backend_name`. Raises DataError where a rasterizer asked for by name cannot run."""
-    chosen = choose(device)
-    if chosen == "native":
-        native_for(device)
-    elif chosen == "triton":
-        from ..console import phase
-
-        with phase("compiling the Triton rasterizer kernels (cached after the first run)"):
-            _warm_up(device)
-    return backend_name(device)
-
-
-def _warm_up(device: torch.device) -> None:
-    """One 16x16 render of two Gaussians, forward and backward, in float32 on ``device``."""
-    from .rasterizer import rasterize
-
-    means = torch.tensor([[0.0, 0.0, 3.0], [0.2, 0.1, 4.0]], device=device, requires_grad=True)
-    quats = torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 2, device=device)
-    scales = torch.full((2, 3), 0.3, device=device)
-    viewmat = torch.eye(4, device=device)
-    K = torch.tensor([[16.0, 0.0, 8.0], [0.0, 16.0, 8.0], [0.0, 0.0, 1.0]], device=device)
-    out = rasterize(means, quats, scales, torch.full((2,), 0.8, device=device), torch.ones(2, 3, device=device),
-                    viewmat, K, 16, 16)
-    (out.rgb.sum() + out.depth.sum()).backward()
-
-
 def backend_name(device: torch.device) -> str:
     """What renders on ``device`` run, for summaries and metrics.json: "native", "triton",
     "torch (compiled)" or "torch (eager)"."""
@@ -190,5 +161,5 @@ def backend_name(device: torch.device) -> str:
     return "torch (compiled)" if compile_requested() else "torch (eager)"
 
 
-__all__ = ["RASTERIZERS", "Kernels", "backend_name", "choose", "kernels_for", "native_for", "prepare_kernels",
-           "set_rasterizer", "triton_unavailable"]
+__all__ = ["RASTERIZERS", "Kernels", "backend_name", "choose", "kernels_for", "native_for", "set_rasterizer",
+           "triton_unavailable"]
