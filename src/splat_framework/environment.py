@@ -26,7 +26,7 @@ VARIABLES: dict[str, str] = {
                         "elsewhere, while kernels are compiled), `native`, `triton` (CUDA, or a CPU under "
                         "`TRITON_INTERPRET=1`) or `torch`; `--rasterizer` other than auto wins.",
     "SPLAT_THREADS": "CPU threads of the whole process (torch and OpenCV, every phase): `auto` (the default) "
-                     "follows the cores other processes leave free, re-read every second; a whole number (1 or more) pins the "
+                     "follows the cores other processes leave free, re-read every second; a whole number (1 to 4096) pins the "
                      "count; `off` leaves it alone.",
     "SPLAT_IMAGE_MEMORY_BUDGET": "Bytes of decoded training images kept in memory (suffixes K, M, G; unset: no "
                                 "limit); images beyond it are decoded again when needed.",
@@ -60,14 +60,18 @@ def size_bytes(name: str, value: str) -> int:
     return n
 
 
+MAX_THREADS = 4096
+"""The largest SPLAT_THREADS: torch and OpenCV take a C int; more threads than this no machine has."""
+
+
 def threads_setting(value: str | None) -> int | str:
     """``SPLAT_THREADS``: a whole number of threads >= 1, or "auto" (also when unset or empty) or "off"."""
     text = (value or "").strip().lower() or "auto"
     if text in ("auto", "off"):
         return text
-    if text.isdigit() and int(text) >= 1:
+    if text.isdigit() and 1 <= int(text) <= MAX_THREADS:
         return int(text)
-    raise _bad("SPLAT_THREADS", value or "", "expected auto, off or a whole number of threads (1 or more)")
+    raise _bad("SPLAT_THREADS", value or "", f"expected auto, off or a whole number of threads (1 to {MAX_THREADS})")
 
 
 def compile_setting(value: str | None) -> bool | None:

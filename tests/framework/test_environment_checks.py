@@ -13,7 +13,7 @@ from splat_framework.environment import VARIABLES, check_environment, compile_se
 from splat_framework.errors import DataError
 
 INVALID = {
-    "SPLAT_THREADS": ["-1", "0", "abc", "2.5"],
+    "SPLAT_THREADS": ["-1", "0", "abc", "2.5", "4097", "99999999999"],
     "SPLAT_COMPILE": ["2", "maybe"],
     "SPLAT_RASTERIZER": ["cuda", "gsplat", "1"],
     "SPLAT_IMAGE_MEMORY_BUDGET": ["lots", "0", "-5G"],
@@ -23,7 +23,7 @@ INVALID = {
     "SPLAT_METHODS": ["nocolon", "my_methods:spec,not a path", "mod:", "mod:spec:x"],
 }
 VALID = {
-    "SPLAT_THREADS": ["auto", "off", "1", "16", " Auto ", ""],
+    "SPLAT_THREADS": ["auto", "off", "1", "16", " Auto ", "", "4096"],
     "SPLAT_COMPILE": ["1", "0", "true", "Off", ""],
     "SPLAT_RASTERIZER": ["auto", "native", "Triton", "torch", ""],
     "SPLAT_IMAGE_MEMORY_BUDGET": ["2G", "512M", "1.5GiB", "800000000", ""],
@@ -62,14 +62,15 @@ def test_a_valid_value_passes(name, value, tmp_path):
 def test_the_readers_parse_with_the_same_rules():
     assert threads_setting(None) == "auto" and threads_setting(" 4 ") == 4 and threads_setting("OFF") == "off"
     assert compile_setting(None) is None and compile_setting("yes") is True and compile_setting("0") is False
-    with pytest.raises(DataError, match=r"^SPLAT_THREADS='0': expected auto, off or a whole number of threads \(1 or more\)$"):
+    with pytest.raises(DataError, match=r"^SPLAT_THREADS='0': expected auto, off or a whole number of threads \(1 to 4096\)$"):
         threads_setting("0")
 
 
-@pytest.mark.bad_input("`SPLAT_THREADS=-1` (or `0`, `abc`), `SPLAT_COMPILE=maybe` or any other invalid `SPLAT_*` value",
+@pytest.mark.bad_input("`SPLAT_THREADS=-1` (or `0`, `abc`, `99999999999`), `SPLAT_COMPILE=maybe` or any other invalid `SPLAT_*` value",
                        "exit 2, one line naming the variable and what it takes, before any work")
 @pytest.mark.parametrize("name,value,expected", [
-    ("SPLAT_THREADS", "abc", "expected auto, off or a whole number of threads (1 or more)"),
+    ("SPLAT_THREADS", "abc", "expected auto, off or a whole number of threads (1 to 4096)"),
+    ("SPLAT_THREADS", "99999999999", "expected auto, off or a whole number of threads (1 to 4096)"),
     ("SPLAT_COMPILE", "maybe", "expected 1 or 0 (also true/false, yes/no, on/off)"),
 ])
 def test_every_command_refuses_an_invalid_variable_before_any_work(name, value, expected, tmp_path):
