@@ -113,7 +113,7 @@ def method_entry_error(value: str, entry: str, why: str) -> DataError:
     return _bad("SPLAT_METHODS", value, f"entry {entry!r} {why}")
 
 
-def _folder(name: str, value: str, must_exist: bool) -> None:
+def _folder(name: str, value: str, must_exist: bool, writable: bool = False) -> None:
     for part in value.split(os.pathsep) if name == "SPLAT_CONFIG_PATH" else [value]:
         if not part:
             continue
@@ -122,6 +122,24 @@ def _folder(name: str, value: str, must_exist: bool) -> None:
             raise _bad(name, value, f"{path} is not a folder")
         if must_exist and not path.is_dir():
             raise _bad(name, value, f"no folder {path}")
+        if writable and not _can_make_folders_in(path):
+            raise _bad(name, value, f"{path} is not a folder this user can create folders in")
+
+
+def _can_make_folders_in(path: Path) -> bool:
+    """Whether a folder can be made in ``path`` (or, where it does not exist yet, in its nearest
+    existing parent), tried by making and removing an empty one: permissions alone do not tell
+    (root may "write" /proc/self, where nothing can be made)."""
+    import tempfile
+
+    probe = path
+    while not probe.exists() and probe.parent != probe:
+        probe = probe.parent
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".splat-probe-", dir=probe))
+    except OSError:
+        return False
+    return True
 
 
 def check_environment(environ=None) -> None:
@@ -134,7 +152,7 @@ def check_environment(environ=None) -> None:
         "SPLAT_COMPILE": compile_setting,
         "SPLAT_RASTERIZER": rasterizer_setting,
         "SPLAT_IMAGE_MEMORY_BUDGET": lambda v: v.strip() and size_bytes("SPLAT_IMAGE_MEMORY_BUDGET", v),
-        "SPLAT_CACHE": lambda v: _folder("SPLAT_CACHE", v, must_exist=False),
+        "SPLAT_CACHE": lambda v: _folder("SPLAT_CACHE", v, must_exist=False, writable=True),
         "SPLAT_DATA": lambda v: _folder("SPLAT_DATA", v, must_exist=False),
         "SPLAT_CONFIG_PATH": lambda v: _folder("SPLAT_CONFIG_PATH", v, must_exist=True),
         "SPLAT_METHODS": method_entries,

@@ -17,7 +17,7 @@ INVALID = {
     "SPLAT_COMPILE": ["2", "maybe"],
     "SPLAT_RASTERIZER": ["cuda", "gsplat", "1"],
     "SPLAT_IMAGE_MEMORY_BUDGET": ["lots", "0", "-5G"],
-    "SPLAT_CACHE": ["FILE"],
+    "SPLAT_CACHE": ["FILE", "/proc/self", "/proc/self/cache"],
     "SPLAT_DATA": ["FILE"],
     "SPLAT_CONFIG_PATH": ["MISSING"],
     "SPLAT_METHODS": ["nocolon", "my_methods:spec,not a path", "mod:", "mod:spec:x"],
