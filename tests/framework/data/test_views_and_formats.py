@@ -75,6 +75,20 @@ def test_a_transforms_json_folder_loads_the_same_cameras(built_in, tmp_path, int
     assert torch.allclose(half.cameras[0].K[:2], scene.cameras[0].K[:2] / 2, atol=1e-4)
 
 
+@pytest.mark.parametrize("rotation", ["zeros", "nan"])
+def test_a_transforms_json_frame_with_a_zero_or_nan_rotation_is_one_line_naming_the_frame(built_in, tmp_path, rotation):
+    root = write_transforms(built_in, tmp_path / rotation)
+    meta = json.loads((root / "transforms.json").read_text())
+    m = np.array(meta["frames"][3]["transform_matrix"])
+    m[:3, :3] = 0.0 if rotation == "zeros" else float("nan")
+    meta["frames"][3]["transform_matrix"] = m.tolist()
+    (root / "transforms.json").write_text(json.dumps(meta))
+    with pytest.raises(DataError, match=r"transforms.json: (frame '.*image\d+\.png': (rotation is not|degenerate pose)"
+                                        r"|frames\[3\]: transform_matrix has non-finite values)") as info:
+        load_scene(root)
+    assert "\n" not in str(info.value)
+
+
 def test_transforms_json_distortion_is_ignored_with_a_warning_and_fisheye_refused(built_in, tmp_path):
     root = write_transforms(built_in, tmp_path / "k", k1=0.01, p2=0.0)
     with pytest.warns(UserWarning, match=r"distortion \(k1\) is ignored"):

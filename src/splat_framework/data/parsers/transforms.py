@@ -26,7 +26,8 @@ from ..splits import Views, own_scene_split
 from .blender import (
     camera_angle, focal_length, frame_image, frame_name, number, opencv_camera_to_world, read_json_object, transform_frames,
 )
-from .common import DEFAULT_BOUNDS, build_scene, check_downscale, check_same_size, decoded_size, make_camera, pixel_ratios
+from .common import (DEFAULT_BOUNDS, build_scene, check_downscale, check_same_size, clean_rotation, decoded_size,
+                     make_camera, pixel_ratios)
 
 TRANSFORMS = "transforms.json"
 PERSPECTIVE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
@@ -56,6 +57,8 @@ def load_transforms(root: Path, *, views: Views = "all", downscale: float | None
     names = [f"{path}: frame {fp!r}" for fp, _ in frames]  # how errors and warnings name each frame
     _check_camera_model(meta, path, names, own)
     c2ws = [opencv_camera_to_world(m) for _, m in frames]
+    for c2w, where in zip(c2ws, names):  # a zero or NaN rotation: one line, before the bounds use its axis
+        clean_rotation(c2w[:3, :3], where)
     near, far = _depth_bounds(c2ws)
     per_frame = any(own)  # else the intrinsics are global: an error about them names the file
     cameras = []
