@@ -113,3 +113,16 @@ def test_bad_arguments_exit_2(run_dir, tmp_path, monkeypatch, capsys):
         assert e.value.code == 2
         err = capsys.readouterr().err.strip()
         assert err.startswith("error:") and "\n" not in err
+
+
+@pytest.mark.bad_input("`splat-render`, `splat-eval` or `splat-export` on a mistyped run folder, or on a file",
+                       "exit 2, one line: no such run folder (or not a folder); nothing written")
+def test_a_mistyped_run_folder_is_no_such_run_folder(tmp_path):
+    from cli_harness import run_cli
+
+    missing = tmp_path / "outputs" / "fren"
+    run_cli("render", missing, code=2, match=f"error: {missing}: no such run folder", watch=[tmp_path])
+    run_cli("eval", missing, code=2, match=f"error: {missing}: no such run folder", watch=[tmp_path])
+    (tmp_path / "afile").write_text("x")
+    run_cli("export", tmp_path / "afile", "--ply", tmp_path / "x.ply", code=2,
+            match="not a run folder (a file, not a folder)", watch=[tmp_path])

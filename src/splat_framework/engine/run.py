@@ -30,6 +30,10 @@ def _load_checkpointed(run_dir: Path, device: str | None, scene_scale: float, tr
     """(config, model, the checkpoint's training-camera corrections or None): see ``load_trained_model``."""
     run_dir = Path(run_dir)
     cfg_path = run_dir / "config.json"
+    if not run_dir.exists():
+        raise DataError(f"{run_dir}: no such run folder")
+    if not run_dir.is_dir():
+        raise DataError(f"{run_dir}: not a run folder (a file, not a folder)")
     if not cfg_path.is_file():
         raise DataError(f"{cfg_path}: not a run folder (config.json missing)")
     method, raw, version = read_config_json(cfg_path, trust_edits)
