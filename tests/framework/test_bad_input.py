@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import tempfile
 from pathlib import Path
 
@@ -123,6 +124,17 @@ def test_missing_image_blender(tmp_path):
     raises_data_error(lambda: load_scene(root), "r_1.png", "image file not found")
 
 
+def test_an_image_that_is_a_fifo_is_named_as_not_a_regular_file_and_never_opened(tmp_path):
+    # a FIFO exists: "not found" would be wrong, and opening it would wait for a writer forever
+    root = make_blender(tmp_path / "b", 3, 2)
+    (root / "train" / "r_1.png").unlink()
+    os.mkfifo(root / "train" / "r_1.png")
+    raises_data_error(lambda: load_scene(root), "r_1.png", "not a regular file (a FIFO)")
+    os.mkfifo(tmp_path / "f.png")
+    raises_data_error(lambda: load_image(tmp_path / "f.png"), "f.png", "not a regular file (a FIFO)")
+    raises_data_error(lambda: read_image_size(tmp_path / "f.png"), "f.png", "not a regular file (a FIFO)")
+
+
 def test_corrupt_image(tmp_path):
     root = make_llff(tmp_path / "s", 10)
     bad = root / "images_8" / "img003.png"
@@ -156,7 +168,7 @@ def test_empty_and_unreadable_image_files(tmp_path):
     raises_data_error(lambda: load_image(tmp_path / "e.png"), "e.png", "empty")
     raises_data_error(lambda: read_image_size(tmp_path / "e.png"), "e.png", "empty")
     (tmp_path / "d.png").mkdir()
-    raises_data_error(lambda: load_image(tmp_path / "d.png"), "d.png", "not a file")
+    raises_data_error(lambda: load_image(tmp_path / "d.png"), "d.png", "not a regular file (a folder)")
     raises_data_error(lambda: load_image(tmp_path / "none.png"), "none.png", "not found")
 
 

@@ -8,6 +8,7 @@ cheap for CLIs that only parse arguments.
 
 from __future__ import annotations
 
+import os
 import re
 import struct
 from pathlib import Path
@@ -20,12 +21,34 @@ from .scene import DataError
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp", ".exr")
 
 
+def image_file_problem(path: Path) -> str | None:
+    """Why ``path`` cannot be read as an image file ("image file not found", "not a regular file (a
+    FIFO)", ...), None when it is a regular file: a FIFO or a device exists but is never opened."""
+    import stat
+
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return "image file not found"
+    except OSError as e:
+        return f"cannot be read ({e.strerror or e})"
+    if stat.S_ISREG(mode):
+        return None
+    kind = ("a folder" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode)
+            else "a device")
+    return f"not a regular file ({kind})"
+
+
+def check_image_file(path: Path, listed: str = "") -> None:
+    """A DataError naming ``path`` (and where it is ``listed``) unless it is a regular file."""
+    problem = image_file_problem(path)
+    if problem is not None:
+        raise DataError(f"{path}: {problem}" + (f" ({listed})" if listed else ""))
+
+
 def _read_bytes(path: Path) -> bytes:
     path = Path(path)
-    if not path.exists():
-        raise DataError(f"{path}: image file not found")
-    if not path.is_file():
-        raise DataError(f"{path}: not a file")
+    check_image_file(path)
     try:
         return path.read_bytes()
     except OSError as e:
@@ -70,8 +93,7 @@ def read_image_size(path: Path | str) -> tuple[int, int]:
     Reads only the header for PNG and JPEG; other formats are decoded.
     """
     path = Path(path)
-    if not path.exists():
-        raise DataError(f"{path}: image file not found")
+    check_image_file(path)
     try:
         with open(path, "rb") as f:
             head = f.read(65536)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..images import IMAGE_SUFFIXES
+from ..images import IMAGE_SUFFIXES, check_image_file
 from ..scene import DataError, SceneData
 from ..splits import BLENDER_TEST_EVERY, Views, blender_split
 from .common import check_downscale, check_same_size, decoded_size, make_camera, build_scene
@@ -129,8 +129,7 @@ def frame_image(root: Path, file_path: str, listed_in: Path) -> Path:
     p = root / rel
     if p.suffix.lower() not in IMAGE_SUFFIXES:
         p = p.with_name(p.name + ".png")
-    if not p.is_file():
-        raise DataError(f"{p}: image file not found (file_path {file_path!r} in {listed_in.name})")
+    check_image_file(p, f"file_path {file_path!r} in {listed_in.name}")
     return p
 
 

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..images import natural_key
+from ..images import check_image_file, natural_key
 from ..scene import DataError, SceneData
 from ..splits import Views, own_scene_split
 from .common import (
@@ -310,8 +310,7 @@ def load_colmap(root: Path, *, views: Views = "all", downscale: float | None = N
     entries = sorted(images.values(), key=lambda im: natural_key(im.name))  # 9 before 18: the split follows this order
     paths = [folder / im.name for im in entries]
     for p in paths:
-        if not p.is_file():
-            raise DataError(f"{p}: image file not found (listed in {img_file.name})")
+        check_image_file(p, f"listed in {img_file.name}")
     stored = check_same_size(paths)
     w, h = decoded_size(stored, image_scale)
 
