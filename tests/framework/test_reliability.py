@@ -247,7 +247,10 @@ def test_disk_full_keeps_previous_checkpoint_and_results(tmp_path, monkeypatch):
     with pytest.raises(CheckpointError) as info:
         save_checkpoint(folder, 2, {"step": 2, "params": {"x": torch.zeros(3)}})
     msg = str(info.value)
-    assert "\n" not in msg and "No space left on device" in msg and "previous checkpoint is kept" in msg
+    assert "\n" not in msg and "No space left on device" in msg
+    assert msg.endswith("; step-0000001.ckpt (the newest checkpoint) is kept")
+    with pytest.raises(CheckpointError, match="; no checkpoint was written yet$"):  # the first one: nothing kept
+        save_checkpoint(tmp_path / "empty", 1, {"step": 1, "params": {"x": torch.zeros(3)}})
     with pytest.raises(OSError):
         atomic_write_json(tmp_path / "metrics.json", {"mean": {"psnr": 1.0}})
     monkeypatch.undo()

@@ -101,9 +101,9 @@ def save_checkpoint(folder: Path, step: int, payload: dict, keep: int = KEEP) ->
         atomic_write_bytes(path, MAGIC + digest + b"\n" + data)
     except OSError as e:
         reason = e.strerror or str(e)
-        raise CheckpointWriteError(
-            f"{path}: cannot write checkpoint ({reason}); the previous checkpoint is kept"
-        ) from None
+        kept = [p for p in list_checkpoints(folder) if p != path] if folder.is_dir() else []
+        what = f"{kept[-1].name} (the newest checkpoint) is kept" if kept else "no checkpoint was written yet"
+        raise CheckpointWriteError(f"{path}: cannot write checkpoint ({reason}); {what}") from None
     existing = list_checkpoints(folder)
     # later steps belong to an abandoned timeline (resumed from an older file)
     stale = [p for p in existing if checkpoint_step(p) > step]
