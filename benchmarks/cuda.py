@@ -12,12 +12,15 @@ What it measures, each step a subprocess with its own time limit inside ``--budg
      the same fern run cold with that code, for the before/after table.
 Everything goes to ``--out`` (``$OUT`` on the device): logs, metrics, ``summary.md``.
 
-Prepare on the development machine (``benchmarks/cuda_prepare.sh``: wheels into ``.whl/``, fern's
-``images_8`` and poses into ``.devdata/``), dry-run here on the CPU with ``--dry-run`` (the
+Prepare on the development machine (``benchmarks/cuda_prepare.sh 3.12 BEFORE_COMMIT``: wheels into
+``.whl/``, the code before into ``.whl/before/``, fern's ``images_8`` and poses into ``.devdata/``;
+it prints what the call carries against its 64 MiB), dry-run here on the CPU with ``--dry-run`` (the
 rasterizer at 300 Gaussians under ``TRITON_INTERPRET=1``, the runs 20 steps on the CPU's own kernels),
 then on the device, with ``.whl`` and ``.devdata`` carried::
 
-    python3 benchmarks/cuda.py --out $OUT --budget 480 --site /tmp/site
+    python3 -m pip install -q --no-index --no-deps --target /tmp/site .whl/*.whl &&
+    python3 -m pip install -q --no-index --no-deps --target /tmp/before .whl/before/*.whl &&
+    python3 benchmarks/cuda.py --out $OUT --budget 480 --site /tmp/site --before /tmp/before
 """
 
 from __future__ import annotations
