@@ -55,7 +55,9 @@ def test_run_writes_documented_outputs_and_learns(tmp_path, capsys):
     m = read_json(run / "metrics.json", require_checksum=True)
     assert set(m["mean"]) >= {"psnr", "ssim", "lpips", "avg"}
     assert len(m["per_view"]) == dm.num_eval and all("psnr" in v for v in m["per_view"])
-    assert m["timing"]["total_s"] > 0 and {"data_s", "init_s", "train_s", "eval_s"} <= set(m["timing"])
+    assert m["timing"]["total_s"] > 0 and {"kernels_s", "data_s", "init_s", "train_s", "eval_s"} <= set(m["timing"])
+    assert m["timing"]["total_s"] >= m["timing"]["kernels_s"] + m["timing"]["train_s"]  # the kernels' build counts
+    assert m["rasterizer"] == trainer.rasterizer  # what rendered: the summary table's row too
     assert isinstance(m["num_gaussians"], int) and m["num_gaussians"] == trainer.model.num_gaussians
     assert m["skipped_steps"] == 0
     assert m["eval_split"] == "test"
