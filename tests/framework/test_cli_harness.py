@@ -26,7 +26,7 @@ def test_snapshot_sees_content_mode_link_and_special_changes(tmp_path):
 
 def test_run_cli_checks_code_lines_and_changes(tmp_path):
     missing = tmp_path / "no-run"
-    r = run_cli("export", missing, "--ply", tmp_path / "out.ply", code=2, match="config.json", watch=[tmp_path])
+    r = run_cli("export", missing, "--ply", tmp_path / "out.ply", code=2, match="no such run folder", watch=[tmp_path])
     assert len(r.message.splitlines()) == 1
     with pytest.raises(AssertionError, match="expected exit 0"):
         run_cli("export", missing, "--ply", tmp_path / "out.ply", code=0)
