@@ -67,6 +67,13 @@ def _tile_pixels(centers, t, TILE: tl.constexpr, BLOCK_P: tl.constexpr):
     return pix, pix < TILE * TILE, px, py
 
 
+def _tile_features(base, P, pm):
+    """The five [BLOCK_P] feature planes (r, g, b, z, 1) of a tile's [F, P] block at ``base``."""
+    return (tl.load(base, mask=pm, other=0.0), tl.load(base + P, mask=pm, other=0.0),
+            tl.load(base + 2 * P, mask=pm, other=0.0), tl.load(base + 3 * P, mask=pm, other=0.0),
+            tl.load(base + 4 * P, mask=pm, other=0.0))
+
+
 def _pair_alphas(row, km, px, py, ALPHA_MIN: tl.constexpr, LMAX: tl.constexpr):
     """For the [BATCH] table rows at ``row`` (masked by ``km``: past the list, alpha 0) against the
     tile's pixels: (a, b, c [BATCH], dx, dy, log(o G), alpha [BATCH, BLOCK_P]), alpha = min(o G,
@@ -93,11 +100,7 @@ def _forward(tab, gid, offset, count, active, centers, t_state, out, n_incl,
     pix, pm, px, py = _tile_pixels(centers, t, TILE, BLOCK_P)
     T = tl.load(t_state + t * P + pix, mask=pm, other=0.0)
     base = out + t * 5 * P + pix
-    acc0 = tl.load(base, mask=pm, other=0.0)
-    acc1 = tl.load(base + P, mask=pm, other=0.0)
-    acc2 = tl.load(base + 2 * P, mask=pm, other=0.0)
-    acc3 = tl.load(base + 3 * P, mask=pm, other=0.0)
-    acc4 = tl.load(base + 4 * P, mask=pm, other=0.0)
+    acc0, acc1, acc2, acc3, acc4 = _tile_features(base, P, pm)
     inc = tl.zeros([BLOCK_P], dtype=tl.int32)
     start = tl.load(offset + t)
     n = tl.load(count + t)
@@ -144,12 +147,7 @@ def _backward(tab, gid, offset, active, centers, t_entry, n_incl, g_out, total, 
     cs = tl.load(prefix + t * P + pix, mask=pm, other=0.0)
     tt = tl.load(total + t * P + pix, mask=pm, other=0.0)
     inc = tl.load(n_incl + ai * P + pix, mask=pm, other=0)
-    gbase = g_out + t * 5 * P + pix
-    g0 = tl.load(gbase, mask=pm, other=0.0)
-    g1 = tl.load(gbase + P, mask=pm, other=0.0)
-    g2 = tl.load(gbase + 2 * P, mask=pm, other=0.0)
-    g3 = tl.load(gbase + 3 * P, mask=pm, other=0.0)
-    g4 = tl.load(gbase + 4 * P, mask=pm, other=0.0)
+    g0, g1, g2, g3, g4 = _tile_features(g_out + t * 5 * P + pix, P, pm)
     start = tl.load(offset + t)
     n_max = tl.max(inc, axis=0)
     k = 0
@@ -235,7 +233,8 @@ def _jit(interpret: bool) -> dict:
     from triton.runtime.jit import JITFunction
 
     kind = InterpretedFunction if interpret else JITFunction
-    helpers = {"_tile_pixels": kind(_tile_pixels), "_pair_alphas": kind(_pair_alphas)}
+    helpers = {name: kind(fn) for name, fn in
+               (("_tile_pixels", _tile_pixels), ("_tile_features", _tile_features), ("_pair_alphas", _pair_alphas))}
 
     def made(fn):  # fn with the module's globals but the helpers of this kind
         scope = dict(fn.__globals__, **helpers)

@@ -28,6 +28,7 @@ from ._kernels import compile_requested, kernel_cache_dir
 RASTERIZERS = ("auto", "native", "triton", "torch")
 _SETTING: dict[str, str] = {"rasterizer": "auto"}
 _WARNED: set[str] = set()
+_TRITON: dict = {}
 
 
 @dataclass(frozen=True)
@@ -141,15 +142,13 @@ def kernels_for(device: torch.device) -> Kernels | None:
 
 
 def _triton_kernels():
+    """One :class:`._triton.TritonKernels` per mode (compiled or interpreted) per process."""
     from . import _triton
 
-    key = ("triton", _triton.interpreting())
-    if key not in _CACHE:
-        _CACHE[key] = _triton.TritonKernels()
-    return _CACHE[key]
-
-
-_CACHE: dict = {}
+    key = _triton.interpreting()
+    if key not in _TRITON:
+        _TRITON[key] = _triton.TritonKernels()
+    return _TRITON[key]
 
 
 def backend_name(device: torch.device) -> str:
