@@ -10,6 +10,8 @@ rows are ordinary Gaussians (the strategy's ``child_values``).
 
 from __future__ import annotations
 
+import warnings
+
 import torch
 from torch import Tensor, nn
 
@@ -59,6 +61,8 @@ class SCGaussianModel(GaussianModel):
         baseline = config.model.thin_prior_baseline and thin_prior(config.model, bundle, n_matches)
         model = cls(config, datamanager.scene.scene_radius, pts, cols, bundle, cameras, images)
         model.baseline = baseline_schedule(config) if baseline else None
+        if model.baseline is not None:
+            warnings.warn(model.baseline.message(), stacklevel=2)
         model.init_timing = timing
         model.init_stats = stats | {"num_matches": len(bundle) // 2 if bundle is not None else 0,
                                     "baseline_schedule": baseline}

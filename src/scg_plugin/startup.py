@@ -28,7 +28,8 @@ import torch
 from torch import Tensor
 
 from splat_framework.plugin import (
-    FALLBACK_POINTS, Camera, StrategyConfig, compute_match_set, config_3dgs, initial_points, match_pairs, phase, resolve_steps,
+    FALLBACK_POINTS, Camera, StrategyConfig, compute_match_set, config_3dgs, initial_points, match_pairs, phase, registered_defaults,
+    resolve_steps,
 )
 
 from .ray_gaussians import MatchCache, RayBundle, build_ray_bundle, warm_up, warmup_step_size
@@ -92,20 +93,46 @@ class BaselineSchedule:
     saved in config.json and checked by ``--resume``, stays the one config of the run)."""
 
     strategy: StrategyConfig
-    """The densification: SCGaussian's strategy kind with the ``3dgs`` baseline's thresholds and iterations."""
+    """The densification: SCGaussian's strategy kind with the ``3dgs`` baseline's thresholds and
+    iterations, except the fields the user set."""
     sh_degree_interval: int
-    """Steps between SH degree increases, the baseline's."""
+    """Steps between SH degree increases: the baseline's, or the user's own when set."""
+    changed: dict[str, tuple]
+    """Field -> (the run config's value, the value trained with), for each field the switch changed."""
+    kept: tuple[str, ...]
+    """The fields the user set (they differ from the method's defaults), kept as set."""
+
+    def message(self) -> str:
+        """One line: what the switch changed and what it kept."""
+        changes = ", ".join(f"{k} {a} -> {b}" for k, (a, b) in self.changed.items()) or "nothing"
+        flags = ", ".join("--" + k.replace("_", "-") for k in self.kept)
+        kept = f"; kept as you set: {flags}" if self.kept else ""
+        return f"thin prior: training on the 3dgs baseline's densification and SH schedule ({changes}){kept}"
 
 
 def baseline_schedule(config) -> BaselineSchedule:
     """Step 4: the densification and SH schedules that the ``3dgs`` baseline would use at the
     same total iterations as ``config`` (its own thresholds and iterations, rescaled as
     ``--steps`` does), in ``config``'s strategy kind (SCGaussian's, which keeps the ray-based
-    Gaussians) with its other strategy fields unchanged."""
+    Gaussians) with its other strategy fields unchanged. A field the user set (one that differs
+    from the method's registered defaults, :func:`~splat_framework.plugin.registered_defaults`)
+    keeps the user's value."""
     base = resolve_steps(config_3dgs().model_copy(update={"steps": config.total_steps}))
-    strategy = type(config.strategy).model_validate(
-        config.strategy.model_dump() | base.strategy.model_dump(exclude={"kind", "enabled"}))
-    return BaselineSchedule(strategy=strategy, sh_degree_interval=base.model.sh_degree_interval)
+    defaults = registered_defaults(config)
+    own = config.strategy.model_dump()
+    reference = defaults.strategy.model_dump() if defaults is not None and type(defaults.strategy) is type(config.strategy) else own
+    user = {k for k, v in own.items() if reference.get(k, v) != v}
+    swap = {k: v for k, v in base.strategy.model_dump(exclude={"kind", "enabled"}).items() if k in own and k not in user}
+    strategy = type(config.strategy).model_validate(own | swap)
+    changed = {k: (own[k], v) for k, v in swap.items() if own[k] != v}
+    interval = config.model.sh_degree_interval
+    if defaults is not None and interval != defaults.model.sh_degree_interval:
+        user.add("model.sh_degree_interval")
+    elif interval != base.model.sh_degree_interval:
+        changed["model.sh_degree_interval"] = (interval, base.model.sh_degree_interval)
+        interval = base.model.sh_degree_interval
+    kept = tuple(sorted(f"strategy.{k}" if "." not in k else k for k in user))
+    return BaselineSchedule(strategy=strategy, sh_degree_interval=interval, changed=changed, kept=kept)
 
 
 def random_fill(cfg) -> int | None:

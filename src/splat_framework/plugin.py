@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Any
 _EXPORTS: dict[str, str] = {
     # method registration and configs (torch-free)
     "MethodSpec": "splat_framework.registry",
+    "registered_defaults": "splat_framework.registry",
     "SplatConfig": "splat_framework.config",
     "TrainConfig": "splat_framework.config",
     "ModelConfig": "splat_framework.config",
@@ -124,7 +125,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .model.optim import adam
     from .model.regularisers import regulariser_terms
     from .model.strategy import DefaultStrategy, Strategy, check_rows
-    from .registry import MethodSpec
+    from .registry import MethodSpec, registered_defaults
     from .render import RenderOutput, quat_to_rotmat, rasterize, rgb_to_sh
     from .runtime.profiling import section
 

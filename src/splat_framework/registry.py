@@ -289,6 +289,19 @@ def discover_methods(config_dirs: list[Path] | None = None) -> dict[str, MethodS
     return specs
 
 
+def registered_defaults(config):
+    """The config ``config.method`` trains with when nothing is set: its registered defaults (a
+    variant's overrides included) at ``config``'s total steps, its schedule rescaled alike; None
+    when the name is not registered. What the user set is what ``config`` holds differently."""
+    from .config import resolve_steps
+
+    spec = discover_methods().get(config.method)
+    if spec is None:
+        return None
+    defaults = spec.default_config()
+    return resolve_steps(defaults.model_copy(update={"steps": config.total_steps, "views": config.views}))
+
+
 def invalid_variant(name: str) -> str | None:
     """Why the variant ``name`` was skipped by the last discovery (one line naming its file), or None."""
     return _BROKEN.get(name)

@@ -25,6 +25,7 @@ from scg_plugin.ray_gaussians import (
     warmup_step_size,
 )
 from splat_framework.config import apply_overrides
+from splat_framework.plugin import config_3dgs, resolve_steps
 from splat_framework.data import DataManager, load_scene
 from splat_framework.data.datamanager import area_resized
 from splat_framework.data.synthetic import generate_scene
@@ -308,6 +309,26 @@ def assert_baseline_schedule(trainer):
     assert trainer.model.active_sh_degree == 1  # the baseline's SH schedule, not the run config's
     assert trainer.model.config is trainer.config  # one config: the run's (config.json, --resume), unchanged
     assert trainer.config.strategy != used
+
+
+def test_thin_prior_baseline_keeps_the_flags_the_user_set(scene, monkeypatch):
+    """The switch to the baseline's schedule replaces only what the user left at the method's
+    defaults, and says in one line what it changed and what it kept."""
+    import scg_plugin.startup as startup
+    from splat_framework.matching import MatchSet
+
+    sc, dm, _ = scene
+    monkeypatch.setattr(startup, "compute_match_set",
+                        lambda config, dm: MatchSet(view_ids=[int(i) for i in sc.train_indices], matches={}))
+    cfg = apply_overrides(config_scgaussian(), {"strategy": {"grow_grad2d": 0.001}, "model": {"sh_degree_interval": 7}})
+    with pytest.warns(UserWarning, match=r"thin prior: .*refine_stop_iter .* kept as you set: "
+                                          r"--model\.sh-degree-interval, --strategy\.grow-grad2d$"):
+        model = SCGaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
+    used = model.strategy_config()
+    assert used.grow_grad2d == 0.001 and model.baseline.sh_degree_interval == 7
+    assert "grow_grad2d" not in model.baseline.changed
+    base = resolve_steps(config_3dgs().model_copy(update={"steps": cfg.total_steps}))
+    assert used.refine_stop_iter == base.strategy.refine_stop_iter != cfg.strategy.refine_stop_iter
 
 
 def test_sparse_prior_warns_and_adds_random_ordinary_gaussians(scene, monkeypatch):
