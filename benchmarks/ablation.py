@@ -253,8 +253,8 @@ def ablation_markdown(
 
 
 def main(argv: list[str] | None = None) -> Path:
-    from splat_framework.runtime.io import atomic_write_text
     from splat_framework.config import deep_merge
+    from splat_framework.runtime.io import atomic_write_text
     from splat_framework.sweep import Grid, parse_override, parse_views, scene_slug
 
     args = parse_args(argv)

@@ -58,9 +58,9 @@ def measure(run: str, as_3dgs: bool, steps: int, warmup: int, threads: int | Non
     Gaussians as a 3DGS model; seconds per step, decode forward seconds, Gaussians drawn, peak RSS."""
     import torch
 
+    from splat_framework.engine.run import background_for, load_run
     from splat_framework.model.gaussians import GaussianModel
     from splat_framework.registry import get_method
-    from splat_framework.engine.run import background_for, load_run
 
     if threads:
         torch.set_num_threads(threads)

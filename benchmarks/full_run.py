@@ -45,8 +45,8 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path("runs/full-run"))
     args = ap.parse_args()
 
-    from splat_framework.registry import get_method
     from splat_framework.engine.trainer import train
+    from splat_framework.registry import get_method
 
     rows = []
     for method in args.methods:

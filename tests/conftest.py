@@ -25,8 +25,8 @@ def _private_cache(tmp_path_factory, monkeypatch):
 
 def _tiny_run(tmp_path_factory) -> Path:
     """A 30-step 3dgs run on forward-tiny, trained once per pytest session."""
-    from splat_framework.registry import get_method
     from splat_framework.engine.trainer import train
+    from splat_framework.registry import get_method
 
     run = tmp_path_factory.getbasetemp() / "tiny-3dgs-run"
     if not (run / "metrics.json").is_file():

@@ -17,7 +17,6 @@ from typing import ClassVar, Literal
 
 from pydantic import Field
 
-
 from splat_framework.plugin import (
     Fraction,
     Interval,

@@ -28,8 +28,17 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from splat_framework.plugin import (
-    Camera, GaussianModel, RenderOutput, adam, initial_points, knn_scale, log_lerp, photometric_loss, rasterize,
-    rgb_to_sh, run_fraction,
+    Camera,
+    GaussianModel,
+    RenderOutput,
+    adam,
+    initial_points,
+    knn_scale,
+    log_lerp,
+    photometric_loss,
+    rasterize,
+    rgb_to_sh,
+    run_fraction,
 )
 
 VIEW_MARGIN = 0.5

@@ -7,19 +7,19 @@ from typing import ClassVar, Literal
 from pydantic import Field
 
 from splat_framework.plugin import (
+    MAX_GAUSSIANS,
+    MAX_MATCHES,
+    AutoMatchConfig,
     DensifyConfig,
     FrustumInitConfig,
     GaussianModelConfig,
     Kind,
-    MAX_GAUSSIANS,
-    MAX_MATCHES,
     LearningRate,
-    AutoMatchConfig,
     MatchKinds,
     NonNegative,
-    Positive,
     Period,
     PlyInitConfig,
+    Positive,
     RandomInitConfig,
     Steps,
     TrainConfig,

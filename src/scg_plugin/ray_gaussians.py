@@ -17,7 +17,6 @@ from torch import Tensor
 from splat_framework.plugin import Camera
 
 
-
 @dataclass
 class RayBundle:
     """The ray-based Gaussians of a MatchSet (2 per match, match m -> rows 2m and 2m+1).

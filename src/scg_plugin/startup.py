@@ -28,7 +28,15 @@ import torch
 from torch import Tensor
 
 from splat_framework.plugin import (
-    FALLBACK_POINTS, Camera, StrategyConfig, compute_match_set, config_3dgs, initial_points, match_pairs, phase, registered_defaults,
+    FALLBACK_POINTS,
+    Camera,
+    StrategyConfig,
+    compute_match_set,
+    config_3dgs,
+    initial_points,
+    match_pairs,
+    phase,
+    registered_defaults,
     resolve_steps,
 )
 

@@ -19,8 +19,7 @@ from typing import Iterator, Sequence
 
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-from rich.table import Column
-from rich.table import Table
+from rich.table import Column, Table
 from rich.text import Text
 
 from .runtime.threads import follow_load

@@ -108,20 +108,46 @@ __all__ = sorted([*_EXPORTS, *_MODULES])
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .cameras import Camera
     from .config import (
-        MAX_GAUSSIANS, MAX_MATCHES, RUN_OPTION, DensifyConfig, Fraction, GaussianModelConfig, Interval, LearningRate,
-        MatchConfig, ModelConfig, NonNegative, OptimConfig, OptionalPeriod, Period, Positive, RampPeriod,
-        RandomInitConfig, RegularisersConfig, Kind, SplatConfig, StartSteps, StepFactor, Steps,
-        StrategyConfig, TrainConfig, strategy_field, InitConfig, init_field, resolve_steps,
+        MAX_GAUSSIANS,
+        MAX_MATCHES,
+        RUN_OPTION,
+        AutoMatchConfig,
+        DensifyConfig,
+        Fraction,
+        GaussianModelConfig,
+        InitConfig,
+        Interval,
+        Kind,
+        LearningRate,
+        MatchConfig,
+        MatchKinds,
+        ModelConfig,
+        NonNegative,
+        OptimConfig,
+        OptionalPeriod,
+        Period,
+        Positive,
+        RampPeriod,
+        RandomInitConfig,
+        RegularisersConfig,
+        SplatConfig,
+        StartSteps,
+        StepFactor,
+        Steps,
+        StrategyConfig,
+        TrainConfig,
+        init_field,
+        resolve_steps,
+        strategy_field,
     )
-    from .config import AutoMatchConfig, MatchKinds
     from .config.init import FALLBACK_POINTS, FrustumInitConfig, PlyInitConfig
     from .console import phase
     from .losses import photometric_loss
     from .matching.prior import compute_match_set, match_pairs
     from .methods.gaussian_splatting import config_3dgs
-    from .model.init import StartPoints, initial_points, scene_box
     from .model import ops
     from .model.gaussians import GaussianModel, knn_scale, log_lerp, run_fraction
+    from .model.init import StartPoints, initial_points, scene_box
     from .model.optim import adam
     from .model.regularisers import regulariser_terms
     from .model.strategy import DefaultStrategy, Strategy, check_rows

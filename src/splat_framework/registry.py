@@ -35,12 +35,13 @@ import importlib.resources
 import os
 import stat
 import sys
-import tomllib
 import warnings
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any, Callable
+
+import tomllib
 
 ENTRY_POINT_GROUP = "splat_framework.methods"
 CONFIG_ENTRY_POINT_GROUP = "splat_framework.configs"

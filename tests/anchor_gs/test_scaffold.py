@@ -117,7 +117,6 @@ def test_triangulated_anchors_start_from_the_matching_prior(dm, method):
 def test_a_tiny_run_improves_and_resumes_with_its_networks(tmp_path, method):
     from splat_framework.engine.run import load_trained_model
     from splat_framework.engine.trainer import Trainer
-
     from splat_framework.evaluation.held_out import evaluate
 
     cfg = apply_overrides(METHODS[method][0](), {

@@ -6,6 +6,7 @@ import subprocess
 import sys
 
 import pytest
+
 from cli_harness import run_cli
 from support import REPO
 

@@ -61,8 +61,9 @@ def test_glibc_accepts_the_thresholds(clean_env):
 
 
 def test_a_training_run_applies_them(tmp_path, monkeypatch):
-    import splat_framework.engine.trainer as trainer_mod
     from test_trainer import tiny_config
+
+    import splat_framework.engine.trainer as trainer_mod
 
     calls = []
     monkeypatch.setattr(trainer_mod, "keep_freed_memory", lambda: calls.append(1) or True)

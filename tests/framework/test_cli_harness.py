@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 
 import pytest
+
 from cli_harness import changed_paths, run_cli, snapshot
 
 

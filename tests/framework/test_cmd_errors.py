@@ -14,15 +14,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_harness import changed_paths, cli_env, run_cli, snapshot
-from support import make_llff
-
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from cli_harness import changed_paths, cli_env, run_cli, snapshot
 from splat_framework.cli.common import ArgumentsError
 from splat_framework.errors import DataError
 from splat_framework.sweep.grid import GRID_KEYS
+from support import make_llff
 
 REFUSED = (DataError, ArgumentsError)
 """What cli.common.parse_cli raises for a command line it refuses (run_cli: one line, exit 2)."""

@@ -7,9 +7,16 @@ import json
 from pathlib import Path
 
 import pytest
-from cli_harness import run_cli
 
-from splat_framework.config import SCHEMA_VERSION, UPGRADES, config_payload, read_config_json, save_config, upgrade_saved_config
+from cli_harness import run_cli
+from splat_framework.config import (
+    SCHEMA_VERSION,
+    UPGRADES,
+    config_payload,
+    read_config_json,
+    save_config,
+    upgrade_saved_config,
+)
 from splat_framework.errors import DataError
 from splat_framework.registry import get_method
 from splat_framework.runtime.io import atomic_write_json

@@ -16,15 +16,22 @@ from pathlib import Path
 
 import pytest
 import torch
-from cli_harness import cli_env, message_lines, run_cli
-from config_walk import DEFAULTS, FIELDS, METHODS, members, nested
 from pydantic import ValidationError
 
+from cli_harness import cli_env, message_lines, run_cli
+from config_walk import DEFAULTS, FIELDS, METHODS, members, nested
 from splat_framework import registry
-from splat_framework.engine.checkpoint import MAGIC, checkpoint_path, check_structure, list_checkpoints, load_checkpoint, load_latest
 from splat_framework.cli.common import format_validation_error, tyro_error_line
 from splat_framework.config import MAX_STEPS, SplatConfig, apply_overrides
 from splat_framework.devices import device_fields, resolve_config_devices
+from splat_framework.engine.checkpoint import (
+    MAGIC,
+    check_structure,
+    checkpoint_path,
+    list_checkpoints,
+    load_checkpoint,
+    load_latest,
+)
 from splat_framework.errors import CheckpointError, DataError
 
 HUGE = 10**18

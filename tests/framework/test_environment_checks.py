@@ -7,8 +7,8 @@ from __future__ import annotations
 import os
 
 import pytest
-from cli_harness import cli_env, run_cli
 
+from cli_harness import cli_env, run_cli
 from splat_framework.environment import VARIABLES, check_environment, compile_setting, threads_setting
 from splat_framework.errors import DataError
 

@@ -8,8 +8,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import torch
-from cli_harness import message_lines
 
+from cli_harness import message_lines
 from splat_framework.errors import DataError
 from splat_framework.evaluation.held_out import evaluate
 from splat_framework.evaluation.metrics import DEPTH_KEYS, avg_metric, depth_metrics

@@ -7,10 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from splat_framework.model.gaussians import GaussianModel
-
 from splat_framework.errors import DataError
 from splat_framework.export.ply import export_ply, gaussians_for_export, load_ply, ply_property_names, write_ply
+from splat_framework.model.gaussians import GaussianModel
 from splat_framework.render import rasterize
 
 # What the 3DGS reference (GaussianModel.construct_list_of_attributes) writes for SH degree 3.
@@ -159,10 +158,10 @@ def test_round_trip_renders_identically(run_dir, tmp_path, monkeypatch):
 
 @pytest.mark.bad_input("`splat-scene --out FILE`, `splat-export --ply DIR`, `--data some/dir/..`", "exit 2 with one line; run folders never leave `outputs/`")
 def test_default_output_and_bad_run_dir(run_dir, tmp_path, monkeypatch, capsys):
-    from splat_framework.cli.export import ExportArgs, main
-
     # the default output lands in the run folder; work on a copy so the shared run stays untouched
     import shutil
+
+    from splat_framework.cli.export import ExportArgs, main
 
     copy = tmp_path / "run"
     shutil.copytree(run_dir, copy, ignore=shutil.ignore_patterns("renders"))

@@ -9,11 +9,11 @@ import math
 
 import pytest
 import tyro
-from config_walk import DEFAULTS, FIELDS, METHODS, nested
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
+from config_walk import DEFAULTS, FIELDS, METHODS, nested
 from splat_framework.cli.common import ArgumentsError, config_path, format_validation_error, one_line_parse_errors
 from splat_framework.cli.train import build_parser_type
 from splat_framework.config import MAX_SCHEDULE, InvalidArguments, apply_overrides

@@ -16,8 +16,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from splat_framework import registry
-from splat_framework.engine.checkpoint import MAGIC, check_structure, load_checkpoint, save_checkpoint
 from splat_framework.config import read_config_json, save_config
+from splat_framework.engine.checkpoint import MAGIC, check_structure, load_checkpoint, save_checkpoint
 from splat_framework.errors import CheckpointError, DataError
 from splat_framework.export.ply import load_ply, write_ply
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 import json
 
 import pytest
-from cli_harness import run_cli
 
+from cli_harness import run_cli
 from splat_framework.config import read_config_json, save_config
 
 

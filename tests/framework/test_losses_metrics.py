@@ -8,8 +8,8 @@ import pytest
 import torch
 
 from splat_framework.evaluation import metrics
-from splat_framework.losses import l1_loss, photometric_loss, ssim, ssim_map
 from splat_framework.evaluation.metrics import LPIPSMetric, avg_metric, evaluate_images, psnr, ssim_metric
+from splat_framework.losses import l1_loss, photometric_loss, ssim, ssim_map
 
 
 def naive_ssim(x: torch.Tensor, y: torch.Tensor, window: int = 11, sigma: float = 1.5) -> float:

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import contextlib
 import time
-from dataclasses import replace
 import warnings
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -13,6 +13,7 @@ import pytest
 import torch
 
 from splat_framework import matching as M
+from splat_framework.cameras import Camera, intrinsics, look_at
 from splat_framework.config import MatchConfig, match_config, match_kinds
 from splat_framework.matching import (
     MATCHERS,
@@ -27,7 +28,6 @@ from splat_framework.matching import (
     magsac_inliers,
 )
 from splat_framework.matching.report import empty_pairs_line
-from splat_framework.cameras import Camera, intrinsics, look_at
 from support import DATA
 
 W, H = 320, 240
@@ -750,8 +750,13 @@ def test_posing_matches_round_trip_scale_to_the_trained_size_and_are_refused_whe
     trained at half the stored size), in view-id order whichever way the file lists the pair; other
     matcher options, a changed image or an unreadable file mean matching again, said in one line."""
     from splat_framework.matching.base import KnownMatches
-    from splat_framework.sfm.pose_matches import (POSE_MATCHES, known_sparse_matches, matcher_options, reused_matcher,
-                                                  save_pose_matches)
+    from splat_framework.sfm.pose_matches import (
+        POSE_MATCHES,
+        known_sparse_matches,
+        matcher_options,
+        reused_matcher,
+        save_pose_matches,
+    )
 
     files = {}
     for name in ("a.png", "b.png", "c.png"):

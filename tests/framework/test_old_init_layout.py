@@ -10,17 +10,23 @@ import json
 from pathlib import Path
 
 import pytest
+from tests.framework.test_reliability import assert_same_params, fixed_config, private_cache, stop_at  # noqa: F401
 
 from config_walk import overrides_in_every, sub_configs
-from splat_framework.config import apply_overrides, experiment_fields, read_config_json, resolve_steps, upgrade_saved_config
-from splat_framework.data import resolve_views
-from splat_framework.runtime.io import atomic_write_json, read_json
-from splat_framework.config import MatchConfig
+from splat_framework.config import (
+    MatchConfig,
+    apply_overrides,
+    experiment_fields,
+    read_config_json,
+    resolve_steps,
+    upgrade_saved_config,
+)
 from splat_framework.config.matching import AutoMatchConfig
-from splat_framework.registry import get_method
+from splat_framework.data import resolve_views
 from splat_framework.engine.run import load_trained_model
 from splat_framework.engine.trainer import Trainer, TrainingInterrupted
-from tests.framework.test_reliability import assert_same_params, fixed_config, private_cache, stop_at  # noqa: F401
+from splat_framework.registry import get_method
+from splat_framework.runtime.io import atomic_write_json, read_json
 
 OLD = Path(__file__).parent / "old_init_configs"
 

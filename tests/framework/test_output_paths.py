@@ -12,11 +12,17 @@ import shutil
 from pathlib import Path
 
 import pytest
-from cli_harness import run_cli
 
+from cli_harness import run_cli
 from splat_framework.errors import DataError
 from splat_framework.files.output_paths import (
-    MARKER, PLY_COMMENT, RENDER_FOLDER, SCENE_FOLDER, VIDEO_FILE, check_output, run_inputs,
+    MARKER,
+    PLY_COMMENT,
+    RENDER_FOLDER,
+    SCENE_FOLDER,
+    VIDEO_FILE,
+    check_output,
+    run_inputs,
 )
 
 TINY_SCENE = ("--width", 16, "--height", 12, "--views", 3)

@@ -11,18 +11,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from cli_harness import cli_env, run_cli
 
+from cli_harness import cli_env, run_cli
 from splat_framework.cameras import Camera, intrinsics
+from splat_framework.config.data import PhotoPosesConfig
 from splat_framework.data import describe_split
 from splat_framework.data.images import list_images, natural_key
 from splat_framework.data.parsers.common import find_images
 from splat_framework.data.scene import SceneData
 from splat_framework.data.splits import own_scene_split
-from splat_framework.config.data import PhotoPosesConfig
-from splat_framework.runtime.io import atomic_write_json, read_json
 from splat_framework.matching.matchset import MatchSet
 from splat_framework.matching.report import warn_empty
+from splat_framework.runtime.io import atomic_write_json, read_json
 
 NAMES = ["IMG_9", "IMG_18", "IMG_27", "IMG_100"]
 """The photos' stems in natural order (plain name order would be 100, 18, 27, 9)."""
@@ -149,8 +149,8 @@ def test_an_edited_cache_entry_is_posed_again_with_one_line_naming_the_file(phot
 
 def test_a_failed_posing_leaves_no_entry_and_does_not_say_cached(photo_run, tmp_path, monkeypatch, capsys):
     import splat_framework.sfm.reconstruct as reconstruct
-    from splat_framework.sfm.own_photos import posed_photos
     from splat_framework.errors import DataError
+    from splat_framework.sfm.own_photos import posed_photos
 
     _, _, photos, _ = photo_run
     monkeypatch.setenv("SPLAT_CACHE", str(tmp_path / "cache"))

@@ -9,9 +9,8 @@ import pytest
 import torch
 from torch import nn
 
-from splat_framework.cameras import Camera, intrinsics, look_at
+from splat_framework.cameras import Camera, intrinsics, look_at, pose_differences
 from splat_framework.evaluation.metrics import psnr
-from splat_framework.cameras import pose_differences
 from splat_framework.evaluation.pose_refine import refine_pose, rigid_correction
 from splat_framework.render import rasterize
 

@@ -204,11 +204,11 @@ def test_the_prior_takes_the_posing_matches_instead_of_matching_the_pairs_again(
     never built), adding guided flow and the pose check as before; the prior keeps about as many
     matches as when it matches the pairs itself. A changed image, or other matcher options, mean
     matching again, said in one line naming the file."""
+    from splat_framework.config import match_config
     from splat_framework.data import DataManager
     from splat_framework.matching import learned
-    from splat_framework.config import match_config
-    from splat_framework.sfm.pose_matches import POSE_MATCHES, known_sparse_matches
     from splat_framework.matching.prior import compute_match_set
+    from splat_framework.sfm.pose_matches import POSE_MATCHES, known_sparse_matches
 
     photos = three_photos(forward, tmp_path)
     out = tmp_path / "scene"

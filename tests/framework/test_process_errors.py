@@ -13,8 +13,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from cli_harness import cli_env, run_cli
 
+from cli_harness import cli_env, run_cli
 from splat_framework.cli.common import ArgumentsError
 from splat_framework.errors import DataError
 from splat_framework.files.run_lock import LOCK_NAME

@@ -5,6 +5,7 @@ from __future__ import annotations
 import textwrap
 
 import pytest
+
 from bad_input_table import PAGE, collect, readme_section, render
 
 

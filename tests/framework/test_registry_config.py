@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 from pydantic import ValidationError
-from cli_harness import message_lines
 
+from cli_harness import message_lines
 from splat_framework import registry
 from splat_framework.config import (
     DensifyConfig,
@@ -24,7 +24,6 @@ from splat_framework.config import (
 )
 from splat_framework.errors import DataError
 from support import REPO
-
 
 
 def _fake_eps(monkeypatch, eps):
@@ -60,10 +59,9 @@ def test_broken_plugin_warns_instead_of_killing_the_cli(monkeypatch):
 def test_registered_strategy_kinds_are_every_unnarrowed_methods(monkeypatch):
     """A StrategyConfig in group splat_framework.strategies under its kind's name is accepted by 3dgs
     (whose field is not narrowed) and written back in full; a broken or misnamed entry warns and is left out."""
+    from scg_plugin.config import RayStrategyConfig
     from splat_framework.config import strategy_kinds
     from splat_framework.entry_points import STRATEGY_ENTRY_POINT_GROUP
-
-    from scg_plugin.config import RayStrategyConfig
     from splat_framework.methods.gaussian_splatting import spec_3dgs
 
     _fake_eps(monkeypatch, [
@@ -401,9 +399,8 @@ def test_invalid_values_of_nested_configs_name_their_dotted_path(tmp_path):
     """Without tyro's private hooks: a config built from arguments raises InvalidArguments (not a
     ValueError, which tyro would box), and the CLI finds where that config class sits."""
     from scg_plugin.config import RayStrategyConfig, SCGModelConfig
-    from splat_framework.config import MatchConfig
     from splat_framework.cli.common import config_path
-    from splat_framework.config import GaussianModelConfig, InvalidArguments, OptimConfig, cli_parsing
+    from splat_framework.config import GaussianModelConfig, InvalidArguments, MatchConfig, OptimConfig, cli_parsing
 
     assert config_path(TrainConfig) == "" and config_path(GaussianModelConfig) == "model"
     assert config_path(SCGModelConfig) == "model" and config_path(MatchConfig) == "model.matching"

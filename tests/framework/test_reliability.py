@@ -12,9 +12,11 @@ from pathlib import Path
 
 import pytest
 import torch
-from cli_harness import message_lines, stop_training
 
 import splat_framework.engine.trainer as trainer_mod
+from cli_harness import message_lines, stop_training
+from splat_framework.cli.common import run_cli
+from splat_framework.config import apply_overrides
 from splat_framework.engine.checkpoint import (
     CheckpointError,
     checkpoint_path,
@@ -23,14 +25,12 @@ from splat_framework.engine.checkpoint import (
     load_latest,
     save_checkpoint,
 )
-from splat_framework.cli.common import run_cli
-from splat_framework.config import apply_overrides
-from splat_framework.errors import DataError
-from splat_framework.runtime.io import CHECKSUM_KEY, atomic_write_json, read_json
-from splat_framework.model.gaussians import GaussianModel
-from splat_framework.registry import get_method
 from splat_framework.engine.run import load_trained_model
 from splat_framework.engine.trainer import Trainer, TrainingDiverged, TrainingInterrupted
+from splat_framework.errors import DataError
+from splat_framework.model.gaussians import GaussianModel
+from splat_framework.registry import get_method
+from splat_framework.runtime.io import CHECKSUM_KEY, atomic_write_json, read_json
 
 PY = sys.executable
 

@@ -9,8 +9,8 @@ import shlex
 import shutil
 
 import pytest
-from cli_harness import run_cli, stop_training
 
+from cli_harness import run_cli, stop_training
 from splat_framework.runtime.io import atomic_write_json, read_json
 
 ARGS = ["3dgs", "--data", "synthetic/forward-tiny", "--steps", "60", "--no-progress", "--checkpoint-every", "50",

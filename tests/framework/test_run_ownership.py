@@ -17,17 +17,17 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
-from cli_harness import cli_env, run_cli
 
-from splat_framework.files import run_lock
-from splat_framework.engine.checkpoint import checkpoint_step, list_checkpoints, load_checkpoint, save_checkpoint
+from cli_harness import cli_env, run_cli
 from splat_framework.config import read_config_json
-from splat_framework.errors import DataError
-from splat_framework.runtime.io import CHECKSUM_KEY, atomic_write_json, read_json
-from splat_framework.files.output_paths import RUN_FOLDER
-from splat_framework.registry import get_method
+from splat_framework.engine.checkpoint import checkpoint_step, list_checkpoints, load_checkpoint, save_checkpoint
 from splat_framework.engine.run_folder import prepare_run_dir
+from splat_framework.errors import DataError
+from splat_framework.files import run_lock
+from splat_framework.files.output_paths import RUN_FOLDER
 from splat_framework.files.run_lock import LOCK_NAME
+from splat_framework.registry import get_method
+from splat_framework.runtime.io import CHECKSUM_KEY, atomic_write_json, read_json
 
 TINY = ("3dgs", "--data", "synthetic/forward-tiny", "--no-progress", "--no-save-renders",
         "--model.init.num-points", "300")

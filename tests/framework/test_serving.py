@@ -15,6 +15,7 @@ import time
 import urllib.request
 
 import pytest
+
 from cli_harness import cli_env, run_cli
 
 pytest.importorskip("viser")
@@ -59,8 +60,8 @@ def test_invalid_port_is_one_line_at_parse_time(command, flag, port, tmp_path):
 @pytest.mark.bad_input("`splat-view RUN`, `splat-train --viewer` with no host given", "listen on 127.0.0.1 only (the machine's other addresses are refused); the URL printed is the one served")
 @pytest.mark.bad_input("`splat-view --host 0.0.0.0`, `splat-train --viewer-host 0.0.0.0`", "serves every interface, with one warning line naming what becomes reachable (the model, the photos' thumbnails, \"Render with splat\")")
 def test_viewer_listens_on_loopback_unless_a_host_is_given():
-    from splat_framework.viewer.serving import ServingWarning
     from splat_framework.viewer.scene_viewer import Viewer
+    from splat_framework.viewer.serving import ServingWarning
 
     v = Viewer(port=0)
     try:
@@ -147,8 +148,8 @@ def test_splat_train_viewer_host_opens_it_with_a_warning(tmp_path):
 @pytest.mark.bad_input("a host this machine cannot listen on; a viewer server thread that dies", "exit 2, one line, before training writes anything; never a hang")
 def test_a_host_that_cannot_be_listened_on_is_one_error(host):
     """Before: viser tried 1000 ports on it, then the command waited forever for a server that never started."""
-    from splat_framework.viewer.serving import InvalidAddress
     from splat_framework.viewer.scene_viewer import Viewer
+    from splat_framework.viewer.serving import InvalidAddress
 
     with pytest.raises(InvalidAddress, match="cannot listen on"):
         Viewer(port=0, host=host)
@@ -160,8 +161,8 @@ def test_a_server_thread_that_dies_ends_the_wait(monkeypatch):
     ``--port -1`` before) made the command hang. Now: an error after the startup timeout."""
     import websockets.asyncio.server
 
-    from splat_framework.viewer.serving import InvalidAddress
     from splat_framework.viewer.scene_viewer import _start_server
+    from splat_framework.viewer.serving import InvalidAddress
 
     def dies(*args, **kwargs):
         raise RuntimeError("server thread died")
@@ -362,8 +363,8 @@ def test_a_viser_that_bypasses_the_check_is_not_served(monkeypatch):
 def test_an_opened_viewer_serves_its_own_address_and_refuses_other_sites():
     """``--host ADDRESS`` opens the viewer to ADDRESS: the page is served under it, with or without its
     Origin; a page of another site still gets 403."""
-    from splat_framework.viewer.serving import ServingWarning
     from splat_framework.viewer.scene_viewer import Viewer
+    from splat_framework.viewer.serving import ServingWarning
 
     with pytest.warns(ServingWarning):
         v = Viewer(port=0, host=OTHER)

@@ -12,14 +12,14 @@ import torch
 
 from splat_framework.config import SCHEMA_VERSION, apply_overrides, read_config_json, save_config
 from splat_framework.data import DataError, load_scene
-from splat_framework.sfm import resolve_data_path
 from splat_framework.data.datamanager import view_bytes
-from splat_framework.evaluation.held_out import evaluate
-from splat_framework.runtime.io import read_json
-from splat_framework.registry import get_method
 from splat_framework.engine.memory_plan import parse_bytes
 from splat_framework.engine.run_folder import default_run_dir, prepare_run_dir
 from splat_framework.engine.trainer import Trainer
+from splat_framework.evaluation.held_out import evaluate
+from splat_framework.registry import get_method
+from splat_framework.runtime.io import read_json
+from splat_framework.sfm import resolve_data_path
 
 
 @pytest.fixture(autouse=True)

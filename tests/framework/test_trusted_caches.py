@@ -15,8 +15,15 @@ from pathlib import Path
 import pytest
 import torch
 
-from splat_framework.runtime.trusted import (MANIFEST, folder_mismatch, manifest_mismatch, private_folder,
-                                             untrusted_reason, write_folder_manifest, write_manifest)
+from splat_framework.runtime.trusted import (
+    MANIFEST,
+    folder_mismatch,
+    manifest_mismatch,
+    private_folder,
+    untrusted_reason,
+    write_folder_manifest,
+    write_manifest,
+)
 
 needs_owners = pytest.mark.skipif(not hasattr(os, "geteuid"), reason="file owners and modes are POSIX")
 

@@ -10,6 +10,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 import numpy as np
 import pytest
 import torch
+
 from support import HeadlessPage, chromium_binary
 
 pytestmark = pytest.mark.slow
@@ -210,8 +211,8 @@ def test_a_page_of_another_local_port_cannot_open_the_viewers_socket_in_headless
 def test_training_viewer_follows_the_model(tmp_path):
     """splat-train --viewer: the callback opens the viewer at the first step and shows a copy of the
     model every viewer_every steps; renders from the browser never touch the training model."""
-    from splat_framework.registry import get_method
     from splat_framework.engine.trainer import Trainer
+    from splat_framework.registry import get_method
     from splat_framework.viewer.scene_viewer import ViewerCallback
 
     cfg = get_method("3dgs").default_config()

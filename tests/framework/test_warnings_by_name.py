@@ -13,8 +13,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from cli_harness import cli_env, run_cli
 
+from cli_harness import cli_env, run_cli
 from splat_framework.matching.matchset import MatchSet
 from splat_framework.matching.report import empty_pairs_line, unmatched_views_line
 from splat_framework.sfm.reconstruct import SfmSummary

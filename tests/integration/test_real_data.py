@@ -15,7 +15,6 @@ import torch
 from splat_framework.data import DataManager, load_scene
 from support import DATA
 
-
 pytestmark = pytest.mark.integration
 
 

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
+from splat_framework.engine.trainer import Trainer
 from splat_framework.evaluation.held_out import evaluate
 from splat_framework.registry import get_method
-from splat_framework.engine.trainer import Trainer
 from support import DATA
 
 FERN = DATA / "llff" / "fern"

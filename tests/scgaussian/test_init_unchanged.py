@@ -14,10 +14,9 @@ import pytest
 import torch
 
 from config_walk import overrides_in_every
-from splat_framework.config import apply_overrides
+from splat_framework.config import MatchConfig, apply_overrides
 from splat_framework.data import DataManager, load_scene
 from splat_framework.data.synthetic import ensure_scene
-from splat_framework.config import MatchConfig
 from splat_framework.registry import get_method
 
 BEFORE = {

@@ -7,11 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from splat_framework.config import match_config
-from splat_framework.matching import compute_matches
-from splat_framework.matching.prior import triangulate
-from scg_plugin.method import config_scgaussian
 from scg_plugin.losses import rendering_geometry_loss
+from scg_plugin.method import config_scgaussian
 from scg_plugin.model import SCGaussianModel
 from scg_plugin.ray_gaussians import (
     MatchCache,
@@ -24,11 +21,13 @@ from scg_plugin.ray_gaussians import (
     warm_up,
     warmup_step_size,
 )
-from splat_framework.config import apply_overrides
-from splat_framework.plugin import config_3dgs, resolve_steps
+from splat_framework.config import apply_overrides, match_config
 from splat_framework.data import DataManager, load_scene
 from splat_framework.data.datamanager import area_resized
 from splat_framework.data.synthetic import generate_scene
+from splat_framework.matching import compute_matches
+from splat_framework.matching.prior import triangulate
+from splat_framework.plugin import config_3dgs, resolve_steps
 
 
 @pytest.fixture(scope="module")
@@ -273,8 +272,8 @@ def test_ray_gaussians_survive_pruning(scene):
 def test_too_few_matches_warn_and_fall_back_to_ordinary_gaussians(scene, monkeypatch, tmp_path):
     """Texture-less views (simulated: the matcher finds nothing) must not crash or train nothing."""
     import scg_plugin.startup as startup
-    from splat_framework.matching import MatchSet
     from splat_framework.engine.trainer import Trainer
+    from splat_framework.matching import MatchSet
 
     sc, _, _ = scene
     monkeypatch.setattr(
@@ -369,8 +368,8 @@ def test_sparse_prior_warns_and_adds_random_ordinary_gaussians(scene, monkeypatc
 
 def test_triangulation_without_matches_falls_back_to_the_reference_random_init(scene, monkeypatch):
     import splat_framework.matching.prior as prior
-    from splat_framework.matching import MatchSet
     from splat_framework.config.init import FALLBACK_POINTS
+    from splat_framework.matching import MatchSet
     from splat_framework.model.gaussians import GaussianModel
     from splat_framework.model.init import frustum_box
     from splat_framework.registry import get_method

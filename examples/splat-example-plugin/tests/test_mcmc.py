@@ -1,7 +1,6 @@
 """The MCMC strategy's relocation rule (eq. 9 of Kheradmand et al. 2024)."""
 
 import torch
-
 from splat_example_plugin.mcmc import split_opacity_scale
 
 

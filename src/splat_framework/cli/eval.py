@@ -39,9 +39,9 @@ def evaluate_run(args: EvalArgs) -> dict:
     from ..console import print_summary, starting
 
     with starting():
+        from ..engine.run import background_for, load_run
         from ..evaluation.held_out import evaluate
         from ..runtime.io import atomic_write_json, read_json
-        from ..engine.run import background_for, load_run
 
     config, dm, model = load_run(args.run_dir, args.device, args.trust_edited_config)
     pose_steps = config.test_pose_steps if args.test_pose_steps is None else args.test_pose_steps

@@ -33,8 +33,8 @@ def main(args: ExportArgs) -> Path:
     from ..console import starting
 
     with starting():
-        from ..export.ply import export_ply
         from ..engine.run import load_trained_model
+        from ..export.ply import export_ply
         from ..files.run_lock import owned, writes_inside
 
     with owned(args.run_dir, writes=writes_inside(args.run_dir, out)):  # a PLY elsewhere only reads the run

@@ -19,8 +19,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 import tyro
 from pydantic import AfterValidator, Field
 
-from ..config import SplatConfig
-from ..config import AutoMatchConfig, MatchConfig, MatchKinds
+from ..config import AutoMatchConfig, MatchConfig, MatchKinds, SplatConfig
 
 if TYPE_CHECKING:  # pragma: no cover
     from splat_framework.cameras import Camera

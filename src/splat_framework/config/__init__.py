@@ -69,10 +69,10 @@ from .matching import (
 from .merge import apply_overrides, deep_merge
 from .model import GaussianModelConfig, ModelConfig, OptimConfig, RegularisersConfig
 from .persist import SavedConfig, config_payload, read_config_json, save_config
-from .versions import SCHEMA_VERSION, UPGRADES, upgrade_saved_config
 from .schedule import follows_schedule, resolve_steps, scale_schedule
 from .strategy import DensifyConfig, RegisteredStrategies, StrategyConfig, strategy_field, strategy_kinds
 from .train import TrainConfig, experiment_fields
+from .versions import SCHEMA_VERSION, UPGRADES, upgrade_saved_config
 
 __all__ = [
     "DEVICE_MARKER", "FOLDED", "MAX_GAUSSIANS", "MAX_MATCHES", "MAX_SCHEDULE", "MAX_STEPS", "MAX_VIEWS",

@@ -20,7 +20,6 @@ from .base import MAX_MATCHES, MAX_VIEWS, Device, Kind, SplatConfig, as_register
 from .matcher_names import AUTO, check_matcher_name
 
 
-
 class MatchConfig(SplatConfig):
     """Matching prior: how matches between training views are computed, verified and capped."""
 

@@ -11,10 +11,18 @@ import tyro
 from pydantic import BeforeValidator, Field, SerializeAsAny
 
 from .base import (
-    Interval, Kind, KindConfig, NonNegative, OptionalPeriod, Positive, StartSteps, StepFactor, Steps, as_registered_kind,
+    Interval,
+    Kind,
+    KindConfig,
+    NonNegative,
+    OptionalPeriod,
+    Positive,
+    StartSteps,
+    StepFactor,
+    Steps,
+    as_registered_kind,
     registered_kinds,
 )
-
 
 
 class StrategyConfig(KindConfig):

@@ -14,11 +14,11 @@ from typing import Annotated, Literal
 import tyro
 from pydantic import Field
 
+from .address import LOOPBACK, Port
 from .base import FOLDED, MAX_STEPS, MAX_VIEWS, RUN_OPTION, Device, Interval, Positive, SplatConfig, StartSteps, Steps
 from .data import PhotoPosesConfig, ResolvedData
 from .model import GaussianModelConfig, OptimConfig
 from .strategy import DensifyConfig, RegisteredStrategies
-from .address import LOOPBACK, Port
 
 
 class CameraRefineConfig(SplatConfig):

@@ -6,8 +6,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..cameras import Camera
-
-
 from ..errors import DataError  # noqa: F401  (re-exported)
 
 

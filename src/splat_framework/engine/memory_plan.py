@@ -6,9 +6,9 @@ import os
 
 from ..config import TrainConfig
 from ..console import say
-from ..environment import size_bytes
 from ..data import DataError
 from ..data.datamanager import estimate_image_bytes
+from ..environment import size_bytes
 from ..runtime.resources import available_memory_bytes, physical_memory_bytes
 
 MEMORY_ENV = "SPLAT_IMAGE_MEMORY_BUDGET"

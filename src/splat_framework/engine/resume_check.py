@@ -9,7 +9,13 @@ from pathlib import Path
 from pydantic import BaseModel
 
 from ..config import (
-    SCHEMA_VERSION, TrainConfig, config_payload, follows_schedule, experiment_fields, read_config_json, upgrade_saved_config,
+    SCHEMA_VERSION,
+    TrainConfig,
+    config_payload,
+    experiment_fields,
+    follows_schedule,
+    read_config_json,
+    upgrade_saved_config,
 )
 from ..config.versions import UNVERSIONED, version_problem
 from ..data import DataError

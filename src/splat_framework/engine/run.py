@@ -6,13 +6,13 @@ from pathlib import Path
 
 import torch
 
-from .checkpoint import check_structure, load_latest
 from ..config import read_config_json, upgrade_saved_config
 from ..data.cache_dir import user_cache_dir
 from ..devices import resolve_config_devices
 from ..errors import CheckpointError, DataError
 from ..registry import get_method
 from ..render import set_compile
+from .checkpoint import check_structure, load_latest
 
 
 def load_trained_model(run_dir: Path, device: str | None = None, scene_scale: float = 1.0,
@@ -82,8 +82,8 @@ def load_run(run_dir: Path, device: str | None = None, trust_edits: bool = False
     """(config, datamanager, model) of ``run_dir``, the model holding the newest good checkpoint."""
     from ..console import phase
     from ..data import DataManager
-    from .run_scene import load_config_scene
     from .camera_refine import refined_cameras
+    from .run_scene import load_config_scene
 
     with phase(f"loading {run_dir}: its newest checkpoint"):
         config, model, camera_refine = _load_checkpointed(run_dir, device, 1.0, trust_edits)

@@ -7,12 +7,12 @@ from datetime import datetime
 from pathlib import Path
 from typing import Sequence
 
-from ..console import say
-from ..files import run_lock
-from .checkpoint import checkpoint_step, list_checkpoints, remove_stale_temporaries
 from ..config import TrainConfig, read_config_json
+from ..console import say
 from ..data import DataError
+from ..files import run_lock
 from ..files.output_paths import RUN_FOLDER, check_output, check_path, clear_output, data_inputs
+from .checkpoint import checkpoint_step, list_checkpoints, remove_stale_temporaries
 
 
 def default_runs_folder(config: TrainConfig) -> Path:

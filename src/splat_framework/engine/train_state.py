@@ -16,9 +16,9 @@ import torch
 
 from ..console import say
 from ..model.strategy import unplain_state
+from ..runtime.rng import restore_rng_state, rng_state
 from .checkpoint import CheckpointError, check_structure, list_checkpoints, load_checkpoint, load_latest
 from .resume_check import check_checkpoint_record, experiment_record
-from ..runtime.rng import restore_rng_state, rng_state
 
 
 class TrainState:

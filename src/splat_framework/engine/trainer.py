@@ -58,28 +58,29 @@ from typing import Callable, Sequence
 import torch
 from torch import Tensor
 
-from ..files import run_lock
-from .camera_refine import CameraRefiner, refined_cameras
-from .checkpoint import save_checkpoint
 from ..config import TrainConfig, config_payload, resolve_steps, save_config
 from ..console import phase, print_summary, say, show_progress
 from ..data import DataManager, describe_split, record_data, resolve_views
 from ..data.cache_dir import user_cache_dir
 from ..devices import resolve_config_devices
 from ..evaluation.held_out import evaluate
-from .memory_plan import image_memory_budget, plan_memory
 from ..evaluation.metrics import psnr
+from ..files import run_lock
+from ..files.output_paths import RUN_FOLDER
 from ..model.strategy import Strategy
-from .numerics import first_nonfinite as _first_nonfinite, optimized_tensors, trainable_tensors
-from ..runtime.profiling import section
+from ..registry import MethodSpec, get_method
 from ..render import prepare_kernels, set_compile, set_rasterizer
 from ..runtime.allocator import keep_freed_memory
-from ..runtime.threads import apply_process_threads
-from ..registry import MethodSpec, get_method
-from .resume_check import check_saved_config
+from ..runtime.profiling import section
 from ..runtime.rng import seed_everything
+from ..runtime.threads import apply_process_threads
+from .camera_refine import CameraRefiner, refined_cameras
+from .checkpoint import save_checkpoint
+from .memory_plan import image_memory_budget, plan_memory
+from .numerics import first_nonfinite as _first_nonfinite
+from .numerics import optimized_tensors, trainable_tensors
+from .resume_check import check_saved_config
 from .run_folder import continue_command, prepare_run_dir, remove_if_unused
-from ..files.output_paths import RUN_FOLDER
 from .run_metrics import run_metrics
 from .run_scene import load_config_scene
 from .stop_signals import abandoned_message, stop_signals

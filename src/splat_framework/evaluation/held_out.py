@@ -9,12 +9,12 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .metrics import DEPTH_KEYS, IMAGE_METRICS, STLPIPSMetric, depth_metrics, evaluate_images, lpips_metrics, psnr
-from .pictures import colorize_depth, error_map, label_panel, to_uint8, write_png
 from ..cameras import pose_differences
 from ..console import track
-from .pose_refine import refine_pose
 from ..runtime.profiling import synchronize
+from .metrics import DEPTH_KEYS, IMAGE_METRICS, STLPIPSMetric, depth_metrics, evaluate_images, lpips_metrics, psnr
+from .pictures import colorize_depth, error_map, label_panel, to_uint8, write_png
+from .pose_refine import refine_pose
 
 
 def scored_views(datamanager) -> tuple[list, str]:

@@ -31,8 +31,8 @@ import torch
 from torch import Tensor
 
 from ..errors import DataError
-from ..runtime.io import atomic_write_bytes
 from ..files.output_paths import PLY_COMMENT
+from ..runtime.io import atomic_write_bytes
 
 __all__ = ["export_ply", "gaussians_for_export", "load_ply", "ply_property_names", "write_ply"]
 

@@ -58,9 +58,9 @@ triangulated points), ``drawing``.
 
 from .base import Matcher, Pts, no_matches, texture, to_gray_u8, to_hwc, to_uint8_rgb
 from .classical import DenseFlowMatcher, SiftMatcher, mutual_ratio_match
-from .guided import GuidedFlowMatcher
 from .drawing import draw_matches
 from .geometry import epipolar_distance, fundamental_from_cameras, magsac_inliers, verify_pair, view_angle
+from .guided import GuidedFlowMatcher
 from .learned import (
     MAX_UPSCALE,
     WEIGHTS_INSTALL,
@@ -74,7 +74,16 @@ from .learned import (
 )
 from .matchset import CACHE_VERSION, MatchSet, Pair
 from .pipeline import cache_key, compute_matches, on_foreground, takes_guided_flow
-from .registry import AUTO, AUTO_DENSE, AUTO_GUIDED, AUTO_LEARNED, MATCHERS, build_matcher, get_matcher, learned_available
+from .registry import (
+    AUTO,
+    AUTO_DENSE,
+    AUTO_GUIDED,
+    AUTO_LEARNED,
+    MATCHERS,
+    build_matcher,
+    get_matcher,
+    learned_available,
+)
 from .sampling import balanced_sample
 
 __all__ = [

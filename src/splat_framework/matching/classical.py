@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
-from .base import Pts, no_matches, to_gray_u8, to_hwc, texture
+from .base import Pts, no_matches, texture, to_gray_u8, to_hwc
 from .sampling import balanced_sample
 
 if TYPE_CHECKING:  # pragma: no cover

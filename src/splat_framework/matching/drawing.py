@@ -8,6 +8,7 @@ import numpy as np
 
 from .base import to_uint8_rgb
 
+
 def draw_matches(
     img_a: np.ndarray,
     img_b: np.ndarray,

@@ -141,8 +141,8 @@ class LoFTRMatcher:
 
     def __init__(self, weights: Path | str | None = None, min_confidence: float = 0.0, device: str = "cpu") -> None:
         path = _resolve_weights(weights, self.WEIGHTS_FILES, "LoFTR")
-        import torch
         import kornia.feature as KF
+        import torch
 
         model = KF.LoFTR(pretrained=None)  # never downloads
         model.load_state_dict(_torch_load(path, "state_dict"))
@@ -195,8 +195,8 @@ class _LightGlueMatcher:
         device: str = "cpu",
     ) -> None:
         extractor_path, lg_path = self.weight_paths(weights)
-        import torch
         import kornia.feature as KF
+        import torch
 
         # features=None: kornia builds the network without downloading anything. Its attention
         # modules call torch.backends.cuda.enable_flash_sdp(flash) when built, a switch for the

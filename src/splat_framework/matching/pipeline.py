@@ -11,14 +11,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..config.base import MAX_MATCHES
+from ..config.matching import MatchConfig, match_config
 from ..console import Phase, phase, say
 from ..runtime.threads import machine_thread_count, machine_threads
 from . import registry
 from .base import KnownMatches, Matcher, Pts, inside_mask, to_hwc
-from ..config.base import MAX_MATCHES
-from ..config.matching import MatchConfig, match_config
-from .guided import GuidedFlowMatcher
 from .geometry import as_numpy, fundamental_from_cameras, verify_pair, view_angle
+from .guided import GuidedFlowMatcher
 from .learned import WEIGHTS_INSTALL
 from .matchset import CACHE_VERSION, MatchSet, Pair
 from .registry import AUTO, AUTO_DENSE, AUTO_GUIDED, AUTO_LEARNED, MATCHERS, build_matcher

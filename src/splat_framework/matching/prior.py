@@ -17,9 +17,9 @@ import torch
 from torch import Tensor
 
 from ..cameras import Camera
+from ..config.matching import MatchConfig
 from ..console import say
 from ..data.cache_dir import user_cache_dir
-from ..config.matching import MatchConfig
 from .matchset import MatchSet
 from .report import view_names, warn_empty
 

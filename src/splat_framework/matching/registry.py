@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from ..config.matcher_names import AUTO, AUTO_DENSE, AUTO_GUIDED, AUTO_LEARNED, MATCHERS
 from .base import Matcher
 from .classical import DenseFlowMatcher, SiftMatcher
 from .learned import AlikedLightGlueMatcher, DiskLightGlueMatcher, LoFTRMatcher, MissingWeightsError
-from ..config.matcher_names import AUTO, AUTO_DENSE, AUTO_GUIDED, AUTO_LEARNED, MATCHERS
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..config.matching import MatchConfig

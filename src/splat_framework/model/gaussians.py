@@ -33,13 +33,14 @@ from ..cameras import Camera
 from ..config import TrainConfig
 from ..console import phase
 from ..losses import photometric_loss
-from ..runtime.profiling import section
 from ..render import RenderOutput, rasterize, rgb_to_sh
+from ..runtime.profiling import section
 from ..runtime.rng import keyed_generator
 from .init import initial_points
 from .ops import RowChange
 from .optim import adam
 from .regularisers import regulariser_terms
+
 
 def knn_scale(points: Tensor, k: int = 3) -> Tensor:
     """[N] root-mean-square distance of each point to its ``k`` nearest neighbours (3DGS init scale).

@@ -15,10 +15,10 @@ from torch import Tensor
 
 from ..cameras import Camera
 from ..config import RegularisersConfig
-from ..runtime.profiling import section
-from ..runtime.rng import keyed_generator
 from ..losses import depth_smoothness, scale_anisotropy, stereo_consistency
 from ..render import RenderOutput
+from ..runtime.profiling import section
+from ..runtime.rng import keyed_generator
 
 
 def regulariser_terms(

@@ -1,8 +1,8 @@
 """Differentiable Gaussian rendering: the shared rasterizer and SH evaluation."""
 
 from ._kernels import compile_requested, compiled_or_eager, set_compile
-from .backend import RASTERIZERS, backend_name, native_for, set_rasterizer
 from ._project import quat_to_rotmat
+from .backend import RASTERIZERS, backend_name, native_for, set_rasterizer
 from .rasterizer import RenderOutput, prepare_kernels, rasterize, request_absgrad
 from .sh import eval_sh, rgb_to_sh, sh_to_color, sh_to_rgb
 

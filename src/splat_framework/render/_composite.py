@@ -38,10 +38,11 @@ import torch
 from torch import Tensor
 from torch.autograd.function import once_differentiable
 
-from ._kernels import ALPHA_MAX, T_MIN, gathering_bwd, get_kernels
-from ._kernels import bwd_round as bwd_round_eager
 from ..runtime.profiling import section
 from ..runtime.resources import available_cores
+from ._kernels import ALPHA_MAX, T_MIN, gathering_bwd, get_kernels
+from ._kernels import bwd_round as bwd_round_eager
+
 _DUMMY_LOGIT = -1.0e4  # exp() == 0 in float32 and float64
 ABSGRAD_REQUEST = "absgrad_requested"
 """The attribute :func:`~splat_framework.render.rasterizer.request_absgrad` sets on a render's means2d."""

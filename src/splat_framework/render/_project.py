@@ -10,17 +10,15 @@ torch (the reference the native kernels are tested against).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import math
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
-from ._kernels import ALPHA_MIN  # a pixel receives a Gaussian only if alpha >= 1/255
 from ..runtime.profiling import section
+from ._kernels import ALPHA_MIN  # a pixel receives a Gaussian only if alpha >= 1/255
 from .sh import sh_to_color
-
 
 
 @dataclass

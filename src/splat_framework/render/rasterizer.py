@@ -20,12 +20,12 @@ from typing import Literal
 import torch
 from torch import Tensor
 
-from ._composite import ABSGRAD_REQUEST, TileGrid, composite, pixel_basis, tile_footprints
-from ._kernels import compile_requested
-from .backend import backend_name, choose, kernels_for, native_for
-from ._project import ProjectFn, footprint, project, reference_radii
 from ..runtime.profiling import section
 from ..runtime.threads import follow_load
+from ._composite import ABSGRAD_REQUEST, TileGrid, composite, pixel_basis, tile_footprints
+from ._kernels import compile_requested
+from ._project import ProjectFn, footprint, project, reference_radii
+from .backend import backend_name, choose, kernels_for, native_for
 
 __all__ = ["RenderOutput", "prepare_kernels", "rasterize"]
 

@@ -16,8 +16,8 @@ dependency: ``pip install "splat-framework[process]"``.
 
 from ..cameras import camera_centers
 from .alignment import align_sim3, pose_errors, sim3_errors
-from .photo_matchers import AUTO_MATCHER, AUTO_PREFERRED, PHOTO_MATCHER_GROUP, photo_matchers
 from .own_photos import resolve_data_path
+from .photo_matchers import AUTO_MATCHER, AUTO_PREFERRED, PHOTO_MATCHER_GROUP, photo_matchers
 from .photos import IMAGE_SUFFIXES, list_images
 from .reconstruct import MAPPERS, SfmSummary, estimate_scene
 from .training_poses import estimate_training_poses

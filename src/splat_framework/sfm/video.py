@@ -8,6 +8,7 @@ import numpy as np
 
 from ..errors import DataError
 
+
 def pick_video_frames(video: Path, n: int, dest: Path) -> list[Path]:
     """Write ``n`` frames of ``video`` spread along it into ``dest`` (created) as PNG: the video is
     cut into ``n`` equal spans and the sharpest frame of each (largest variance of the Laplacian

@@ -41,8 +41,8 @@ import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from ..runtime.resources import available_cores
 from ..files.output_paths import SWEEP_FOLDER, check_output, data_inputs, mark_output
+from ..runtime.resources import available_cores
 from .backends import import_ray, run_local, run_ray, run_serial, spec_dict
 from .grid import (
     BACKENDS,
@@ -81,6 +81,7 @@ from .results import (
     write_tables,
 )
 from .worker import build_config, default_workers, execute_run, one_line, peak_rss_mb, threads_per_worker, worker_main
+
 
 @dataclass
 class SweepResult:

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-
 from .results import aggregate, has_gpu, row_cells, table_headers
+
 
 class Reporter:
     """A rich live table on a terminal; one plain line per finished run otherwise."""

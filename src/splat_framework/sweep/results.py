@@ -16,6 +16,7 @@ from ..errors import DataError
 from ..runtime.io import atomic_write_text
 from .grid import METRICS, NUMERIC_FIELDS, PHASES, RunSpec, group_key
 
+
 def run_state(run: RunSpec) -> tuple[str, str | None]:
     """("done" | "partial" | "new" | "conflict", message) of a run's folder.
 

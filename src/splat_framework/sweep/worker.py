@@ -17,6 +17,7 @@ from ..runtime.io import atomic_write_text
 from ..runtime.resources import available_cores, available_memory_bytes
 from .grid import DEFAULT_MEM_PER_RUN_GB, SweepError
 
+
 def default_workers(mem_per_run_gb: float = DEFAULT_MEM_PER_RUN_GB) -> int:
     """``max(1, min(cores // 2, available memory / per-run estimate))``."""
     cores = available_cores()

@@ -13,7 +13,18 @@ import torch
 from splat_framework.data import DataError, load_scene
 from splat_framework.data.parsers import detect_format
 from splat_framework.data.parsers.dtu import decompose_projection
-from support import DTU_K, colmap_scene, dtu_eye, llff_row, look_at, make_blender, make_colmap, make_dtu, make_llff, write_png
+from support import (
+    DTU_K,
+    colmap_scene,
+    dtu_eye,
+    llff_row,
+    look_at,
+    make_blender,
+    make_colmap,
+    make_dtu,
+    make_llff,
+    write_png,
+)
 
 # ------------------------------------------------------------------- tests
 

@@ -116,9 +116,9 @@ def test_training_poses_from_their_photos_alone_match_the_truth(scene, tmp_path)
 
 def test_a_run_on_a_pose_file_scores_test_views_before_and_after_the_pose_fit(scene, tmp_path):
     from splat_framework.config import TrainConfig
-    from splat_framework.registry import get_method
     from splat_framework.engine.run import load_run
     from splat_framework.engine.trainer import train
+    from splat_framework.registry import get_method
 
     path = tmp_path / "poses.json"
     path.write_text(json.dumps(shifted_payload(scene)))

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-
 import pytest
 
 from splat_framework.data import DataError, load_scene
@@ -17,7 +16,6 @@ from splat_framework.data.splits import (
     own_scene_split,
 )
 from support import DATA
-
 
 
 def test_llff_fern_protocol_numbers():

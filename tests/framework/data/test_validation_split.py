@@ -7,10 +7,10 @@ import json
 from pathlib import Path
 
 import pytest
-from support import make_blender, make_dtu, make_llff
 
 from splat_framework.data import DataError, load_scene
 from splat_framework.data.run_data import held_out_views
+from support import make_blender, make_dtu, make_llff
 
 
 def test_llff_and_dtu_validate_on_every_view_neither_trained_nor_tested(tmp_path):

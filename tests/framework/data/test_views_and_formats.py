@@ -14,15 +14,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from cli_harness import cli_env, run_cli
-from support import make_blender, make_colmap, make_dtu, make_llff
 
+from cli_harness import cli_env, run_cli
 from splat_framework.config import TrainConfig, save_config
 from splat_framework.data import DataError, describe_split, load_scene, resolve_views
-from splat_framework.engine.run_scene import load_config_scene
 from splat_framework.data.parsers import detect_format
 from splat_framework.data.splits import default_views
+from splat_framework.engine.run_scene import load_config_scene
 from splat_framework.runtime.io import read_json
+from support import make_blender, make_colmap, make_dtu, make_llff
 
 FLIP_YZ = np.diag([1.0, -1.0, -1.0, 1.0])
 N_VIEWS = 10

@@ -8,9 +8,9 @@ import torch
 
 from splat_framework.cameras import Camera
 from splat_framework.config import apply_overrides
+from splat_framework.config.init import RandomInitConfig
 from splat_framework.data import DataManager, load_scene
 from splat_framework.data.synthetic import generate_scene
-from splat_framework.config.init import RandomInitConfig
 from splat_framework.model.gaussians import GaussianModel, knn_scale
 from splat_framework.model.init import frustum_box, initial_points, sample_box_points, sample_frustum_points
 from splat_framework.registry import get_method
@@ -99,9 +99,10 @@ def test_knn_scale_matches_brute_force_with_duplicates_and_tiny_sets():
 
 @pytest.mark.bad_input("`--model.init.kind sfm` on a dataset without SfM points; `ply` with a missing or non-splat PLY", "exit 2, one line naming the dataset or file")
 def test_sfm_kind_starts_from_a_colmap_datasets_points_and_refuses_a_dataset_without(tmp_path, forward_dm):
-    from splat_framework.errors import DataError
-    from splat_framework.config.init import SfMInitConfig
     from tests.support import make_colmap
+
+    from splat_framework.config.init import SfMInitConfig
+    from splat_framework.errors import DataError
 
     dm = DataManager(load_scene(make_colmap(tmp_path / "c", binary=True), views=3), device="cpu", seed=0)
     start = initial_points(SfMInitConfig(), dm, torch.Generator().manual_seed(0))

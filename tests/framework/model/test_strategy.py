@@ -467,7 +467,6 @@ def test_configs_saved_before_the_ray_rule_moved_still_load():
     SCGaussian models use that strategy."""
     from scg_plugin.method import config_scgaussian
     from scg_plugin.strategy import RayGaussianStrategy
-
     from splat_framework.config import TrainConfig, upgrade_saved_config
 
     for config in (TrainConfig(method="3dgs"), config_scgaussian()):

@@ -10,10 +10,11 @@ import warnings
 from pathlib import Path
 
 import pytest
+import test_rasterizer as ref
 import torch
 
-import test_rasterizer as ref
 from splat_framework.render import _native, backend, rasterizer
+
 
 @pytest.fixture
 def native(native_module, monkeypatch):

@@ -9,9 +9,9 @@ from __future__ import annotations
 import math
 
 import pytest
+import test_rasterizer as ref
 import torch
 
-import test_rasterizer as ref
 from splat_framework import losses
 from splat_framework.render import _project, rasterize
 from splat_framework.render._project import ProjectFn, native_cfg, project_and_shade

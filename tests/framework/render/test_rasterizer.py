@@ -527,7 +527,7 @@ def test_compiled_kernels_match_eager_in_a_training_step(monkeypatch, tmp_path):
     """torch.compile'd compositing (what training runs use on CUDA, and on a CPU where the native
     kernels cannot be built) gives the eager forward and gradients; any compile failure falls back
     to eager, so this also runs without a compiler."""
-    from splat_framework.render import _kernels, rasterizer
+    from splat_framework.render import _kernels
 
     monkeypatch.setenv("SPLAT_RASTERIZER", "torch")  # the torch.compile'd kernels, not the native ones
     monkeypatch.setattr("splat_framework.render._project.native_projection", lambda device: None)

@@ -12,9 +12,9 @@ import sys
 import warnings
 
 import pytest
+import test_rasterizer as ref
 import torch
 
-import test_rasterizer as ref
 from splat_framework.errors import DataError
 from splat_framework.render import _triton, backend, rasterizer
 

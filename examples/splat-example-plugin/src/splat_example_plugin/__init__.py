@@ -10,19 +10,17 @@ read to build ``splat-train --help``); the model and the strategies are imported
 only when training starts (a strategy config names its class as ``module:Class``).
 """
 
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pydantic import Field
 
-from typing import ClassVar
-
 from splat_framework.plugin import (
+    MAX_GAUSSIANS,
     DensifyConfig,
     GaussianModelConfig,
     InitConfig,
     Interval,
     Kind,
-    MAX_GAUSSIANS,
     MethodSpec,
     NonNegative,
     StartSteps,

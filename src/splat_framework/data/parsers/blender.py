@@ -19,7 +19,7 @@ import numpy as np
 from ..images import IMAGE_SUFFIXES, check_image_file
 from ..scene import DataError, SceneData
 from ..splits import BLENDER_TEST_EVERY, Views, blender_split
-from .common import check_downscale, check_same_size, decoded_size, make_camera, build_scene
+from .common import build_scene, check_downscale, check_same_size, decoded_size, make_camera
 
 NEAR, FAR = 2.0, 6.0
 FLIP_YZ = np.diag([1.0, -1.0, -1.0, 1.0])

@@ -26,12 +26,12 @@ from ..scene import DataError, SceneData
 from ..splits import Views, own_scene_split
 from .common import (
     DEFAULT_BOUNDS,
+    build_scene,
     check_finite,
     check_same_size,
     choose_image_dir,
     decoded_size,
     make_camera,
-    build_scene,
     pixel_ratios,
 )
 

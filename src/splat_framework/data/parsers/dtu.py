@@ -19,13 +19,13 @@ import numpy as np
 from ..scene import DataError, SceneData
 from ..splits import Views, dtu_split
 from .common import (
+    build_scene,
     check_same_size,
     choose_image_dir,
     decoded_size,
     find_images,
     image_folders,
     make_camera,
-    build_scene,
 )
 
 FULL_W, FULL_H = 1600, 1200

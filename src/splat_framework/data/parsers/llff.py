@@ -16,7 +16,14 @@ import numpy as np
 from ..scene import DataError, SceneData
 from ..splits import Views, llff_split
 from .common import (
-    build_scene, check_same_size, choose_image_dir, decoded_size, find_images, image_folders, make_camera, pixel_ratios,
+    build_scene,
+    check_same_size,
+    choose_image_dir,
+    decoded_size,
+    find_images,
+    image_folders,
+    make_camera,
+    pixel_ratios,
 )
 
 

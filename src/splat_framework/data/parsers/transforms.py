@@ -24,10 +24,25 @@ from ..images import natural_key
 from ..scene import DataError, SceneData
 from ..splits import Views, own_scene_split
 from .blender import (
-    camera_angle, focal_length, frame_image, frame_name, number, opencv_camera_to_world, read_json_object, transform_frames,
+    camera_angle,
+    focal_length,
+    frame_image,
+    frame_name,
+    number,
+    opencv_camera_to_world,
+    read_json_object,
+    transform_frames,
 )
-from .common import (DEFAULT_BOUNDS, build_scene, check_downscale, check_same_size, clean_rotation, decoded_size,
-                     make_camera, pixel_ratios)
+from .common import (
+    DEFAULT_BOUNDS,
+    build_scene,
+    check_downscale,
+    check_same_size,
+    clean_rotation,
+    decoded_size,
+    make_camera,
+    pixel_ratios,
+)
 
 TRANSFORMS = "transforms.json"
 PERSPECTIVE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")

@@ -13,10 +13,10 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from ..builtin_scenes import NAMED_SCENES
-from ..cache_dir import user_cache_dir
 from ...console import phase
 from ...errors import did_you_mean
+from ..builtin_scenes import NAMED_SCENES
+from ..cache_dir import user_cache_dir
 from ..scene import DataError
 from .raycast import Scene, cast_rays
 from .scenes import (

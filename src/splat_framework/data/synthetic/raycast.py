@@ -184,7 +184,7 @@ class Scene:
     def describe(self) -> dict:
         return dict(
             ambient=self.ambient,
-            lights=[dict(direction=l.direction.tolist(), intensity=l.intensity) for l in self.lights],
+            lights=[dict(direction=light.direction.tolist(), intensity=light.intensity) for light in self.lights],
             primitives=[p.describe() for p in self.primitives],
         )
 
