@@ -108,3 +108,19 @@ def test_the_kind_flags_list_the_registered_strategies_and_start_kinds(monkeypat
     finally:
         strategy_kinds.cache_clear()
         init_kinds.cache_clear()
+
+
+@pytest.mark.slow
+def test_help_into_a_closed_pipe_prints_no_traceback():
+    """``splat-train scgaussian --help | head -c 10``: the reader leaves early; the command stops
+    quietly (exit 0, or 141 as a shell reports SIGPIPE), with nothing on stderr."""
+    import subprocess
+    import sys
+
+    code = "import sys; from splat_framework.cli.train import entrypoint; sys.argv = ['splat-train', 'scgaussian', '--help']; entrypoint()"
+    for _ in range(3):  # the race (the reader leaves before or after the last write) goes either way
+        p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        p.stdout.read(10)
+        p.stdout.close()
+        err = p.stderr.read().decode()
+        assert p.wait() in (0, 141) and err == "", err[-1500:]

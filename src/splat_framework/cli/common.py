@@ -19,6 +19,7 @@ import argparse
 import atexit
 import errno
 import gc
+import os
 import re
 import signal
 import sys
@@ -164,6 +165,15 @@ def exit_without_collecting() -> None:
     atexit.register(gc.freeze)
 
 
+def _silence_stdout() -> None:
+    """Point stdout at the null device, so the interpreter's last flush of a closed pipe says nothing."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):  # no file descriptor behind stdout (an embedding host)
+        pass
+
+
 def run_cli(main: Callable[[], object]) -> None:
     """Run ``main`` and turn expected failures into one-line messages and exit codes."""
     from pydantic import ValidationError
@@ -193,6 +203,15 @@ def run_cli(main: Callable[[], object]) -> None:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         sys.exit(130)
+    except BrokenPipeError:  # the reader left (`splat-train --help | head`): stop quietly, as `cat` does
+        _silence_stdout()
+        sys.exit(141)
+    except SystemExit:  # --help's exit: the buffered rest of the screen may meet a closed pipe too
+        try:
+            sys.stdout.flush()
+        except BrokenPipeError:
+            _silence_stdout()
+        raise
     except OSError as e:
         code = getattr(type(e), "cli_exit_code", None)
         if code is not None:  # an OSError subclass that declares its own one-line message
