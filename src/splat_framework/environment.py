@@ -32,10 +32,12 @@ VARIABLES: dict[str, str] = {
                                 "limit); images beyond it are decoded again when needed.",
     "SPLAT_CONFIG_PATH": "`:`-separated folders of TOML config variants, searched before the installed "
                          "packages' variants.",
-    "SPLAT_METHODS": "Methods registered without installing a package: comma-separated `module.path:name` "
-                     "entries, each naming a `MethodSpec` in a module Python can import (on `PYTHONPATH`), "
-                     "beside the `splat_framework.methods` entry points "
-                     "(`SPLAT_METHODS=my_methods:spec splat-train my-method --data ...`).",
+    "SPLAT_PLUGINS": "Plugins used without installing a package: comma-separated module names (importable, "
+                     "on `PYTHONPATH`), each declaring its parts (methods, strategies, start kinds, photo matchers, "
+                     "config variants) in a dict `ENTRY_POINTS = {group: {name: \"module:object\"}}`, the table an "
+                     "installed package's entry points hold (`SPLAT_PLUGINS=my_plugin splat-train my-method --data ...`).",
+    "SPLAT_METHODS": "No longer read: a set `SPLAT_METHODS` is refused with one line; name a module in "
+                     "`SPLAT_PLUGINS` whose `ENTRY_POINTS` holds `{\"splat_framework.methods\": {NAME: \"module:spec\"}}`.",
 }
 """Variable -> one line on what it does."""
 
@@ -94,23 +96,31 @@ def rasterizer_setting(value: str | None) -> str | None:
     return text
 
 
-_OBJECT_PATH = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*")
+_MODULE = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)*")
 
 
-def method_entries(value: str | None) -> list[str]:
-    """``SPLAT_METHODS``: its ``module.path:name`` entries (comma-separated; blanks ignored); one line
-    naming the variable and the first entry that is not one else (its loading is checked by the
-    method registry, with :func:`method_entry_error`)."""
+def plugin_modules(value: str | None) -> list[str]:
+    """``SPLAT_PLUGINS``: its module names (comma-separated; blanks ignored); one line naming the
+    variable and the first entry that is not a dotted module name else (the module's table is
+    checked where it is read, :func:`splat_framework.entry_points.declared_entry_points`)."""
     entries = [e.strip() for e in (value or "").split(",") if e.strip()]
     for entry in entries:
-        if not _OBJECT_PATH.fullmatch(entry):
-            raise method_entry_error(value or "", entry, "is not a module.path:name naming a MethodSpec")
+        if not _MODULE.fullmatch(entry):
+            why = "is not a module name (my_plugin or pkg.parts; the module declares ENTRY_POINTS)"
+            raise _bad("SPLAT_PLUGINS", value or "", f"entry {entry!r} {why}")
     return entries
 
 
-def method_entry_error(value: str, entry: str, why: str) -> DataError:
-    """The one line refusing ``entry`` of ``SPLAT_METHODS=value``."""
-    return _bad("SPLAT_METHODS", value, f"entry {entry!r} {why}")
+def plugin_entry_error(module: str, why: str) -> DataError:
+    """The one line refusing ``module`` of ``$SPLAT_PLUGINS``."""
+    return _bad("SPLAT_PLUGINS", os.environ.get("SPLAT_PLUGINS", module), f"module {module!r} {why}")
+
+
+def _replaced_methods_variable(value: str) -> None:
+    if not value.strip():
+        return
+    raise _bad("SPLAT_METHODS", value, "no longer read; name a module in SPLAT_PLUGINS whose ENTRY_POINTS = "
+               "{'splat_framework.methods': {'NAME': 'module:spec'}} (docs/extending.md)")
 
 
 def _folder(name: str, value: str, must_exist: bool, writable: bool = False) -> None:
@@ -155,7 +165,8 @@ def check_environment(environ=None) -> None:
         "SPLAT_CACHE": lambda v: _folder("SPLAT_CACHE", v, must_exist=False, writable=True),
         "SPLAT_DATA": lambda v: _folder("SPLAT_DATA", v, must_exist=False),
         "SPLAT_CONFIG_PATH": lambda v: _folder("SPLAT_CONFIG_PATH", v, must_exist=True),
-        "SPLAT_METHODS": method_entries,
+        "SPLAT_PLUGINS": plugin_modules,
+        "SPLAT_METHODS": _replaced_methods_variable,
     }
     for name, check in checks.items():
         if name in env:

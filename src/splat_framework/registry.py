@@ -1,12 +1,11 @@
 """Method registry: built-ins and plugins register the same way.
 
 A package declares methods in the entry-point group ``splat_framework.methods``;
-each entry point names a :class:`MethodSpec`. Without a package, ``$SPLAT_METHODS`` lists
-``module.path:name`` entries naming MethodSpecs in importable modules (comma-separated, as
-nerfstudio's ``NERFSTUDIO_METHOD_CONFIGS``); they register after the entry points, and an entry
-that does not import, is not a MethodSpec or repeats a registered name is a one-line DataError
-naming the variable and the entry (the user set it: it is not a plugin to skip). Named config
-variants (the paper's rows) are TOML files::
+each entry point names a :class:`MethodSpec`. Without a package, a module named in
+``$SPLAT_PLUGINS`` declares the same entries in its ``ENTRY_POINTS`` table
+(:mod:`splat_framework.entry_points`: one path for every kind of part); they register after the
+installed ones. An entry that does not import or is not a MethodSpec is left out with one warning
+naming it. Named config variants (the paper's rows) are TOML files::
 
     # configs/scgaussian-hybrid.toml
     base = "scgaussian"
@@ -35,16 +34,14 @@ import importlib.resources
 import os
 import stat
 import sys
+import tomllib
 import warnings
 from dataclasses import dataclass, field
-from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any, Callable
 
-import tomllib
-
-ENTRY_POINT_GROUP = "splat_framework.methods"
-CONFIG_ENTRY_POINT_GROUP = "splat_framework.configs"
+from .entry_points import CONFIG_ENTRY_POINT_GROUP, registered
+from .entry_points import METHOD_ENTRY_POINT_GROUP as ENTRY_POINT_GROUP
 
 
 @dataclass(frozen=True)
@@ -87,7 +84,7 @@ def default_config_dirs() -> list[Path]:
     env = os.environ.get("SPLAT_CONFIG_PATH")
     if env:
         dirs += [Path(p) for p in env.split(os.pathsep) if p]
-    for ep in entry_points(group=CONFIG_ENTRY_POINT_GROUP):
+    for ep in registered(CONFIG_ENTRY_POINT_GROUP):
         try:
             folder = Path(str(importlib.resources.files(ep.value)))
         except (ImportError, TypeError, ValueError) as e:  # a broken plugin must not kill the CLI
@@ -111,26 +108,6 @@ def _load_entry_points(group: str) -> dict[str, MethodSpec]:
             continue
         specs[spec.name] = spec
     return specs
-
-
-def _load_env_methods(specs: dict[str, MethodSpec]) -> dict[str, MethodSpec]:
-    """``specs`` and the methods ``$SPLAT_METHODS`` names (see the module docstring)."""
-    from .entry_points import load_object
-    from .environment import method_entries, method_entry_error
-
-    value = os.environ.get("SPLAT_METHODS", "")
-    out = dict(specs)
-    for entry in method_entries(value):
-        try:
-            spec = load_object(entry)
-        except Exception as e:  # the user's module: whatever it raises is reported in one line
-            raise method_entry_error(value, entry, f"cannot be loaded ({_first_line(str(e)) or type(e).__name__})") from None
-        if not isinstance(spec, MethodSpec):
-            raise method_entry_error(value, entry, f"names a {type(spec).__name__!r} object, not a MethodSpec")
-        if spec.name in out:
-            raise method_entry_error(value, entry, f"names method {spec.name!r}, which is already registered")
-        out[spec.name] = spec
-    return out
 
 
 def _load_variants(base: dict[str, MethodSpec], dirs: list[Path]) -> dict[str, MethodSpec]:
@@ -279,8 +256,9 @@ def _invalid_config(spec: MethodSpec) -> str | None:
 
 
 def discover_methods(config_dirs: list[Path] | None = None) -> dict[str, MethodSpec]:
-    """All registered methods and config variants, by name (entry points first, then ``$SPLAT_METHODS``)."""
-    specs = _load_env_methods(_load_entry_points(ENTRY_POINT_GROUP))
+    """All registered methods and config variants, by name (the installed entry points first, then
+    those the modules of ``$SPLAT_PLUGINS`` declare: :func:`splat_framework.entry_points.registered`)."""
+    specs = _load_entry_points(ENTRY_POINT_GROUP)
     dirs = default_config_dirs() if config_dirs is None else config_dirs
     for name, spec in _load_variants(specs, dirs).items():
         if name in specs:

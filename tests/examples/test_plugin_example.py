@@ -138,3 +138,36 @@ def test_narrowed_method_refuses_a_plugin_strategy(plugin_site, tmp_path):
             allowed=[tmp_path / "cache"])
     run_cli("train", "3dgs", "--strategy.kind", "nope", "--data", "synthetic/forward-tiny",
             "--output", str(tmp_path / "3dgs"), env=env, match="--strategy.kind: 'nope' is not one of default, mcmc")
+
+
+def test_the_plugins_table_is_its_pyproject_entry_points():
+    """The example declares its parts once: ENTRY_POINTS in its package is what its pyproject.toml's
+    entry points hold (the installed path and the SPLAT_PLUGINS path register the same parts)."""
+    import ast
+    import tomllib
+
+    declared = (EXAMPLE / "pyproject.toml").read_text()
+    entry_points = tomllib.loads(declared)["project"]["entry-points"]
+    tree = ast.parse((EXAMPLE / "src" / "splat_example_plugin" / "__init__.py").read_text())
+    table = next(ast.literal_eval(n.value) for n in tree.body
+                 if isinstance(n, ast.Assign) and getattr(n.targets[0], "id", None) == "ENTRY_POINTS")
+    assert table == entry_points
+
+
+def test_a_plugin_registers_a_strategy_and_a_start_without_installing(tmp_path):
+    """``SPLAT_PLUGINS=splat_example_plugin`` with its ``src/`` on PYTHONPATH, nothing installed: 3dgs
+    trains with the plugin's MCMC strategy and its lattice start, as an installed plugin's would."""
+    import json
+
+    from cli_harness import cli_env
+
+    path = os.pathsep.join(p for p in (str(EXAMPLE / "src"), os.environ.get("PYTHONPATH")) if p)
+    env = cli_env(PYTHONPATH=path, SPLAT_PLUGINS="splat_example_plugin", SPLAT_COMPILE="0")
+    out = tmp_path / "run"
+    run_cli("train", "3dgs", "--strategy.kind", "mcmc", "--model.init.kind", "grid", "--model.init.per-axis", "8",
+            "--data", "synthetic/forward-tiny", "--steps", "10", "--strategy.refine-every", "5",
+            "--no-progress", "--no-save-renders", "--output", out, code=0, env=env)
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["strategy"] == "splat_example_plugin.mcmc.MCMCStrategy"
+    cfg = json.loads((out / "config.json").read_text())["config"]
+    assert cfg["strategy"]["kind"] == "mcmc" and cfg["model"]["init"] == {"kind": "grid", "per_axis": 8}

@@ -20,7 +20,8 @@ INVALID = {
     "SPLAT_CACHE": ["FILE", "/proc/self", "/proc/self/cache"],
     "SPLAT_DATA": ["FILE"],
     "SPLAT_CONFIG_PATH": ["MISSING"],
-    "SPLAT_METHODS": ["nocolon", "my_methods:spec,not a path", "mod:", "mod:spec:x"],
+    "SPLAT_PLUGINS": ["my plugin", "my_plugin,not a module", "mod:spec", "pkg..parts", "1mod"],
+    "SPLAT_METHODS": ["my_methods:spec", "anything"],
 }
 VALID = {
     "SPLAT_THREADS": ["auto", "off", "1", "16", " Auto ", "", "4096"],
@@ -30,7 +31,8 @@ VALID = {
     "SPLAT_CACHE": ["NEW"],
     "SPLAT_DATA": ["NEW"],
     "SPLAT_CONFIG_PATH": ["DIR"],
-    "SPLAT_METHODS": ["my_methods:spec", "pkg.my_methods:spec, other:spec_b,", ""],
+    "SPLAT_PLUGINS": ["my_plugin", "pkg.parts, other,", ""],
+    "SPLAT_METHODS": ["", " "],
 }
 
 

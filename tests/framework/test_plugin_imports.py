@@ -87,3 +87,89 @@ from splat_framework.testing import run_cli
         "splat_framework.losses", "splat_framework.engine.trainer", "splat_framework.render", "splat_framework.testing",
     ]
     assert "splat_framework.testing" not in [m for _, m in outside_the_face(source, tests=True)]
+
+
+PLUGIN_PACKAGES = ("scg_plugin", "anchor_gs", "splat_example_plugin")
+"""The top-level packages of the plugins above: the framework must not import them."""
+OBJECT_PATH = r"^[A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*:[A-Za-z_]\w*$"
+
+
+def object_paths(source: str) -> list[tuple[int, str]]:
+    """(line, text) of every string constant of ``source`` shaped as a ``"module:Name"`` path (what
+    ``strategy_class``, ``points_fn``, ``MethodSpec.model`` and entry-point tables hold)."""
+    import re
+
+    return sorted((n.lineno, n.value) for n in ast.walk(ast.parse(source))
+                  if isinstance(n, ast.Constant) and isinstance(n.value, str) and re.match(OBJECT_PATH, n.value))
+
+
+def internal_object_paths(source: str) -> list[tuple[int, str]]:
+    """The ``"module:Name"`` strings of a plugin's ``source`` naming a framework module other than the face."""
+    return [(n, p) for n, p in object_paths(source)
+            if p.partition(":")[0].split(".")[0] == "splat_framework" and p.partition(":")[0] != FACE]
+
+
+def plugin_references(source: str) -> list[tuple[int, str]]:
+    """(line, module or path) of every import of a plugin package in framework ``source``, and every
+    ``"module:Name"`` string naming one."""
+    imports = [(n, m) for n, m in imported_modules(source) if m.split(".")[0] in PLUGIN_PACKAGES]
+    paths = [(n, p) for n, p in object_paths(source) if p.split(":")[0].split(".")[0] in PLUGIN_PACKAGES]
+    return sorted(imports + paths)
+
+
+def test_the_framework_never_imports_a_plugin():
+    root = REPO / "src" / "splat_framework"
+    found = [f"{p.relative_to(REPO)}:{n}: {m}" for p in _files(root) for n, m in plugin_references(p.read_text())]
+    assert found == [], "the framework must not import or name a plugin (the plugin registers itself):\n" + "\n".join(found)
+
+
+@pytest.mark.parametrize("plugin", sorted(PLUGINS))
+def test_a_plugins_object_paths_name_only_the_face_or_its_own_modules(plugin, monkeypatch):
+    """Every ``"module:Name"`` string a plugin holds names the face or the plugin's own modules, and
+    names an object that is there (tools and readers follow it)."""
+    from splat_framework.entry_points import load_object
+
+    found, paths = [], []
+    for path in _files(PLUGINS[plugin]):
+        source = path.read_text()
+        found += [f"{path.relative_to(REPO)}:{n}: {p}" for n, p in internal_object_paths(source)]
+        paths += [p for _, p in object_paths(source) if p.split(":")[0].split(".")[0] in (*PLUGIN_PACKAGES, "splat_framework")]
+    assert found == [], "name the object through splat_framework.plugin:\n" + "\n".join(found)
+    if plugin == "splat-example-plugin":  # read from its source folder, not installed
+        monkeypatch.syspath_prepend(str(PLUGINS[plugin] / "src"))
+    assert paths and all(load_object(p) is not None for p in paths)
+
+
+def test_the_checks_fail_on_planted_violations():
+    """Planted: the framework importing SCGaussian's model (three ways) and naming it by path, and a
+    plugin naming a framework internal by ``"module:Class"``: each is found; the face is not."""
+    framework = '''
+import scg_plugin.model
+from anchor_gs import method
+def build():
+    import importlib
+    return importlib.import_module("splat_example_plugin.mcmc"), "scg_plugin.model:SCGaussianModel"
+'''
+    assert sorted(m for _, m in plugin_references(framework)) == sorted([
+        "scg_plugin.model", "anchor_gs", "splat_example_plugin.mcmc", "scg_plugin.model:SCGaussianModel"])
+    plugin = '''
+strategy_class = "splat_framework.model.strategy:DefaultStrategy"
+model = "splat_framework.plugin:GaussianModel"
+own = "my_plugin.model:Model"
+'''
+    assert [p for _, p in internal_object_paths(plugin)] == ["splat_framework.model.strategy:DefaultStrategy"]
+
+
+def test_each_in_repo_plugin_declares_its_parts_in_one_table():
+    """scg_plugin and anchor_gs list their parts in ``ENTRY_POINTS`` (as the example plugin does);
+    the project's pyproject.toml declares exactly those entry points for their modules."""
+    import tomllib
+
+    declared = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["entry-points"]
+    for package in ("scg_plugin", "anchor_gs"):
+        tree = ast.parse((PLUGINS[package] / "__init__.py").read_text())  # read, not imported: tests/anchor_gs shadows the name
+        table = next(ast.literal_eval(n.value) for n in tree.body
+                     if isinstance(n, ast.Assign) and getattr(n.targets[0], "id", None) == "ENTRY_POINTS")
+        in_pyproject = {group: {k: v for k, v in entries.items() if v.split(".")[0].split(":")[0] == package}
+                        for group, entries in declared.items()}
+        assert table == {g: e for g, e in in_pyproject.items() if e}, package

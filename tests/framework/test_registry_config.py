@@ -29,8 +29,7 @@ from support import REPO
 def _fake_eps(monkeypatch, eps):
     from splat_framework import entry_points as plugins
 
-    for module in (registry, plugins):
-        monkeypatch.setattr(module, "entry_points", lambda group: [e for e in eps if e.group == group])
+    monkeypatch.setattr(plugins, "entry_points", lambda group: [e for e in eps if e.group == group])
 
 
 def test_builtins_and_plugin_registered_through_entry_points():
@@ -88,37 +87,52 @@ def test_registered_strategy_kinds_are_every_unnarrowed_methods(monkeypatch):
 MY_METHODS = """
 from splat_framework.plugin import MethodSpec, TrainConfig
 
+ENTRY_POINTS = {"splat_framework.methods": {"my-3dgs": "my_methods:spec"}}
+
 def config():
     return TrainConfig(method="my-3dgs")
 
-spec = MethodSpec(name="my-3dgs", description="3DGS registered by SPLAT_METHODS", config_factory=config,
+spec = MethodSpec(name="my-3dgs", description="3DGS registered by SPLAT_PLUGINS", config_factory=config,
                   model="splat_framework.model.gaussians:GaussianModel")
-not_a_spec = 3
 """
+BROKEN_PLUGINS = {
+    "no_table": "x = 1\n",
+    "bad_group": "ENTRY_POINTS = {'splat_framework.method': {'a': 'm:b'}}\n",
+    "bad_entries": "ENTRY_POINTS = {'splat_framework.methods': ['m:b']}\n",
+    "raises": "raise RuntimeError('plugin broke')\n",
+}
 
 
-@pytest.mark.bad_input("`SPLAT_METHODS` with an entry that is not `module.path:name`, does not import, is not a "
-                       "MethodSpec or names a registered method", "exit 2, one line naming the variable and the entry")
-def test_a_method_registered_by_splat_methods_trains_without_a_package(tmp_path):
-    """A MethodSpec in a module on PYTHONPATH, named by ``SPLAT_METHODS``, is a method like an installed
-    one (listed, trained, saved under its name); a bad entry is one line naming the variable and the entry."""
+@pytest.mark.bad_input("`SPLAT_PLUGINS` naming something that is not a module name, a module that does not import, "
+                       "or one without a well-formed `ENTRY_POINTS` table; `SPLAT_METHODS` set (no longer read)",
+                       "exit 2, one line naming the variable and the module")
+def test_a_method_registered_by_splat_plugins_trains_without_a_package(tmp_path):
+    """A module on PYTHONPATH, named by ``SPLAT_PLUGINS``, declares a method in its ENTRY_POINTS as an
+    installed package's entry points would: listed, trained, saved under its name; a bad module is
+    one line naming the variable and the module."""
     from cli_harness import cli_env, run_cli
 
-    (tmp_path / "code").mkdir()
-    (tmp_path / "code" / "my_methods.py").write_text(MY_METHODS)
-    path = os.pathsep.join(p for p in (str(tmp_path / "code"), os.environ.get("PYTHONPATH")) if p)
-    env = cli_env(PYTHONPATH=path, SPLAT_METHODS="my_methods:spec", SPLAT_COMPILE="0")
+    code = tmp_path / "code"
+    code.mkdir()
+    (code / "my_methods.py").write_text(MY_METHODS)
+    for name, text in BROKEN_PLUGINS.items():
+        (code / f"{name}.py").write_text(text)
+    path = os.pathsep.join(p for p in (str(code), os.environ.get("PYTHONPATH")) if p)
+    env = cli_env(PYTHONPATH=path, SPLAT_PLUGINS="my_methods", SPLAT_COMPILE="0")
     listed = run_cli("train", "--help", code=0, env=env)
-    assert "my-3dgs" in listed.stdout and "3DGS registered by SPLAT_METHODS" in listed.stdout
+    assert "my-3dgs" in listed.stdout and "3DGS registered by SPLAT_PLUGINS" in listed.stdout
     out = tmp_path / "run"
     run_cli("train", "my-3dgs", "--data", "synthetic/forward-tiny", "--steps", "3", "--model.init.num-points", "200",
             "--no-progress", "--no-save-renders", "--output", out, code=0, env=env)
     assert read_config_json(out / "config.json").method == "my-3dgs" and (out / "metrics.json").is_file()
-    for value, why in (("my_methods", "is not a module.path:name"), ("no_such_module:spec", "cannot be loaded"),
-                       ("my_methods:not_a_spec", "not a MethodSpec"),
-                       ("my_methods:spec,my_methods:spec", "'my-3dgs', which is already registered")):
-        run_cli("train", "my-3dgs", "--help", code=2, env={**env, "SPLAT_METHODS": value},
-                match=(f"SPLAT_METHODS={value!r}: entry", why), watch=[tmp_path])
+    for value, why in (("my methods", "entry 'my methods' is not a module name"),
+                       ("no_such_module", "module 'no_such_module' cannot be imported"),
+                       ("no_table", "has no ENTRY_POINTS"), ("bad_group", "names group 'splat_framework.method'"),
+                       ("bad_entries", "is not a dict of name"), ("raises", "cannot be imported (plugin broke)")):
+        run_cli("train", "my-3dgs", "--help", code=2, env={**env, "SPLAT_PLUGINS": value},
+                match=(f"SPLAT_PLUGINS={value!r}: ", why), watch=[tmp_path])
+    run_cli("train", "--help", code=2, env={**env, "SPLAT_METHODS": "my_methods:spec"},
+            match=("SPLAT_METHODS='my_methods:spec': no longer read; name a module in SPLAT_PLUGINS",), watch=[tmp_path])
 
 
 def test_variant_files_override_base(tmp_path, monkeypatch):

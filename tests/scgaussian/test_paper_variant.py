@@ -8,9 +8,9 @@ import os
 import re
 import subprocess
 import sys
+import tomllib
 
 import pytest
-import tomllib
 
 from splat_framework.config import resolve_steps
 from splat_framework.registry import discover_methods

@@ -10,18 +10,18 @@ AUTO_PREFERRED where it is registered and its weights are installed, else SIFT.
 
 from __future__ import annotations
 
+from ..entry_points import PHOTO_MATCHER_ENTRY_POINT_GROUP as PHOTO_MATCHER_GROUP
 from ..errors import DataError
 
-PHOTO_MATCHER_GROUP = "splat_framework.photo_matchers"
 AUTO_MATCHER = "auto"  # AUTO_PREFERRED where registered and its weights are installed, else sift
 AUTO_PREFERRED = "aliked-lightglue"
 
 
 def photo_matchers() -> dict[str, object]:
     """Entry points of the registered photo matchers (the framework's and installed plugins'), by name (not loaded)."""
-    from importlib.metadata import entry_points
+    from ..entry_points import registered
 
-    return {ep.name: ep for ep in entry_points(group=PHOTO_MATCHER_GROUP)}
+    return {ep.name: ep for ep in registered(PHOTO_MATCHER_GROUP)}
 
 
 def choose_matcher(matcher: str, plugins: dict[str, object]) -> str:

@@ -2,10 +2,12 @@
 strategy, plus an MCMC-style strategy that every method accepting registered strategies can train with,
 and a lattice start that every model accepting registered initialisations can start from.
 
-A plugin is a package that names a ``MethodSpec`` in the entry-point group
-``splat_framework.methods`` and a strategy config in ``splat_framework.strategies``
+A plugin declares its parts in one table, :data:`ENTRY_POINTS`: a ``MethodSpec`` in the group
+``splat_framework.methods``, a strategy config in ``splat_framework.strategies``
 (``splat-train 3dgs --strategy.kind mcmc``) and a start config in ``splat_framework.inits``
-(``splat-train 3dgs --model.init.kind grid``). Configs must stay torch-free (they are
+(``splat-train 3dgs --model.init.kind grid``). Installed, pyproject.toml's entry points hold the
+same table; not installed, ``SPLAT_PLUGINS=splat_example_plugin`` (with ``src/`` on
+``PYTHONPATH``) reads it from here. Configs must stay torch-free (they are
 read to build ``splat-train --help``); the model and the strategies are imported
 only when training starts (a strategy config names its class as ``module:Class``).
 """
@@ -29,6 +31,13 @@ from splat_framework.plugin import (
     TrainConfig,
     strategy_field,
 )
+
+ENTRY_POINTS = {
+    "splat_framework.methods": {"flat-3dgs": "splat_example_plugin:spec"},
+    "splat_framework.strategies": {"mcmc": "splat_example_plugin:MCMCConfig"},
+    "splat_framework.inits": {"grid": "splat_example_plugin:GridInitConfig"},
+}
+"""Every part of this plugin, by entry-point group (pyproject.toml's entry points say the same)."""
 
 
 class GridInitConfig(InitConfig):
