@@ -10,7 +10,7 @@ import torch
 
 from anchor_gs.method import config_octree_gs
 from anchor_gs.octree import OctreeModel, build_octree, coarse_intervals
-from splat_framework.config import apply_overrides
+from splat_framework.testing import apply_overrides
 
 
 def line_of_points(near: float = 1.0, far: float = 16.0, n: int = 61) -> torch.Tensor:

@@ -10,14 +10,22 @@ import torch
 from anchor_gs.method import config_octree_gs, config_scaffold_gs
 from anchor_gs.model import ScaffoldModel, voxelize
 from anchor_gs.octree import OctreeModel
-from splat_framework.config import apply_overrides
-from splat_framework.data import DataManager, load_scene
-from splat_framework.data.synthetic import ensure_scene
+from splat_framework.testing import (
+    Trainer,
+    apply_overrides,
+    discover_methods,
+    evaluate,
+    export_ply,
+    load_ply,
+    load_trained_model,
+    scene_and_data,
+    splat_arrays,
+)
 
 
 @pytest.fixture(scope="module")
 def dm():
-    return DataManager(load_scene(ensure_scene("forward-tiny"), views=3), device="cpu", seed=0)
+    return scene_and_data("forward-tiny", views=3)[1]
 
 
 METHODS = {"scaffold-gs": (config_scaffold_gs, ScaffoldModel), "octree-gs": (config_octree_gs, OctreeModel)}
@@ -99,7 +107,6 @@ def test_anchor_growing_and_pruning_keep_every_parameter_and_its_adam_state_alig
 
 
 def test_registry_lists_the_plugin_methods_from_its_entry_points():
-    from splat_framework.registry import discover_methods
 
     methods = discover_methods()
     for name in ("scaffold-gs", "scaffold-gs-triang", "octree-gs", "octree-gs-triang"):
@@ -115,9 +122,6 @@ def test_triangulated_anchors_start_from_the_matching_prior(dm, method):
 
 @pytest.mark.parametrize("method", sorted(METHODS))
 def test_a_tiny_run_improves_and_resumes_with_its_networks(tmp_path, method):
-    from splat_framework.engine.run import load_trained_model
-    from splat_framework.engine.trainer import Trainer
-    from splat_framework.evaluation.held_out import evaluate
 
     cfg = apply_overrides(METHODS[method][0](), {
         "data": "synthetic/forward-tiny", "steps": 60, "output": str(tmp_path / "run"), "progress": False,
@@ -128,12 +132,10 @@ def test_a_tiny_run_improves_and_resumes_with_its_networks(tmp_path, method):
     assert metrics["strategy"] == "anchor_gs.strategy." + ("OctreeStrategy" if method == "octree-gs" else "AnchorStrategy")
     assert metrics["mean"]["psnr"] > before + 1.0, (before, metrics["mean"]["psnr"])
     _, model = load_trained_model(tmp_path / "run")
-    from splat_framework.export.ply import export_ply, load_ply
 
     ply = load_ply(export_ply(model, tmp_path / "scaffold.ply"))  # the decoded Gaussians of the reference view
     assert 0 < ply["means"].shape[0] <= model.num_gaussians and ply["sh0"].shape[1:] == (1, 3)
     pytest.importorskip("viser")
-    from splat_framework.viewer.scene_viewer import splat_arrays
 
     splats = splat_arrays(model, by_type=True)  # the viewer draws the same decoded Gaussians
     assert torch.allclose(torch.from_numpy(splats["centers"]), ply["means"], atol=1e-5)

@@ -173,3 +173,20 @@ def test_each_in_repo_plugin_declares_its_parts_in_one_table():
         in_pyproject = {group: {k: v for k, v in entries.items() if v.split(".")[0].split(":")[0] == package}
                         for group, entries in declared.items()}
         assert table == {g: e for g, e in in_pyproject.items() if e}, package
+
+
+PLUGIN_TESTS = {"scg_plugin": REPO / "tests" / "scgaussian", "anchor_gs": REPO / "tests" / "anchor_gs"}
+"""The in-repo plugins' tests, held to what an outside plugin's tests may import."""
+
+
+@pytest.mark.parametrize("plugin", sorted(PLUGIN_TESTS))
+def test_an_in_repo_plugins_tests_import_only_the_face_and_testing(plugin):
+    """tests/scgaussian and tests/anchor_gs take the framework from ``splat_framework.plugin`` and
+    ``splat_framework.testing`` alone, and so do the suite's helper modules they import
+    (``cli_harness``, ``support``)."""
+    files = _files(PLUGIN_TESTS[plugin])
+    helpers = {p.stem: p for p in (REPO / "tests").glob("*.py")}
+    used = {m for f in files for _, m in imported_modules(f.read_text()) if m in helpers}
+    found = [f"{p.relative_to(REPO)}:{n}: {m}" for p in [*files, *(helpers[h] for h in sorted(used))]
+             for n, m in outside_the_face(p.read_text(), tests=True)]
+    assert files and found == [], "take these from splat_framework.plugin or splat_framework.testing:\n" + "\n".join(found)

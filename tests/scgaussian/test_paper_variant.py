@@ -12,8 +12,8 @@ import tomllib
 
 import pytest
 
-from splat_framework.config import resolve_steps
-from splat_framework.registry import discover_methods
+from splat_framework.plugin import resolve_steps
+from splat_framework.testing import Trainer, discover_methods, parse_train_args, skip_without_matcher_weights
 from support import REPO
 
 OFFICIAL = {
@@ -128,12 +128,7 @@ def test_each_ablation_row_is_the_same_row_on_the_recipe(row):
 
 def test_the_recipe_trains_on_the_tiny_scene(tmp_path):
     """A 10-iteration run of the recipe (warm-up, main stage, evaluation) on the built-in forward-tiny scene."""
-    from splat_framework.matching import learned as M
-
-    if M.packaged_weights_dir() is None:
-        pytest.skip(f"{M.WEIGHTS_PACKAGE} not installed ({M.WEIGHTS_INSTALL}): the recipe matches with ALIKED + LightGlue")
-    from splat_framework.engine.trainer import Trainer
-
+    skip_without_matcher_weights()  # the recipe matches with ALIKED + LightGlue
     cfg = METHODS["scgaussian-paper"].default_config().model_copy(
         update=dict(data="synthetic/forward-tiny", steps=10, output=tmp_path / "run", progress=False))
     trainer = Trainer(cfg, spec=METHODS["scgaussian-paper"])
@@ -155,12 +150,7 @@ def test_another_matcher_on_the_recipe_keeps_the_recipes_matching_values():
     """``splat-train scgaussian-paper --model.matching.kind dense``: the matcher changes, the recipe's
     2,000 matches a pair, no budget, MAGSAC settings and no epipolar check stay (before 2026-11-28 the
     switch gave the new kind's defaults: 12,000 a pair, a 100,000 budget, the epipolar check)."""
-    from splat_framework.cli.common import parse_cli
-    from splat_framework.cli.train import build_parser_type
-
-    argv = ["scgaussian-paper", "--model.matching.kind", "dense", "--model.matching.dense-preset", "fast"]
-    parsed = parse_cli(build_parser_type(METHODS, argv, "scgaussian-paper"), prog="splat-train", args=argv,
-                       subcommands=METHODS, description="")
+    parsed = parse_train_args(["scgaussian-paper", "--model.matching.kind", "dense", "--model.matching.dense-preset", "fast"])
     matching = flat(parsed.model.matching.model_dump())
     assert matching["kind"] == "dense" and matching["dense_preset"] == "fast"
     for key, value in OFFICIAL.items():
@@ -168,7 +158,5 @@ def test_another_matcher_on_the_recipe_keeps_the_recipes_matching_values():
             assert matching[key.removeprefix("model.matching.")] == value, key
     # a kind's own fields start from its defaults; a default config switched keeps the defaults
     default = METHODS["scgaussian"].default_config().model.matching
-    argv = ["scgaussian", "--model.matching.kind", "sift"]
-    sift = parse_cli(build_parser_type(METHODS, argv, "scgaussian"), prog="splat-train", args=argv,
-                     subcommands=METHODS, description="").model.matching
+    sift = parse_train_args(["scgaussian", "--model.matching.kind", "sift"]).model.matching
     assert sift.kind == "sift" and (sift.max_matches, sift.max_total_matches) == (default.max_matches, default.max_total_matches)

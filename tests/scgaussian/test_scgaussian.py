@@ -21,20 +21,28 @@ from scg_plugin.ray_gaussians import (
     warm_up,
     warmup_step_size,
 )
-from splat_framework.config import apply_overrides, match_config
-from splat_framework.data import DataManager, load_scene
-from splat_framework.data.datamanager import area_resized
-from splat_framework.data.synthetic import generate_scene
-from splat_framework.matching import compute_matches
-from splat_framework.matching.prior import triangulate
-from splat_framework.plugin import config_3dgs, resolve_steps
+from splat_framework.plugin import GaussianModel, config_3dgs, resolve_steps
+from splat_framework.testing import (
+    MatchSet,
+    Trainer,
+    apply_overrides,
+    area_resized,
+    compute_matches,
+    export_ply,
+    generate_scene,
+    get_method,
+    load_ply,
+    load_trained_model,
+    match_config,
+    scene_and_data,
+    triangulate,
+)
 
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
     root = generate_scene("forward", tmp_path_factory.mktemp("fwd") / "scene", width=128, height=96, n_views=9, seed=3)
-    sc = load_scene(root, views=3)
-    dm = DataManager(sc, device="cpu", seed=0)
+    sc, dm = scene_and_data(root, views=3)
     depths = [np.load(sc.depth_paths[i]) for i in sc.train_indices]
     return sc, dm, depths
 
@@ -272,8 +280,6 @@ def test_ray_gaussians_survive_pruning(scene):
 def test_too_few_matches_warn_and_fall_back_to_ordinary_gaussians(scene, monkeypatch, tmp_path):
     """Texture-less views (simulated: the matcher finds nothing) must not crash or train nothing."""
     import scg_plugin.startup as startup
-    from splat_framework.engine.trainer import Trainer
-    from splat_framework.matching import MatchSet
 
     sc, _, _ = scene
     monkeypatch.setattr(
@@ -295,8 +301,6 @@ def assert_baseline_schedule(trainer):
     """The trainer's strategy and the model's SH schedule are 3dgs's at the run's budget, the
     strategy still SCGaussian's kind (ray-based Gaussians kept)."""
     from scg_plugin.config import RayStrategyConfig
-    from splat_framework.config import resolve_steps
-    from splat_framework.methods.gaussian_splatting import config_3dgs
 
     base = resolve_steps(config_3dgs().model_copy(update={"steps": trainer.config.total_steps}))
     used = trainer.model.strategy_config()
@@ -314,7 +318,6 @@ def test_thin_prior_baseline_keeps_the_flags_the_user_set(scene, monkeypatch):
     """The switch to the baseline's schedule replaces only what the user left at the method's
     defaults, and says in one line what it changed and what it kept."""
     import scg_plugin.startup as startup
-    from splat_framework.matching import MatchSet
 
     sc, dm, _ = scene
     monkeypatch.setattr(startup, "compute_match_set",
@@ -333,7 +336,6 @@ def test_thin_prior_baseline_keeps_the_flags_the_user_set(scene, monkeypatch):
 def test_sparse_prior_warns_and_adds_random_ordinary_gaussians(scene, monkeypatch):
     """A prior of a few hundred matches (wide baselines, DTU) keeps its ray Gaussians and gets a random start too."""
     import scg_plugin.startup as startup
-    from splat_framework.matching import MatchSet
 
     sc, dm, depths = scene
     uv_a, uv_b, _ = true_correspondences(dm, depths, 0, 1, n=100)
@@ -366,37 +368,10 @@ def test_sparse_prior_warns_and_adds_random_ordinary_gaussians(scene, monkeypatc
     assert model.num_gaussians == model.num_match_gaussians
 
 
-def test_triangulation_without_matches_falls_back_to_the_reference_random_init(scene, monkeypatch):
-    import splat_framework.matching.prior as prior
-    from splat_framework.config.init import FALLBACK_POINTS
-    from splat_framework.matching import MatchSet
-    from splat_framework.model.gaussians import GaussianModel
-    from splat_framework.model.init import frustum_box
-    from splat_framework.registry import get_method
-
-    sc, dm, _ = scene
-    monkeypatch.setattr(
-        prior, "compute_match_set",
-        lambda matching, dm: MatchSet(view_ids=[int(i) for i in sc.train_indices], matches={}),
-    )
-    with pytest.warns(UserWarning, match="too few triangulated matches"):
-        model = GaussianModel.from_data(get_method("3dgs-triang").default_config(), dm, torch.Generator().manual_seed(0))
-    assert model.num_gaussians == FALLBACK_POINTS
-    box = frustum_box(dm.train_cameras)
-    means = model.params["means"].detach()
-    assert (means >= box[0] - 1e-5).all() and (means <= box[1] + 1e-5).all()
-    sh0 = model.params["sh0"].detach()
-    assert torch.all(sh0 == sh0[0])  # grey, like 3dgs
-
-
 def test_a_ply_start_gives_the_ordinary_gaussians_beside_the_ray_based_ones(scene, monkeypatch, tmp_path):
     """``--model.init.kind ply``: the PLY's Gaussians (centres, base colours) are SCGaussian's ordinary
     Gaussians, after the ray-based ones, whatever the prior: a sparse one adds no random fill."""
     import scg_plugin.startup as startup
-    from splat_framework.export.ply import export_ply, load_ply
-    from splat_framework.matching import MatchSet
-    from splat_framework.model.gaussians import GaussianModel
-    from splat_framework.registry import get_method
 
     sc, dm, depths = scene
     source = GaussianModel.from_data(get_method("3dgs-frustum").default_config(), dm, torch.Generator().manual_seed(0))
@@ -409,9 +384,11 @@ def test_a_ply_start_gives_the_ordinary_gaussians_beside_the_ray_based_ones(scen
     )
     cfg = apply_overrides(config_scgaussian(), {"model": {"warmup_steps": 50,
                                                           "init": {"kind": "ply", "path": str(tmp_path / "start.ply")}}})
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")  # a sparse prior: nothing random added, so nothing to say
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
         model = SCGaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
+    # a sparse prior: nothing random added, so the one line is the switch to the baseline's schedule
+    assert [str(w.message).split(":")[0] for w in said] == ["thin prior"]
     rays = model.num_match_gaussians
     assert rays > 0 and model.num_gaussians == rays + ply["means"].shape[0]
     assert torch.equal(model.params["means"].detach()[rays:], ply["means"])
@@ -423,8 +400,6 @@ def test_scgaussian_trains_from_a_ply_on_the_command_line(run_dir, tmp_path):
     import json
 
     from cli_harness import run_cli
-    from splat_framework.engine.run import load_trained_model
-    from splat_framework.export.ply import export_ply
 
     _, source = load_trained_model(run_dir)
     ply = export_ply(source, tmp_path / "start.ply")

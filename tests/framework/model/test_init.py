@@ -156,3 +156,25 @@ def test_any_method_starts_from_a_ply_on_the_command_line(tmp_path):
         build_parser_type(methods, ["3dgs", "--model.init.kind", "sphere"], "3dgs")
     with pytest.raises(ArgumentsError, match="'sfm' is not one of random, frustum, ply"):
         build_parser_type(methods, ["scgaussian", "--model.init.kind", "sfm"], "scgaussian")
+
+
+def test_triangulation_without_matches_falls_back_to_the_reference_random_init(forward_dm, monkeypatch):
+    """``3dgs-triang`` whose matcher finds nothing: one warning, and the reference random start
+    (FALLBACK_POINTS grey points in the frustum box)."""
+    import splat_framework.matching.prior as prior
+    from splat_framework.config.init import FALLBACK_POINTS
+    from splat_framework.matching import MatchSet
+
+    dm = forward_dm
+    monkeypatch.setattr(
+        prior, "compute_match_set",
+        lambda matching, dm: MatchSet(view_ids=[int(i) for i in dm.scene.train_indices], matches={}),
+    )
+    with pytest.warns(UserWarning, match="too few triangulated matches"):
+        model = GaussianModel.from_data(get_method("3dgs-triang").default_config(), dm, torch.Generator().manual_seed(0))
+    assert model.num_gaussians == FALLBACK_POINTS
+    box = frustum_box(dm.train_cameras)
+    means = model.params["means"].detach()
+    assert (means >= box[0] - 1e-5).all() and (means <= box[1] + 1e-5).all()
+    sh0 = model.params["sh0"].detach()
+    assert torch.all(sh0 == sh0[0])  # grey, like 3dgs
