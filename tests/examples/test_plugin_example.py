@@ -171,3 +171,25 @@ def test_a_plugin_registers_a_strategy_and_a_start_without_installing(tmp_path):
     assert metrics["strategy"] == "splat_example_plugin.mcmc.MCMCStrategy"
     cfg = json.loads((out / "config.json").read_text())["config"]
     assert cfg["strategy"]["kind"] == "mcmc" and cfg["model"]["init"] == {"kind": "grid", "per_axis": 8}
+    listed = run_cli("train", "--help", code=0, env=env).stdout  # its variant, from its configs package
+    assert "flat-3dgs-often" in listed
+
+
+def test_the_plugins_photo_matcher_is_registered_without_installing(monkeypatch):
+    """The example's ORB matcher, registered through SPLAT_PLUGINS, finds a photo's texture again in a
+    copy shifted by 7 pixels: every match 7 pixels apart, in continuous pixel coordinates."""
+    import numpy as np
+
+    from splat_framework.sfm.photo_matchers import photo_matchers
+
+    monkeypatch.syspath_prepend(str(EXAMPLE / "src"))
+    monkeypatch.setenv("SPLAT_PLUGINS", "splat_example_plugin")
+    match_photos = photo_matchers()["orb"].load()
+    rng = np.random.default_rng(0)
+    texture = (rng.random((30, 40)) * 255).astype(np.uint8).repeat(8, axis=0).repeat(8, axis=1)
+    photo = np.stack([texture] * 3, axis=-1)
+    found = match_photos([photo[:, :-7], photo[:, 7:]])
+    pts_a, pts_b = found[(0, 1)]
+    assert len(pts_a) > 50 and pts_a.shape == pts_b.shape and pts_a.shape[1] == 2
+    shift = pts_a - pts_b
+    assert np.median(shift[:, 0]) == pytest.approx(7, abs=0.5) and np.median(np.abs(shift[:, 1])) < 0.5

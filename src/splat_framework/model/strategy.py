@@ -94,7 +94,14 @@ class Strategy:
     step where a model hook resized the rows. Every method has a do-nothing
     default (``rows_changed``: resize the per-row tensors), so a
     subclass overrides only what it needs; this base used as is never densifies.
+
+    Built by its config as ``StrategyClass(config)`` (:meth:`StrategyConfig.setup`): the config is
+    ``self.config`` (a subclass that takes more overrides ``__init__`` and calls this one).
     """
+
+    def __init__(self, config: Any = None) -> None:
+        self.config = config
+        """The :class:`~splat_framework.config.StrategyConfig` this strategy was built from (None: built by hand)."""
 
     def initialize_state(self, scene_scale: float = 1.0) -> dict[str, Any]:
         """Fresh running state (saved in every checkpoint)."""

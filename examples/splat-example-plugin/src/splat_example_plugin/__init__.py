@@ -36,6 +36,8 @@ ENTRY_POINTS = {
     "splat_framework.methods": {"flat-3dgs": "splat_example_plugin:spec"},
     "splat_framework.strategies": {"mcmc": "splat_example_plugin:MCMCConfig"},
     "splat_framework.inits": {"grid": "splat_example_plugin:GridInitConfig"},
+    "splat_framework.photo_matchers": {"orb": "splat_example_plugin.matching:match_photos"},
+    "splat_framework.configs": {"splat_example_plugin": "splat_example_plugin.configs"},
 }
 """Every part of this plugin, by entry-point group (pyproject.toml's entry points say the same)."""
 

@@ -49,9 +49,6 @@ class MCMCStrategy(Strategy):
 
     REQUIRED_KEYS = ("means", "quats", "scales", "opacities")
 
-    def __init__(self, config) -> None:
-        self.config = config
-
     def check_sanity(self, params, optimizers) -> None:
         check_rows(params, optimizers, self.REQUIRED_KEYS)
         if "means" not in optimizers:

@@ -15,6 +15,7 @@ class PruneOnlyStrategy(Strategy):
     ``min_opacity`` (the toy counterpart of gsplat's strategies, on the same interface)."""
 
     def __init__(self, config) -> None:
+        super().__init__(config)  # self.config
         self.min_opacity = float(config.min_opacity)
         self.every = int(config.every)
 
