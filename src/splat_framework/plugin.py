@@ -80,6 +80,7 @@ _EXPORTS: dict[str, str] = {
     "section": "splat_framework.runtime.profiling",
     # the model side (imports torch on first use)
     "GaussianModel": "splat_framework.model.gaussians",
+    "Pipeline": "splat_framework.pipeline",
     "Strategy": "splat_framework.model.strategy",
     "DefaultStrategy": "splat_framework.model.strategy",
     "check_rows": "splat_framework.model.strategy",
@@ -151,6 +152,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .model.optim import adam
     from .model.regularisers import regulariser_terms
     from .model.strategy import DefaultStrategy, Strategy, check_rows
+    from .pipeline import Pipeline
     from .registry import MethodSpec, registered_defaults
     from .render import RenderOutput, quat_to_rotmat, rasterize, rgb_to_sh
     from .runtime.profiling import section

@@ -55,6 +55,8 @@ class MethodSpec:
             Must not import torch.
         model: "module:Class" of the model (imported only when training starts).
         overrides: nested overrides applied on top of config_factory() (variants).
+        pipeline: "module:Class" of the method's :class:`~splat_framework.pipeline.Pipeline`
+            (what a step feeds the model, the evaluation): the framework's own, or a subclass.
     """
 
     name: str
@@ -62,6 +64,7 @@ class MethodSpec:
     config_factory: Callable[[], Any]
     model: str
     overrides: dict = field(default_factory=dict)
+    pipeline: str = "splat_framework.pipeline:Pipeline"
 
     def default_config(self):
         from .config import apply_overrides
@@ -75,6 +78,13 @@ class MethodSpec:
         from .entry_points import load_object
 
         return load_object(self.model)
+
+    def pipeline_class(self) -> type:
+        """The class ``pipeline`` names (imported when training starts; the trainer checks it is a
+        :class:`~splat_framework.pipeline.Pipeline`)."""
+        from .entry_points import load_object
+
+        return load_object(self.pipeline)
 
 
 def default_config_dirs() -> list[Path]:
@@ -156,6 +166,7 @@ def _load_variants(base: dict[str, MethodSpec], dirs: list[Path]) -> dict[str, M
                 config_factory=p.config_factory,
                 model=p.model,
                 overrides=deep_merge(p.overrides, overrides),
+                pipeline=p.pipeline,
             )
             del pending[name]
             problem = _invalid_config(spec)

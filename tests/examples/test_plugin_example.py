@@ -193,3 +193,27 @@ def test_the_plugins_photo_matcher_is_registered_without_installing(monkeypatch)
     assert len(pts_a) > 50 and pts_a.shape == pts_b.shape and pts_a.shape[1] == 2
     shift = pts_a - pts_b
     assert np.median(shift[:, 0]) == pytest.approx(7, abs=0.5) and np.median(np.abs(shift[:, 1])) < 0.5
+
+
+def test_the_plugins_two_view_pipeline_trains(monkeypatch, tmp_path):
+    """``two-view-3dgs`` names its own Pipeline in its MethodSpec: each step renders two training
+    views (the step's and its neighbour in the training order) and its loss has the second view's
+    term; the run trains to the end and is evaluated through the same pipeline."""
+    monkeypatch.syspath_prepend(str(EXAMPLE / "src"))
+    monkeypatch.setenv("SPLAT_PLUGINS", "splat_example_plugin")
+    from splat_framework.plugin import GaussianModel
+    from splat_framework.testing import Trainer, get_method
+
+    spec = get_method("two-view-3dgs")
+    cfg = spec.default_config().model_copy(update=dict(
+        data="synthetic/forward-tiny", steps=6, output=tmp_path / "run", progress=False, save_renders=False))
+    trainer = Trainer(cfg, spec=spec)
+    assert type(trainer.pipeline).__name__ == "TwoViewPipeline" and trainer.pipeline.model is trainer.model
+    renders = []
+    monkeypatch.setattr(GaussianModel, "get_outputs",
+                        lambda self, camera, *a, _f=GaussianModel.get_outputs, **k: renders.append(camera) or _f(self, camera, *a, **k))
+    losses, _ = trainer.train_step(0)
+    assert len(renders) == 2 and renders[0] is not renders[1] and losses["second_view"] > 0
+    assert losses["loss"] == pytest.approx(sum(v for k, v in losses.items() if k != "loss"), rel=1e-5)
+    metrics = trainer.train()
+    assert metrics["method"] == "two-view-3dgs" and metrics["mean"]["psnr"] > 5

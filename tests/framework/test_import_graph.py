@@ -167,6 +167,8 @@ LAYERS: list[tuple[str, ...]] = [
     ("render", "losses"),
     ("model",),
     ("evaluation",),
+    # the data and the model of a run: one step's batch and loss, the evaluation
+    ("pipeline",),
     ("plugin", "scg_plugin", "anchor_gs"),
     ("engine",),
     ("viewer", "sweep"),

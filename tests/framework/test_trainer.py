@@ -530,3 +530,25 @@ def test_coarse_steps_train_on_area_averaged_images_with_cameras_scaled_to_match
     if img.shape[0] % 2 == 0 and img.shape[1] % 2 == 0:
         assert torch.allclose(small["image"], blocks, atol=1e-6)
     assert dm.coarse_view(full, batch, 0.5)[1]["image"] is small["image"]  # made once, then kept
+
+
+def test_methods_run_through_the_default_pipeline_and_a_foreign_class_is_refused(tmp_path):
+    """3dgs and SCGaussian name no pipeline of their own: the trainer drives the framework's
+    Pipeline, which holds the same data manager and model; a spec naming a class that is not a
+    Pipeline stops the run with its name."""
+    import dataclasses
+
+    from splat_framework.pipeline import Pipeline
+
+    for method in ("3dgs", "scgaussian"):
+        assert get_method(method).pipeline_class() is Pipeline
+    spec = get_method("3dgs")
+    cfg = spec.default_config().model_copy(update=dict(data="synthetic/forward-tiny", steps=2, output=tmp_path / "a",
+                                                       progress=False, save_renders=False))
+    trainer = Trainer(cfg, spec=spec)
+    assert type(trainer.pipeline) is Pipeline
+    assert trainer.pipeline.model is trainer.model and trainer.pipeline.datamanager is trainer.datamanager
+    trainer.release()
+    wrong = dataclasses.replace(spec, pipeline="splat_framework.model.gaussians:GaussianModel")
+    with pytest.raises(TypeError, match="pipeline 'splat_framework.model.gaussians:GaussianModel' is not a Pipeline"):
+        Trainer(cfg.model_copy(update={"output": tmp_path / "b"}), spec=wrong)

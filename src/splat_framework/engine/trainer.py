@@ -63,11 +63,11 @@ from ..console import phase, print_summary, say, show_progress
 from ..data import DataManager, describe_split, record_data, resolve_views
 from ..data.cache_dir import user_cache_dir
 from ..devices import resolve_config_devices
-from ..evaluation.held_out import evaluate
 from ..evaluation.metrics import psnr
 from ..files import run_lock
 from ..files.output_paths import RUN_FOLDER
 from ..model.strategy import Strategy
+from ..pipeline import Pipeline
 from ..registry import MethodSpec, get_method
 from ..render import prepare_kernels, set_compile, set_rasterizer
 from ..runtime.allocator import keep_freed_memory
@@ -148,7 +148,11 @@ class _Restart(Exception):
 
 # ---------------------------------------------------------------- trainer
 class Trainer(TrainState):
-    """Owns the data, the model, its optimizers and the densification strategy.
+    """Drives a run: the loop, the optimizers, the densification strategy, checkpoints and resume.
+
+    The data and the model belong to the method's :class:`~splat_framework.pipeline.Pipeline`
+    (``self.pipeline``; ``self.datamanager`` and ``self.model`` are the same objects), which gives
+    each step's render, batch and loss terms and runs the evaluation.
 
     Args:
         config: the run config.
@@ -231,6 +235,11 @@ class Trainer(TrainState):
         self.strategy_state = self.strategy.initialize_state(scene_scale=self.model.scene_scale)
         self.camera_refiner = CameraRefiner.for_run(self.config, len(self.datamanager.train_indices),
                                                     self.model.scene_scale, self.device)
+        # the data and the model, one step's batch and loss, the evaluation: the method's pipeline
+        pipeline_class = self.spec.pipeline_class()
+        if not (isinstance(pipeline_class, type) and issubclass(pipeline_class, Pipeline)):
+            raise TypeError(f"method {self.spec.name!r}: pipeline {self.spec.pipeline!r} is not a Pipeline subclass")
+        self.pipeline = pipeline_class(self.config, self.datamanager, self.model, self.background, self.camera_refiner)
         self.start_step = 0
         self.nonfinite_streak = 0
         self.skipped_steps = 0
@@ -306,18 +315,8 @@ class Trainer(TrainState):
         model = self.model
         model.on_step_start(step)
         self._set_learning_rates(step)
-        camera, batch = self.datamanager.next_train(step)
-        if step < self.config.coarse_steps:
-            camera, batch = self.datamanager.coarse_view(camera, batch, self.config.coarse_scale)
-        elif step == self.config.coarse_steps > 0:
-            say(f"step {step}: the {step} coarse steps (images at {self.config.coarse_scale:g}x) are done; "
-                "the steps from here train at the images' own size and take longer")
-        if self.camera_refiner is not None:
-            camera = self.camera_refiner.apply(camera, batch["train_position"])
-        with section("forward"):
-            outputs = model.get_outputs(camera, self.background, step=step)
+        outputs, batch, losses = self.pipeline.train_losses(step)  # the step's view(s), render and model's terms
         with section("loss"):
-            losses = model.get_loss_dict(outputs, batch, camera, step)
             extra = self.strategy.loss(model.params, step)  # e.g. MCMC's regularisers; none by default
             if extra.keys() & losses.keys():
                 raise ValueError(f"{type(self.strategy).__name__}.loss() names {sorted(extra.keys() & losses.keys())}, "
@@ -448,10 +447,8 @@ class Trainer(TrainState):
             self.datamanager.cameras = refined_cameras(self.datamanager.cameras, self.datamanager.train_indices,
                                                        self.camera_refiner.state_dict())
         t0 = time.perf_counter()
-        results = evaluate(
-            self.model, self.datamanager, self.background, self.run_dir / "renders" if cfg.save_renders else None,
-            pose_steps=cfg.test_pose_steps,
-        )
+        results = self.pipeline.evaluate(self.run_dir / "renders" if cfg.save_renders else None,
+                                         pose_steps=cfg.test_pose_steps)
         self.timing["eval_s"] = time.perf_counter() - t0
         self.timing["total_s"] = sum(v for k, v in self.timing.items() if k != "total_s")
         metrics = run_metrics(self, results)
@@ -482,7 +479,7 @@ class Trainer(TrainState):
                 self.save(step)
                 saved = True
             if cfg.eval_every and step % cfg.eval_every == 0 and step < total:
-                m = evaluate(self.model, self.datamanager, self.background)
+                m = self.pipeline.evaluate()
                 say(f"step {step}: test PSNR {m['mean']['psnr']:.2f}")
             for cb in self.callbacks:
                 cb(self, step)

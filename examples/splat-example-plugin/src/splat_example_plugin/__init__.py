@@ -33,7 +33,8 @@ from splat_framework.plugin import (
 )
 
 ENTRY_POINTS = {
-    "splat_framework.methods": {"flat-3dgs": "splat_example_plugin:spec"},
+    "splat_framework.methods": {"flat-3dgs": "splat_example_plugin:spec",
+                                "two-view-3dgs": "splat_example_plugin:spec_two_view"},
     "splat_framework.strategies": {"mcmc": "splat_example_plugin:MCMCConfig"},
     "splat_framework.inits": {"grid": "splat_example_plugin:GridInitConfig"},
     "splat_framework.photo_matchers": {"orb": "splat_example_plugin.matching:match_photos"},
@@ -111,4 +112,31 @@ spec = MethodSpec(
     description="Example plugin: 3DGS with view-independent colour (SH degree 0), pruned but never grown",
     config_factory=config,
     model="splat_example_plugin.model:FlatGaussianModel",
+)
+
+
+class TwoViewModelConfig(GaussianModelConfig):
+    """3DGS's model options, and the weight of the second view's loss."""
+
+    two_view_weight: NonNegative = 0.5
+    """Weight of the photometric loss of each step's second view (its neighbour in the training order)."""
+
+
+class TwoViewTrainConfig(TrainConfig):
+    """Training options of two-view-3dgs: the framework's, with the second view's weight."""
+
+    model: TwoViewModelConfig = Field(default_factory=TwoViewModelConfig)
+    """Model options (3DGS's, and the second view's weight)."""
+
+
+def config_two_view() -> TwoViewTrainConfig:
+    return TwoViewTrainConfig(method="two-view-3dgs")
+
+
+spec_two_view = MethodSpec(
+    name="two-view-3dgs",
+    description="Example plugin: 3DGS fed two training views a step by its own pipeline",
+    config_factory=config_two_view,
+    model="splat_framework.plugin:GaussianModel",
+    pipeline="splat_example_plugin.pipeline:TwoViewPipeline",
 )
