@@ -55,6 +55,8 @@ class MethodSpec:
             Must not import torch.
         model: "module:Class" of the model (imported only when training starts).
         overrides: nested overrides applied on top of config_factory() (variants).
+        base: for a config variant, the registered method it is a variant of (at the root of its
+            ``base`` chain); "" for a method.
         pipeline: "module:Class" of the method's :class:`~splat_framework.pipeline.Pipeline`
             (what a step feeds the model, the evaluation): the framework's own, or a subclass.
     """
@@ -65,6 +67,7 @@ class MethodSpec:
     model: str
     overrides: dict = field(default_factory=dict)
     pipeline: str = "splat_framework.pipeline:Pipeline"
+    base: str = ""
 
     def default_config(self):
         from .config import apply_overrides
@@ -167,6 +170,7 @@ def _load_variants(base: dict[str, MethodSpec], dirs: list[Path]) -> dict[str, M
                 model=p.model,
                 overrides=deep_merge(p.overrides, overrides),
                 pipeline=p.pipeline,
+                base=p.base or parent,
             )
             del pending[name]
             problem = _invalid_config(spec)

@@ -124,3 +124,24 @@ def test_help_into_a_closed_pipe_prints_no_traceback():
         p.stdout.close()
         err = p.stderr.read().decode()
         assert p.wait() in (0, 141) and err == "", err[-1500:]
+
+
+def test_the_methods_screen_lists_each_variant_under_its_method():
+    """``splat-train --help``: every method, and under each the variants built on it (the paper's
+    rows under scgaussian, 3dgs-triang under 3dgs), each name once, no flat list of 26 choices."""
+    import re
+
+    text = help_of("--help")
+    assert "{" not in text.splitlines()[0]
+    block = text.partition("methods, each with its config variants under it")[2]
+    entries = re.findall(r"^ {2}( {4})?([a-z0-9][\w.-]*)(?: {2,}|$)", block, re.M)
+    methods = discover_methods()
+    assert sorted(name for _, name in entries) == sorted(methods)
+    parent = None
+    for indent, name in entries:
+        if not indent:
+            parent = name
+            assert not methods[name].base
+        else:
+            assert methods[name].base == parent, (name, parent)
+    assert methods["scgaussian-paper-hybrid-rg"].base == "scgaussian" and methods["3dgs-triang"].base == "3dgs"

@@ -190,9 +190,9 @@ def _listed_methods(help_text: str) -> list[str]:
     """The method and variant names of ``splat-train --help`` (its subcommand choices)."""
     import re
 
-    choices = re.search(r"\{([^{}]+)\}", help_text)
-    assert choices, help_text
-    return sorted(choices.group(1).split(","))
+    block = help_text.partition("methods, each with its config variants under it")[2]
+    assert block, help_text
+    return sorted(re.findall(r"^ {2}(?: {4})?([a-z0-9][\w.-]*)(?: {2,}|$)", block, re.M))
 
 
 @pytest.mark.slow

@@ -175,3 +175,32 @@ def _view(config: BaseModel, path: str, shown, kinds: dict[str, type]) -> tuple[
         derived = create_model(cls.__name__, __base__=cls, __module__=cls.__module__, __doc__=cls.__doc__, **fields)
     return derived.model_construct(**values), visible
 
+
+def methods_screen(methods: dict, description: str, columns: int | None = None) -> str:
+    """``splat-train --help`` without a method: every registered method with its one line, and under
+    each the config variants built on it (``MethodSpec.base``: the paper's rows and others), each a
+    METHOD of its own. Plain text, wrapped at ``columns`` (the terminal's width, else 100)."""
+    import shutil
+    import textwrap
+
+    width = columns or shutil.get_terminal_size((100, 24)).columns
+    roots = [name for name, spec in methods.items() if not spec.base or spec.base not in methods]
+    variants = {root: sorted(n for n, s in methods.items() if s.base == root and n != root) for root in roots}
+    names = [*roots, *(v for vs in variants.values() for v in vs)]
+    column = min(max(len(n) for n in names) + 4, 30, width // 2)
+
+    def entry(name: str, indent: int) -> list[str]:
+        head = " " * indent + name
+        text = methods[name].description
+        if len(head) + 2 > column:  # a long name: its line, then the text under the column
+            return [head, *textwrap.wrap(text, width, initial_indent=" " * column, subsequent_indent=" " * column)]
+        return textwrap.wrap(text, width, initial_indent=head.ljust(column), subsequent_indent=" " * column) or [head]
+
+    lines = ["usage: splat-train METHOD [OPTIONS]  ('splat-train METHOD --help': the method's options)", "",
+             *textwrap.wrap(description, width), "",
+             "methods, each with its config variants under it (a variant is a METHOD too):"]
+    for root in roots:
+        lines += entry(root, 2)
+        for variant in variants[root]:
+            lines += entry(variant, 6)
+    return "\n".join(lines) + "\n"

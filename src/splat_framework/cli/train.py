@@ -126,6 +126,12 @@ def check_data_before_loading(data: str) -> None:
         locate_data(data)
 
 
+TRAIN_DESCRIPTION = (
+    "Train a Gaussian-splatting method. Run 'splat-train METHOD --help' for its options; "
+    f"'splat-train {LOAD_CONFIG_FLAG} RUN/config.json [options]' re-runs a saved experiment into a new folder."
+)
+
+
 def main(args: list[str] | None = None) -> dict:
     from .common import ArgumentsError, parse_cli
     from .help_screen import help_group as help_group_of
@@ -144,6 +150,11 @@ def main(args: list[str] | None = None) -> dict:
             raise ArgumentsError(f"{LOAD_CONFIG_FLAG} {load} trains its own method {method!r}; leave out {asked!r}")
         if asked is None:
             argv, asked = [method, *argv], method
+    if asked is None and load is None and any(a in ("-h", "--help") for a in argv):  # the methods, grouped
+        from .help_screen import methods_screen
+
+        sys.stdout.write(methods_screen(methods, TRAIN_DESCRIPTION))
+        raise SystemExit(0)
     # tyro's errors and invalid values: one line (cli.common.run_cli), not tyro's box
     argv, help_group = help_group_of(argv, asked)
     parser_type = build_parser_type(methods, argv, asked, loaded, help_group)
@@ -152,8 +163,7 @@ def main(args: list[str] | None = None) -> dict:
         prog="splat-train",
         args=argv,
         subcommands=methods,
-        description="Train a Gaussian-splatting method. Run 'splat-train METHOD --help' for its options; "
-        f"'splat-train {LOAD_CONFIG_FLAG} RUN/config.json [options]' re-runs a saved experiment into a new folder.",
+        description=TRAIN_DESCRIPTION,
     )
     from ..console import show_progress, starting
 
