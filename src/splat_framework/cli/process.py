@@ -57,7 +57,8 @@ def main(args: ImagesArgs | VideoArgs):
     if isinstance(args, VideoArgs):
         with scratch(args.out) as work:  # beside --out: a killed run's frames are removed by the next
             photos = pick_video_frames(args.video, args.frames, work / "frames")
-            summary = estimate_scene(photos, args.out, mapper=args.mapper, overwrite=args.overwrite, matcher=args.matcher)
+            summary = estimate_scene(photos, args.out, mapper=args.mapper, overwrite=args.overwrite, matcher=args.matcher,
+                                     ordered=True)  # the frames in time order: their neighbours are paired too
     else:
         photos = list_images(args.folder)
         summary = estimate_scene(photos, args.out, mapper=args.mapper, overwrite=args.overwrite, matcher=args.matcher)

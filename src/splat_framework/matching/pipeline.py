@@ -35,6 +35,7 @@ def cache_key(
     config: MatchConfig,
     masks: list[np.ndarray | None] | None = None,
     known: dict[Pair, tuple[np.ndarray, np.ndarray]] | None = None,
+    pairs: list[Pair] | None = None,
 ) -> str:
     """sha1 over (pipeline version, config, view ids, image bytes, camera matrices, foreground masks,
     sparse matches given by a posing, the thread count matching runs on: its sums, so its matches,
@@ -44,6 +45,8 @@ def cache_key(
             "threads": machine_thread_count()}
     if config.kind == AUTO:
         head["learned_available"] = registry.learned_available(config)
+    if pairs is not None:  # some pairs only (every pair: the key of before)
+        head["pairs"] = [list(p) for p in pairs]
     h.update(json.dumps(head, sort_keys=True).encode())
     for img in images:
         a = np.ascontiguousarray(to_hwc(img))
@@ -105,6 +108,7 @@ def compute_matches(
     cache_dir: Path | str | None = None,
     masks: list[np.ndarray | None] | None = None,
     known: dict[Pair, tuple[np.ndarray, np.ndarray]] | None = None,
+    pairs: list[Pair] | None = None,
 ) -> MatchSet:
     """Verified matches between every pair of the given views.
 
@@ -120,9 +124,11 @@ def compute_matches(
         known: {(view id a, view id b): (pts_a, pts_b)}, a < b: a pair's sparse learned matches
             already computed (by the posing of the photos, :mod:`splat_framework.sfm.pose_matches`), taken instead
             of running the learned matcher on that pair; verified like any other matches.
+        pairs: the pairs (view id a, view id b), a < b, to match (the posing's chosen pairs,
+            :mod:`splat_framework.sfm.pair_selection`); None: every pair.
 
     Returns:
-        MatchSet over all pairs (i, j), i < j, of ``view_ids``; why a pair was left empty is in its
+        MatchSet over the pairs (i, j), i < j, of ``view_ids`` (every one, or ``pairs``); why a pair was left empty is in its
         ``warnings``, which the caller reports by the views' names (:func:`~.report.warn_empty`).
     """
     config = config or match_config()
@@ -149,14 +155,21 @@ def compute_matches(
                 raise ValueError(f"view {names[v]}: camera is {cam.width}x{cam.height} "
                                  f"but image is {im.shape[1]}x{im.shape[0]}")
 
-    n_pairs = len(ids) * (len(ids) - 1) // 2
+    position = {v: k for k, v in enumerate(ids)}
+    if pairs is not None:
+        pairs = sorted({(min(a, b), max(a, b)) for a, b in pairs})
+        if any(a not in position or b not in position or a == b for a, b in pairs):
+            raise ValueError(f"pairs {pairs} name views that are not among {ids}")
+    index_pairs = ([(a, b) for a in range(len(ids)) for b in range(a + 1, len(ids))] if pairs is None
+                   else [(position[a], position[b]) for a, b in pairs])
+    n_pairs = len(index_pairs)
     capped = config.for_pairs(n_pairs)
     if capped.max_matches != config.max_matches:
         say(f"matching: {n_pairs} pairs share {config.max_total_matches:,} matches: at most "
             f"{capped.max_matches:,} a pair (--model.matching.max-total-matches)")
     config = capped
     known = known or {}
-    key = cache_key(imgs, cams, ids, config, fg, known)
+    key = cache_key(imgs, cams, ids, config, fg, known, pairs)
     cache_path = None
     if cache_dir is not None:
         cache_path = Path(cache_dir) / f"matches-{key[:24]}.npz"
@@ -175,7 +188,7 @@ def compute_matches(
     # a learned matcher's random init must not move the run's random state
     # on the machine's cores whatever the load: the same matches alone, beside other work or pinned
     with rng_untouched(), machine_threads() as threads, phase("matching", n_pairs, unit="pairs") as progress:
-        ms = _match_all_pairs(ids, imgs, cams, fg, config, key, progress, known, names)
+        ms = _match_all_pairs(ids, imgs, cams, fg, config, key, progress, known, names, index_pairs)
     ms.meta["threads"] = threads
     if cache_path is not None:
         ms.save(cache_path)
@@ -185,8 +198,8 @@ def compute_matches(
 
 def _match_all_pairs(ids: list[int], imgs: list[np.ndarray], cams, fg: list, config: MatchConfig, key: str,
                      progress: Phase, known: dict[Pair, tuple[np.ndarray, np.ndarray]],
-                     names: dict[int, str]) -> MatchSet:
-    """The MatchSet of every pair (i, j), i < j, of ``ids`` (:func:`compute_matches` after its cache missed);
+                     names: dict[int, str], index_pairs: list[tuple[int, int]]) -> MatchSet:
+    """The MatchSet of the pairs ``index_pairs`` (positions a < b in ``ids``; :func:`compute_matches` after its cache missed);
     ``progress`` advances by one per pair; ``known`` pairs take their sparse matches from there; ``names``
     (view id -> name) name the views in the notice of "auto" without its learned weights."""
     t0 = time.perf_counter()
@@ -217,33 +230,32 @@ def _match_all_pairs(ids: list[int], imgs: list[np.ndarray], cams, fg: list, con
     guided = takes_guided_flow(config, len(ids))
     # flow "keeps too few" below auto_min_matches, or below the pair's cap when that is lower
     min_dense = min(getattr(config, "auto_min_matches", 0), config.max_matches or MAX_MATCHES)
-    for a in range(len(ids)):
-        for b in range(a + 1, len(ids)):
-            pair = (ids[a], ids[b])
-            F_known = fundamental_from_cameras(cams[a], cams[b]) if (cams is not None and config.epipolar_check) else None
-            seed, pair_masks = config.seed + 7919 * a + b, (fg[a], fg[b])
-            name = AUTO_DENSE if config.kind == AUTO else config.kind
-            angle = view_angle(cams[a], cams[b]) if cams is not None else 0.0
-            wide = config.kind == AUTO and config.auto_flow_max_angle > 0 and angle >= config.auto_flow_max_angle
-            why = f"is wide ({angle:.0f} degrees)" if wide else f"would take guided flow ({len(ids)} views)"
-            sparse = sparse_for(pair, why) if wide or guided else None
-            if sparse is not None:
-                chosen, name = (GuidedFlowMatcher(sparse, matcher), AUTO_GUIDED) if guided else (sparse, AUTO_LEARNED)
-                pa, pb, counts, warn = _verified(chosen, imgs[a], imgs[b], F_known, config, seed, pair_masks)
-            else:
-                own = KnownMatches(*known[pair]) if config.kind != AUTO and pair in known else matcher
-                pa, pb, counts, warn = _verified(own, imgs[a], imgs[b], F_known, config, seed, pair_masks)
-                if (config.kind == AUTO and counts["final"] < min_dense
-                        and (sparse := sparse_for(pair, f"keeps only {counts['final']} dense matches")) is not None):
-                    alt = _verified(sparse, imgs[a], imgs[b], F_known, config, seed, pair_masks)
-                    if alt[2]["final"] > counts["final"]:
-                        (pa, pb, counts, warn), name = alt, AUTO_LEARNED
-            matches[pair] = (pa.astype(np.float32), pb.astype(np.float32))
-            stats[pair] = counts
-            used[f"{pair[0]}-{pair[1]}"] = name
-            if warn is not None:
-                warns[pair] = warn
-            progress.advance()
+    for a, b in index_pairs:
+        pair = (ids[a], ids[b])
+        F_known = fundamental_from_cameras(cams[a], cams[b]) if (cams is not None and config.epipolar_check) else None
+        seed, pair_masks = config.seed + 7919 * a + b, (fg[a], fg[b])
+        name = AUTO_DENSE if config.kind == AUTO else config.kind
+        angle = view_angle(cams[a], cams[b]) if cams is not None else 0.0
+        wide = config.kind == AUTO and config.auto_flow_max_angle > 0 and angle >= config.auto_flow_max_angle
+        why = f"is wide ({angle:.0f} degrees)" if wide else f"would take guided flow ({len(ids)} views)"
+        sparse = sparse_for(pair, why) if wide or guided else None
+        if sparse is not None:
+            chosen, name = (GuidedFlowMatcher(sparse, matcher), AUTO_GUIDED) if guided else (sparse, AUTO_LEARNED)
+            pa, pb, counts, warn = _verified(chosen, imgs[a], imgs[b], F_known, config, seed, pair_masks)
+        else:
+            own = KnownMatches(*known[pair]) if config.kind != AUTO and pair in known else matcher
+            pa, pb, counts, warn = _verified(own, imgs[a], imgs[b], F_known, config, seed, pair_masks)
+            if (config.kind == AUTO and counts["final"] < min_dense
+                    and (sparse := sparse_for(pair, f"keeps only {counts['final']} dense matches")) is not None):
+                alt = _verified(sparse, imgs[a], imgs[b], F_known, config, seed, pair_masks)
+                if alt[2]["final"] > counts["final"]:
+                    (pa, pb, counts, warn), name = alt, AUTO_LEARNED
+        matches[pair] = (pa.astype(np.float32), pb.astype(np.float32))
+        stats[pair] = counts
+        used[f"{pair[0]}-{pair[1]}"] = name
+        if warn is not None:
+            warns[pair] = warn
+        progress.advance()
     ms = MatchSet(
         view_ids=ids,
         matches=matches,

@@ -89,7 +89,7 @@ def posed_photos(path: Path, kind: PhotoSource, options: PhotoPosesConfig | None
     with building(entry, _install_private) as work:
         if kind == "video":
             frames = pick_video_frames(path, options.frames, work / "frames")
-            summary = estimate_scene(frames, work / "scene", **kwargs)
+            summary = estimate_scene(frames, work / "scene", ordered=True, **kwargs)  # frames in time order
             shutil.rmtree(work / "frames")
         else:
             summary = estimate_scene(files, work / "scene", **kwargs)

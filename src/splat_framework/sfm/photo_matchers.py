@@ -3,8 +3,10 @@
 "sift" is COLMAP's own; others are registered under the entry point group
 ``splat_framework.photo_matchers`` (the framework's matching prior registers its learned
 ``aliked-lightglue`` and ``disk-lightglue``; plugins may add more): a function
-``match(images: list[[H, W, 3] uint8 RGB]) -> {(i, j): (pts_i [M, 2], pts_j [M, 2])}`` in
-continuous pixel coordinates (pixel centres at +0.5, COLMAP's convention). "auto" is
+``match(images: list[[H, W, 3] uint8 RGB], pairs=None) -> {(i, j): (pts_i [M, 2], pts_j [M, 2])}``
+in continuous pixel coordinates (pixel centres at +0.5, COLMAP's convention), over the pairs
+``pairs`` names (:mod:`.pair_selection`; None: every pair). A function without a ``pairs``
+parameter matches every pair, and the pairs not chosen are dropped (:func:`run_matcher`). "auto" is
 AUTO_PREFERRED where it is registered and its weights are installed, else SIFT.
 """
 
@@ -32,3 +34,18 @@ def choose_matcher(matcher: str, plugins: dict[str, object]) -> str:
     if matcher != "sift" and matcher not in plugins:
         raise DataError(f"--matcher must be one of {', '.join(['auto', 'sift', *sorted(plugins)])}, got {matcher!r}")
     return matcher
+
+
+def run_matcher(match, images: list, pairs: list[tuple[int, int]]) -> dict:
+    """``match``'s matches of ``images`` over ``pairs``: passed to it when it takes a ``pairs``
+    parameter, else every pair matched and the others dropped."""
+    import inspect
+
+    try:
+        takes_pairs = "pairs" in inspect.signature(match).parameters
+    except (TypeError, ValueError):  # a builtin without a signature
+        takes_pairs = False
+    if takes_pairs:
+        return match(images, pairs=pairs)
+    chosen = set(pairs)
+    return {pair: m for pair, m in match(images).items() if tuple(pair) in chosen}

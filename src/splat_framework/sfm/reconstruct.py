@@ -29,7 +29,8 @@ from ..files.output_paths import PROCESSED_SCENE, check_output, install_output
 from ..files.work_folder import scratch
 from ..runtime.threads import machine_threads
 from .colmap import load_pycolmap, verified_pair_counts, write_matches
-from .photo_matchers import AUTO_MATCHER, AUTO_PREFERRED, choose_matcher, photo_matchers
+from .pair_selection import EXHAUSTIVE_MAX_PHOTOS, all_pairs, choose_pairs
+from .photo_matchers import AUTO_MATCHER, AUTO_PREFERRED, choose_matcher, photo_matchers, run_matcher
 from .photos import stage_images
 
 MAPPERS = ("incremental", "global")
@@ -98,12 +99,14 @@ def describe_pair_matches(pairs: dict[tuple[str, str], int]) -> str:
 
 
 def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental", overwrite: bool = False,
-                   camera_model: str = "SIMPLE_RADIAL", matcher: str = "sift") -> SfmSummary:
+                   camera_model: str = "SIMPLE_RADIAL", matcher: str = "sift", ordered: bool = False) -> SfmSummary:
     """Estimate intrinsics and poses of ``images`` and write the COLMAP scene folder ``out``.
 
     ``camera_model``: COLMAP's model shared by all photos (SIMPLE_RADIAL: one focal length,
     centred principal point, one radial distortion term, undistorted away when writing;
-    SIMPLE_PINHOLE keeps the photos as they are).
+    SIMPLE_PINHOLE keeps the photos as they are). ``ordered``: the photos are the frames of a clip,
+    in order (their neighbours in time are paired too; :func:`~.pair_selection.choose_pairs`, which
+    matches every pair up to 10 photos and chosen pairs above).
 
     Raises DataError (one line) when an image is unreadable, sizes differ, fewer than 2
     images register (the message gives the verified matches of every pair by file name),
@@ -129,14 +132,16 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
         with phase(f"feature extraction ({len(images)} photos)"):
             pycolmap.extract_features(db, work / "input", camera_mode=pycolmap.CameraMode.SINGLE,
                                       reader_options=reader, device=cpu)
-        if matcher != "sift":
-            import cv2
+        import cv2
 
-            rgb = [cv2.imread(str(work / "input" / f), cv2.IMREAD_COLOR)[..., ::-1].copy() for f in staged]
+        rgb = [cv2.imread(str(work / "input" / f), cv2.IMREAD_COLOR)[..., ::-1].copy() for f in staged]
+        chosen = pairs_to_match(rgb, ordered)
+        of_all = f"{len(chosen)} of {len(rgb) * (len(rgb) - 1) // 2} pairs"
+        if matcher != "sift":
             try:
                 # on the machine's cores whatever the load: the same matches (so poses) alone or not
-                with machine_threads(), phase(f"matching ({matcher}, {len(rgb) * (len(rgb) - 1) // 2} pairs)"):
-                    found = plugins[matcher].load()(rgb)
+                with machine_threads(), phase(f"matching ({matcher}, {of_all})"):
+                    found = run_matcher(plugins[matcher].load(), rgb, chosen)
                 write_matches(pycolmap, db, staged, found)
             except FileNotFoundError as e:  # the matcher's weights are not installed
                 if not auto:
@@ -144,8 +149,14 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
                 warnings.warn(f"matcher auto: {e}; using SIFT", stacklevel=2)
                 matcher = "sift"
         if matcher == "sift":
-            with phase(f"matching (sift, {len(images) * (len(images) - 1) // 2} pairs)"):
-                pycolmap.match_exhaustive(db, device=cpu)
+            with phase(f"matching (sift, {of_all})"):
+                if len(chosen) == len(all_pairs(len(rgb))):
+                    pycolmap.match_exhaustive(db, device=cpu)
+                else:  # COLMAP matches the listed pairs
+                    listed = work / "pairs.txt"
+                    listed.write_text("".join(f"{staged[a]} {staged[b]}\n" for a, b in chosen))
+                    pycolmap.match_image_pairs(db, pairing_options=pycolmap.ImportedPairingOptions(match_list_path=str(listed)),
+                                               device=cpu)
         pairs = {(original[a], original[b]): n for (a, b), n in verified_pair_counts(pycolmap, db, staged).items()}
         (work / "sparse").mkdir()
         with phase(f"mapping ({mapper})"):
@@ -184,6 +195,16 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
         )
         install_output(scene, out, PROCESSED_SCENE)
         return summary
+
+
+def pairs_to_match(rgb: list, ordered: bool) -> list[tuple[int, int]]:
+    """The pairs of the photos ``rgb`` to match (:func:`~.pair_selection.choose_pairs`), with a phase
+    line when they are chosen (more than :data:`~.pair_selection.EXHAUSTIVE_MAX_PHOTOS` photos)."""
+    if len(rgb) <= EXHAUSTIVE_MAX_PHOTOS:
+        return all_pairs(len(rgb))
+    how = "by similarity and order in the clip" if ordered else "by similarity"
+    with machine_threads(), phase(f"choosing pairs ({len(rgb)} photos, {how})"):
+        return choose_pairs(rgb, ordered=ordered)
 
 
 def keep_pose_matches(pycolmap, model, sparse0: Path, images: Path, staged: list[str],
