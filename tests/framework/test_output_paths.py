@@ -315,3 +315,29 @@ def test_clearing_an_output_unlinks_links_inside_and_keeps_the_users_files(tmp_p
     clear_output(run, RUN_FOLDER)
     assert sorted(p.name for p in run.iterdir()) == ["notes.txt"]
     assert sorted(p.name for p in elsewhere.iterdir()) == ["a_render.png", "precious.png"]
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o002, 0o077])
+def test_written_results_follow_the_umask_and_private_folders_stay_private(tmp_path, umask):
+    """A run's results (config.json, metrics.json, renders, the PLY: every file written through
+    atomic_write_bytes) get the mode ``open`` gives under the user's umask, not a temporary file's
+    0600; inside a private folder (a cache's, 0700) they stay 0600."""
+    import os
+    import stat
+
+    from splat_framework.runtime.io import atomic_write_bytes, atomic_write_json
+
+    (tmp_path / "run").mkdir(mode=0o755)
+    os.chmod(tmp_path / "run", 0o755)
+    (tmp_path / "cache").mkdir()
+    os.chmod(tmp_path / "cache", 0o700)
+    old = os.umask(umask)
+    try:
+        atomic_write_json(tmp_path / "run" / "metrics.json", {"a": 1})
+        atomic_write_bytes(tmp_path / "run" / "model.ply", b"ply")
+        atomic_write_bytes(tmp_path / "cache" / "entry.bin", b"x")
+    finally:
+        os.umask(old)
+    for name in ("metrics.json", "model.ply"):
+        assert stat.S_IMODE((tmp_path / "run" / name).stat().st_mode) == 0o666 & ~umask, name
+    assert stat.S_IMODE((tmp_path / "cache" / "entry.bin").stat().st_mode) == 0o600

@@ -40,8 +40,23 @@ def _fsync_dir(folder: Path) -> None:
         os.close(fd)
 
 
+def _new_file_mode(folder: Path) -> int:
+    """The mode a file written into ``folder`` gets: what ``open`` would give it (0666 less the
+    umask: a user's results follow the umask like any file they write), except in a private folder
+    (no permission for the group or others: the caches') where it stays 0600."""
+    try:
+        if os.stat(folder).st_mode & 0o077 == 0:
+            return 0o600
+    except OSError:
+        pass
+    umask = os.umask(0o022)  # read: os.umask sets it to read it, and is set back at once
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
 def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file in the same folder, then rename.
+    """Write ``data`` to ``path`` through a temporary file in the same folder, then rename. The file
+    gets the mode a plain ``open`` would give it (:func:`_new_file_mode`), not the temporary's 0600.
 
     On any error (disk full included) the temporary file is removed, the
     previous content of ``path``, if any, is left untouched, and the error
@@ -51,6 +66,7 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        os.fchmod(fd, _new_file_mode(path.parent))
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()
