@@ -246,3 +246,54 @@ def test_matches_synthetic_generator_cameras(tmp_path, name):
         assert torch.allclose(cam.world_to_cam, torch.tensor(v["world_to_cam"], dtype=torch.float32), atol=1e-5)
         if scene.format == "llff":
             assert cam.near == pytest.approx(v["near"]) and cam.far == pytest.approx(v["far"])
+
+
+def _corrupt_pose(fmt: str, root, value: float):
+    """Make one camera's rotation all ``value`` (0: singular; nan: not finite) in a ``fmt`` scene."""
+    from support import make_blender, make_colmap, make_dtu, make_llff
+
+    if fmt == "llff":
+        make_llff(root)
+        rows = np.load(root / "poses_bounds.npy")
+        m = rows[3, :15].reshape(3, 5)
+        m[:, :3] = value
+        rows[3, :15] = m.reshape(-1)
+        np.save(root / "poses_bounds.npy", rows)
+        return root / "poses_bounds.npy"
+    if fmt == "blender":
+        make_blender(root)
+        path = root / "transforms_train.json"
+        meta = json.loads(path.read_text())
+        for row in meta["frames"][2]["transform_matrix"][:3]:
+            row[:3] = [value] * 3
+        path.write_text(json.dumps(meta))  # NaN as JSON's NaN, as Python writes it
+        return path
+    if fmt == "dtu":
+        make_dtu(root, n=12)
+        mats = dict(np.load(root / "cameras_sphere.npz"))
+        mats["world_mat_2"][:3, :3] = value
+        np.savez(root / "cameras_sphere.npz", **mats)
+        return root / "cameras_sphere.npz"
+    make_colmap(root, binary=False)
+    path = root / "sparse" / "0" / "images.txt"
+    lines = path.read_text().splitlines()
+    first = next(k for k, line in enumerate(lines) if not line.startswith("#"))
+    fields = lines[first].split()
+    fields[1:5] = [repr(float(value))] * 4
+    lines[first] = " ".join(fields)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.mark.bad_input("a camera whose rotation is all zeros or not finite, in each format (LLFF, Blender, DTU, COLMAP)",
+                       "exit 2, one line naming the file and the pose")
+@pytest.mark.parametrize("value", [0.0, float("nan")], ids=["zero", "nan"])
+@pytest.mark.parametrize("fmt", ["llff", "blender", "dtu", "colmap"])
+def test_a_zero_or_non_finite_rotation_is_one_line_naming_the_file(tmp_path, fmt, value):
+    path = _corrupt_pose(fmt, tmp_path / fmt, value)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # numpy's own about the NaN; the error is what is checked
+        with pytest.raises(DataError) as e:
+            load_scene(tmp_path / fmt)
+    message = str(e.value)
+    assert "\n" not in message and path.name in message, message
