@@ -111,3 +111,25 @@ def test_sixteen_photos_pose_on_chosen_pairs_as_on_every_pair(tmp_path, monkeypa
     rot_deg, center_err = sim3_errors(np.stack([c.world_to_cam.double().numpy() for c in est.cameras]), true_w2c)
     true_c = camera_centers(true_w2c)
     assert rot_deg.max() < 1.0 and center_err.max() < 0.01 * np.linalg.norm(true_c.max(0) - true_c.min(0))
+
+
+@pytest.mark.bad_input("a folder whose photos form two groups with no verified match between them",
+                       "one line naming both groups by file name and which one was posed, then one line per photo left out")
+def test_two_groups_of_photos_are_named_with_the_one_posed():
+    from splat_framework.sfm.reconstruct import SfmSummary
+
+    photos = ["a.jpg", "b.jpg", "c.jpg", "d.jpg", "e.jpg", "lone.jpg"]
+    counts = {(x, y): 0 for i, x in enumerate(photos) for y in photos[i + 1:]}
+    counts |= {("a.jpg", "b.jpg"): 300, ("b.jpg", "c.jpg"): 120, ("d.jpg", "e.jpg"): 200}
+    summary = SfmSummary(images=6, registered=["a", "b", "c"], points=500, reprojection_px=0.5, seconds=1.0,
+                         mapper="incremental", pair_matches=counts, photos=photos)
+    assert summary.groups() == [["a.jpg", "b.jpg", "c.jpg"], ["d.jpg", "e.jpg"], ["lone.jpg"]]
+    lines = summary.not_registered_lines()
+    assert lines[0] == ("the photos form 2 groups with no verified match between them: a.jpg, b.jpg, c.jpg "
+                        "(posed: the scene) and d.jpg, e.jpg (left out); photos of one place, each overlapping "
+                        "others, pose as one")
+    assert [line.split()[0] for line in lines[1:]] == ["d.jpg", "e.jpg", "lone.jpg"]
+    one = SfmSummary(images=3, registered=["a", "b"], points=5, reprojection_px=0.5, seconds=1.0, mapper="incremental",
+                     pair_matches={("a.jpg", "b.jpg"): 50, ("a.jpg", "c.jpg"): 0, ("b.jpg", "c.jpg"): 0},
+                     photos=["a.jpg", "b.jpg", "c.jpg"])
+    assert one.groups_line() is None and len(one.not_registered_lines()) == 1

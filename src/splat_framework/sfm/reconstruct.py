@@ -62,9 +62,49 @@ class SfmSummary:
 
     def not_registered_lines(self) -> list[str]:
         """One line per photo left out: ``IMG_7.jpg not registered (left out of the scene): verified
-        matches with IMG_1.jpg 3, IMG_2.jpg 0``, its verified matches with each other photo by file name."""
-        return [f"{name} not registered (left out of the scene): verified matches with "
-                f"{describe_counts(self.matches_of(name), 'photos')}" for name in self.left_out]
+        matches with IMG_1.jpg 3, IMG_2.jpg 0``, its verified matches with each other photo by file
+        name; first, when the photos form groups with no verified match between them, one line
+        naming every group and the one that was posed (:meth:`groups_line`)."""
+        groups = self.groups_line()
+        return ([groups] if groups else []) + [
+            f"{name} not registered (left out of the scene): verified matches with "
+            f"{describe_counts(self.matches_of(name), 'photos')}" for name in self.left_out]
+
+    def groups(self) -> list[list[str]]:
+        """The photos (file names) in groups joined by verified matches: a photo is in the group of
+        every photo it shares a verified match with (directly or through others); largest first."""
+        parent = {name: name for name in self.photos}
+
+        def root(a: str) -> str:
+            while parent[a] != a:
+                parent[a] = parent[parent[a]]
+                a = parent[a]
+            return a
+
+        for (a, b), n in self.pair_matches.items():
+            if n > 0 and a in parent and b in parent:
+                parent[root(a)] = root(b)
+        found: dict[str, list[str]] = {}
+        for name in self.photos:
+            found.setdefault(root(name), []).append(name)
+        return sorted(found.values(), key=len, reverse=True)
+
+    def groups_line(self) -> str | None:
+        """``the photos form 2 groups with no verified match between them: a.jpg, b.jpg, c.jpg (posed:
+        the scene) and d.jpg, e.jpg (left out); ...``, or None when at most one group has two photos
+        or more (a lone photo is named by its own line)."""
+        groups = [g for g in self.groups() if len(g) > 1]
+        if len(groups) < 2:
+            return None
+        registered = set(self.registered)
+
+        def named(group: list[str]) -> str:
+            posed = sum(Path(n).stem in registered for n in group)
+            state = "posed: the scene" if posed == len(group) else "left out" if not posed else f"{posed} posed"
+            return f"{', '.join(group)} ({state})"
+
+        return (f"the photos form {len(groups)} groups with no verified match between them: "
+                f"{' and '.join(named(g) for g in groups)}; photos of one place, each overlapping others, pose as one")
 
     def matches_of(self, photo: str) -> dict[str, int]:
         """The verified matches of ``photo`` with each other photo: {file name: count}, in the photos' order."""
