@@ -59,8 +59,13 @@ class Phase:
     its progress, shown by :func:`phase`: call :meth:`advance` or :meth:`update` as work is done."""
 
     def __init__(self, name: str, total: int | None, completed: int, unit: str, info: str, quiet_s: float,
-                 clock_from_first: bool = False):
+                 clock_from_first: bool = False, costs: Sequence[tuple[int, float]] = ()):
         self.name, self.total, self.completed, self.unit, self.info = name, total, completed, unit, info
+        self.costs = sorted((int(end), float(cost)) for end, cost in costs if cost > 0)
+        """(end, relative cost): the units before ``end`` (and from the previous end on) each cost ``cost``
+        (training: the coarse steps 0.5, the full-size ones 1); empty: every unit alike."""
+        self.segment_started: tuple[int, float] | None = None  # (units, time) when the current segment's clock began
+        self.updated_at = time.perf_counter()  # when the units done last changed
         self.quiet_s = quiet_s
         self.start_completed = completed
         self.t0 = time.perf_counter()
@@ -80,9 +85,13 @@ class Phase:
             if self.clock_from_first and completed > self.start_completed:
                 self.clock_from_first = False  # the first unit (lazy loads, kernel builds) is behind us
                 self.t0, self.start_completed = time.perf_counter(), completed
+                self.segment_started = None
                 if self.display is not None:
                     self.display.restart(self)
+            if self.costs and not self.clock_from_first:
+                self._follow_segments(completed)
             self.completed = completed
+            self.updated_at = time.perf_counter()
         if info is not None:
             self.info = info
         follow_load()  # every phase's threads follow the machine's load (runtime.threads)
@@ -94,6 +103,44 @@ class Phase:
         comes first, since the clock started (an estimate from 3 steps misleads)."""
         needed = max(1, min(ETA_AFTER_UNITS, math.ceil(ETA_AFTER_FRACTION * (self.total or 0))))
         return self.total is not None and self.completed - self.start_completed >= needed
+
+    def _cost(self, unit: int) -> float:
+        """The relative cost of unit ``unit`` (:attr:`costs`)."""
+        return next((c for end, c in self.costs if unit < end), self.costs[-1][1] if self.costs else 1.0)
+
+    def _cost_between(self, a: int, b: int) -> float:
+        """The summed cost of the units ``a`` to ``b - 1``."""
+        total, start = 0.0, 0
+        for end, cost in self.costs:
+            total += cost * max(0, min(b, end) - max(a, start))
+            start = end
+        return total + self.costs[-1][1] * max(0, b - max(a, start)) if self.costs else float(max(0, b - a))
+
+    def _follow_segments(self, completed: int) -> None:
+        """Start the segment clock anew at the first update that reaches a unit of another cost."""
+        if self.segment_started is None:
+            self.segment_started = (self.start_completed, self.t0)
+        elif completed > self.completed and self._cost(completed - 1) != self._cost(self.segment_started[0]):
+            self.segment_started = (self.completed, self.updated_at)  # the units since the last update are the new kind's
+
+    def remaining_seconds(self) -> float | None:
+        """The time the units left should take: at the rate measured so far, each unit weighted by its
+        cost (:attr:`costs`: the full-size training steps after the coarse ones take about twice as
+        long, not as long as the coarse ones did); the current segment's own rate once 10 of its
+        units are done. None before any unit."""
+        rate = self.rate()
+        if rate is None or self.total is None:
+            return None
+        if not self.costs:
+            return (self.total - self.completed) / rate
+        seg_units, seg_t = self.segment_started or (self.start_completed, self.t0)
+        seg_done, now = self.completed - seg_units, time.perf_counter()
+        if seg_done >= ETA_AFTER_UNITS and now > seg_t:  # seconds per unit of cost, measured in this segment
+            per_cost = (now - seg_t) / self._cost_between(seg_units, self.completed)
+        else:
+            done_cost = self._cost_between(self.start_completed, self.completed)
+            per_cost = (now - self.t0) / done_cost if done_cost > 0 else 1.0 / rate
+        return per_cost * self._cost_between(self.completed, self.total)
 
     def rate(self) -> float | None:
         """Units per second since the phase began (None before the first unit)."""
@@ -112,7 +159,7 @@ class Phase:
         if rate:
             parts.append(_speed(rate, self.unit))
             if self.total and not done and self.completed < self.total and self.eta_due():
-                parts.append(f"about {_clock((self.total - self.completed) / rate)} left")
+                parts.append(f"about {_clock(self.remaining_seconds())} left")
         if self.info:
             parts.append(self.info)
         return f"{self.name}: " + ", ".join(parts)
@@ -136,7 +183,8 @@ def _clock(seconds: float) -> str:
 
 @contextmanager
 def phase(name: str, total: int | None = None, *, completed: int = 0, unit: str = "", info: str = "",
-          quiet_s: float = PLAIN_QUIET_S, clock_from_first: bool = False) -> Iterator[Phase]:
+          quiet_s: float = PLAIN_QUIET_S, clock_from_first: bool = False,
+          costs: Sequence[tuple[int, float]] = ()) -> Iterator[Phase]:
     """Show one phase of a command while the block runs; yields its :class:`Phase` to report progress.
 
     In a terminal: a live row (name, bar, done/total, elapsed, remaining, rate, info) under any
@@ -147,8 +195,9 @@ def phase(name: str, total: int | None = None, *, completed: int = 0, unit: str 
     no summary (its error does). Nothing is shown after ``show_progress(False)``. The remaining
     time shows once :meth:`Phase.eta_due`; with ``clock_from_first`` (training) the elapsed time
     and the rate start when the first unit is done, so what that unit waited for (building
-    kernels, loading them) is its own phase and not part of the training clock."""
-    ph = Phase(name, total, completed, unit, info, quiet_s, clock_from_first)
+    kernels, loading them) is its own phase and not part of the training clock. ``costs``: units of
+    unlike cost, as (end, relative cost) (:meth:`Phase.remaining_seconds`)."""
+    ph = Phase(name, total, completed, unit, info, quiet_s, clock_from_first, costs)
     if _SHOW["enabled"]:
         ph.display = _TERMINAL if console.is_terminal else _PLAIN
         ph.display.open(ph)
@@ -193,11 +242,12 @@ class _Terminal:
             self.progress = _Rows(console=console, transient=True)
             self.progress.start()
         ph.task = self.progress.add_task(ph.name, total=ph.total, completed=ph.completed, info=ph.info, unit=ph.unit,
-                                         eta=False)
+                                         left=None)
 
     def changed(self, ph: Phase) -> None:
         if self.progress is not None:
-            self.progress.update(ph.task, completed=ph.completed, info=ph.info, eta=ph.eta_due())
+            self.progress.update(ph.task, completed=ph.completed, info=ph.info,
+                                 left=ph.remaining_seconds() if ph.eta_due() else None)
 
     def restart(self, ph: Phase) -> None:
         if self.progress is not None:
@@ -253,7 +303,7 @@ class _RemainingColumn(TextColumn):
         super().__init__("")
 
     def render(self, task):
-        left = task.time_remaining if task.total is not None and not task.finished and task.fields.get("eta") else None
+        left = task.fields.get("left") if task.total is not None and not task.finished else None
         return Text(f"~{_clock(left)}" if left is not None else "", style="progress.remaining")
 
 

@@ -334,3 +334,33 @@ def test_a_mistyped_data_is_refused_before_pytorch_loads(tmp_path):
     lines = out.stdout.strip().split("\n")
     assert lines[0].startswith("DataError llff/fren: no such dataset folder (did you mean 'llff/fern'?)"), out.stdout
     assert lines[1] == "loaded: []", out.stdout
+
+
+def test_the_remaining_time_weights_coarse_and_full_steps(monkeypatch):
+    """Half-size coarse steps of 1 s, then full-size steps of 2 s: at the switch the remaining time is
+    the full steps' (not the coarse rate extrapolated), and from 10 full steps on their own rate."""
+    import splat_framework.console as console
+
+    clock = [0.0]
+    monkeypatch.setattr(console.time, "perf_counter", lambda: clock[0])
+    ph = console.Phase("training", 100, 0, "steps", "", 0, costs=[(50, 0.5), (100, 1.0)])
+    plain = console.Phase("training", 100, 0, "steps", "", 0)
+    seen = {}
+    for step in range(1, 101):
+        clock[0] += 1.0 if step <= 50 else 2.5  # full steps a little slower than the prior says
+        ph.update(step)
+        plain.update(step)
+        seen[step] = ph.remaining_seconds(), plain.remaining_seconds()
+    real = {s: (100 - s) * 2.5 for s in (50, 61, 80)}
+    assert seen[50][0] == pytest.approx(100.0)  # 50 steps at twice the coarse ones' 1 s: the prior
+    assert abs(seen[50][0] - real[50]) <= 0.25 * real[50] < abs(seen[50][1] - real[50])  # within 25 %, unlike the mean
+    assert seen[61][0] == pytest.approx(real[61]) and seen[80][0] == pytest.approx(real[80])  # measured
+
+
+def test_the_trainer_weights_its_coarse_steps():
+    from splat_framework.config import TrainConfig
+    from splat_framework.engine.trainer import step_costs
+
+    cfg = TrainConfig(method="3dgs", steps=1000, default_steps=1000, coarse_steps=500, coarse_scale=0.5)
+    assert step_costs(cfg) == [(500, 0.5), (1000, 1.0)]
+    assert step_costs(cfg.model_copy(update={"coarse_steps": 0})) == []
