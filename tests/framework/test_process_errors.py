@@ -172,3 +172,21 @@ def test_process_arguments_are_parsed_to_one_line(args, words):
         parse_cli(Args, prog="splat-process", args=args)
     message = str(e.value)
     assert "\n" not in message and all(w in message for w in words), message
+
+
+@pytest.mark.bad_input("SIGTERM while photos are being posed (pycolmap loaded)", "exit 130, `interrupted`, no stack dump")
+def test_sigterm_after_pycolmap_is_loaded_stops_like_ctrl_c():
+    """Importing pycolmap installs glog's failure handler for SIGTERM (a stack dump, then death);
+    load_pycolmap puts the CLI's handler back, so a SIGTERM while posing stops as Ctrl-C does."""
+    import signal
+    import subprocess
+    import sys
+
+    pytest.importorskip("pycolmap", reason='posing needs pycolmap (pip install "splat-framework[process]")')
+    code = ("import time\nfrom splat_framework.cli.common import run_cli\nfrom splat_framework.sfm.colmap import load_pycolmap\n"
+            "def main():\n    load_pycolmap()\n    print('ready', flush=True)\n    time.sleep(60)\nrun_cli(main)\n")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().strip() == "ready"
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and err.strip() == "interrupted", err[-2000:]

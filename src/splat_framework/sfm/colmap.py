@@ -12,11 +12,20 @@ from ..errors import DataError
 
 def load_pycolmap():
     """The pycolmap module, COLMAP's own log lines silenced (our summaries and one-line errors say
-    what happened); a DataError naming the install command when it is missing."""
+    what happened); a DataError naming the install command when it is missing. Importing it installs
+    glog's failure handler for SIGTERM (a 40-line stack dump, then death): the handler the process
+    had (the CLI's, a stop like Ctrl-C) is put back."""
+    import signal
+    import threading
+
+    main_thread = threading.current_thread() is threading.main_thread()
+    term = signal.getsignal(signal.SIGTERM) if main_thread else None
     try:
         import pycolmap
     except ImportError:
         raise DataError('pose estimation needs pycolmap: pip install "splat-framework[process]"') from None
+    if term is not None:
+        signal.signal(signal.SIGTERM, term)
     pycolmap.logging.minloglevel = int(pycolmap.logging.Level.FATAL.value)
     return pycolmap
 
