@@ -43,7 +43,7 @@ def test_a_folder_or_file_others_may_write_is_not_trusted(tmp_path):
 def test_a_manifest_vouches_for_exactly_the_bytes_it_recorded(tmp_path):
     folder = private_folder(tmp_path / "f")
     (folder / "a.bin").write_bytes(b"one")
-    assert "missing or unreadable" in manifest_mismatch(folder, ["a.bin"])
+    assert "missing, unreadable or not signed" in manifest_mismatch(folder, ["a.bin"])
     write_manifest(folder, ["a.bin"])
     assert manifest_mismatch(folder, ["a.bin"]) is None
     (folder / "a.bin").write_bytes(b"two")
@@ -52,7 +52,7 @@ def test_a_manifest_vouches_for_exactly_the_bytes_it_recorded(tmp_path):
     (folder / "b.bin").write_bytes(b"new")
     assert manifest_mismatch(folder, ["b.bin"]) == f"{folder / 'b.bin'}: not in {MANIFEST}"
     (folder / MANIFEST).write_text((folder / MANIFEST).read_text().replace("a.bin", "b.bin"))  # edited by hand
-    assert "missing or unreadable" in manifest_mismatch(folder, ["b.bin"])
+    assert "missing, unreadable or not signed" in manifest_mismatch(folder, ["b.bin"])
 
 
 def test_a_folder_manifest_sees_added_removed_and_linked_files(tmp_path):
@@ -247,3 +247,88 @@ def test_without_os_uname_the_native_build_folder_is_still_named(monkeypatch):
 
     monkeypatch.delattr(os, "uname")
     assert _native._flags() and _native._build_dir(Path("/c")).name.startswith("kernels-")
+
+
+def _regenerated_elsewhere(folder: Path, names: list[str], monkeypatch, tmp_path: Path) -> None:
+    """A manifest for ``names`` regenerated as anyone could from the public source: by the same code,
+    signed with another user's key (another config folder), then the user's own key back."""
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "someone-else"))
+    write_manifest(folder, names)
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "me"))
+
+
+@needs_owners
+def test_a_manifest_signed_with_another_key_or_a_linked_file_vouches_for_nothing(tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "me"))
+    folder = private_folder(tmp_path / "cache")
+    (folder / "a.bin").write_bytes(b"x")
+    _regenerated_elsewhere(folder, ["a.bin"], monkeypatch, tmp_path)
+    assert "not signed by this user's key" in manifest_mismatch(folder, ["a.bin"])
+    write_manifest(folder, ["a.bin"])  # the user's own
+    assert manifest_mismatch(folder, ["a.bin"]) is None
+    key = tmp_path / "me" / "splat" / "cache-key"
+    assert (key.stat().st_mode & 0o777) == 0o600 and (key.parent.stat().st_mode & 0o777) == 0o700
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    os.chmod(shared, 0o777)
+    (shared / "a.bin").write_bytes(b"x")  # identical bytes, in a folder anyone may write
+    (folder / "a.bin").unlink()
+    (folder / "a.bin").symlink_to(shared / "a.bin")
+    assert manifest_mismatch(folder, ["a.bin"]) == f"{folder / 'a.bin'}: a symbolic link"
+
+
+@needs_owners
+@pytest.mark.bad_input("a planted native library or compiled graph with a manifest regenerated for it (another key), or "
+                       "a link to an identical file", "never loaded: one warning line naming the file, built again")
+def test_a_planted_library_with_a_regenerated_manifest_is_never_loaded(tmp_path, monkeypatch):
+    import ctypes
+
+    from torch.utils import cpp_extension
+
+    from splat_framework.render import _native
+
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "me"))
+    cache, marker = private_folder(tmp_path / "cache"), tmp_path / "marker"
+    build = _native._build_dir(cache)
+    private_folder(build)
+    _planted_library(build / "splat_native.so", marker)
+    _regenerated_elsewhere(build, ["splat_native.so"], monkeypatch, tmp_path)
+    built = []
+
+    def fake_load(name, sources, build_directory, **kwargs):
+        for lib in sorted(Path(build_directory).glob("*.so")):
+            ctypes.CDLL(str(lib))
+        (Path(build_directory) / "splat_native.so").write_bytes(b"built here")
+        built.append(build_directory)
+        return "module"
+
+    monkeypatch.setattr(cpp_extension, "load", fake_load)
+    monkeypatch.setattr(_native, "_STATE", {"module": None, "failed": False})
+    with pytest.warns(UserWarning) as caught:
+        assert _native.native_kernels(cache) == "module"
+    assert not marker.exists() and built == [str(build)]
+    (message,) = [str(w.message) for w in caught]
+    assert message.startswith(f"native rasterizer kernels not loaded: {build / MANIFEST}: missing, unreadable or not "
+                              "signed by this user's key") and "could not" not in message
+
+
+@needs_owners
+def test_a_planted_graph_with_a_regenerated_manifest_is_never_unpickled(tmp_path, monkeypatch):
+    from splat_framework.render.precompiled import Precompiled
+
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "me"))
+    marker, folder = tmp_path / "marker", tmp_path / "cache" / "precompiled"
+    kernel = Precompiled("fwd", lambda x: x, lambda args: (), folder, fallback=lambda *a: "fallback")
+    args = (torch.zeros(2),)
+    stem = kernel.stem_for(args)
+    private_folder(folder)
+    (folder / f"{stem}-0.bin").write_bytes(pickle.dumps(_Planted(str(marker))))
+    _regenerated_elsewhere(folder, [f"{stem}-0.bin"], monkeypatch, tmp_path)
+    compiled = []
+    monkeypatch.setattr(kernel, "_compile", lambda a: compiled.append(1) or _FakeGraph("compiled here"))
+    monkeypatch.setattr(torch.compiler, "load_compiled_function", lambda f: _FakeGraph(pickle.load(f)), raising=False)
+    with pytest.warns(UserWarning) as caught:
+        graph = kernel._load_or_compile(args)
+    assert not marker.exists() and graph() == "compiled here" and compiled == [1]
+    (message,) = [str(w.message) for w in caught]
+    assert message.startswith(f"compiled rasterizer kernels not loaded: {folder / MANIFEST}: missing, unreadable or not signed")

@@ -156,7 +156,7 @@ def native_kernels(cache_dir: Path | None = None):
 
     _ninja_on_path()
     build = _build_dir(cache_dir)
-    guard = None
+    guard, doing = None, "build"
     try:
         if build is not None:
             private_folder(build)
@@ -164,6 +164,7 @@ def native_kernels(cache_dir: Path | None = None):
             build = _checked_build(build, Path(cache_dir))
         library = build / f"{_NAME}.so" if build is not None else None
         if library is not None and library.is_file():  # vouched for by its manifest (_checked_build)
+            doing = "load"
             with phase("loading the native rasterizer kernels"):
                 _STATE["module"] = _import_library(library)
             return _STATE["module"]
@@ -181,7 +182,7 @@ def native_kernels(cache_dir: Path | None = None):
     except Exception as exc:  # depends on the toolchain
         _STATE["failed"] = True
         first = (str(exc).strip().splitlines() or [""])[0][:200]
-        warnings.warn(f"could not build the native rasterizer kernels ({type(exc).__name__}: {first}); "
+        warnings.warn(f"could not {doing} the native rasterizer kernels ({type(exc).__name__}: {first}); "
                       "using the torch ones")
     finally:
         if guard is not None:

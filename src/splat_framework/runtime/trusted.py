@@ -13,18 +13,67 @@ Two rules, as ssh applies to its key files:
   written at build time (:func:`write_manifest`); :func:`manifest_mismatch` says why files do not
   match it (missing manifest, another digest, an unreadable file). A mismatch means: build again,
   never load.
+- **Signatures**: a manifest is signed with a secret of this user's (HMAC-SHA256, the key in
+  :func:`signing_key_path`, 0600 in a 0700 folder outside every cache, made on first use), so a
+  cache copied or unpacked from elsewhere, or a planted file with a manifest regenerated from the
+  public source, does not vouch for itself; links inside a cache are refused, not followed.
 """
 
 from __future__ import annotations
 
 import hashlib
+import hmac
+import json
 import os
+import secrets
 import stat
 from pathlib import Path
 
 MANIFEST = "manifest.json"
 """The file, beside the artefacts it records, that maps each artefact's name to its sha256."""
-_FORMAT = "splat-manifest-1"
+_FORMAT = "splat-manifest-2"
+_KEY: dict[str, bytes] = {}  # the signing key, read once
+
+
+def signing_key_path() -> Path:
+    """Where this user's manifest signing key lives: ``$XDG_CONFIG_HOME/splat/cache-key`` (default
+    ``~/.config/splat/cache-key``), outside every cache."""
+    base = os.environ.get("XDG_CONFIG_HOME") or os.path.join(os.path.expanduser("~"), ".config")
+    return Path(base) / "splat" / "cache-key"
+
+
+def _signing_key() -> bytes:
+    """This user's secret (32 random bytes), made 0600 on first use; where it cannot be kept (no
+    writable home) or is not this user's alone, a secret of this process only (its caches are then
+    built again by the next process)."""
+    path = signing_key_path()
+    if str(path) in _KEY:
+        return _KEY[str(path)]
+    key = None
+    try:
+        if not path.exists():  # written aside, then linked in: two processes starting at once agree on one key
+            private_folder(path.parent)
+            fresh = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}")
+            fd = os.open(fresh, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+            with os.fdopen(fd, "w") as f:
+                f.write(secrets.token_hex(32))
+            try:
+                os.link(fresh, path)
+            except FileExistsError:
+                pass
+            finally:
+                fresh.unlink()
+        if untrusted_reason(path, path.parent) is None and not path.is_symlink() and stat.S_IMODE(path.stat().st_mode) & 0o077 == 0:
+            key = bytes.fromhex(path.read_text().strip())
+    except (OSError, ValueError):
+        key = None
+    _KEY[str(path)] = key if key and len(key) >= 16 else secrets.token_bytes(32)
+    return _KEY[str(path)]
+
+
+def _signature(entries: dict[str, str]) -> str:
+    body = json.dumps({"format": _FORMAT, "files": entries}, sort_keys=True, separators=(",", ":")).encode()
+    return hmac.new(_signing_key(), body, hashlib.sha256).hexdigest()
 
 
 def _owner_ok(uid: int) -> bool:
@@ -101,11 +150,12 @@ def write_manifest(folder: Path, names: list[str]) -> None:
     for name in names:
         make_private(folder / name)
         entries[name] = sha256_file(folder / name)
-    atomic_write_json(folder / MANIFEST, {"format": _FORMAT, "files": entries})
+    atomic_write_json(folder / MANIFEST, {"format": _FORMAT, "files": entries, "signature": _signature(entries)})
     make_private(folder / MANIFEST)
 
 
 def _read_entries(folder: Path) -> dict[str, str] | None:
+    """The manifest's entries when it is well-formed and signed with this user's key, else None."""
     from .io import read_json
 
     try:
@@ -113,7 +163,9 @@ def _read_entries(folder: Path) -> dict[str, str] | None:
     except Exception:
         return None
     files = data.get("files") if data.get("format") == _FORMAT else None
-    return files if isinstance(files, dict) else None
+    if not isinstance(files, dict) or not isinstance(data.get("signature"), str):
+        return None
+    return files if hmac.compare_digest(data["signature"], _signature(files)) else None
 
 
 def manifest_mismatch(folder: Path, names: list[str], root: Path | None = None) -> str | None:
@@ -123,8 +175,11 @@ def manifest_mismatch(folder: Path, names: list[str], root: Path | None = None) 
     folder = Path(folder)
     entries = _read_entries(folder)
     if entries is None:
-        return f"{folder / MANIFEST}: missing or unreadable (the files were not written by this version)"
+        return (f"{folder / MANIFEST}: missing, unreadable or not signed by this user's key (the files were not "
+                "built by this user's runs of this version)")
     for name in names:
+        if (folder / name).is_symlink():
+            return f"{folder / name}: a symbolic link"
         reason = untrusted_reason(folder / name, root if root is not None else folder)
         if reason:
             return reason
@@ -162,7 +217,8 @@ def folder_mismatch(folder: Path, root: Path | None = None) -> str | None:
     folder = Path(folder)
     entries = _read_entries(folder)
     if entries is None:
-        return f"{folder / MANIFEST}: missing or unreadable (the folder was not written by this version)"
+        return (f"{folder / MANIFEST}: missing, unreadable or not signed by this user's key (the folder was not "
+                "written by this user's runs of this version)")
     present = _files_under(folder)
     for name in present:
         if (folder / name).is_symlink():
