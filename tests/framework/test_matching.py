@@ -783,3 +783,30 @@ def test_posing_matches_round_trip_scale_to_the_trained_size_and_are_refused_whe
     known, line = known_sparse_matches(tmp_path, paths, [(100, 50)] * 2, [7, 3], "aliked-lightglue", cfg)
     assert known == {} and line.startswith(f"{tmp_path / POSE_MATCHES}: unreadable") and "\n" not in line
     assert known_sparse_matches(tmp_path / "none", paths, [(100, 50)] * 2, [7, 3], "aliked-lightglue", cfg) == ({}, "")
+
+
+def test_a_photo_runs_prior_says_what_it_reuses_before_its_phase(monkeypatch, capsys):
+    """The prior's matching of a photo run: the line naming the posing's sparse matches it reuses comes
+    first, then one phase that says what it matches and that it reuses them (not a second bare
+    "matching" read as matching everything again)."""
+    import splat_framework.matching.pipeline as pipeline
+    import splat_framework.matching.prior as prior
+    from splat_framework.console import say
+    from splat_framework.testing import MatchSet, scene_and_data
+
+    _, dm = scene_and_data("forward-tiny", views=3)
+    ids = [int(i) for i in dm.train_indices]
+    reused = {(ids[0], ids[1]): (np.zeros((1, 2)), np.zeros((1, 2)))}
+    monkeypatch.setattr(prior, "posing_matches", lambda *a: (reused, "sparse matches of 1 training pairs from the posing (x)"))
+    order = []
+
+    def fake(images, cameras, view_ids, config, cache_dir=None, masks=None, known=None, pairs=None, label="matching"):
+        say(f"PHASE {label}")
+        return MatchSet(view_ids=view_ids, matches={})
+
+    monkeypatch.setattr(pipeline, "compute_matches", fake)
+    prior.compute_match_set(match_config(cache=False), dm)
+    out = capsys.readouterr()
+    order = [line for line in (out.out + out.err).splitlines() if "posing" in line]
+    assert order[0].startswith("sparse matches of 1 training pairs from the posing")
+    assert order[1] == "PHASE matching the training views for the prior (auto, sparse matches reused from the posing)"

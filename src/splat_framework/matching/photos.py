@@ -21,7 +21,8 @@ def _match(images: list[np.ndarray], matcher: str, pairs: list[tuple[int, int]] 
     """{(i, j): (pts_i, pts_j)} over ``pairs`` (every pair when None) of ``images`` ([H, W, 3] uint8 RGB),
     continuous coordinates."""
     uncapped = match_config(matcher, max_matches=0, max_total_matches=0, cache=False)
-    ms = compute_matches(images, None, list(range(len(images))), uncapped, pairs=pairs)
+    ms = compute_matches(images, None, list(range(len(images))), uncapped, pairs=pairs,
+                         label=f"matching the photos for their poses ({matcher})")
     return {pair: ms.get(*pair) for pair in ms.pairs()}
 
 

@@ -109,6 +109,7 @@ def compute_matches(
     masks: list[np.ndarray | None] | None = None,
     known: dict[Pair, tuple[np.ndarray, np.ndarray]] | None = None,
     pairs: list[Pair] | None = None,
+    label: str = "matching",
 ) -> MatchSet:
     """Verified matches between every pair of the given views.
 
@@ -126,6 +127,8 @@ def compute_matches(
             of running the learned matcher on that pair; verified like any other matches.
         pairs: the pairs (view id a, view id b), a < b, to match (the posing's chosen pairs,
             :mod:`splat_framework.sfm.pair_selection`); None: every pair.
+        label: the name of the progress phase (what is matched for what: the posing's and the
+            prior's matching are two phases of one photo run).
 
     Returns:
         MatchSet over the pairs (i, j), i < j, of ``view_ids`` (every one, or ``pairs``); why a pair was left empty is in its
@@ -187,7 +190,7 @@ def compute_matches(
 
     # a learned matcher's random init must not move the run's random state
     # on the machine's cores whatever the load: the same matches alone, beside other work or pinned
-    with rng_untouched(), machine_threads() as threads, phase("matching", n_pairs, unit="pairs") as progress:
+    with rng_untouched(), machine_threads() as threads, phase(label, n_pairs, unit="pairs") as progress:
         ms = _match_all_pairs(ids, imgs, cams, fg, config, key, progress, known, names, index_pairs)
     ms.meta["threads"] = threads
     if cache_path is not None:

@@ -37,9 +37,12 @@ def compute_match_set(matching: MatchConfig, datamanager) -> MatchSet:
     cache_dir = user_cache_dir() / "matches" if matching.cache else None
     masks = [datamanager.alpha(i) for i in ids] if matching.alpha_mask else None
     known, origin = posing_matches(matching, datamanager, ids, cameras)
-    match_set = compute_matches(images, cameras, ids, matching, cache_dir, masks, known=known)
-    if origin and not (known and match_set.meta.get("cache_hit")):
-        (say if known else warnings.warn)(origin)
+    if origin and known:  # what is reused, said before the phase that reuses it
+        say(origin)
+    label = f"matching the training views for the prior ({matching.kind}{', sparse matches reused from the posing' if known else ''})"
+    match_set = compute_matches(images, cameras, ids, matching, cache_dir, masks, known=known, label=label)
+    if origin and not known:
+        warnings.warn(origin)
     warn_empty(match_set, view_names(ids, cameras))
     return match_set
 

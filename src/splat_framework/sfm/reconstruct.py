@@ -23,7 +23,7 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..console import phase
+from ..console import phase, say
 from ..errors import DataError
 from ..files.output_paths import PROCESSED_SCENE, check_output, install_output
 from ..files.work_folder import scratch
@@ -179,8 +179,10 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
         of_all = f"{len(chosen)} of {len(rgb) * (len(rgb) - 1) // 2} pairs"
         if matcher != "sift":
             try:
-                # on the machine's cores whatever the load: the same matches (so poses) alone or not
-                with machine_threads(), phase(f"matching ({matcher}, {of_all})"):
+                # on the machine's cores whatever the load: the same matches (so poses) alone or not;
+                # the matcher shows its own progress (the framework's: one phase naming the work)
+                say(f"matching {of_all} with {matcher} for the poses")
+                with machine_threads():
                     found = run_matcher(plugins[matcher].load(), rgb, chosen)
                 write_matches(pycolmap, db, staged, found)
             except FileNotFoundError as e:  # the matcher's weights are not installed
