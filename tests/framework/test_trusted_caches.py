@@ -107,10 +107,11 @@ def _planted_library(path: Path, marker: Path) -> None:
     src.unlink()
 
 
-@needs_owners
-@pytest.mark.bad_input("a native kernels library in the cache that the project did not build (planted, swapped or edited)",
-                       "never loaded: one warning line naming the file, the kernels built again")
-def test_a_planted_native_library_is_never_loaded_and_the_kernels_are_built_again(tmp_path, monkeypatch):
+def _planted_native_build(tmp_path, monkeypatch, regenerated: bool = False):
+    """(cache, build folder, marker, the builds done): a library planted in the native cache's build
+    folder (touching ``marker`` when loaded), its manifest regenerated under another key when
+    ``regenerated``, and torch's builder replaced by one that loads every library it finds (as torch
+    does) and, finding none, leaves what the real builder leaves."""
     import ctypes
 
     from torch.utils import cpp_extension
@@ -121,6 +122,8 @@ def test_a_planted_native_library_is_never_loaded_and_the_kernels_are_built_agai
     build = _native._build_dir(cache)
     private_folder(build)
     _planted_library(build / "splat_native.so", marker)
+    if regenerated:
+        _regenerated_elsewhere(build, ["splat_native.so"], monkeypatch, tmp_path)
     built = []
 
     def fake_load(name, sources, build_directory, **kwargs):  # torch loads every library it finds there
@@ -134,6 +137,19 @@ def test_a_planted_native_library_is_never_loaded_and_the_kernels_are_built_agai
 
     monkeypatch.setattr(cpp_extension, "load", fake_load)
     monkeypatch.setattr(_native, "_STATE", {"module": None, "failed": False})
+    return cache, build, marker, built
+
+
+@needs_owners
+@pytest.mark.bad_input("a native kernels library in the cache that the project did not build (planted, swapped or edited)",
+                       "never loaded: one warning line naming the file, the kernels built again")
+def test_a_planted_native_library_is_never_loaded_and_the_kernels_are_built_again(tmp_path, monkeypatch):
+    from torch.utils import cpp_extension
+
+    from splat_framework.render import _native
+
+    cache, build, marker, built = _planted_native_build(tmp_path, monkeypatch)
+    fake_load = cpp_extension.load  # the helper's builder, put back below
     with pytest.warns(UserWarning) as caught:
         assert _native.native_kernels(cache) == "module"
     assert not marker.exists()
@@ -182,9 +198,10 @@ class _FakeGraph:
         Path(path).write_bytes(pickle.dumps(self.tag))
 
 
-@pytest.mark.bad_input("a saved compiled graph in the cache that the project did not save, or one that fails to load",
-                       "never unpickled: one warning line naming the file, compiled again")
-def test_a_planted_compiled_graph_is_never_unpickled_and_a_saved_one_is_loaded(tmp_path, monkeypatch):
+def _planted_graph(tmp_path, monkeypatch, regenerated: bool = False):
+    """(kernel, its args, marker, folder, file stem, the compiles done): a pickle planted as the
+    kernel's saved graph (touching ``marker`` when unpickled), its manifest regenerated under another
+    key when ``regenerated``; compiling and loading faked."""
     from splat_framework.render.precompiled import Precompiled
 
     marker, folder = tmp_path / "marker", tmp_path / "cache" / "precompiled"
@@ -193,9 +210,18 @@ def test_a_planted_compiled_graph_is_never_unpickled_and_a_saved_one_is_loaded(t
     stem = kernel.stem_for(args)
     private_folder(folder)
     (folder / f"{stem}-0.bin").write_bytes(pickle.dumps(_Planted(str(marker))))
+    if regenerated:
+        _regenerated_elsewhere(folder, [f"{stem}-0.bin"], monkeypatch, tmp_path)
     compiled = []
     monkeypatch.setattr(kernel, "_compile", lambda a: compiled.append(1) or _FakeGraph("compiled here"))
     monkeypatch.setattr(torch.compiler, "load_compiled_function", lambda f: _FakeGraph(pickle.load(f)), raising=False)
+    return kernel, args, marker, folder, stem, compiled
+
+
+@pytest.mark.bad_input("a saved compiled graph in the cache that the project did not save, or one that fails to load",
+                       "never unpickled: one warning line naming the file, compiled again")
+def test_a_planted_compiled_graph_is_never_unpickled_and_a_saved_one_is_loaded(tmp_path, monkeypatch):
+    kernel, args, marker, folder, stem, compiled = _planted_graph(tmp_path, monkeypatch)
     with pytest.warns(UserWarning) as caught:
         graph = kernel._load_or_compile(args)
     assert not marker.exists() and graph() == "compiled here" and compiled == [1]
@@ -281,29 +307,10 @@ def test_a_manifest_signed_with_another_key_or_a_linked_file_vouches_for_nothing
 @pytest.mark.bad_input("a planted native library or compiled graph with a manifest regenerated for it (another key), or "
                        "a link to an identical file", "never loaded: one warning line naming the file, built again")
 def test_a_planted_library_with_a_regenerated_manifest_is_never_loaded(tmp_path, monkeypatch):
-    import ctypes
-
-    from torch.utils import cpp_extension
-
     from splat_framework.render import _native
 
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "me"))
-    cache, marker = private_folder(tmp_path / "cache"), tmp_path / "marker"
-    build = _native._build_dir(cache)
-    private_folder(build)
-    _planted_library(build / "splat_native.so", marker)
-    _regenerated_elsewhere(build, ["splat_native.so"], monkeypatch, tmp_path)
-    built = []
-
-    def fake_load(name, sources, build_directory, **kwargs):
-        for lib in sorted(Path(build_directory).glob("*.so")):
-            ctypes.CDLL(str(lib))
-        (Path(build_directory) / "splat_native.so").write_bytes(b"built here")
-        built.append(build_directory)
-        return "module"
-
-    monkeypatch.setattr(cpp_extension, "load", fake_load)
-    monkeypatch.setattr(_native, "_STATE", {"module": None, "failed": False})
+    cache, build, marker, built = _planted_native_build(tmp_path, monkeypatch, regenerated=True)
     with pytest.warns(UserWarning) as caught:
         assert _native.native_kernels(cache) == "module"
     assert not marker.exists() and built == [str(build)]
@@ -314,19 +321,8 @@ def test_a_planted_library_with_a_regenerated_manifest_is_never_loaded(tmp_path,
 
 @needs_owners
 def test_a_planted_graph_with_a_regenerated_manifest_is_never_unpickled(tmp_path, monkeypatch):
-    from splat_framework.render.precompiled import Precompiled
-
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "me"))
-    marker, folder = tmp_path / "marker", tmp_path / "cache" / "precompiled"
-    kernel = Precompiled("fwd", lambda x: x, lambda args: (), folder, fallback=lambda *a: "fallback")
-    args = (torch.zeros(2),)
-    stem = kernel.stem_for(args)
-    private_folder(folder)
-    (folder / f"{stem}-0.bin").write_bytes(pickle.dumps(_Planted(str(marker))))
-    _regenerated_elsewhere(folder, [f"{stem}-0.bin"], monkeypatch, tmp_path)
-    compiled = []
-    monkeypatch.setattr(kernel, "_compile", lambda a: compiled.append(1) or _FakeGraph("compiled here"))
-    monkeypatch.setattr(torch.compiler, "load_compiled_function", lambda f: _FakeGraph(pickle.load(f)), raising=False)
+    kernel, args, marker, folder, stem, compiled = _planted_graph(tmp_path, monkeypatch, regenerated=True)
     with pytest.warns(UserWarning) as caught:
         graph = kernel._load_or_compile(args)
     assert not marker.exists() and graph() == "compiled here" and compiled == [1]
