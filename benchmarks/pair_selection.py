@@ -16,20 +16,6 @@ import time
 import numpy as np
 
 
-def connected(n: int, pairs: list[tuple[int, int]]) -> bool:
-    parent = list(range(n))
-
-    def root(a: int) -> int:
-        while parent[a] != a:
-            parent[a] = parent[parent[a]]
-            a = parent[a]
-        return a
-
-    for a, b in pairs:
-        parent[root(a)] = root(b)
-    return len({root(a) for a in range(n)}) == 1
-
-
 def main(argv: list[str] | None = None) -> list[dict]:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--data", nargs="+", default=["blender/lego"])
@@ -40,7 +26,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     from splat_framework.data import load_scene
     from splat_framework.data.images import load_image
     from splat_framework.data.resolve import locate_data
-    from splat_framework.sfm.pair_selection import pairs_from_similarity, word_histograms
+    from splat_framework.sfm.pair_selection import linked_groups, pairs_from_similarity, word_histograms
 
     out = []
     for data in args.data:
@@ -59,7 +45,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         for k in args.k:
             pairs = pairs_from_similarity(hist @ hist.T, neighbours=k)
             row = {"data": data, "photos": len(idx), "k": k, "pairs": len(pairs), "all_pairs": len(idx) * (len(idx) - 1) // 2,
-                   "recall": len(truth & set(pairs)) / len(truth), "connected": connected(len(idx), pairs),
+                   "recall": len(truth & set(pairs)) / len(truth), "connected": len(linked_groups(list(range(len(idx))), pairs)) == 1,
                    "similarity_s": round(seconds, 2)}
             out.append(row)
             print(row, flush=True)

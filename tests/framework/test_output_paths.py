@@ -318,7 +318,7 @@ def test_clearing_an_output_unlinks_links_inside_and_keeps_the_users_files(tmp_p
 
 
 @pytest.mark.parametrize("umask", [0o022, 0o002, 0o077])
-def test_written_results_follow_the_umask_and_private_folders_stay_private(tmp_path, umask):
+def test_written_results_follow_the_umask_and_private_folders_stay_private(tmp_path, umask, monkeypatch):
     """A run's results (config.json, metrics.json, renders, the PLY: every file written through
     atomic_write_bytes) get the mode ``open`` gives under the user's umask, not a temporary file's
     0600; inside a private folder (a cache's, 0700) they stay 0600."""
@@ -331,7 +331,10 @@ def test_written_results_follow_the_umask_and_private_folders_stay_private(tmp_p
     os.chmod(tmp_path / "run", 0o755)
     (tmp_path / "cache").mkdir()
     os.chmod(tmp_path / "cache", 0o700)
+    from splat_framework.runtime import io
+
     old = os.umask(umask)
+    monkeypatch.setattr(io, "_UMASK", {})  # the process's umask is read once: this one, set just now
     try:
         atomic_write_json(tmp_path / "run" / "metrics.json", {"a": 1})
         atomic_write_bytes(tmp_path / "run" / "model.ply", b"ply")

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from ..errors import DataError
 
+_UMASK: dict[str, int] = {}
 CHECKSUM_KEY = "checksum"
 """Key of the embedded checksum in JSON results."""
 
@@ -49,9 +50,16 @@ def _new_file_mode(folder: Path) -> int:
             return 0o600
     except OSError:
         pass
-    umask = os.umask(0o022)  # read: os.umask sets it to read it, and is set back at once
-    os.umask(umask)
-    return 0o666 & ~umask
+    return 0o666 & ~_process_umask()
+
+
+def _process_umask() -> int:
+    """The process's umask, read once (``os.umask`` can only be read by setting it, which would
+    race with other threads creating files)."""
+    if "umask" not in _UMASK:
+        _UMASK["umask"] = os.umask(0o022)
+        os.umask(_UMASK["umask"])
+    return _UMASK["umask"]
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:

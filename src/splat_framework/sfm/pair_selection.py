@@ -28,6 +28,26 @@ FEATURES_PER_PHOTO = 1500
 """SIFT features a photo contributes to the similarity."""
 
 
+def linked_groups(items: list, links) -> list[list]:
+    """``items`` in groups joined by ``links`` (pairs of items, directly or through others), each group
+    in the items' order, largest first."""
+    parent = {item: item for item in items}
+
+    def root(a):
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for a, b in links:
+        if a in parent and b in parent:
+            parent[root(a)] = root(b)
+    found: dict = {}
+    for item in items:
+        found.setdefault(root(item), []).append(item)
+    return sorted(found.values(), key=len, reverse=True)
+
+
 def all_pairs(n: int) -> list[tuple[int, int]]:
     """Every pair (i, j), i < j, of ``n`` photos."""
     return [(i, j) for i in range(n) for j in range(i + 1, n)]

@@ -29,7 +29,7 @@ from ..files.output_paths import PROCESSED_SCENE, check_output, install_output
 from ..files.work_folder import scratch
 from ..runtime.threads import machine_threads
 from .colmap import load_pycolmap, verified_pair_counts, write_matches
-from .pair_selection import EXHAUSTIVE_MAX_PHOTOS, all_pairs, choose_pairs
+from .pair_selection import EXHAUSTIVE_MAX_PHOTOS, all_pairs, choose_pairs, linked_groups
 from .photo_matchers import AUTO_MATCHER, AUTO_PREFERRED, choose_matcher, photo_matchers, run_matcher
 from .photos import stage_images
 
@@ -73,21 +73,7 @@ class SfmSummary:
     def groups(self) -> list[list[str]]:
         """The photos (file names) in groups joined by verified matches: a photo is in the group of
         every photo it shares a verified match with (directly or through others); largest first."""
-        parent = {name: name for name in self.photos}
-
-        def root(a: str) -> str:
-            while parent[a] != a:
-                parent[a] = parent[parent[a]]
-                a = parent[a]
-            return a
-
-        for (a, b), n in self.pair_matches.items():
-            if n > 0 and a in parent and b in parent:
-                parent[root(a)] = root(b)
-        found: dict[str, list[str]] = {}
-        for name in self.photos:
-            found.setdefault(root(name), []).append(name)
-        return sorted(found.values(), key=len, reverse=True)
+        return linked_groups(self.photos, [pair for pair, n in self.pair_matches.items() if n > 0])
 
     def groups_line(self) -> str | None:
         """``the photos form 2 groups with no verified match between them: a.jpg, b.jpg, c.jpg (posed:
@@ -174,9 +160,11 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
                                       reader_options=reader, device=cpu)
         import cv2
 
-        rgb = [cv2.imread(str(work / "input" / f), cv2.IMREAD_COLOR)[..., ::-1].copy() for f in staged]
-        chosen = pairs_to_match(rgb, ordered)
-        of_all = f"{len(chosen)} of {len(rgb) * (len(rgb) - 1) // 2} pairs"
+        # decoded for a learned matcher, or to choose the pairs of more than a few photos
+        rgb = ([cv2.imread(str(work / "input" / f), cv2.IMREAD_COLOR)[..., ::-1].copy() for f in staged]
+               if matcher != "sift" or len(staged) > EXHAUSTIVE_MAX_PHOTOS else None)
+        chosen = pairs_to_match(rgb, ordered) if rgb is not None else all_pairs(len(staged))
+        of_all = f"{len(chosen)} of {len(staged) * (len(staged) - 1) // 2} pairs"
         if matcher != "sift":
             try:
                 # on the machine's cores whatever the load: the same matches (so poses) alone or not;
@@ -192,7 +180,7 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
                 matcher = "sift"
         if matcher == "sift":
             with phase(f"matching (sift, {of_all})"):
-                if len(chosen) == len(all_pairs(len(rgb))):
+                if len(chosen) == len(all_pairs(len(staged))):
                     pycolmap.match_exhaustive(db, device=cpu)
                 else:  # COLMAP matches the listed pairs
                     listed = work / "pairs.txt"
