@@ -33,6 +33,7 @@ from splat_framework.plugin import (
     StrategyConfig,
     compute_match_set,
     config_3dgs,
+    flag_name,
     initial_points,
     match_pairs,
     phase,
@@ -113,7 +114,7 @@ class BaselineSchedule:
     def message(self) -> str:
         """One line: what the switch changed and what it kept."""
         changes = ", ".join(f"{k} {a} -> {b}" for k, (a, b) in self.changed.items()) or "nothing"
-        flags = ", ".join("--" + k.replace("_", "-") for k in self.kept)
+        flags = ", ".join(flag_name(k) for k in self.kept)
         kept = f"; kept as you set: {flags}" if self.kept else ""
         return f"thin prior: training on the 3dgs baseline's densification and SH schedule ({changes}){kept}"
 

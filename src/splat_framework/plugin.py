@@ -23,7 +23,8 @@ the face holds what a method's own parts build on:
 - losses: ``photometric_loss`` (L1 + D-SSIM) and ``regulariser_terms`` (the opt-in ``model.reg``
   terms, given what they need; a ``GaussianModel`` subclass calls ``self.regulariser_terms``);
 - schedules: ``run_fraction`` and ``log_lerp`` (a learning rate decaying over the run),
-  ``resolve_steps`` (a config's schedule rescaled to its ``--steps``), ``config_3dgs`` (the
+  ``resolve_steps`` (a config's schedule rescaled to its ``--steps``; the user's own iteration
+  counts kept), ``flag_name`` (a config field's command-line flag), ``config_3dgs`` (the
   ``3dgs`` baseline's config, e.g. its densification schedule);
 - geometry: ``knn_scale`` (each point's distance to its nearest neighbours, 3DGS's start scale);
 - the terminal and the profile: ``phase`` (a named phase with progress, as the framework's own
@@ -58,6 +59,7 @@ _EXPORTS: dict[str, str] = {
     "MatchKinds": "splat_framework.config",
     "AutoMatchConfig": "splat_framework.config",
     "resolve_steps": "splat_framework.config",
+    "flag_name": "splat_framework.config",
     "config_3dgs": "splat_framework.methods.gaussian_splatting",
     "Kind": "splat_framework.config",
     # field markers of configs
@@ -137,6 +139,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
         Steps,
         StrategyConfig,
         TrainConfig,
+        flag_name,
         init_field,
         resolve_steps,
         strategy_field,

@@ -6,6 +6,7 @@ README's comparison at equal iterations, rows that fit 80 columns."""
 from __future__ import annotations
 
 import io
+import json
 import re
 import shlex
 import signal
@@ -255,7 +256,25 @@ def test_resume_refusal_names_only_the_fields_the_user_changed(tmp_path, method)
                   "--steps", "30", "--seed", "1", code=2, match="--resume cannot change the experiment",
                   watch=[run], env=cli_env(SPLAT_COMPILE="0"))
     changed = res.message.split("experiment: ")[1].split(" (resume with")[0]
-    assert changed == "steps (20 -> 30), seed (0 -> 1)", res.message
+    assert changed == "--steps (20 -> 30), --seed (0 -> 1)", res.message
+
+
+@pytest.mark.bad_input("`--resume` without the `--checkpoint-every 5` the run was started with (`--steps 10`)",
+                       "exit 2, one line naming the flag with the number typed: `--checkpoint-every (5 -> 3)`")
+def test_the_users_own_iteration_counts_are_kept_and_a_refused_resume_names_them_as_typed(tmp_path):
+    """Issue 85: ``--steps 10 --checkpoint-every 5`` checkpoints every 5 iterations (a number the user
+    typed is not rescaled by --steps; the method's defaults are), and a ``--resume`` that leaves the
+    flag out is refused naming it with the typed 5 and the default 3 (1000 rescaled to 10 steps)."""
+    run = tmp_path / "run"
+    env = cli_env(SPLAT_COMPILE="0")
+    run_cli("train", "3dgs", "--data", "synthetic/forward-tiny", "--steps", "10", "--checkpoint-every", "5",
+            "--output", run, code=0, env=env)
+    saved = json.loads((run / "config.json").read_text())["config"]
+    assert (saved["steps"], saved["checkpoint_every"]) == (10, 5)
+    assert sorted(p.name for p in (run / "checkpoints").glob("*.ckpt"))[-2:] == ["step-0000005.ckpt", "step-0000010.ckpt"]
+    res = run_cli("train", "3dgs", "--data", "synthetic/forward-tiny", "--steps", "10", "--output", run, "--resume",
+                  code=2, match="--resume cannot change the experiment", watch=[run], env=env)
+    assert "--checkpoint-every (5 -> 3)" in res.message, res.message
 
 
 def test_the_readme_compares_methods_at_the_same_iterations():

@@ -341,6 +341,31 @@ def test_start_steps_shrink_with_a_shorter_run_and_stay_with_a_longer_one():
     assert scale_schedule(base, 2.0).strategy.opacity_decay == 1.0  # off stays off
 
 
+def test_the_users_own_iteration_counts_keep_their_numbers_when_the_schedule_is_rescaled():
+    """resolve_steps with the defaults the user's settings were applied to: a Steps, Period or
+    StepFactor field that differs from them is the user's and stays as set; the ones left at their
+    defaults follow --steps; another strategy kind is compared with its own class's defaults."""
+    from splat_framework.config import DensifyConfig
+
+    class Another(DensifyConfig):  # a kind of the user's, with its own defaults
+        refine_start_iter: int = 400  # a StartSteps no longer: never rescaled
+
+    defaults = TrainConfig()  # 3dgs at 3000: checkpoint_every 1000, refine_stop_iter 2500
+    typed = defaults.model_copy(update={
+        "steps": 300, "checkpoint_every": 5,
+        "strategy": defaults.strategy.model_copy(update={"refine_stop_iter": 2000, "opacity_decay": 0.9}),
+    })
+    got = resolve_steps(typed, defaults)
+    assert (got.checkpoint_every, got.strategy.refine_stop_iter, got.strategy.opacity_decay) == (5, 2000, 0.9)
+    assert got.strategy.refine_start_iter == 50 and got.total_steps == 300  # left at its default: rescaled
+    assert resolve_steps(typed).checkpoint_every == 1  # without the defaults: everything rescales
+    assert resolve_steps(got, defaults) == got  # a resolved config resolves to itself
+    other = typed.model_copy(update={"strategy": Another(refine_stop_iter=2000)})
+    kept = resolve_steps(other, defaults).strategy
+    assert (kept.refine_stop_iter, kept.refine_start_iter) == (2000, 400)
+    assert kept.reset_every == 300  # its own default (3000): rescaled
+
+
 def test_config_json_roundtrip_with_schema_version(tmp_path):
     from scg_plugin.method import config_scgaussian
 

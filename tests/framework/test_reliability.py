@@ -113,7 +113,7 @@ def test_resume_reproduces_uninterrupted_run_3dgs(tmp_path):
     resumed, mb = interrupted_then_resumed(cfg_fn, tmp_path / "b", stop=15)
     # a resume may change run options (device, progress, ...) but never the experiment
     saved = (tmp_path / "b" / "config.json").read_bytes()
-    with pytest.raises(DataError, match=r"config.json: --resume cannot change the experiment: seed \(0 -> 5\)"):
+    with pytest.raises(DataError, match=r"config.json: --resume cannot change the experiment: --seed \(0 -> 5\)"):
         Trainer(cfg_fn(tmp_path / "b", resume=True, seed=5))
     assert (tmp_path / "b" / "config.json").read_bytes() == saved
     Trainer(cfg_fn(tmp_path / "b", resume=True, progress=False, eval_every=7))
@@ -454,10 +454,10 @@ def _env(tmp_path):
 def test_sigterm_writes_checkpoint_exits_130_and_resume_finishes(tmp_path):
     env = _env(tmp_path)
     out = tmp_path / "run"
-    # --steps 60 rather than 2000 so that the resumed run finishes quickly; the
-    # checkpoint interval (rescaled) becomes 1, so a checkpoint exists within the first steps
+    # --steps 60 rather than 2000 so that the resumed run finishes quickly; a checkpoint after
+    # every step, so one exists within the first steps
     args = ["3dgs", "--data", "synthetic/forward-tiny", "--steps", "60", "--output", str(out), "--no-progress",
-            "--checkpoint-every", "50", "--model.init.num-points", "300", "--no-save-renders"]
+            "--checkpoint-every", "1", "--model.init.num-points", "300", "--no-save-renders"]
     stderr = stop_training(*args, checkpoints=str(out / "checkpoints" / "step-*.ckpt"), env=env).stderr
     lines = message_lines(stderr)  # (a loaded machine may take over 2 s to start: that phase then prints its lines)
     assert len(lines) == 2 and lines[0].startswith("SIGTERM: stopping after this step"), stderr

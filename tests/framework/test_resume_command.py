@@ -13,9 +13,9 @@ import pytest
 from cli_harness import run_cli, stop_training
 from splat_framework.runtime.io import atomic_write_json, read_json
 
-ARGS = ["3dgs", "--data", "synthetic/forward-tiny", "--steps", "60", "--no-progress", "--checkpoint-every", "50",
+ARGS = ["3dgs", "--data", "synthetic/forward-tiny", "--steps", "60", "--no-progress", "--checkpoint-every", "1",
         "--model.init.num-points", "300", "--no-save-renders"]
-"""A short run whose rescaled checkpoint interval is 1: a checkpoint after each step."""
+"""A short run with a checkpoint after each step."""
 RUNS = "outputs/forward-tiny/3dgs"
 """Where the runs of ``ARGS`` go (the default run folder's parent), relative to the folder they start in."""
 

@@ -225,7 +225,7 @@ def test_trusted_resume_is_checked_against_the_checkpoints_own_record(seed0_run,
     the newest checkpoint records seed 0 under its own checksum, and nothing is rewritten."""
     run = edited_copy(seed0_run, tmp_path, "seed")
     run_cli("train", *train_args(run, 10, "--resume", "--seed", 5, "--trust-edited-config"), code=2,
-            match=("step-0000010.ckpt", "cannot change the experiment", "seed (0 -> 5)"), watch=[tmp_path])
+            match=("step-0000010.ckpt", "cannot change the experiment", "--seed (0 -> 5)"), watch=[tmp_path])
 
 
 @pytest.mark.bad_input("`--resume` with `config.json` deleted, unsigned or edited (its seed, say)", "exit 2 unless `--trust-edited-config`; then the checkpoints' own signed record of the experiment must match; `config.json` is never re-signed as another experiment")

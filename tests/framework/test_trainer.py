@@ -498,8 +498,8 @@ def test_coarse_steps_train_on_area_averaged_images_with_cameras_scaled_to_match
     """``coarse_steps``: the steps before it render the training view resized by ``coarse_scale``
     (each axis by its own ratio) against the image averaged over each coarse pixel's area; later
     steps render the view as it is."""
-    half = get_method("3dgs").default_config().default_steps // 2  # a schedule field: --steps 6 makes it 3
-    trainer = Trainer(tiny_config(tmp_path / "run", steps=6, progress=False, coarse_steps=half, coarse_scale=0.5))
+    # a schedule field, set by the user: kept as set with --steps 6
+    trainer = Trainer(tiny_config(tmp_path / "run", steps=6, progress=False, coarse_steps=3, coarse_scale=0.5))
     assert trainer.config.coarse_steps == 3
     model, dm = trainer.model, trainer.datamanager
     render = model.get_outputs

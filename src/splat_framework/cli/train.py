@@ -177,11 +177,11 @@ def main(args: list[str] | None = None) -> dict:
         config = resume_unfinished(config)
     spec = methods[config.method]  # the one lookup of the run, handed down
     if not config.viewer:
-        return train(config, spec=spec, command=given)
+        return train(config, spec=spec, command=given, defaults=loaded)
     from ..viewer.scene_viewer import ViewerCallback
 
     live = ViewerCallback(port=config.viewer_port, every=config.viewer_every, host=config.viewer_host)
-    metrics = train(config, callbacks=[live], spec=spec, command=given)
+    metrics = train(config, callbacks=[live], spec=spec, command=given, defaults=loaded)
     if live.viewer is not None:
         print(f"training done; the viewer stays at {live.viewer.url} (Ctrl-C to stop)", flush=True)
         live.viewer.serve_until_interrupted()

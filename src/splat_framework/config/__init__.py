@@ -52,6 +52,7 @@ from .base import (
     StepFactor,
     Steps,
     cli_parsing,
+    flag_name,
 )
 from .init import InitConfig, InitKinds, RandomInitConfig, init_field, init_kinds
 from .matching import (
@@ -82,7 +83,7 @@ __all__ = [
     "Period", "Positive", "RampPeriod", "RandomInitConfig", "RegisteredStrategies", "RegularisersConfig",
     "SavedConfig", "SplatConfig", "StartSteps", "StepFactor", "Steps", "StrategyConfig", "TrainConfig", "UPGRADES",
     "apply_overrides", "cli_parsing", "config_payload", "deep_merge", "experiment_fields", "init_field", "init_kinds", "read_config_json",
-    "follows_schedule", "resolve_steps", "save_config", "scale_schedule", "strategy_field", "strategy_kinds",
+    "flag_name", "follows_schedule", "resolve_steps", "save_config", "scale_schedule", "strategy_field", "strategy_kinds",
     "upgrade_saved_config",
     "AlikedLightGlueMatchConfig", "AutoMatchConfig", "DenseMatchConfig", "DiskLightGlueMatchConfig", "LoFTRMatchConfig",
     "MatchKinds", "SiftMatchConfig", "match_config", "match_kinds",

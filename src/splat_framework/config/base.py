@@ -134,6 +134,12 @@ def cli_parsing() -> ContextManager[None]:
     return _switched_on(_CLI_PARSING)
 
 
+def flag_name(field: str) -> str:
+    """The command-line flag of a dotted config field, as the user types it:
+    ``strategy.grow_grad2d`` -> ``--strategy.grow-grad2d``."""
+    return "--" + field.replace("_", "-")
+
+
 class SplatConfig(BaseModel):
     """Base for every config: strict (unknown fields are errors), documented fields, and every
     float finite (``inf``/``nan`` are refused, naming the field, for every subclass's fields:

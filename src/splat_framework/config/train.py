@@ -60,7 +60,7 @@ class TrainConfig(SplatConfig):
     test_pose_steps: Annotated[int, FOLDED, Field(ge=0, le=MAX_STEPS)] = 0
     """Fit each test camera's pose by this many steps before scoring (0 = off)."""
     steps: Annotated[int, Field(ge=1, le=MAX_STEPS)] | None = None
-    """Total iterations; rescales the method's whole schedule."""
+    """Total iterations; rescales the method's whole schedule (the iteration counts you set keep your numbers)."""
     default_steps: tyro.conf.Suppress[Annotated[int, Field(ge=1, le=MAX_STEPS)]] = 3000
     """The method's own total iterations, which its schedule fields are written for."""
     schedule_views: tyro.conf.Suppress[Annotated[int, Field(ge=0, le=MAX_VIEWS)]] = 0

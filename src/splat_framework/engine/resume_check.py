@@ -13,6 +13,7 @@ from ..config import (
     TrainConfig,
     config_payload,
     experiment_fields,
+    flag_name,
     follows_schedule,
     read_config_json,
     upgrade_saved_config,
@@ -101,15 +102,16 @@ def check_same_experiment(config: TrainConfig, spec: MethodSpec, path: Path, sav
 
 
 def user_changes(old: dict, new: dict, config: TrainConfig) -> list[str]:
-    """``field (old -> new)`` for each experiment field that differs, as the user would name it: a
-    changed total of iterations is ``steps (3000 -> 20)``, and the fields that follow from it (the
-    internal ``default_steps`` and every iteration count the total rescales) are left out."""
+    """``--flag (old -> new)`` for each experiment field that differs, named as the user types it
+    (``--strategy.grow-grad2d``): a changed total of iterations is ``--steps (3000 -> 20)``, and the
+    fields that follow from it (the internal ``default_steps`` and every iteration count the total
+    rescales) are left out."""
     diff = config_diff(old, new)
     old_total, new_total = _total_steps(old), _total_steps(new)
-    if old_total == new_total:
-        return diff
-    derived = {"steps", "default_steps"} | steps_fields(config)
-    return [f"steps ({old_total} -> {new_total})"] + [d for d in diff if d.split(" (")[0] not in derived]
+    if old_total != new_total:
+        derived = {"steps", "default_steps"} | steps_fields(config)
+        diff = [("steps", old_total, new_total)] + [d for d in diff if d[0] not in derived]
+    return [f"{flag_name(name)} ({a} -> {b})" for name, a, b in diff]
 
 
 def _total_steps(payload: dict):
@@ -130,13 +132,13 @@ def steps_fields(config: BaseModel, prefix: str = "") -> set[str]:
     return out
 
 
-def config_diff(old: dict, new: dict, prefix: str = "") -> list[str]:
-    """``dotted.field (old -> new)`` for every leaf that differs between two config dicts, sorted."""
+def config_diff(old: dict, new: dict, prefix: str = "") -> list[tuple[str, object, object]]:
+    """``(dotted.field, old, new)`` for every leaf that differs between two config dicts, sorted."""
     out = []
     for k in sorted(set(old) | set(new)):
         a, b = old.get(k), new.get(k)
         if isinstance(a, dict) and isinstance(b, dict):
             out += config_diff(a, b, f"{prefix}{k}.")
         elif a != b:
-            out.append(f"{prefix}{k} ({a} -> {b})")
+            out.append((f"{prefix}{k}", a, b))
     return out

@@ -164,15 +164,20 @@ class Trainer(TrainState):
         command: the ``splat-train`` arguments that started the run (the CLI's), so that a stop
             names the exact command that continues it (:func:`continue_command`); else it says
             ``--resume``.
+        defaults: the config the user's settings were applied to (``--load-config``'s); else the
+            method's registered defaults. An iteration count that differs from it is the user's and
+            keeps its number when ``--steps`` or the views rescale the schedule.
     """
 
     def __init__(
         self, config: TrainConfig, callbacks: Sequence[Callable[["Trainer", int], None]] = (),
-        spec: MethodSpec | None = None, command: Sequence[str] | None = None,
+        spec: MethodSpec | None = None, command: Sequence[str] | None = None, defaults: TrainConfig | None = None,
     ):
         self.spec = get_method(config.method) if spec is None else spec
         self.command = None if command is None else list(command)
-        self.config = resolve_steps(resolve_views(config, strict=False))  # views first: more may lengthen the schedule
+        defaults = self.spec.default_config() if defaults is None else defaults
+        # views first: more may lengthen the schedule
+        self.config = resolve_steps(resolve_views(config, strict=False), defaults)
         self.callbacks = list(callbacks)
         self.device = resolve_config_devices(self.config)["device"]  # every device field, before anything is written
         out = self.config.output
@@ -513,8 +518,9 @@ def step_costs(config: TrainConfig) -> list[tuple[int, float]]:
 
 def train(
     config: TrainConfig, callbacks: Sequence[Callable[[Trainer, int], None]] = (), spec: MethodSpec | None = None,
-    command: Sequence[str] | None = None,
+    command: Sequence[str] | None = None, defaults: TrainConfig | None = None,
 ) -> dict:
     """Train ``config`` end to end and return metrics (also written to metrics.json); ``spec``: the
-    method's registration when the caller has it, ``command``: the CLI's arguments (see :class:`Trainer`)."""
-    return Trainer(config, callbacks, spec, command).train()
+    method's registration when the caller has it, ``command``: the CLI's arguments, ``defaults``: what
+    the user's settings were applied to (see :class:`Trainer`)."""
+    return Trainer(config, callbacks, spec, command, defaults).train()
