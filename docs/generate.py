@@ -11,6 +11,10 @@ page; everything else in the page is written by hand. The blocks:
 - ``environment``: every ``SPLAT_*`` variable (:mod:`splat_framework.environment`);
 - ``exit-codes``: :data:`splat_framework.cli.common.EXIT_CODES`;
 - ``methods``: every registered method and config variant, with its description and base.
+
+The README and the pages also quote measured figures inline, between ``<!-- figure:NAME -->`` and
+``<!-- /figure:NAME -->``: each figure's text is written once, in ``docs/figures.toml``, with how it
+was measured, and copied into every page that quotes it.
 """
 
 from __future__ import annotations
@@ -19,12 +23,16 @@ import argparse
 import contextlib
 import io
 import os
+import re
 import sys
+import tomllib
 from importlib.metadata import entry_points
 from pathlib import Path
 from unittest import mock
 
 DOCS = Path(__file__).resolve().parent
+FIGURES = DOCS / "figures.toml"
+FIGURE = re.compile(r"<!-- figure:([a-z0-9-]+) -->(.*?)<!-- /figure:([a-z0-9-]+) -->", re.S)
 HELP_COLUMNS = "100"
 SHIPPED = {"splat_framework", "scg_plugin", "anchor_gs"}
 """The packages of this repository: the methods page lists theirs only, not other installed plugins'."""
@@ -108,16 +116,41 @@ def splice(text: str, name: str, block: str, page: str) -> str:
     return text[: i + len(start)] + "\n" + block.strip("\n") + "\n" + text[j:]
 
 
+def figures() -> dict[str, str]:
+    """Each figure's name -> the text the pages quote (``docs/figures.toml``)."""
+    table = tomllib.loads(FIGURES.read_text())
+    for name, entry in table.items():
+        if not isinstance(entry, dict) or not isinstance(entry.get("text"), str) or not entry.get("measured"):
+            raise SystemExit(f"{FIGURES.name}: [{name}] needs a text and how it was measured")
+    return {name: entry["text"] for name, entry in table.items()}
+
+
+def fill_figures(text: str, known: dict[str, str], page: str) -> str:
+    """``text`` with every quoted figure's text as ``known`` has it; an unknown figure, or markers
+    that do not pair, stop with a line naming the page."""
+    def fill(m: re.Match) -> str:
+        name, end = m.group(1), m.group(3)
+        if end != name:
+            raise SystemExit(f"{page}: figure '{name}' is closed by '/figure:{end}'")
+        if name not in known:
+            raise SystemExit(f"{page}: figure '{name}' is not in {FIGURES.name}")
+        return f"<!-- figure:{name} -->{known[name]}<!-- /figure:{name} -->"
+
+    return FIGURE.sub(fill, text)
+
+
 def generated_pages() -> dict[Path, str]:
-    """Every page holding a generated block -> its text with every block up to date."""
+    """Every page holding a generated block or a quoted figure -> its text with every one up to date."""
     out = {}
     built: dict[str, str] = {}
-    for page in sorted(DOCS.glob("*.md")):
+    known = figures()
+    for page in [DOCS.parent / "README.md", *sorted(DOCS.glob("*.md"))]:
         text = new = page.read_text()
         for name, make in BLOCKS.items():
             if f"<!-- generated:{name} -->" in new:
                 built.setdefault(name, make())
                 new = splice(new, name, built[name], page.name)
+        new = fill_figures(new, known, page.name)
         if new != text:
             out[page] = new
     return out

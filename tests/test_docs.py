@@ -62,3 +62,41 @@ def test_no_user_facing_page_points_at_the_development_machines_shared_folder():
     found = [f"{p.relative_to(ROOT)}:{i}" for p in pages
              for i, line in enumerate(p.read_text().splitlines(), 1) if "../shared" in line]
     assert found == []
+
+
+def _generate_module():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("docs_generate", ROOT / "docs" / "generate.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_a_quoted_figure_comes_from_the_figures_file_and_a_stale_copy_is_rewritten():
+    """Issue 85: figures quoted in the README and the docs are written once (docs/figures.toml);
+    a page's stale copy is replaced, an unknown figure or unpaired markers stop naming the page."""
+    gen = _generate_module()
+    known = {"kernel-build": "about 25 s"}
+    stale = "builds (<!-- figure:kernel-build -->about a minute<!-- /figure:kernel-build -->)."
+    assert gen.fill_figures(stale, known, "README.md") == \
+        "builds (<!-- figure:kernel-build -->about 25 s<!-- /figure:kernel-build -->)."
+    with pytest.raises(SystemExit, match="README.md: figure 'test-count' is not in figures.toml"):
+        gen.fill_figures("<!-- figure:test-count -->1<!-- /figure:test-count -->", known, "README.md")
+    with pytest.raises(SystemExit, match="cli.md: figure 'kernel-build' is closed by '/figure:ci-time'"):
+        gen.fill_figures("<!-- figure:kernel-build -->1<!-- /figure:ci-time -->", known, "cli.md")
+    quoted = {m.group(1) for page in [ROOT / "README.md", *(ROOT / "docs").glob("*.md")]
+              for m in gen.FIGURE.finditer(page.read_text())}
+    assert quoted == set(gen.figures()), "every figure in docs/figures.toml is quoted, and only those"
+
+
+def test_the_readme_test_count_is_the_suites():
+    """The README's 'about N tests' is within 5 % of what pytest collects."""
+    gen = _generate_module()
+    figure = int(re.sub(r"[^0-9]", "", gen.figures()["test-count"]))
+    out = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-q", "-p", "no:cacheprovider",
+                          "-p", "no:xdist", str(ROOT / "tests")], capture_output=True, text=True, cwd=ROOT)
+    found = re.search(r"^(\d+) tests? collected", out.stdout, re.M)
+    assert found, out.stdout[-2000:] + out.stderr[-2000:]
+    collected = int(found.group(1))
+    assert abs(collected - figure) <= 0.05 * collected, f"docs/figures.toml says {figure}, pytest collects {collected}"
