@@ -173,3 +173,26 @@ def test_llff_table_sets_each_scene_beside_the_official_rerun_with_the_mean(tmp_
     assert "| **mean of the 3** | **21.64** | | 21.48 | +0.17 | 21.98 |" in text
     assert "#### 5 training views" in text and "| horns | 23.00 ± 0.30" in text and "#### 2 training views" not in text
     assert (tmp_path / "t.md").read_text() == text
+
+
+def test_own_photos_scale_takes_photos_evenly_and_reads_each_phase_from_the_log(tmp_path):
+    """benchmarks/own_photos_scale.py: the counts are spread over the capture (first and last kept),
+    a run's log gives the posing's pairs, photos registered and seconds and the prior's pairs, and
+    the table marks a run without held-out photos."""
+    scale = load_script("own_photos_scale")
+    photos = [tmp_path / f"IMG_{i:03d}.png" for i in range(62)]
+    picked = scale.evenly(photos, 8)
+    assert picked[0] == photos[0] and picked[-1] == photos[-1] and len(set(picked)) == 8
+    with pytest.raises(SystemExit, match="only 62 photos"):
+        scale.evenly(photos, 63)
+    log = ("matching the photos for their poses (aliked-lightglue): 52/52 pairs, done in 0:01:47, 0.48 pairs/s\n"
+           "photos: 16 of 16 images registered, 2,274 points, mean reprojection error 0.55 px, 120.5 s (incremental mapper)\n"
+           "matching: 24 of the 91 pairs of training views, each view with its 3 best partners by frustum overlap\n"
+           "matching the training views for the prior (auto): 24/24 pairs, done in 0:01:05, 0.37 pairs/s\n")
+    row = scale.parse_log(log)
+    assert row == {"registered": 16, "photos_in": 16, "posing_s": 120.5, "pose_all_pairs": 120, "pose_pairs": 52,
+                   "pose_matching_s": 107, "prior_pairs": 24, "prior_s": 65, "prior_all_pairs": 91}
+    text = scale.table([{"label": "16", "wall_s": 300.0, "psnr": 21.5, "held_out": True, **row},
+                        {"label": "8", "wall_s": 100.0, "psnr": 30.0, "held_out": False, "matching_s": 9.6}])
+    assert "| 16 | 300.0 | 120 | 52 of 120 | 16 of 16 | 24 of 91 | 65 |" in text
+    assert "| 8 | 100.0 | – | – of – | – of – | – | 10 |" in text and "30.00 (training views)" in text

@@ -39,12 +39,29 @@ def compute_match_set(matching: MatchConfig, datamanager) -> MatchSet:
     known, origin = posing_matches(matching, datamanager, ids, cameras)
     if origin and known:  # what is reused, said before the phase that reuses it
         say(origin)
+    pairs = prior_pairs(matching, cameras, ids)
     label = f"matching the training views for the prior ({matching.kind}{', sparse matches reused from the posing' if known else ''})"
-    match_set = compute_matches(images, cameras, ids, matching, cache_dir, masks, known=known, label=label)
+    match_set = compute_matches(images, cameras, ids, matching, cache_dir, masks, known=known, label=label, pairs=pairs)
     if origin and not known:
         warnings.warn(origin)
     warn_empty(match_set, view_names(ids, cameras))
     return match_set
+
+
+def prior_pairs(matching: MatchConfig, cameras: list[Camera], ids: list[int]) -> list[tuple[int, int]] | None:
+    """The pairs of training views the prior matches: each view's ``matching.partners`` best
+    (:func:`~.covisibility.partner_pairs`), said in one line when that leaves some out; None (every
+    pair) without ``partners``."""
+    if matching.partners is None:
+        return None
+    from .covisibility import partner_pairs
+
+    pairs = partner_pairs(cameras, ids, matching.partners)
+    every = len(ids) * (len(ids) - 1) // 2
+    if len(pairs) < every:
+        say(f"matching: {len(pairs)} of the {every} pairs of training views, each view with its "
+            f"{matching.partners} best partners by frustum overlap (matching.partners)")
+    return pairs
 
 
 def posing_matches(matching: MatchConfig, datamanager, ids: list[int], cameras: list[Camera]):

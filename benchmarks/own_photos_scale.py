@@ -1,0 +1,187 @@
+"""What a folder of one's own photos costs as it grows: the same capture at several photo counts (and
+a clip made of its frames), each trained by one ``splat-train METHOD --data FOLDER`` launch to exit
+on a fresh photo cache, so that the posing is measured, not read back.
+
+For each count the photos are taken evenly spaced from the capture (in name order, as a camera
+numbers them) and copied into a folder of their own; the clip is every frame of the capture, in
+order, written as an MP4 (its row is ``clip-N``) and given as ``--data clip.mp4 --photos.frames N``. Each row records:
+launch to exit, the posing (pairs matched of all pairs, photos registered, seconds), the prior's
+matching (pairs and seconds), training seconds and the step time, Gaussians, and the held-out PSNR
+(every 8th photo is held out beyond 8 photos; at 8 or fewer every photo trains and the PSNR is a
+training-view one, marked so). The kernels are built before the first timed run, untimed.
+
+Usage:
+    python benchmarks/own_photos_scale.py --photos "$SPLAT_DATA/llff/horns/images_8" --counts 8 16 32 \\
+        --clip 60 --out runs/scale [--method scgaussian] [--steps N] [-- EXTRA splat-train ARGS]
+
+It writes ``OUT/scale.json`` and ``OUT/scale.md`` (the table, with the machine, its load and the date).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+PHOTO_SUFFIXES = {".png", ".jpg", ".jpeg"}
+CLIP_FPS = 10
+
+
+def loadavg() -> float:
+    """The machine's 1-minute load average (nan where /proc is missing)."""
+    try:
+        return float(Path("/proc/loadavg").read_text().split()[0])
+    except OSError:
+        return float("nan")
+
+
+def capture(folder: Path) -> list[Path]:
+    """The capture's photos in name order; a folder without any is a one-line exit."""
+    photos = sorted(p for p in folder.iterdir() if p.suffix.lower() in PHOTO_SUFFIXES)
+    if len(photos) < 2:
+        raise SystemExit(f"{folder}: fewer than 2 photos")
+    return photos
+
+
+def evenly(photos: list[Path], n: int) -> list[Path]:
+    """``n`` of ``photos`` evenly spaced, the first and last included."""
+    if n > len(photos):
+        raise SystemExit(f"--counts {n}: the capture has only {len(photos)} photos")
+    return [photos[int(k)] for k in np.linspace(0, len(photos) - 1, n).round()]
+
+
+def write_clip(photos: list[Path], path: Path) -> None:
+    """``photos`` as an MP4 of their size, one frame each, at :data:`CLIP_FPS`."""
+    import cv2
+
+    first = cv2.imread(str(photos[0]))
+    h, w = first.shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), CLIP_FPS, (w, h))
+    for p in photos:
+        frame = cv2.imread(str(p))
+        writer.write(cv2.resize(frame, (w, h)) if frame.shape[:2] != (h, w) else frame)
+    writer.release()
+
+
+def _clock(h: str, m: str, sec: str) -> int:
+    return 3600 * int(h) + 60 * int(m) + int(sec)
+
+
+def parse_log(log: str) -> dict:
+    """What the run's log says of its posing and its prior (its phase lines and summaries)."""
+    row: dict = {}
+    m = re.search(r"(\d+) of (\d+) images registered.*?, ([\d.]+) s \(", log)
+    if m:
+        n = int(m.group(2))
+        row.update(registered=int(m.group(1)), photos_in=n, posing_s=float(m.group(3)), pose_all_pairs=n * (n - 1) // 2)
+    m = re.search(r"matching the photos for their poses[^\n]*?(\d+)/(\d+) pairs, done in (\d+):(\d+):(\d+)", log)
+    if m:
+        row.update(pose_pairs=int(m.group(2)), pose_matching_s=_clock(*m.group(3, 4, 5)))
+    m = re.search(r"matching the training views for the prior[^\n]*?(\d+)/(\d+) pairs, done in (\d+):(\d+):(\d+)", log)
+    if m:
+        row.update(prior_pairs=int(m.group(2)), prior_s=_clock(*m.group(3, 4, 5)))
+    m = re.search(r"matching: (\d+) of the (\d+) pairs of training views", log)
+    if m:
+        row.update(prior_all_pairs=int(m.group(2)))
+    return row
+
+
+def run_one(label: str, data: Path, out: Path, args, env: dict, extra: list[str]) -> dict:
+    """One timed ``splat-train`` of ``data`` into ``out/run-LABEL``; its row."""
+    cmd = [str(Path(sys.executable).with_name("splat-train")), args.method, "--data", str(data),
+           "--output", str(out / f"run-{label}"), *extra]
+    if args.steps:
+        cmd += ["--steps", str(args.steps)]
+    print(f"[{label}] {' '.join(cmd)}", flush=True)
+    load = loadavg()
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    (out / f"run-{label}.log").write_text(proc.stdout + proc.stderr)
+    row = {"label": label, "rc": proc.returncode, "wall_s": round(wall, 1), "load_before": load, **parse_log(proc.stderr)}
+    metrics_file = out / f"run-{label}" / "metrics.json"
+    if proc.returncode == 0 and metrics_file.is_file():
+        m = json.loads(metrics_file.read_text())
+        timing, median = m.get("timing", {}), m.get("step_times", {}).get("median_s")
+        row.update(
+            steps=m.get("steps"), gaussians=m.get("num_gaussians"), psnr=m.get("mean", {}).get("psnr"),
+            held_out=any(v.get("split") == "test" for v in m.get("per_view", [])),
+            data_s=timing.get("data_s"), matching_s=timing.get("matching_s"), train_s=timing.get("train_s"),
+            step_ms=round(1000 * median, 1) if median else None,
+        )
+    else:
+        row["error"] = (proc.stderr.strip().splitlines() or ["(no output)"])[-1]
+    print(f"[{label}] {row}", flush=True)
+    return row
+
+
+def cell_of(row: dict):
+    """A function giving ``row[key]`` formatted, or a dash where it is missing."""
+    return lambda key, fmt="{}": fmt.format(row[key]) if row.get(key) is not None else "–"
+
+
+def table(rows: list[dict]) -> str:
+    head = ("| photos | launch to exit (s) | posing (s) | pose pairs | registered | prior pairs | prior (s) "
+            "| training (s) | median step (ms) | Gaussians | PSNR |\n|---|--:|--:|--:|--:|--:|--:|--:|--:|--:|--:|")
+    lines = [head]
+    for row in rows:
+        r = {**row, "prior_s": row.get("prior_s", row.get("matching_s")), "posing_s": row.get("posing_s", row.get("data_s"))}
+        g = cell_of(r)
+        pairs = f"{g('pose_pairs')} of {g('pose_all_pairs')}"
+        prior = g("prior_pairs") + (f" of {r['prior_all_pairs']}" if r.get("prior_all_pairs") else "")
+        psnr = g("psnr", "{:.2f}") + ("" if r.get("held_out", True) else " (training views)")
+        lines.append(f"| {r['label']} | {g('wall_s')} | {g('posing_s', '{:.0f}')} | {pairs} | {g('registered')} of {g('photos_in')} "
+                     f"| {prior} | {g('prior_s', '{:.0f}')} | {g('train_s', '{:.0f}')} | {g('step_ms')} | {g('gaussians', '{:,}')} | {psnr} |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    extra = argv[argv.index("--") + 1:] if "--" in argv else []
+    argv = argv[: argv.index("--")] if "--" in argv else argv
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--photos", type=Path, required=True, help="a folder holding the capture's photos")
+    p.add_argument("--counts", type=int, nargs="*", default=[8, 16, 32])
+    p.add_argument("--clip", type=int, default=0, help="also a clip of every photo, N frames taken from it (0: none)")
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--method", default="scgaussian")
+    p.add_argument("--steps", type=int, default=None, help="override the method's steps (default: its own)")
+    args = p.parse_args(argv)
+    photos = capture(args.photos)
+    args.out.mkdir(parents=True, exist_ok=True)
+    env = dict(os.environ, SPLAT_CACHE=str(args.out / "cache"))
+    subprocess.run([str(Path(sys.executable).with_name("splat-train")), "3dgs", "--data", "synthetic/forward-tiny",
+                    "--steps", "1", "--output", str(args.out / "kernels"), "--overwrite", "--no-progress"],
+                   env=env, capture_output=True, check=True)  # the kernels, untimed
+    rows = []
+    for n in args.counts:
+        folder = args.out / f"photos-{n}"
+        shutil.rmtree(folder, ignore_errors=True)
+        folder.mkdir()
+        for src in evenly(photos, n):
+            shutil.copyfile(src, folder / src.name)
+        rows.append(run_one(str(n), folder, args.out, args, env, ["--overwrite", *extra]))
+    if args.clip:
+        clip = args.out / "clip.mp4"
+        write_clip(photos, clip)
+        rows.append(run_one(f"clip-{args.clip}", clip, args.out, args, env,
+                            ["--photos.frames", str(args.clip), "--overwrite", *extra]))
+    stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    note = (f"{stamp}, {os.cpu_count()} cores, load before each run: "
+            + ", ".join(f"{r['load_before']:.1f}" for r in rows) + f"; `{args.method}`" + (f" {' '.join(extra)}" if extra else ""))
+    (args.out / "scale.json").write_text(json.dumps({"note": note, "rows": rows}, indent=1))
+    (args.out / "scale.md").write_text(f"{note}\n\n{table(rows)}\n")
+    print(f"\n{note}\n\n{table(rows)}")
+    return rows
+
+
+if __name__ == "__main__":
+    sys.exit(0 if all(r.get("rc") == 0 for r in main()) else 1)
