@@ -59,3 +59,14 @@ def test_the_prior_matches_only_the_partner_pairs_and_says_so(capsys):
     assert sorted(found.pairs()) == partner_pairs(cams, ids, 2) and len(found.pairs()) < 10
     assert f"matching: {len(found.pairs())} of the 10 pairs of training views, each view with its 2 best partners" \
         in capsys.readouterr().err
+
+
+def test_every_pair_up_to_eight_views_and_three_partners_beyond_by_default():
+    """``partners`` None (the default): every pair up to 8 training views (the paper's protocols, 3
+    and 8 views, keep their pairs), 3 partners beyond; a number as set at any count; 0 every pair."""
+    from splat_framework.config import match_config
+    from splat_framework.matching.covisibility import partners_for
+
+    assert match_config("auto").partners is None
+    assert [partners_for(None, n) for n in (3, 8, 9, 21)] == [None, None, 3, 3]
+    assert (partners_for(2, 5), partners_for(0, 40)) == (2, None)

@@ -29,9 +29,9 @@ class MatchConfig(SplatConfig):
     """Cap on verified matches per pair, spatially balanced (0 = no cap)."""
     max_total_matches: int = Field(100_000, ge=0, le=MAX_MATCHES)
     """Cap on all pairs' matches together: each pair keeps at most this / pairs (0 = no cap)."""
-    partners: int | None = Field(None, ge=1, le=MAX_VIEWS)
+    partners: int | None = Field(None, ge=0, le=MAX_VIEWS)
     """Match each training view with only its this many best partners by frustum overlap and axis
-    angle (None = every pair; every pair anyway with at most partners + 1 views)."""
+    angle (0 = every pair; None = every pair up to 8 training views, 3 partners beyond)."""
     grid_cell: int = Field(16, ge=1, le=4096)
     """Side in pixels of the balanced sampler's grid cells."""
     magsac_threshold: float = Field(1.0, gt=0.0)

@@ -18,6 +18,10 @@ from torch import Tensor
 
 from ..cameras import Camera
 
+ALL_PAIRS_MAX_VIEWS = 8
+"""Up to this many training views the prior matches every pair (``partners`` None: the default)."""
+PARTNERS = 3
+"""Beyond :data:`ALL_PAIRS_MAX_VIEWS`, each training view's partners by default."""
 GRID = 12
 """Pixels per image side sampled for the overlap (GRID x GRID rays)."""
 DEPTHS = 8
@@ -79,4 +83,12 @@ def partner_pairs(cameras: list[Camera], ids: list[int], partners: int) -> list[
     return sorted(chosen)
 
 
-__all__ = ["covisibility", "partner_pairs"]
+def partners_for(partners: int | None, n_views: int) -> int | None:
+    """The partners each of ``n_views`` training views takes: ``partners`` as set (0: every pair,
+    None), else every pair up to :data:`ALL_PAIRS_MAX_VIEWS` views and :data:`PARTNERS` beyond."""
+    if partners is None:
+        return None if n_views <= ALL_PAIRS_MAX_VIEWS else PARTNERS
+    return partners or None
+
+
+__all__ = ["ALL_PAIRS_MAX_VIEWS", "PARTNERS", "covisibility", "partner_pairs", "partners_for"]

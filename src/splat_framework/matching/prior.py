@@ -49,18 +49,19 @@ def compute_match_set(matching: MatchConfig, datamanager) -> MatchSet:
 
 
 def prior_pairs(matching: MatchConfig, cameras: list[Camera], ids: list[int]) -> list[tuple[int, int]] | None:
-    """The pairs of training views the prior matches: each view's ``matching.partners`` best
-    (:func:`~.covisibility.partner_pairs`), said in one line when that leaves some out; None (every
-    pair) without ``partners``."""
-    if matching.partners is None:
-        return None
-    from .covisibility import partner_pairs
+    """The pairs of training views the prior matches: each view's best partners
+    (:func:`~.covisibility.partner_pairs`, as many as :func:`~.covisibility.partners_for` says),
+    said in one line when that leaves some out; None for every pair."""
+    from .covisibility import partner_pairs, partners_for
 
-    pairs = partner_pairs(cameras, ids, matching.partners)
+    partners = partners_for(matching.partners, len(ids))
+    if partners is None:
+        return None
+    pairs = partner_pairs(cameras, ids, partners)
     every = len(ids) * (len(ids) - 1) // 2
     if len(pairs) < every:
         say(f"matching: {len(pairs)} of the {every} pairs of training views, each view with its "
-            f"{matching.partners} best partners by frustum overlap (matching.partners)")
+            f"{partners} best partners by frustum overlap (matching.partners)")
     return pairs
 
 
