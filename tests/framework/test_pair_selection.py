@@ -113,6 +113,31 @@ def test_sixteen_photos_pose_on_chosen_pairs_as_on_every_pair(tmp_path, monkeypa
     assert rot_deg.max() < 1.0 and center_err.max() < 0.01 * np.linalg.norm(true_c.max(0) - true_c.min(0))
 
 
+@pytest.mark.slow
+def test_fern_photos_as_a_plain_folder_register_on_chosen_pairs_as_on_every_pair(tmp_path, monkeypatch):
+    """Issue 83, on real photos: 16 of fern's 20 images (evenly spaced) as a plain folder, posed with
+    SIFT on the chosen pairs, register as many photos as on every pair, and 8 of them (every pair
+    below the threshold) all register."""
+    from support import DATA
+
+    folder = DATA / "llff" / "fern" / "images_8"
+    if not folder.is_dir():
+        pytest.skip(f"needs the LLFF fern photos ({folder}; set $SPLAT_DATA)")
+    pytest.importorskip("pycolmap", reason='posing needs pycolmap (pip install "splat-framework[process]")')
+    from splat_framework.sfm import estimate_scene, reconstruct
+
+    images = sorted(folder.glob("*.png"))
+    photos = [images[int(i)] for i in np.linspace(0, len(images) - 1, 16).round()]
+    chosen = estimate_scene(photos, tmp_path / "chosen")
+    monkeypatch.setattr(reconstruct, "choose_pairs", lambda rgb, ordered=False: all_pairs(len(rgb)))
+    every = estimate_scene(photos, tmp_path / "every")
+    matched = sum(n > 0 for n in chosen.pair_matches.values())
+    assert matched < len(all_pairs(16)) * 0.6, matched
+    assert len(chosen.registered) == len(every.registered) >= 14, (chosen.registered, every.registered)
+    eight = estimate_scene(photos[::2], tmp_path / "eight")
+    assert len(eight.registered) == 8
+
+
 @pytest.mark.bad_input("a folder whose photos form two groups with no verified match between them",
                        "one line naming both groups by file name and which one was posed, then one line per photo left out")
 def test_two_groups_of_photos_are_named_with_the_one_posed():
