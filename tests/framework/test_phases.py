@@ -185,7 +185,9 @@ def test_a_log_shows_every_phase_and_a_double_ctrl_c_says_nothing_was_saved(tmp_
     data = ensure_scene("forward-tiny")
     run = tmp_path / "run"
     cmd = [sys.executable, "-m", "splat_framework.cli.train", "3dgs", "--data", str(data), "--steps", "200",
-           "--output", str(run), "--checkpoint-every", "0", "--model.init.num-points", "20000"]
+           "--output", str(run), "--checkpoint-every", "0", "--model.init.num-points", "300000"]
+    # 300,000 Gaussians: a step of about 0.75 s (eager), so that the second Ctrl-C lands inside the
+    # step the first one interrupted (with 20,000, a 0.16 s step, a loaded machine lost the race)
     proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
                             env=cli_env(SPLAT_COMPILE="0"), stdin=subprocess.DEVNULL)
     seen = []
