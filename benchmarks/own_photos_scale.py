@@ -33,6 +33,8 @@ import numpy as np
 
 PHOTO_SUFFIXES = {".png", ".jpg", ".jpeg"}
 CLIP_FPS = 10
+SPLAT_TRAIN = str(Path(sys.executable).with_name("splat-train"))
+"""The splat-train of the Python running this script."""
 
 
 def loadavg() -> float:
@@ -96,7 +98,7 @@ def parse_log(log: str) -> dict:
 
 def run_one(label: str, data: Path, out: Path, args, env: dict, extra: list[str]) -> dict:
     """One timed ``splat-train`` of ``data`` into ``out/run-LABEL``; its row."""
-    cmd = [str(Path(sys.executable).with_name("splat-train")), args.method, "--data", str(data),
+    cmd = [SPLAT_TRAIN, args.method, "--data", str(data),
            "--output", str(out / f"run-{label}"), *extra]
     if args.steps:
         cmd += ["--steps", str(args.steps)]
@@ -158,7 +160,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     photos = capture(args.photos)
     args.out.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ, SPLAT_CACHE=str(args.out / "cache"))
-    subprocess.run([str(Path(sys.executable).with_name("splat-train")), "3dgs", "--data", "synthetic/forward-tiny",
+    subprocess.run([SPLAT_TRAIN, "3dgs", "--data", "synthetic/forward-tiny",
                     "--steps", "1", "--output", str(args.out / "kernels"), "--overwrite", "--no-progress"],
                    env=env, capture_output=True, check=True)  # the kernels, untimed
     rows = []

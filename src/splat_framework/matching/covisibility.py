@@ -72,8 +72,6 @@ def partner_pairs(cameras: list[Camera], ids: list[int], partners: int) -> list[
     (:func:`covisibility`; ties to the lower index), united: every pair when there are at most
     ``partners + 1`` views, and at most ``len(ids) * partners`` pairs beyond."""
     n = len(ids)
-    if n <= partners + 1:
-        return [(min(ids[a], ids[b]), max(ids[a], ids[b])) for a in range(n) for b in range(a + 1, n)]
     score = covisibility(cameras)
     chosen = set()
     for i in range(n):

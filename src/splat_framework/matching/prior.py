@@ -51,7 +51,7 @@ def compute_match_set(matching: MatchConfig, datamanager) -> MatchSet:
 def prior_pairs(matching: MatchConfig, cameras: list[Camera], ids: list[int]) -> list[tuple[int, int]] | None:
     """The pairs of training views the prior matches: each view's best partners
     (:func:`~.covisibility.partner_pairs`, as many as :func:`~.covisibility.partners_for` says),
-    said in one line when that leaves some out; None for every pair."""
+    said in one line; None for every pair (then the cache key is that of every pair, as before)."""
     from .covisibility import partner_pairs, partners_for
 
     partners = partners_for(matching.partners, len(ids))
@@ -59,9 +59,10 @@ def prior_pairs(matching: MatchConfig, cameras: list[Camera], ids: list[int]) ->
         return None
     pairs = partner_pairs(cameras, ids, partners)
     every = len(ids) * (len(ids) - 1) // 2
-    if len(pairs) < every:
-        say(f"matching: {len(pairs)} of the {every} pairs of training views, each view with its "
-            f"{partners} best partners by frustum overlap (matching.partners)")
+    if len(pairs) == every:
+        return None
+    say(f"matching: {len(pairs)} of the {every} pairs of training views, each view with its "
+        f"{partners} best partners by frustum overlap (matching.partners)")
     return pairs
 
 
