@@ -94,6 +94,7 @@ def test_the_same_photos_are_posed_once_and_a_changed_photo_again(photo_run, tmp
     key = photos_key(files, "photos", options)
     assert photos_key(files, "photos", PhotoPosesConfig(matcher="sift", mapper="global")) != key
     assert photos_key(files, "photos", PhotoPosesConfig(matcher="sift", frames=5)) == key  # frames: videos only
+    assert photos_key(files, "photos", PhotoPosesConfig(matcher="sift", pairs="exhaustive")) != key
     cores = threads.machine_thread_count()
     with monkeypatch.context() as m:
         m.setattr(threads, "machine_thread_count", lambda: cores + 1)
@@ -155,13 +156,17 @@ def test_a_failed_posing_leaves_no_entry_and_does_not_say_cached(photo_run, tmp_
     _, _, photos, _ = photo_run
     monkeypatch.setenv("SPLAT_CACHE", str(tmp_path / "cache"))
 
+    asked = {}
+
     def fail(images, out, **kwargs):
+        asked.update(kwargs)
         (Path(out) / "sparse").mkdir(parents=True)  # half a scene, then the failure
         raise DataError("photos: only 1 of 4 images registered")
 
     monkeypatch.setattr(reconstruct, "estimate_scene", fail)
     with pytest.raises(DataError):
-        posed_photos(photos, "photos", PhotoPosesConfig(matcher="sift"))
+        posed_photos(photos, "photos", PhotoPosesConfig(matcher="sift", pairs="exhaustive"))
+    assert asked["pairs"] == "exhaustive" and asked["matcher"] == "sift"  # the options reach the posing
     assert "cached" not in capsys.readouterr().err
     assert [p for p in (tmp_path / "cache" / "photos").rglob("*")] == []
 

@@ -103,8 +103,8 @@ def test_sixteen_photos_pose_on_chosen_pairs_as_on_every_pair(tmp_path, monkeypa
     chosen = estimate_scene(photos, tmp_path / "chosen")
     assert 16 <= len(picked) < len(all_pairs(16)) / 2
     assert sum(n > 0 for n in chosen.pair_matches.values()) <= len(picked)  # COLMAP matched only those
-    monkeypatch.setattr(reconstruct, "choose_pairs", lambda rgb, ordered=False: all_pairs(len(rgb)))
-    every = estimate_scene(photos, tmp_path / "every")
+    every = estimate_scene(photos, tmp_path / "every", pairs="exhaustive")
+    assert sum(n > 0 for n in every.pair_matches.values()) > len(picked)
     assert len(chosen.registered) == len(every.registered) == 16
     est = load_colmap(tmp_path / "chosen")
     true_w2c = np.stack([forward.cameras[i].world_to_cam.double().numpy() for i in idx])
@@ -114,7 +114,7 @@ def test_sixteen_photos_pose_on_chosen_pairs_as_on_every_pair(tmp_path, monkeypa
 
 
 @pytest.mark.slow
-def test_fern_photos_as_a_plain_folder_register_on_chosen_pairs_as_on_every_pair(tmp_path, monkeypatch):
+def test_fern_photos_as_a_plain_folder_register_on_chosen_pairs_as_on_every_pair(tmp_path):
     """Issue 83, on real photos: 16 of fern's 20 images (evenly spaced) as a plain folder, posed with
     SIFT on the chosen pairs, register as many photos as on every pair, and 8 of them (every pair
     below the threshold) all register."""
@@ -124,15 +124,14 @@ def test_fern_photos_as_a_plain_folder_register_on_chosen_pairs_as_on_every_pair
     if not folder.is_dir():
         pytest.skip(f"needs the LLFF fern photos ({folder}; set $SPLAT_DATA)")
     pytest.importorskip("pycolmap", reason='posing needs pycolmap (pip install "splat-framework[process]")')
-    from splat_framework.sfm import estimate_scene, reconstruct
+    from splat_framework.sfm import estimate_scene
 
     images = sorted(folder.glob("*.png"))
     photos = [images[int(i)] for i in np.linspace(0, len(images) - 1, 16).round()]
     chosen = estimate_scene(photos, tmp_path / "chosen")
-    monkeypatch.setattr(reconstruct, "choose_pairs", lambda rgb, ordered=False: all_pairs(len(rgb)))
-    every = estimate_scene(photos, tmp_path / "every")
+    every = estimate_scene(photos, tmp_path / "every", pairs="exhaustive")
     matched = sum(n > 0 for n in chosen.pair_matches.values())
-    assert matched < len(all_pairs(16)) * 0.6, matched
+    assert matched < len(all_pairs(16)) * 0.6 < sum(n > 0 for n in every.pair_matches.values()), matched
     assert len(chosen.registered) == len(every.registered) >= 14, (chosen.registered, every.registered)
     eight = estimate_scene(photos[::2], tmp_path / "eight")
     assert len(eight.registered) == 8
@@ -158,3 +157,12 @@ def test_two_groups_of_photos_are_named_with_the_one_posed():
                      pair_matches={("a.jpg", "b.jpg"): 50, ("a.jpg", "c.jpg"): 0, ("b.jpg", "c.jpg"): 0},
                      photos=["a.jpg", "b.jpg", "c.jpg"])
     assert one.groups_line() is None and len(one.not_registered_lines()) == 1
+
+
+def test_an_unknown_pair_choice_is_one_line_before_any_work(tmp_path):
+    """(On the command line tyro refuses it: ``--pairs: 'every' is not one of auto, exhaustive``.)"""
+    from splat_framework.errors import DataError
+    from splat_framework.sfm import estimate_scene
+
+    with pytest.raises(DataError, match=r"^--pairs must be one of auto, exhaustive, got 'every'$"):
+        estimate_scene([tmp_path / "a.png", tmp_path / "b.png"], tmp_path / "out", pairs="every")

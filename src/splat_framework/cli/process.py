@@ -9,6 +9,8 @@ from typing import Annotated, Literal, Union
 
 from tyro.conf import Positional, arg, subcommand
 
+from ..config.data import PairChoice
+
 
 @dataclass
 class ImagesArgs:
@@ -18,6 +20,8 @@ class ImagesArgs:
     """Scene folder to write (COLMAP layout: images/, sparse/0/)."""
     mapper: Literal["incremental", "global"] = "incremental"
     """COLMAP's incremental mapper, or the global one (GLOMAP)."""
+    pairs: PairChoice = "auto"
+    """Pairs matched: auto (every pair up to 10 photos; above, each photo's 5 most similar photos, and for a video each frame's 3 next frames too) or exhaustive (every pair)."""
     matcher: str = "auto"
     """Correspondences COLMAP maps from: "sift" (COLMAP's own), a learned matcher that a plugin registers (aliked-lightglue, disk-lightglue from SCGaussian), or "auto": aliked-lightglue where registered and its weights are installed, else sift (one-line notice). From 3 photos the learned matches register more and better: DTU scan37's 3 views 0 of 3 with SIFT, 3 of 3 with aliked-lightglue; fern's 3 views rotations 1.9 -> 0.9 degrees off, focal 9.2 -> 1.5 %."""
     overwrite: bool = False
@@ -34,6 +38,8 @@ class VideoArgs:
     """Frames to use: the sharpest of each of this many equal spans of the video."""
     mapper: Literal["incremental", "global"] = "incremental"
     """COLMAP's incremental mapper, or the global one (GLOMAP)."""
+    pairs: PairChoice = "auto"
+    """Pairs matched: auto (every pair up to 10 photos; above, each photo's 5 most similar photos, and for a video each frame's 3 next frames too) or exhaustive (every pair)."""
     matcher: str = "auto"
     """Correspondences COLMAP maps from: "sift" (COLMAP's own), a learned matcher that a plugin registers (aliked-lightglue, disk-lightglue from SCGaussian), or "auto": aliked-lightglue where registered and its weights are installed, else sift (one-line notice). From 3 photos the learned matches register more and better: DTU scan37's 3 views 0 of 3 with SIFT, 3 of 3 with aliked-lightglue; fern's 3 views rotations 1.9 -> 0.9 degrees off, focal 9.2 -> 1.5 %."""
     overwrite: bool = False
@@ -58,10 +64,11 @@ def main(args: ImagesArgs | VideoArgs):
         with scratch(args.out) as work:  # beside --out: a killed run's frames are removed by the next
             photos = pick_video_frames(args.video, args.frames, work / "frames")
             summary = estimate_scene(photos, args.out, mapper=args.mapper, overwrite=args.overwrite, matcher=args.matcher,
-                                     ordered=True)  # the frames in time order: their neighbours are paired too
+                                     ordered=True, pairs=args.pairs)  # the frames in time order: their neighbours are paired too
     else:
         photos = list_images(args.folder)
-        summary = estimate_scene(photos, args.out, mapper=args.mapper, overwrite=args.overwrite, matcher=args.matcher)
+        summary = estimate_scene(photos, args.out, mapper=args.mapper, overwrite=args.overwrite, matcher=args.matcher,
+                                 pairs=args.pairs)
     print(summary.line(args.out))
     for line in summary.not_registered_lines():
         print(line)

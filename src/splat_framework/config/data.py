@@ -11,6 +11,8 @@ from pydantic import Field
 
 from .base import SplatConfig
 
+PairChoice = Literal["auto", "exhaustive"]
+"""Which pairs of photos posing matches (see :class:`PhotoPosesConfig`'s ``pairs``)."""
 MAX_FRAMES = 1000
 """Largest number of frames taken from a video."""
 
@@ -24,6 +26,8 @@ class PhotoPosesConfig(SplatConfig):
     """COLMAP's incremental mapper, or the global one (GLOMAP)."""
     frames: Annotated[int, Field(ge=2, le=MAX_FRAMES)] = 10
     """Frames taken from a video (the sharpest of each equal span)."""
+    pairs: PairChoice = "auto"
+    """Pairs matched: auto (every pair up to 10 photos; above, each photo's 5 most similar photos, and for a video each frame's 3 next frames too) or exhaustive (every pair)."""
 
 
 SOURCE_FIELDS = ("data", "format", "views", "downscale", "eval_split", "train_poses", "photos")

@@ -84,7 +84,7 @@ def posed_photos(path: Path, kind: PhotoSource, options: PhotoPosesConfig | None
         shutil.rmtree(entry, ignore_errors=True)
     what = f"{len(files)} photos" if kind == "photos" else f"{options.frames} frames of the video"
     say(f"{path}: estimating the poses of {what} (pycolmap, {options.mapper} mapper, {options.matcher} matches)")
-    kwargs = {"mapper": options.mapper, "matcher": options.matcher, "overwrite": True}
+    kwargs = {"mapper": options.mapper, "matcher": options.matcher, "pairs": options.pairs, "overwrite": True}
     private_folder(entry.parent)
     with building(entry, _install_private) as work:
         if kind == "video":

@@ -22,7 +22,9 @@ import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import get_args
 
+from ..config.data import PairChoice
 from ..console import phase, say
 from ..errors import DataError
 from ..files.output_paths import PROCESSED_SCENE, check_output, install_output
@@ -34,6 +36,7 @@ from .photo_matchers import AUTO_MATCHER, AUTO_PREFERRED, choose_matcher, photo_
 from .photos import stage_images
 
 MAPPERS = ("incremental", "global")
+PAIR_CHOICES = get_args(PairChoice)
 
 
 @dataclass
@@ -125,14 +128,15 @@ def describe_pair_matches(pairs: dict[tuple[str, str], int]) -> str:
 
 
 def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental", overwrite: bool = False,
-                   camera_model: str = "SIMPLE_RADIAL", matcher: str = "sift", ordered: bool = False) -> SfmSummary:
+                   camera_model: str = "SIMPLE_RADIAL", matcher: str = "sift", ordered: bool = False, pairs: str = "auto") -> SfmSummary:
     """Estimate intrinsics and poses of ``images`` and write the COLMAP scene folder ``out``.
 
     ``camera_model``: COLMAP's model shared by all photos (SIMPLE_RADIAL: one focal length,
     centred principal point, one radial distortion term, undistorted away when writing;
     SIMPLE_PINHOLE keeps the photos as they are). ``ordered``: the photos are the frames of a clip,
     in order (their neighbours in time are paired too; :func:`~.pair_selection.choose_pairs`, which
-    matches every pair up to 10 photos and chosen pairs above).
+    matches every pair up to 10 photos and chosen pairs above). ``pairs``: "auto" (those chosen
+    pairs) or "exhaustive" (every pair, whatever the count).
 
     Raises DataError (one line) when an image is unreadable, sizes differ, fewer than 2
     images register (the message gives the verified matches of every pair by file name),
@@ -140,6 +144,9 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
     that splat-process did not write, the photos' folder, or, without ``overwrite``, an earlier scene)."""
     if mapper not in MAPPERS:
         raise DataError(f"--mapper must be one of {', '.join(MAPPERS)}, got {mapper!r}")
+    if pairs not in PAIR_CHOICES:
+        raise DataError(f"--pairs must be one of {', '.join(PAIR_CHOICES)}, got {pairs!r}")
+    choose = pairs == "auto" and len(images) > EXHAUSTIVE_MAX_PHOTOS
     plugins = photo_matchers()
     auto = matcher == AUTO_MATCHER
     matcher = choose_matcher(matcher, plugins)
@@ -162,8 +169,8 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
 
         # decoded for a learned matcher, or to choose the pairs of more than a few photos
         rgb = ([cv2.imread(str(work / "input" / f), cv2.IMREAD_COLOR)[..., ::-1].copy() for f in staged]
-               if matcher != "sift" or len(staged) > EXHAUSTIVE_MAX_PHOTOS else None)
-        chosen = pairs_to_match(rgb, ordered) if rgb is not None else all_pairs(len(staged))
+               if matcher != "sift" or choose else None)
+        chosen = pairs_to_match(rgb, ordered) if choose else all_pairs(len(staged))
         of_all = f"{len(chosen)} of {len(staged) * (len(staged) - 1) // 2} pairs"
         if matcher != "sift":
             try:
@@ -229,9 +236,7 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
 
 def pairs_to_match(rgb: list, ordered: bool) -> list[tuple[int, int]]:
     """The pairs of the photos ``rgb`` to match (:func:`~.pair_selection.choose_pairs`), with a phase
-    line when they are chosen (more than :data:`~.pair_selection.EXHAUSTIVE_MAX_PHOTOS` photos)."""
-    if len(rgb) <= EXHAUSTIVE_MAX_PHOTOS:
-        return all_pairs(len(rgb))
+    line."""
     how = "by similarity and order in the clip" if ordered else "by similarity"
     with machine_threads(), phase(f"choosing pairs ({len(rgb)} photos, {how})"):
         return choose_pairs(rgb, ordered=ordered)
