@@ -15,6 +15,14 @@ Usage:
         --clip 60 --out runs/scale [--method scgaussian] [--steps N] [-- EXTRA splat-train ARGS]
 
 It writes ``OUT/scale.json`` and ``OUT/scale.md`` (the table, with the machine, its load and the date).
+
+``-- --photos.pairs exhaustive`` poses every row on every pair (the comparison the chosen pairs are
+measured against). Matching all of a clip's pairs takes about an hour at 60 frames, so
+``--pair-sample N`` estimates it instead: after the clip's row, the learned matcher (its features
+of every frame computed first, as in a posing) matches N of the chosen pairs and N pairs drawn at
+random from all of them, in alternated batches in one process, and the clip's row gains
+``exhaustive_estimate_s``: its posing with its matching scaled to every pair at the sampled rate
+(the mapping's own growth with more matches left out, so the estimate is low, not high).
 """
 
 from __future__ import annotations
@@ -125,6 +133,56 @@ def run_one(label: str, data: Path, out: Path, args, env: dict, extra: list[str]
     return row
 
 
+def sampled_pair_rate(images: list, chosen: list[tuple[int, int]], match, n: int, batch: int = 5,
+                      seed: int = 0) -> dict:
+    """Seconds a pair of ``match(img_a, img_b)`` on ``n`` of the ``chosen`` pairs and on ``n`` pairs
+    drawn uniformly from every pair of ``images``, in alternated batches of ``batch`` (chosen first,
+    then random first, ...); the features of every image are computed first, untimed (the pairs
+    (i, i + 1)), as a posing computes each photo's once."""
+    import random
+
+    every = [(i, j) for i in range(len(images)) for j in range(i + 1, len(images))]
+    rng = random.Random(seed)
+    samples = {"chosen": rng.sample(chosen, min(n, len(chosen))), "random": rng.sample(every, min(n, len(every)))}
+    for i in range(0, len(images) - 1, 2):
+        match(images[i], images[i + 1])
+    seconds: dict = {"chosen": [], "random": []}
+    for k in range(0, n, batch):
+        for name in ("chosen", "random") if (k // batch) % 2 == 0 else ("random", "chosen"):
+            for a, b in samples[name][k:k + batch]:
+                t0 = time.perf_counter()
+                match(images[a], images[b])
+                seconds[name].append(time.perf_counter() - t0)
+    rate = {name: float(np.mean(v)) for name, v in seconds.items()}
+    return {"sample": n, "s_per_pair": rate, "random_over_chosen": rate["random"] / rate["chosen"],
+            "chosen_pairs": len(chosen), "all_pairs": len(every)}
+
+
+def exhaustive_estimate(row: dict, rate: dict) -> float:
+    """The clip row's posing seconds with its matching of the chosen pairs scaled to every pair at the
+    sampled rate (:func:`sampled_pair_rate`)."""
+    scale = rate["all_pairs"] * rate["random_over_chosen"] / rate["chosen_pairs"]
+    return row["posing_s"] + row["pose_matching_s"] * (scale - 1)
+
+
+def clip_pair_rate(clip: Path, frames: int, n: int, work: Path) -> dict:
+    """:func:`sampled_pair_rate` of ALIKED + LightGlue on the ``frames`` frames a posing of ``clip``
+    takes, over the pairs it chooses."""
+    import cv2
+
+    from splat_framework.config import match_config
+    from splat_framework.matching.registry import MATCHERS
+    from splat_framework.sfm.pair_selection import choose_pairs
+    from splat_framework.sfm.video import pick_video_frames
+
+    shutil.rmtree(work, ignore_errors=True)
+    rgb = [cv2.imread(str(p))[..., ::-1].copy() for p in pick_video_frames(clip, frames, work)]
+    shutil.rmtree(work)
+    config = match_config("aliked-lightglue", max_matches=0, max_total_matches=0, cache=False)
+    matcher = MATCHERS["aliked-lightglue"].from_config(config)
+    return sampled_pair_rate(rgb, choose_pairs(rgb, ordered=True), matcher.match, n)
+
+
 def cell_of(row: dict):
     """A function giving ``row[key]`` formatted, or a dash where it is missing."""
     return lambda key, fmt="{}": fmt.format(row[key]) if row.get(key) is not None else "–"
@@ -156,6 +214,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--method", default="scgaussian")
     p.add_argument("--steps", type=int, default=None, help="override the method's steps (default: its own)")
+    p.add_argument("--pair-sample", type=int, default=0,
+                   help="with --clip: estimate the clip's exhaustive posing from N chosen and N random pairs (0: not)")
     args = p.parse_args(argv)
     photos = capture(args.photos)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -176,6 +236,11 @@ def main(argv: list[str] | None = None) -> list[dict]:
         write_clip(photos, clip)
         rows.append(run_one(f"clip-{args.clip}", clip, args.out, args, env,
                             ["--photos.frames", str(args.clip), "--overwrite", *extra]))
+        if args.pair_sample and "pose_matching_s" in rows[-1]:
+            rate = clip_pair_rate(clip, args.clip, args.pair_sample, args.out / "frames")
+            rows[-1].update(pair_rate=rate, exhaustive_estimate_s=round(exhaustive_estimate(rows[-1], rate), 1))
+            print(f"[clip-{args.clip}] exhaustive posing estimated at {rows[-1]['exhaustive_estimate_s']} s "
+                  f"(random pairs {rate['random_over_chosen']:.2f}x the chosen pairs' time each)", flush=True)
     stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     note = (f"{stamp}, {os.cpu_count()} cores, load before each run: "
             + ", ".join(f"{r['load_before']:.1f}" for r in rows) + f"; `{args.method}`" + (f" {' '.join(extra)}" if extra else ""))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import subprocess
+import time
 from pathlib import Path
 
 import pytest
@@ -196,3 +197,22 @@ def test_own_photos_scale_takes_photos_evenly_and_reads_each_phase_from_the_log(
                         {"label": "8", "wall_s": 100.0, "psnr": 30.0, "held_out": False, "matching_s": 9.6}])
     assert "| 16 | 300.0 | 120 | 52 of 120 | 16 of 16 | 24 of 91 | 65 |" in text
     assert "| 8 | 100.0 | – | – of – | – of – | – | 10 |" in text and "30.00 (training views)" in text
+
+
+def test_own_photos_scale_estimates_every_pair_from_a_sample_of_pairs():
+    """--pair-sample: a matcher twice as slow on pairs of far-apart frames is timed on the chosen and
+    on random pairs, every frame's features first, and the clip's posing is scaled to every pair."""
+    scale = load_script("own_photos_scale")
+    calls = []
+
+    def match(a, b):
+        calls.append((int(a), int(b)))
+        time.sleep(0.002 if abs(int(a) - int(b)) <= 2 else 0.004)
+
+    frames = list(range(20))
+    chosen = [(i, j) for i in range(20) for j in range(i + 1, min(i + 3, 20))]
+    rate = scale.sampled_pair_rate(frames, chosen, match, n=10, batch=5)
+    assert calls[:10] == [(i, i + 1) for i in range(0, 19, 2)] and len(calls) == 30
+    assert rate["chosen_pairs"] == 37 and rate["all_pairs"] == 190 and 1.4 < rate["random_over_chosen"] < 2.6
+    fixed = {"chosen_pairs": 100, "all_pairs": 1000, "random_over_chosen": 1.0}
+    assert scale.exhaustive_estimate({"posing_s": 600.0, "pose_matching_s": 500.0}, fixed) == 600 + 500 * 9
