@@ -34,6 +34,7 @@ READ_IN_ANOTHER_MODE = {
     "photos.matcher": "--data naming a folder of photos or a video only (sfm/own_photos.py poses them), as its help says",
     "photos.mapper": "--data naming a folder of photos or a video only",
     "photos.frames": "--data naming a video only",
+    "photos.pairs": "--data naming a folder of photos or a video only",
     "camera_refine.lr_rotation": "--camera-refine.mode on, or auto with estimated training poses (off by default), "
                                  "as its help says",
     "camera_refine.focal": "--camera-refine.mode on, or auto with estimated training poses",
