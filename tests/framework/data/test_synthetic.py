@@ -276,6 +276,24 @@ def test_object_deterministic(object_dir, tmp_path):
     assert _all_bytes(again) == _all_bytes(object_dir)
 
 
+REFERENCE = Path(__file__).parent / "reference"
+
+
+@pytest.mark.parametrize("scene, image", [("forward-tiny", "images/image000.png"), ("object-tiny", "train/r_0.png")])
+def test_the_built_in_scene_has_the_same_pixels_on_every_install(scene, image, tmp_path):
+    """The built-in scenes are every test's input and the README's demo: their pixels must not depend on the
+    installed OpenCV (putText and HSV2RGB changed in 5.0 and 5.1; the textures no longer use them). The
+    reference images were written by generator version 2 and read the same with OpenCV 4.14, 5.0 and 5.1;
+    a change of the generator bumps GENERATOR_VERSION and rewrites them."""
+    got = cv2.imread(str(ensure_scene(scene, cache_dir=tmp_path) / image), cv2.IMREAD_UNCHANGED).astype(int)
+    ref_path = REFERENCE / f"{scene}-{Path(image).name}"
+    ref = cv2.imread(str(ref_path), cv2.IMREAD_UNCHANGED).astype(int)
+    assert GENERATOR_VERSION == 2, f"the generator changed: write {ref_path} again from the new scene"
+    assert got.shape == ref.shape
+    off = np.abs(got - ref) > 1  # one level of rounding is allowed, for float differences between CPUs
+    assert off.mean() < 1e-3, f"{off.mean():.2%} of {scene}'s {image} differs from {ref_path} (cv2 {cv2.__version__})"
+
+
 # ---------------------------------------------------------------- conventions
 def test_llff_encoding_matches_cameras_json(forward_dir):
     views = _cameras_json(forward_dir)

@@ -33,7 +33,7 @@ from .scenes import (
 )
 from .textures import sample
 
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2
 """Bumped whenever the output of a given (kind, size, views, seed) changes; part of the cache key."""
 
 Kind = Literal["forward", "object"]
