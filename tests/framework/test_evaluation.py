@@ -172,7 +172,7 @@ def test_scgaussian_report_measures_distance_to_surface():
     assert len(pts) > 30
     bundle = build_ray_bundle([(0, 1, uv_a, uv_b)], cams, torch.Generator().manual_seed(0))
     bundle.z = (pts.float().repeat_interleave(2, 0) - bundle.origins).norm(dim=-1)
-    config = get_method("scgaussian").default_config()
+    config = get_method("scgaussian-ray-bound").default_config()  # bound: z alone moves them (below)
     empty = torch.zeros(0, 3)
     model = SCGaussianModel(config, dm.scene.scene_radius, empty, empty, bundle, cams, images)
 

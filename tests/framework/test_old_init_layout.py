@@ -60,6 +60,11 @@ def test_old_config_json_is_todays_experiment(name):
     # and every iteration at the images' own size (scgaussian's coarse steps since schema 5, 2026-11-28)
     assert old.coarse_steps == 0
     now = apply_overrides(now, {"coarse_steps": 0})
+    # and scgaussian's matched Gaussians bound to their rays all run (released after the warm-up since
+    # 2026-12-03; these files hold them bound)
+    if "ray_binding" in raw["model"]:
+        assert raw["model"]["ray_binding"] is True
+        now = apply_overrides(now, {"model": {"ray_binding": True}})
     keep = experiment_fields(type(now))
     assert old.model_dump(include=keep) == now.model_dump(include=keep)
     rates = type(old.optim).model_fields

@@ -206,8 +206,10 @@ def test_triangulation_recovers_exact_points(scene):
     assert float(err.max()) < 0.01
 
 
-def _hybrid_model(dm, overrides=None):
-    cfg = config_scgaussian()
+def _hybrid_model(dm, overrides=None, bound=True):
+    """The default's model, 8 matched rows from 4 matches and 6 ordinary ones; ``bound``: the matched
+    Gaussians bound to their rays (the paper's hybrid; the default releases them after the warm-up)."""
+    cfg = apply_overrides(config_scgaussian(), {"model": {"ray_binding": bound}})
     if overrides:
         cfg = apply_overrides(cfg, overrides)
     cams = dm.train_cameras
@@ -238,6 +240,26 @@ def test_ray_gaussians_move_only_along_their_rays(scene):
     cross = torch.linalg.cross(moved, p["ray_d"][ray]).norm(dim=-1)
     assert float(cross.max()) < 1e-4
     assert not torch.allclose(p["z"][ray], model.bundle.z)  # they did move
+
+
+def test_the_default_releases_the_matched_gaussians_from_their_rays(scene):
+    """``scgaussian`` as it ships: the matched rows start where their rays put them, flagged as
+    matches but not bound, and one step moves them off their rays (``scgaussian-ray-bound`` keeps them on)."""
+    _, dm, _ = scene
+    assert not config_scgaussian().model.ray_binding
+    _, model = _hybrid_model(dm, bound=False)
+    p = model.params
+    assert p["is_match"][:8].tolist() == [1.0] * 8 and float(p["is_ray"].sum()) == 0.0
+    assert torch.allclose(model.positions()[:8], model.bundle.positions())
+    opts = model.make_optimizers()
+    cam, _ = dm.next_train(0)
+    out = model.get_outputs(cam, torch.zeros(3))
+    (out.rgb.sum() + model.positions().sum()).backward()
+    for o in opts.values():
+        o.step()
+    moved = model.positions().detach()[:8] - p["ray_o"][:8]
+    assert float(torch.linalg.cross(moved, p["ray_d"][:8]).norm(dim=-1).max()) > 1e-4  # off the rays
+    assert get_method("scgaussian-ray-bound").default_config().model.ray_binding
 
 
 def _refine_once(model, cfg, dm):

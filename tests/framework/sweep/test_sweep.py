@@ -356,8 +356,9 @@ def test_comparison_figure_per_scene_from_finished_runs(tmp_path):
     ("comp-tria", "Triangulated initialisation across representations (the paper's Tab. comp_tria)",
      ["3dgs", "3dgs-triang", "scaffold-gs-triang", "octree-gs-triang", "scgaussian"], "Triang. init + Octree-GS"),
     ("default-ablation", "The paper's ablation on the default `scgaussian` (its additions kept)",
-     ["3dgs", "3dgs-triang", "scgaussian-hybrid", "scgaussian-hybrid-rg", "scgaussian-hybrid-rg-dual", "scgaussian",
-      "scgaussian-single-stage", "scgaussian-only-ray", "scgaussian-only-nonstructure"], "+ dual optimisation (z warm-up)"),
+     ["3dgs", "3dgs-triang", "scgaussian-hybrid", "scgaussian-hybrid-rg", "scgaussian-hybrid-rg-dual",
+      "scgaussian-ray-bound", "scgaussian-single-stage", "scgaussian-only-ray", "scgaussian"],
+     "+ dual optimisation (z warm-up)"),
 ])
 def test_ablation_named_table_has_its_rows_title_and_readme_markers(tmp_path, table, title, configs, label):
     """--table NAME: the table's rows in its order (the default --methods), its title, and README markers
