@@ -75,6 +75,7 @@ class ScaffoldModel(GaussianModel):
         centers = torch.stack([c.center.detach().float() for c in datamanager.train_cameras]).to(points.device)
         model = cls(config, datamanager.scene.scene_radius, points, colors, centers)
         model.reference_center = centers[0].cpu()
+        model.keep_training_views(datamanager)
         model.init_timing = start.timing
         model.init_stats = {"num_points": int(points.shape[0]), "num_anchors": model.num_anchors,
                             "voxel_size": model.voxel_size}

@@ -14,12 +14,16 @@ reproduce 3DGS numbers.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
 from .render import compile_requested
+
+if TYPE_CHECKING:
+    from .cameras import Camera
 
 C1 = 0.01**2
 C2 = 0.03**2
@@ -177,6 +181,64 @@ def depth_smoothness(depth: Tensor, image: Tensor, alpha: Tensor, gamma: float =
         total = total + (torch.diff(d, dim=dim).abs() * edge * m).sum()
         count = count + m.sum()
     return total / count.clamp_min(1.0)
+
+
+def multiview_photometric(depth: Tensor, alpha: Tensor, image: Tensor, camera: Camera,
+                          partners: list[tuple[Camera, Tensor]], min_alpha: float = 0.5, downsample: int = 1) -> Tensor:
+    """Multi-view photometric consistency of a rendered depth: each pixel of the view, lifted to its
+    rendered depth and projected into the other training views, must find there the colour it has
+    in its own photo (the plane-sweep rule of multi-view stereo, on the training photos themselves).
+
+    Per pixel the smallest mean absolute colour difference over the ``partners`` that see the
+    point (in front of the camera, inside the image; Monodepth2's minimum reprojection, so a pixel
+    occluded in one partner is judged by another), averaged over pixels whose ``alpha`` exceeds
+    ``min_alpha`` and that some partner sees. The partners' photos are constants: gradients reach
+    the depth only, and only where a partner's photo has texture (a flat wall gives none). With
+    ``downsample`` f > 1 the comparison runs on the depth, opacity and photos area-averaged to 1/f
+    of their size, with the cameras resized to match: the consistency of the coarse geometry, at
+    1/f^2 of the cost.
+
+    Args:
+        depth: [H, W, 1] the view's rendered (expected) depth, camera z (``camera``'s size).
+        alpha: [H, W, 1] the view's rendered opacity.
+        image: [H, W, 3] the view's photo, at the render's size.
+        camera: the rendered camera.
+        partners: (camera, photo [h, w, 3]) of other views, each photo at its camera's size.
+    Returns:
+        A scalar; 0 (with a graph) when no pixel is valid.
+    """
+    if downsample > 1:
+        depth, alpha, image = (_area(t, camera, downsample) for t in (depth, alpha, image))
+        partners = [(_shrunk(c, downsample), _area(p.to(depth.dtype), c, downsample)) for c, p in partners]
+        camera = _shrunk(camera, downsample)
+    u = torch.arange(camera.width, device=depth.device, dtype=depth.dtype) + 0.5
+    v = torch.arange(camera.height, device=depth.device, dtype=depth.dtype) + 0.5
+    uv = torch.stack(torch.meshgrid(u, v, indexing="xy"), dim=-1)  # [H, W, 2]
+    points = camera.unproject_depth(uv, depth[..., 0])
+    best = depth.new_full(depth.shape[:2], float("inf"))
+    for partner, photo in partners:
+        puv, pz = partner.project(points)
+        pw, ph = partner.width, partner.height
+        inside = (pz > 1e-6) & (puv[..., 0] >= 0.5) & (puv[..., 0] <= pw - 0.5) & (puv[..., 1] >= 0.5) & (puv[..., 1] <= ph - 0.5)
+        grid = torch.stack([2.0 * puv[..., 0] / pw - 1.0, 2.0 * puv[..., 1] / ph - 1.0], dim=-1)
+        seen = F.grid_sample(_to_bchw(photo.to(depth.dtype)), grid[None], mode="bilinear", padding_mode="border",
+                             align_corners=False)[0].permute(1, 2, 0)
+        err = (seen - image).abs().mean(-1)
+        best = torch.where(inside & (err < best), err, best)
+    valid = (alpha[..., 0] > min_alpha) & torch.isfinite(best)
+    err = torch.where(valid, best, 0.0).sum() + depth.sum() * 0.0  # a graph even when nothing is seen
+    return err / valid.sum().clamp_min(1)  # no host sync
+
+
+def _shrunk(camera: Camera, factor: int) -> Camera:
+    """``camera`` for its image area-averaged to 1/``factor`` of its size (at least one pixel)."""
+    return camera.resized(max(1, camera.width // factor), max(1, camera.height // factor))
+
+
+def _area(img: Tensor, camera: Camera, factor: int) -> Tensor:
+    """[H, W, C] ``img`` (``camera``'s size) area-averaged to ``_shrunk(camera, factor)``'s size."""
+    small = _shrunk(camera, factor)
+    return F.interpolate(_to_bchw(img), size=(small.height, small.width), mode="area")[0].permute(1, 2, 0)
 
 
 def scale_anisotropy(log_scales: Tensor, max_ratio: float) -> Tensor:

@@ -28,6 +28,14 @@ class RegularisersConfig(SplatConfig):
     """Largest disparity of the stereo partner, as a fraction of the width."""
     stereo_start: Fraction = 2 / 3
     """Fraction of the run after which the binocular consistency applies."""
+    multiview_weight: NonNegative = 0.0
+    """Weight of the multi-view photometric consistency of the rendered depth; 0 = off."""
+    multiview_partners: int = Field(2, ge=1)
+    """How many training views (nearest camera centres) multiview_weight compares each view with."""
+    multiview_downsample: int = Field(1, ge=1)
+    """multiview_weight compares the views at 1/this of the render's size (area-averaged)."""
+    multiview_until: Fraction = 1.0
+    """Fraction of the run until which the multi-view consistency applies (1: all of it)."""
     anisotropy_weight: NonNegative = 0.0
     """Weight of the anisotropy regulariser (PhysGaussian); 0 = off."""
     max_anisotropy: Annotated[float, Field(ge=1, allow_inf_nan=False)] = 10.0

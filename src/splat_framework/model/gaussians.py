@@ -24,7 +24,7 @@ import inspect
 import math
 from contextlib import nullcontext
 from types import MappingProxyType
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import torch
 from torch import Tensor, nn
@@ -85,7 +85,9 @@ class GaussianModel(nn.Module):
                                                                 manager makes them
     ``from_data(config, datamanager, generator)``               the model; builds it with ``__init__``,
     (classmethod)                                               which calls ``init_params(points,
-                                                                colors)`` (rows) and ``build_networks()``
+                                                                colors)`` (rows) and ``build_networks()``;
+                                                                then ``keep_training_views(datamanager)``
+                                                                (the multi-view regulariser's partners)
     ``init_timing``, ``init_stats`` (attributes)                seconds and numbers for metrics.json
     ``make_optimizers()``                                       {name: Optimizer}
     ``strategy_config()``                                       the StrategyConfig it trains with
@@ -137,6 +139,11 @@ class GaussianModel(nn.Module):
     init_stats: Mapping[str, Any] = MappingProxyType({})
     """Numbers about the initialisation (e.g. match counts), written to metrics.json."""
 
+    train_cameras: Sequence[Camera] = ()
+    """The training views' cameras, and below their photos [H, W, 3], in split order (``from_data``
+    sets them; a model rebuilt from a checkpoint has none): the multi-view regulariser's partners."""
+    train_images: Sequence[Tensor] = ()
+
     FIXED: tuple[str, ...] = ()
     """Per-row tensors that are not optimised (a model rebuilt from a checkpoint keeps them so)."""
 
@@ -181,9 +188,16 @@ class GaussianModel(nn.Module):
         (:func:`~splat_framework.model.init.initial_points`)."""
         start = initial_points(config.model.init, datamanager, generator)
         model = cls(config, datamanager.scene.scene_radius, start.points, start.colors)
+        model.keep_training_views(datamanager)
         model.init_timing = start.timing
         model.init_stats = {"num_points": int(start.points.shape[0])}
         return model
+
+    def keep_training_views(self, datamanager) -> None:
+        """Keep the training views' cameras and photos (``train_cameras``, ``train_images``), which
+        the multi-view regulariser compares each render with; ``from_data`` calls it."""
+        views = datamanager.train_views()
+        self.train_cameras, self.train_images = [c for c, _ in views], [b["image"] for _, b in views]
 
     def build_networks(self) -> nn.ModuleDict:
         """The model-wide (not per-row) modules, freshly initialised (3DGS: none). Called when the
@@ -350,13 +364,25 @@ class GaussianModel(nn.Module):
     def regulariser_terms(self, outputs: RenderOutput, batch: dict, camera: Camera, step: int) -> tuple[Tensor, dict[str, Tensor]]:
         """(photometric target, {term: scalar}) of the opt-in regularisers ``model.reg`` switches on
         (:func:`~splat_framework.model.regularisers.regulariser_terms`), given what they need from
-        this model: the run's seed and length, :meth:`gaussian_log_scales` and a training re-render
-        of another camera (the stereo term's partner view)."""
+        this model: the run's seed and length, :meth:`gaussian_log_scales`, a training re-render
+        of another camera (the stereo term's partner view) and :meth:`training_partners`."""
         return regulariser_terms(
             self.config.model.reg, outputs, batch, camera, step, seed=self.config.seed,
             total_steps=self.config.total_steps, log_scales=lambda: self.gaussian_log_scales(outputs),
             render=lambda view: self.get_outputs(view, outputs.meta.get("background"), step=step),
+            partners=lambda k: self.training_partners(batch.get("train_position"), k),
         )
+
+    def training_partners(self, view: int | None, k: int) -> list[tuple[Camera, Tensor]]:
+        """(camera, photo [H, W, 3]) of the ``k`` training views whose centres lie nearest training
+        view ``view``'s (its position in the split), nearest first; [] for None or without views."""
+        if view is None or len(self.train_cameras) < 2:
+            return []
+        centres = torch.stack([c.center.detach().float().cpu() for c in self.train_cameras])
+        dist = (centres - centres[view]).norm(dim=-1)
+        dist[view] = float("inf")
+        order = torch.argsort(dist)[: min(k, len(centres) - 1)].tolist()
+        return [(self.train_cameras[i], self.train_images[i]) for i in order]
 
     def gaussian_log_scales(self, outputs: RenderOutput) -> Tensor:
         """[N, 3] log-scales of the Gaussians the scale regularisers act on (``reg.anisotropy_weight``):

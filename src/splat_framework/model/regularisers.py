@@ -15,7 +15,7 @@ from torch import Tensor
 
 from ..cameras import Camera
 from ..config import RegularisersConfig
-from ..losses import depth_smoothness, scale_anisotropy, stereo_consistency
+from ..losses import depth_smoothness, multiview_photometric, scale_anisotropy, stereo_consistency
 from ..render import RenderOutput
 from ..runtime.profiling import section
 from ..runtime.rng import keyed_generator
@@ -24,6 +24,7 @@ from ..runtime.rng import keyed_generator
 def regulariser_terms(
     reg: RegularisersConfig, outputs: RenderOutput, batch: dict, camera: Camera, step: int, *, seed: int,
     total_steps: int, log_scales: Callable[[], Tensor], render: Callable[[Camera], RenderOutput],
+    partners: Callable[[int], list[tuple[Camera, Tensor]]] = lambda k: [],
 ) -> tuple[Tensor, dict[str, Tensor]]:
     """(the photometric target [H, W, 3], {term: scalar}) of the regularisers ``reg`` switches on,
     for the training render ``outputs`` of ``camera`` at ``step`` of a ``total_steps`` run with ``seed``.
@@ -32,8 +33,10 @@ def regulariser_terms(
     becomes black: the returned target), ``depth_smooth`` (losses.depth_smoothness of the rendered
     depth), ``anisotropy`` (losses.scale_anisotropy of ``log_scales()``, [N, 3] log-scales of the
     Gaussians it acts on) and ``stereo`` (losses.stereo_consistency against ``render(partner)``, a
-    training render of a sideways-shifted copy of ``camera``, from its start), each when its weight
-    is > 0. A model hands these in (``GaussianModel.regulariser_terms``); nothing here reads the model.
+    training render of a sideways-shifted copy of ``camera``, from its start) and ``multiview``
+    (losses.multiview_photometric against ``partners(k)``, the (camera, photo) of the ``k`` training
+    views nearest the batch's, until its stop; none for a view outside the training split), each
+    when its weight is > 0. A model hands these in (``GaussianModel.regulariser_terms``); nothing here reads the model.
     """
     target = batch["image"]
     backdrop = batch.get("backdrop")
@@ -50,6 +53,13 @@ def regulariser_terms(
         with section("stereo"):
             draw = float(torch.rand((), generator=keyed_generator(seed, step, 1))) * 2.0 - 1.0
             terms["stereo"] = reg.stereo_weight * _stereo_loss(outputs, batch["image"], camera, draw * reg.stereo_disparity, render)
+    if reg.multiview_weight > 0 and step < reg.multiview_until * total_steps:
+        views = partners(reg.multiview_partners)
+        if views:
+            with section("multi-view"):
+                terms["multiview"] = reg.multiview_weight * multiview_photometric(
+                    outputs.expected_depth, outputs.alpha, batch["image"], camera, views,
+                    downsample=reg.multiview_downsample)
     return target, terms
 
 

@@ -1,0 +1,101 @@
+"""Multi-view photometric consistency: a view's pixels, lifted to the rendered depth and projected
+into the other training views, must find their own colour in those views' photos."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from splat_framework.cameras import Camera, intrinsics
+from splat_framework.config import apply_overrides
+from splat_framework.data import DataManager, load_scene
+from splat_framework.data.synthetic import generate_scene
+from splat_framework.losses import multiview_photometric
+from splat_framework.model.gaussians import GaussianModel
+from splat_framework.registry import get_method
+
+H, W, PLANE = 24, 32, 2.0
+
+
+def _camera(x: float) -> Camera:
+    """A camera at (x, 0, 0) looking down +z (world = camera axes, shifted)."""
+    w2c = torch.eye(4, dtype=torch.float64)
+    w2c[0, 3] = -x
+    return Camera(K=intrinsics(30.0, 30.0, W / 2, H / 2).double(), world_to_cam=w2c, width=W, height=H)
+
+
+def _photo(cam: Camera) -> torch.Tensor:
+    """[H, W, 3] what ``cam`` sees of a textured plane at z = PLANE (the texture a function of world x, y)."""
+    u = torch.arange(W, dtype=torch.float64) + 0.5
+    v = torch.arange(H, dtype=torch.float64) + 0.5
+    uv = torch.stack(torch.meshgrid(u, v, indexing="xy"), dim=-1)
+    p = cam.unproject_depth(uv, torch.full((H, W), PLANE, dtype=torch.float64))
+    x, y = p[..., 0], p[..., 1]
+    return torch.stack([0.5 + 0.4 * torch.sin(3 * x), 0.5 + 0.4 * torch.cos(2 * y + x), 0.5 + 0.3 * torch.sin(5 * x - y)], -1)
+
+
+@pytest.mark.parametrize("downsample", [1, 2])
+def test_consistency_is_least_at_the_true_depth_and_pulls_a_wrong_depth_towards_it(downsample):
+    view, partners = _camera(0.0), [_camera(0.15), _camera(-0.15)]
+    photo, alpha = _photo(view), torch.ones(H, W, 1, dtype=torch.float64)
+    pairs = [(c, _photo(c)) for c in partners]
+    at = {z: multiview_photometric(torch.full((H, W, 1), z, dtype=torch.float64), alpha, photo, view, pairs,
+                                   downsample=downsample).item() for z in (1.6, 1.8, 2.0, 2.2, 2.5)}
+    assert at[2.0] < 4e-3 and min(at, key=at.get) == 2.0
+    assert at[1.6] > at[1.8] > at[2.0] < at[2.2] < at[2.5]
+    for z, sign in ((1.8, -1.0), (2.2, 1.0)):  # too near: the loss falls with depth; too far: it rises
+        depth = torch.full((H, W, 1), z, dtype=torch.float64, requires_grad=True)
+        multiview_photometric(depth, alpha, photo, view, pairs, downsample=downsample).backward()
+        assert sign * depth.grad.sum() > 0
+
+
+def test_a_pixel_is_judged_by_the_partner_that_agrees_and_only_where_covered_and_seen():
+    view, good, bad = _camera(0.0), _camera(0.15), _camera(0.15)
+    photo, depth = _photo(view), torch.full((H, W, 1), PLANE, dtype=torch.float64)
+    alpha = torch.ones(H, W, 1, dtype=torch.float64)
+    occluded = torch.zeros(H, W, 3, dtype=torch.float64)  # the other partner, where the first is, sees something else
+    both = multiview_photometric(depth, alpha, photo, view, [(good, _photo(good)), (bad, occluded)]).item()
+    assert both == pytest.approx(multiview_photometric(depth, alpha, photo, view, [(good, _photo(good))]).item())
+    assert multiview_photometric(depth, alpha, photo, view, [(bad, occluded)]).item() > 0.3
+    # uncovered pixels do not count: a photo that differs there changes nothing
+    half = alpha.clone()
+    half[:, : W // 2] = 0.0
+    other = photo.clone()
+    other[:, : W // 2] = 1.0 - other[:, : W // 2]
+    pairs = [(good, _photo(good))]
+    assert multiview_photometric(depth, half, other, view, pairs).item() == pytest.approx(
+        multiview_photometric(depth, half, photo, view, pairs).item())
+    # a partner that sees none of it (the plane behind it) gives zero, with a graph
+    behind = _camera(0.0)
+    behind.world_to_cam[2, 3] = -5.0
+    empty = multiview_photometric(depth.requires_grad_(), alpha, photo, view, [(behind, _photo(good))])
+    assert empty.item() == 0.0 and empty.requires_grad
+
+
+@pytest.fixture(scope="module")
+def dm(tmp_path_factory):
+    root = generate_scene("forward", tmp_path_factory.mktemp("mv") / "scene", width=48, height=36, n_views=4, seed=2)
+    return DataManager(load_scene(root, views=3), device="cpu", seed=0)
+
+
+def test_the_multiview_term_compares_each_view_with_its_nearest_until_its_stop_and_reaches_the_gaussians(dm):
+    cfg = apply_overrides(get_method("3dgs").default_config(), {
+        "steps": 20, "model": {"reg": {"multiview_weight": 1.0, "multiview_partners": 1, "multiview_until": 0.5}, "init": {"num_points": 2000}}})
+    model = GaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
+    assert len(model.train_cameras) == len(model.train_images) == 3
+    centres = torch.stack([c.center for c in model.train_cameras]).float()
+    for k, (cam, batch) in enumerate(dm.train_views()):
+        (partner, photo), = model.training_partners(k, 1)
+        dist = (centres - centres[k]).norm(dim=-1)
+        dist[k] = float("inf")
+        assert partner is model.train_cameras[int(dist.argmin())] and photo.shape == batch["image"].shape
+    assert len(model.training_partners(0, 5)) == 2 and model.training_partners(None, 2) == []
+    cam, batch = next(iter(dm.train_views()))
+    term = model.get_loss_dict(model.get_outputs(cam, step=9), batch, cam, 9)["multiview"]
+    assert term.item() > 0
+    assert "multiview" not in model.get_loss_dict(model.get_outputs(cam, step=10), batch, cam, 10)  # half the run
+    term.backward()
+    assert model.params["means"].grad.abs().sum() > 0
+    off = apply_overrides(cfg, {"model": {"reg": {"multiview_weight": 0.0}}})
+    plain = GaussianModel.from_data(off, dm, torch.Generator().manual_seed(0))
+    assert "multiview" not in plain.get_loss_dict(plain.get_outputs(cam, step=5), batch, cam, 5)
