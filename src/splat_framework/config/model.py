@@ -30,9 +30,9 @@ class RegularisersConfig(SplatConfig):
     """Fraction of the run after which the binocular consistency applies."""
     multiview_weight: NonNegative = 0.0
     """Weight of the multi-view photometric consistency of the rendered depth; 0 = off."""
-    multiview_partners: int = Field(2, ge=1)
+    multiview_partners: int = Field(2, ge=1, le=64)
     """How many training views (nearest camera centres) multiview_weight compares each view with."""
-    multiview_downsample: int = Field(1, ge=1)
+    multiview_downsample: int = Field(1, ge=1, le=64)
     """multiview_weight compares the views at 1/this of the render's size (area-averaged)."""
     multiview_until: Fraction = 1.0
     """Fraction of the run until which the multi-view consistency applies (1: all of it)."""
