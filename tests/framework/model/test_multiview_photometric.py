@@ -8,8 +8,6 @@ import torch
 
 from splat_framework.cameras import Camera, intrinsics
 from splat_framework.config import apply_overrides
-from splat_framework.data import DataManager, load_scene
-from splat_framework.data.synthetic import generate_scene
 from splat_framework.losses import multiview_photometric
 from splat_framework.model.gaussians import GaussianModel
 from splat_framework.registry import get_method
@@ -70,12 +68,6 @@ def test_a_pixel_is_judged_by_the_partner_that_agrees_and_only_where_covered_and
     behind.world_to_cam[2, 3] = -5.0
     empty = multiview_photometric(depth.requires_grad_(), alpha, photo, view, [(behind, _photo(good))])
     assert empty.item() == 0.0 and empty.requires_grad
-
-
-@pytest.fixture(scope="module")
-def dm(tmp_path_factory):
-    root = generate_scene("forward", tmp_path_factory.mktemp("mv") / "scene", width=48, height=36, n_views=4, seed=2)
-    return DataManager(load_scene(root, views=3), device="cpu", seed=0)
 
 
 def test_the_multiview_term_compares_each_view_with_its_nearest_until_its_stop_and_reaches_the_gaussians(dm):

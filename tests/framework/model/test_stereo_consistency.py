@@ -7,8 +7,6 @@ import torch
 
 from splat_framework.cameras import Camera, intrinsics
 from splat_framework.config import apply_overrides
-from splat_framework.data import DataManager, load_scene
-from splat_framework.data.synthetic import generate_scene
 from splat_framework.losses import stereo_consistency
 from splat_framework.model.gaussians import GaussianModel
 from splat_framework.registry import get_method
@@ -55,12 +53,6 @@ def test_stereo_consistency_is_zero_at_the_true_depth_and_ignores_uncovered_pixe
     # no covered pixel: zero, with a graph
     empty = stereo_consistency(partner, wrong, torch.zeros_like(alpha), photo, scale)
     assert empty.item() == 0.0 and empty.requires_grad
-
-
-@pytest.fixture(scope="module")
-def dm(tmp_path_factory):
-    root = generate_scene("forward", tmp_path_factory.mktemp("stereo") / "scene", width=48, height=36, n_views=4, seed=2)
-    return DataManager(load_scene(root, views=3), device="cpu", seed=0)
 
 
 def test_the_stereo_term_joins_the_loss_after_its_start_and_reaches_the_gaussians(dm):
