@@ -184,7 +184,8 @@ def depth_smoothness(depth: Tensor, image: Tensor, alpha: Tensor, gamma: float =
 
 
 def multiview_photometric(depth: Tensor, alpha: Tensor, image: Tensor, camera: Camera,
-                          partners: list[tuple[Camera, Tensor]], min_alpha: float = 0.5, downsample: int = 1) -> Tensor:
+                          partners: list[tuple[Camera, Tensor]], min_alpha: float = 0.5, downsample: int = 1,
+                          edge_ratio: float = 0.0) -> Tensor:
     """Multi-view photometric consistency of a rendered depth: each pixel of the view, lifted to its
     rendered depth and projected into the other training views, must find there the colour it has
     in its own photo (the plane-sweep rule of multi-view stereo, on the training photos themselves).
@@ -207,6 +208,7 @@ def multiview_photometric(depth: Tensor, alpha: Tensor, image: Tensor, camera: C
     Returns:
         A scalar; 0 (with a graph) when no pixel is valid.
     """
+    flat = _depth_span(depth.detach(), camera, downsample) <= edge_ratio if edge_ratio > 0 else None
     if downsample > 1:
         depth, alpha, image = (_area(t, camera, downsample) for t in (depth, alpha, image))
         partners = [(_shrunk(c, downsample), _area(p.to(depth.dtype), c, downsample)) for c, p in partners]
@@ -226,8 +228,20 @@ def multiview_photometric(depth: Tensor, alpha: Tensor, image: Tensor, camera: C
         err = (seen - image).abs().mean(-1)
         best = torch.where(inside & (err < best), err, best)
     valid = (alpha[..., 0] > min_alpha) & torch.isfinite(best)
+    if flat is not None:
+        valid = valid & flat
     err = torch.where(valid, best, 0.0).sum() + depth.sum() * 0.0  # a graph even when nothing is seen
     return err / valid.sum().clamp_min(1)  # no host sync
+
+
+def _depth_span(depth: Tensor, camera: Camera, factor: int) -> Tensor:
+    """[h, w] largest / smallest of ``depth`` [H, W, 1] over each compared pixel's block (1/``factor``
+    size) and its 3x3 neighbours: large across an occluding edge, near 1 on a surface."""
+    d = _to_bchw(depth.clamp_min(1e-6))
+    small = _shrunk(camera, factor)
+    hi, lo = (F.adaptive_max_pool2d(s * d, (small.height, small.width)) * s for s in (1.0, -1.0))
+    hi, lo = F.max_pool2d(hi, 3, 1, 1), -F.max_pool2d(-lo, 3, 1, 1)
+    return (hi / lo)[0, 0]
 
 
 def _shrunk(camera: Camera, factor: int) -> Camera:

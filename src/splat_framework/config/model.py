@@ -36,6 +36,8 @@ class RegularisersConfig(SplatConfig):
     """multiview_weight compares the views at 1/this of the render's size (area-averaged)."""
     multiview_until: Fraction = 1.0
     """Fraction of the run until which the multi-view consistency applies (1: all of it)."""
+    multiview_edge_ratio: NonNegative = 0.0
+    """multiview_weight skips pixels whose depth spans more than this ratio over their 3x3 neighbours (occluding edges); 0 = keeps all."""
     anisotropy_weight: NonNegative = 0.0
     """Weight of the anisotropy regulariser (PhysGaussian); 0 = off."""
     max_anisotropy: Annotated[float, Field(ge=1, allow_inf_nan=False)] = 10.0

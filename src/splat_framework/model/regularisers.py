@@ -59,7 +59,7 @@ def regulariser_terms(
             with section("multi-view"):
                 terms["multiview"] = reg.multiview_weight * multiview_photometric(
                     outputs.expected_depth, outputs.alpha, batch["image"], camera, views,
-                    downsample=reg.multiview_downsample)
+                    downsample=reg.multiview_downsample, edge_ratio=reg.multiview_edge_ratio)
     return target, terms
 
 
