@@ -70,6 +70,25 @@ def test_a_pixel_is_judged_by_the_partner_that_agrees_and_only_where_covered_and
     assert empty.item() == 0.0 and empty.requires_grad
 
 
+@pytest.mark.parametrize("downsample", [1, 2])
+def test_edge_ratio_skips_the_pixels_across_an_occluding_edge_and_nothing_on_a_surface(downsample):
+    view, partner = _camera(0.0), _camera(0.15)
+    photo, alpha, pairs = _photo(view), torch.ones(H, W, 1, dtype=torch.float64), [(partner, _photo(partner))]
+    flat = torch.full((H, W, 1), PLANE, dtype=torch.float64)
+    assert multiview_photometric(flat, alpha, photo, view, pairs, downsample=downsample, edge_ratio=1.1).item() == \
+        pytest.approx(multiview_photometric(flat, alpha, photo, view, pairs, downsample=downsample).item())
+    step = flat.clone()
+    step[:, W // 2:] = 2.0 * PLANE  # a near surface on the left, a far one on the right
+    band = photo.clone()  # the photo differs only next to the step
+    band[:, W // 2 - 1: W // 2 + 1] = 1.0 - band[:, W // 2 - 1: W // 2 + 1]
+
+    def loss(img, **kw):
+        return multiview_photometric(step, alpha, img, view, pairs, downsample=downsample, **kw).item()
+    assert loss(band, edge_ratio=1.1) == pytest.approx(loss(photo, edge_ratio=1.1))
+    assert loss(band) != pytest.approx(loss(photo))
+    assert loss(photo, edge_ratio=1.1) > 0.0  # the rest of the far surface still counts
+
+
 def test_the_multiview_term_compares_each_view_with_its_nearest_until_its_stop_and_reaches_the_gaussians(dm):
     cfg = apply_overrides(get_method("3dgs").default_config(), {
         "steps": 20, "model": {"reg": {"multiview_weight": 1.0, "multiview_partners": 1, "multiview_until": 0.5}, "init": {"num_points": 2000}}})
