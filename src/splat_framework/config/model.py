@@ -38,6 +38,8 @@ class RegularisersConfig(SplatConfig):
     """Fraction of the run until which the multi-view consistency applies (1: all of it)."""
     multiview_edge_ratio: NonNegative = 0.0
     """multiview_weight skips pixels whose depth spans more than this ratio over their 3x3 neighbours (occluding edges); 0 = keeps all."""
+    multiview_max_angle: float = Field(180.0, gt=0, le=180)
+    """multiview_weight compares a view only with partners whose viewing direction is within this many degrees of its own (180 = any)."""
     anisotropy_weight: NonNegative = 0.0
     """Weight of the anisotropy regulariser (PhysGaussian); 0 = off."""
     max_anisotropy: Annotated[float, Field(ge=1, allow_inf_nan=False)] = 10.0

@@ -370,18 +370,23 @@ class GaussianModel(nn.Module):
             self.config.model.reg, outputs, batch, camera, step, seed=self.config.seed,
             total_steps=self.config.total_steps, log_scales=lambda: self.gaussian_log_scales(outputs),
             render=lambda view: self.get_outputs(view, outputs.meta.get("background"), step=step),
-            partners=lambda k: self.training_partners(batch.get("train_position"), k),
+            partners=lambda k, angle: self.training_partners(batch.get("train_position"), k, angle),
         )
 
-    def training_partners(self, view: int | None, k: int) -> list[tuple[Camera, Tensor]]:
+    def training_partners(self, view: int | None, k: int, max_angle: float = 180.0) -> list[tuple[Camera, Tensor]]:
         """(camera, photo [H, W, 3]) of the ``k`` training views whose centres lie nearest training
-        view ``view``'s (its position in the split), nearest first; [] for None or without views."""
+        view ``view``'s (its position in the split), nearest first, among those whose optical axis
+        is within ``max_angle`` degrees of ``view``'s; [] for None, without views or with none so near."""
         if view is None or len(self.train_cameras) < 2:
             return []
         centres = torch.stack([c.center.detach().float().cpu() for c in self.train_cameras])
+        axes = torch.stack([c.world_to_cam[2, :3].detach().float().cpu() for c in self.train_cameras])
+        axes = axes / axes.norm(dim=-1, keepdim=True)
+        cos = (axes @ axes[view]).clamp(-1.0, 1.0)
         dist = (centres - centres[view]).norm(dim=-1)
         dist[view] = float("inf")
-        order = torch.argsort(dist)[: min(k, len(centres) - 1)].tolist()
+        dist[torch.rad2deg(torch.acos(cos)) > max_angle] = float("inf")
+        order = [i for i in torch.argsort(dist).tolist() if dist[i] < float("inf")][:k]
         return [(self.train_cameras[i], self.train_images[i]) for i in order]
 
     def gaussian_log_scales(self, outputs: RenderOutput) -> Tensor:

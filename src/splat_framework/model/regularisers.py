@@ -24,7 +24,7 @@ from ..runtime.rng import keyed_generator
 def regulariser_terms(
     reg: RegularisersConfig, outputs: RenderOutput, batch: dict, camera: Camera, step: int, *, seed: int,
     total_steps: int, log_scales: Callable[[], Tensor], render: Callable[[Camera], RenderOutput],
-    partners: Callable[[int], list[tuple[Camera, Tensor]]] = lambda k: [],
+    partners: Callable[[int, float], list[tuple[Camera, Tensor]]] = lambda k, angle: [],
 ) -> tuple[Tensor, dict[str, Tensor]]:
     """(the photometric target [H, W, 3], {term: scalar}) of the regularisers ``reg`` switches on,
     for the training render ``outputs`` of ``camera`` at ``step`` of a ``total_steps`` run with ``seed``.
@@ -34,8 +34,9 @@ def regulariser_terms(
     depth), ``anisotropy`` (losses.scale_anisotropy of ``log_scales()``, [N, 3] log-scales of the
     Gaussians it acts on) and ``stereo`` (losses.stereo_consistency against ``render(partner)``, a
     training render of a sideways-shifted copy of ``camera``, from its start) and ``multiview``
-    (losses.multiview_photometric against ``partners(k)``, the (camera, photo) of the ``k`` training
-    views nearest the batch's, until its stop; none for a view outside the training split), each
+    (losses.multiview_photometric against ``partners(k, angle)``, the (camera, photo) of the ``k``
+    training views nearest the batch's whose viewing direction is within ``angle`` degrees of its
+    own, until its stop; none for a view outside the training split or without such partners), each
     when its weight is > 0. A model hands these in (``GaussianModel.regulariser_terms``); nothing here reads the model.
     """
     target = batch["image"]
@@ -54,7 +55,7 @@ def regulariser_terms(
             draw = float(torch.rand((), generator=keyed_generator(seed, step, 1))) * 2.0 - 1.0
             terms["stereo"] = reg.stereo_weight * _stereo_loss(outputs, batch["image"], camera, draw * reg.stereo_disparity, render)
     if reg.multiview_weight > 0 and step < reg.multiview_until * total_steps:
-        views = partners(reg.multiview_partners)
+        views = partners(reg.multiview_partners, reg.multiview_max_angle)
         if views:
             with section("multi-view"):
                 terms["multiview"] = reg.multiview_weight * multiview_photometric(

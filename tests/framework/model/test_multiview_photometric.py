@@ -110,3 +110,21 @@ def test_the_multiview_term_compares_each_view_with_its_nearest_until_its_stop_a
     off = apply_overrides(cfg, {"model": {"reg": {"multiview_weight": 0.0}}})
     plain = GaussianModel.from_data(off, dm, torch.Generator().manual_seed(0))
     assert "multiview" not in plain.get_loss_dict(plain.get_outputs(cam, step=5), batch, cam, 5)
+
+
+def test_partners_beyond_the_angle_are_left_out_and_the_term_with_them(dm):
+    """The training views' optical axes here differ by 3.4 (0-1), 5.8 (0-2) and 8.2 (1-2) degrees."""
+    cfg = apply_overrides(get_method("3dgs").default_config(), {
+        "steps": 20, "model": {"reg": {"multiview_weight": 1.0, "multiview_max_angle": 4.0}, "init": {"num_points": 2000}}})
+    model = GaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
+    cams = model.train_cameras
+    assert [c for c, _ in model.training_partners(0, 2, 4.0)] == [cams[1]]
+    assert [c for c, _ in model.training_partners(1, 2, 4.0)] == [cams[0]]
+    assert model.training_partners(2, 2, 4.0) == [] and len(model.training_partners(2, 2, 6.0)) == 1
+    assert len(model.training_partners(2, 2)) == 2  # 180: any direction
+    views = list(dm.train_views())
+    for k, (cam, batch) in enumerate(views):
+        terms = model.get_loss_dict(model.get_outputs(cam, step=1), batch, cam, 1)
+        assert ("multiview" in terms) == (k != 2)
+    with pytest.raises(ValueError):
+        apply_overrides(cfg, {"model": {"reg": {"multiview_max_angle": 0.0}}})
