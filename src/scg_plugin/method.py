@@ -21,7 +21,10 @@ def config_scgaussian() -> SCGTrainConfig:
     ``scgaussian-ray-bound`` keeps them on their rays), an edge-aware depth smoothness (weight 5,
     gamma 50), DropGaussian (rate 0.2), Binocular3DGS's opacity decay (0.99 per step in this
     schedule, its root in a longer one; no reset) and the Gaussians' shape (scale and rotation)
-    learning twice as fast as in the 3DGS reference, for the short schedule. Each choice,
+    learning twice as fast as in the 3DGS reference, for the short schedule, and over the first
+    half of the run a multi-view photometric consistency of the rendered depth with the 2 nearest
+    training views (compared at 1/4 size, not across occluding edges, only between views whose
+    viewing directions differ by at most 20 degrees: on LLFF, not on DTU or lego). Each choice,
     with the measurements that made it, is in docs/decisions.md.
     """
     return SCGTrainConfig(
@@ -32,7 +35,10 @@ def config_scgaussian() -> SCGTrainConfig:
         model=SCGModelConfig(
             ray_binding=False,
             sh_degree_interval=1000,
-            reg=RegularisersConfig(depth_smoothness=5.0, depth_smoothness_gamma=50.0, drop_rate=0.2),
+            reg=RegularisersConfig(
+                depth_smoothness=5.0, depth_smoothness_gamma=50.0, drop_rate=0.2, multiview_weight=1.0,
+                multiview_until=0.5, multiview_downsample=4, multiview_edge_ratio=1.1, multiview_max_angle=20.0,
+            ),
         ),
         strategy=RayStrategyConfig(
             grow_grad2d=0.0003,

@@ -31,7 +31,7 @@ OFFICIAL = {
     "model.cache_filter": True, "model.cache_until": 0, "model.filter_eta_px": 75.6,
     "model.z_lr": 1.6e-4, "model.z_lr_final": 1.6e-6, "model.sparse_matches": 0, "model.thin_prior_baseline": False,
     "model.init.kind": "random", "model.init.num_points": 0,
-    "model.reg.backdrop_weight": 1.0, "model.reg.depth_smoothness": 0.0, "model.reg.stereo_weight": 0.0,
+    "model.reg.backdrop_weight": 1.0, "model.reg.depth_smoothness": 0.0, "model.reg.stereo_weight": 0.0, "model.reg.multiview_weight": 0.0,
     "model.reg.anisotropy_weight": 0.0, "model.reg.drop_rate": 0.0, "model.reg.opacity_noise": 0.0,
     "model.matching.kind": "auto", "model.matching.max_matches": 2000, "model.matching.max_total_matches": 0,
     "model.matching.magsac_threshold": 1.0, "model.matching.magsac_confidence": 0.999999,
