@@ -113,12 +113,11 @@ def run_one(label: str, data: Path, out: Path, args, env: dict, extra: list[str]
     print(f"[{label}] {' '.join(cmd)}", flush=True)
     load = loadavg()
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
+    rc, log = _shown_and_kept(cmd, env, out / f"run-{label}.log")
     wall = time.perf_counter() - t0
-    (out / f"run-{label}.log").write_text(proc.stdout + proc.stderr)
-    row = {"label": label, "rc": proc.returncode, "wall_s": round(wall, 1), "load_before": load, **parse_log(proc.stderr)}
+    row = {"label": label, "rc": rc, "wall_s": round(wall, 1), "load_before": load, **parse_log(log)}
     metrics_file = out / f"run-{label}" / "metrics.json"
-    if proc.returncode == 0 and metrics_file.is_file():
+    if rc == 0 and metrics_file.is_file():
         m = json.loads(metrics_file.read_text())
         timing, median = m.get("timing", {}), m.get("step_times", {}).get("median_s")
         row.update(
@@ -128,9 +127,22 @@ def run_one(label: str, data: Path, out: Path, args, env: dict, extra: list[str]
             step_ms=round(1000 * median, 1) if median else None,
         )
     else:
-        row["error"] = (proc.stderr.strip().splitlines() or ["(no output)"])[-1]
+        row["error"] = (log.strip().splitlines() or ["(no output)"])[-1]
     print(f"[{label}] {row}", flush=True)
     return row
+
+
+def _shown_and_kept(cmd: list[str], env: dict, log: Path) -> tuple[int, str]:
+    """Run ``cmd``; its output (stdout and stderr, as they come) is shown here and written to
+    ``log``, so a run of minutes is never silent. (exit status, the output)."""
+    lines = []
+    with subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) as proc, \
+            log.open("w") as kept:
+        for line in proc.stdout:
+            lines.append(line)
+            kept.write(line)
+            print(f"    {line}", end="", flush=True)
+    return proc.returncode, "".join(lines)
 
 
 def sampled_pair_rate(images: list, chosen: list[tuple[int, int]], match, n: int, batch: int = 5,

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import os
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -197,6 +199,15 @@ def test_own_photos_scale_takes_photos_evenly_and_reads_each_phase_from_the_log(
                         {"label": "8", "wall_s": 100.0, "psnr": 30.0, "held_out": False, "matching_s": 9.6}])
     assert "| 16 | 300.0 | 120 | 52 of 120 | 16 of 16 | 24 of 91 | 65 |" in text
     assert "| 8 | 100.0 | – | – of – | – of – | – | 10 |" in text and "30.00 (training views)" in text
+
+
+def test_own_photos_scale_shows_a_runs_output_as_it_comes_and_keeps_it(tmp_path, capfd):
+    """A run of minutes is not silent: its stdout and stderr reach the terminal line by line and its log."""
+    scale = load_script("own_photos_scale")
+    code = "import sys; print('step 1', flush=True); print('warning: x.png', file=sys.stderr, flush=True); sys.exit(3)"
+    rc, text = scale._shown_and_kept([sys.executable, "-c", code], dict(os.environ), tmp_path / "run.log")
+    assert rc == 3 and text == "step 1\nwarning: x.png\n" == (tmp_path / "run.log").read_text()
+    assert "    step 1\n    warning: x.png\n" in capfd.readouterr().out
 
 
 def test_own_photos_scale_estimates_every_pair_from_a_sample_of_pairs():
