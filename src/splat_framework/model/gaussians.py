@@ -198,6 +198,7 @@ class GaussianModel(nn.Module):
         the multi-view regulariser compares each render with; ``from_data`` calls it."""
         views = datamanager.train_views()
         self.train_cameras, self.train_images = [c for c, _ in views], [b["image"] for _, b in views]
+        self._partner_orders = {}
 
     def build_networks(self) -> nn.ModuleDict:
         """The model-wide (not per-row) modules, freshly initialised (3DGS: none). Called when the
@@ -376,18 +377,15 @@ class GaussianModel(nn.Module):
     def training_partners(self, view: int | None, k: int, max_angle: float = 180.0) -> list[tuple[Camera, Tensor]]:
         """(camera, photo [H, W, 3]) of the ``k`` training views whose centres lie nearest training
         view ``view``'s (its position in the split), nearest first, among those whose optical axis
-        is within ``max_angle`` degrees of ``view``'s; [] for None, without views or with none so near."""
+        is within ``max_angle`` degrees of ``view``'s; [] for None, without views or with none so near.
+        Chosen once per (view, k, max_angle) and kept until keep_training_views: no host sync a step on CUDA."""
         if view is None or len(self.train_cameras) < 2:
             return []
-        centres = torch.stack([c.center.detach().float().cpu() for c in self.train_cameras])
-        axes = torch.stack([c.world_to_cam[2, :3].detach().float().cpu() for c in self.train_cameras])
-        axes = axes / axes.norm(dim=-1, keepdim=True)
-        cos = (axes @ axes[view]).clamp(-1.0, 1.0)
-        dist = (centres - centres[view]).norm(dim=-1)
-        dist[view] = float("inf")
-        dist[torch.rad2deg(torch.acos(cos)) > max_angle] = float("inf")
-        order = [i for i in torch.argsort(dist).tolist() if dist[i] < float("inf")][:k]
-        return [(self.train_cameras[i], self.train_images[i]) for i in order]
+        orders = self.__dict__.setdefault("_partner_orders", {})
+        key = (view, k, max_angle)
+        if key not in orders:
+            orders[key] = _nearest_within(self.train_cameras, view, k, max_angle)
+        return [(self.train_cameras[i], self.train_images[i]) for i in orders[key]]
 
     def gaussian_log_scales(self, outputs: RenderOutput) -> Tensor:
         """[N, 3] log-scales of the Gaussians the scale regularisers act on (``reg.anisotropy_weight``):
@@ -426,3 +424,16 @@ class GaussianModel(nn.Module):
             self.networks.load_state_dict(checkpoint["networks"])
         if checkpoint.get("model_state"):
             self.load_extra_state(checkpoint["model_state"])
+
+
+def _nearest_within(cameras: Sequence[Camera], view: int, k: int, max_angle: float) -> list[int]:
+    """Indices of the ``k`` ``cameras`` whose centres lie nearest ``cameras[view]``'s, nearest first,
+    among those whose optical axis is within ``max_angle`` degrees of its own (``view`` left out)."""
+    centres = torch.stack([c.center.detach().float().cpu() for c in cameras])
+    axes = torch.stack([c.world_to_cam[2, :3].detach().float().cpu() for c in cameras])
+    axes = axes / axes.norm(dim=-1, keepdim=True)
+    angle = torch.rad2deg(torch.acos((axes @ axes[view]).clamp(-1.0, 1.0)))
+    dist = (centres - centres[view]).norm(dim=-1)
+    dist[view] = float("inf")
+    dist[angle > max_angle] = float("inf")
+    return [i for i in torch.argsort(dist).tolist() if dist[i] < float("inf")][:k]
