@@ -33,6 +33,7 @@ from ..cameras import Camera
 from ..config import TrainConfig
 from ..console import phase
 from ..losses import photometric_loss
+from ..matching.geometry import view_angle
 from ..render import RenderOutput, rasterize, rgb_to_sh
 from ..runtime.profiling import section
 from ..runtime.rng import keyed_generator
@@ -153,6 +154,8 @@ class GaussianModel(nn.Module):
     ):
         super().__init__()
         self.config = config
+        self._partner_orders: dict[tuple[int, int, float], list[int]] = {}
+        """training_partners' choices, (view, k, max_angle) -> indices into train_cameras."""
         self.scene_scale = float(scene_scale)
         self.active_sh_degree = 0
         try:
@@ -381,11 +384,10 @@ class GaussianModel(nn.Module):
         Chosen once per (view, k, max_angle) and kept until keep_training_views: no host sync a step on CUDA."""
         if view is None or len(self.train_cameras) < 2:
             return []
-        orders = self.__dict__.setdefault("_partner_orders", {})
         key = (view, k, max_angle)
-        if key not in orders:
-            orders[key] = _nearest_within(self.train_cameras, view, k, max_angle)
-        return [(self.train_cameras[i], self.train_images[i]) for i in orders[key]]
+        if key not in self._partner_orders:
+            self._partner_orders[key] = _nearest_within(self.train_cameras, view, k, max_angle)
+        return [(self.train_cameras[i], self.train_images[i]) for i in self._partner_orders[key]]
 
     def gaussian_log_scales(self, outputs: RenderOutput) -> Tensor:
         """[N, 3] log-scales of the Gaussians the scale regularisers act on (``reg.anisotropy_weight``):
@@ -430,10 +432,7 @@ def _nearest_within(cameras: Sequence[Camera], view: int, k: int, max_angle: flo
     """Indices of the ``k`` ``cameras`` whose centres lie nearest ``cameras[view]``'s, nearest first,
     among those whose optical axis is within ``max_angle`` degrees of its own (``view`` left out)."""
     centres = torch.stack([c.center.detach().float().cpu() for c in cameras])
-    axes = torch.stack([c.world_to_cam[2, :3].detach().float().cpu() for c in cameras])
-    axes = axes / axes.norm(dim=-1, keepdim=True)
-    angle = torch.rad2deg(torch.acos((axes @ axes[view]).clamp(-1.0, 1.0)))
-    dist = (centres - centres[view]).norm(dim=-1)
-    dist[view] = float("inf")
-    dist[angle > max_angle] = float("inf")
-    return [i for i in torch.argsort(dist).tolist() if dist[i] < float("inf")][:k]
+    dist = (centres - centres[view]).norm(dim=-1).tolist()
+    near = [i for i in sorted(range(len(cameras)), key=dist.__getitem__)
+            if i != view and view_angle(cameras[view], cameras[i]) <= max_angle]
+    return near[:k]

@@ -128,3 +128,21 @@ def test_partners_beyond_the_angle_are_left_out_and_the_term_with_them(dm):
         assert ("multiview" in terms) == (k != 2)
     with pytest.raises(ValueError):
         apply_overrides(cfg, {"model": {"reg": {"multiview_max_angle": 0.0}}})
+
+
+def test_the_partners_are_chosen_once_per_view_not_every_step(dm, monkeypatch):
+    """No per-step work (nor a host sync on CUDA) for the choice: kept until the views are replaced."""
+    from splat_framework.model import gaussians
+    calls = []
+    real = gaussians._nearest_within
+    monkeypatch.setattr(gaussians, "_nearest_within", lambda *a: calls.append(a[1:]) or real(*a))
+    cfg = apply_overrides(get_method("3dgs").default_config(), {
+        "steps": 20, "model": {"reg": {"multiview_weight": 1.0}, "init": {"num_points": 2000}}})
+    model = GaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
+    cam, batch = next(iter(dm.train_views()))
+    for step in range(3):
+        assert "multiview" in model.get_loss_dict(model.get_outputs(cam, step=step), batch, cam, step)
+    assert calls == [(0, 2, 180.0)]
+    model.keep_training_views(dm)
+    model.get_loss_dict(model.get_outputs(cam, step=3), batch, cam, 3)
+    assert calls == [(0, 2, 180.0)] * 2
