@@ -28,10 +28,8 @@ def reprojection_error(points: Tensor, camera: Camera, target_uv: Tensor) -> Ten
     uv, z = camera.project(points)
     scale = torch.tensor([camera.width, camera.height], dtype=uv.dtype, device=uv.device)
     err = ((uv - target_uv) / scale).abs().sum(-1)
-    behind = z <= 1e-6
-    if behind.any():
-        err = torch.where(behind, err.detach() + 1.0 - z, err)
-    return err
+    behind = z <= 1e-6  # no `if behind.any()`: that read would wait for the device every step
+    return torch.where(behind, err.detach() + 1.0 - z, err)
 
 
 def sample_depth(depth: Tensor, uv: Tensor) -> Tensor:
@@ -58,7 +56,8 @@ def rendering_geometry_loss(
     ok = z > 1e-6
     if valid is not None:
         ok = ok & valid
-    if not ok.any():
-        return depth.sum() * 0.0
-    pts = camera.unproject_depth(uv[ok], z[ok])
-    return reprojection_error(pts, partner, partner_uv[ok]).mean()
+    # every match computed and the others masked out (selecting them would read their count on the
+    # host); the left-out ones are lifted at depth 1, so nothing non-finite reaches the gradient
+    pts = camera.unproject_depth(uv, torch.where(ok, z, 1.0))
+    err = torch.where(ok, reprojection_error(pts, partner, partner_uv), 0.0)
+    return err.sum() / ok.sum().clamp_min(1)  # the mean over the kept matches; 0 when none is

@@ -39,6 +39,7 @@ class SCGaussianModel(GaussianModel):
         self.train_cameras = list(cameras)
         self.train_images = list(images)
         self.cache: MatchCache | None = None
+        self._groups: tuple[RayBundle, dict] | None = None  # _match_groups' bundle and its groups
         self.baseline: BaselineSchedule | None = None
         """The 3dgs baseline's schedules this model trains with instead of its config's (a thin prior)."""
         super().__init__(config, scene_scale, points, colors, rows=rows)
@@ -183,14 +184,25 @@ class SCGaussianModel(GaussianModel):
         depth = outputs.expected_depth
         own = self.train_cameras[view]
         to_render = b.uv.new_tensor([camera.width / own.width, camera.height / own.height])
-        sel_view = b.view == view
-        for partner in torch.unique(b.partner_view[sel_view]).tolist():
-            sel = sel_view & (b.partner_view == partner)
+        for partner, rows in self._match_groups().get(view, []):
             total = total + rendering_geometry_loss(
-                depth, camera, b.uv[sel] * to_render, self.train_cameras[partner], b.partner_uv[sel]
+                depth, camera, b.uv[rows] * to_render, self.train_cameras[partner], b.partner_uv[rows]
             )
             count += 1
         return total / max(count, 1)
+
+    def _match_groups(self) -> dict[int, list[tuple[int, Tensor]]]:
+        """view -> [(partner view, [M] rows of the bundle whose match joins the two)], partners in
+        increasing order: read from the device once per bundle (a step's L_rg then reads nothing)."""
+        if self._groups is None or self._groups[0] is not self.bundle:
+            b = self.bundle
+            pairs = torch.stack([b.view, b.partner_view], 1).cpu()
+            groups: dict[int, list[tuple[int, Tensor]]] = {}
+            for view, partner in torch.unique(pairs, dim=0).tolist():
+                rows = torch.nonzero((pairs[:, 0] == view) & (pairs[:, 1] == partner)).squeeze(1)
+                groups.setdefault(view, []).append((partner, rows.to(b.view.device)))
+            self._groups = (self.bundle, groups)
+        return self._groups[1]
 
     def after_optimizer_step(self, step: int, losses, optimizers) -> ops.RowChange | None:
         """Cache-and-filter: each match's z and reprojection error recorded until ``cache_until``,

@@ -214,6 +214,6 @@ def test_the_plugins_two_view_pipeline_trains(monkeypatch, tmp_path):
                         lambda self, camera, *a, _f=GaussianModel.get_outputs, **k: renders.append(camera) or _f(self, camera, *a, **k))
     losses, _ = trainer.train_step(0)
     assert len(renders) == 2 and renders[0] is not renders[1] and losses["second_view"] > 0
-    assert losses["loss"] == pytest.approx(sum(v for k, v in losses.items() if k != "loss"), rel=1e-5)
+    assert float(losses["loss"]) == pytest.approx(sum(float(v) for k, v in losses.items() if k != "loss"), rel=1e-5)
     metrics = trainer.train()
     assert metrics["method"] == "two-view-3dgs" and metrics["mean"]["psnr"] > 5

@@ -347,6 +347,34 @@ def test_repeated_nan_restores_last_checkpoint_with_lower_lr(tmp_path, monkeypat
     assert all(torch.isfinite(p).all() for p in trainer.model.params.values())
 
 
+def test_a_parameter_a_step_made_non_finite_restores_the_last_checkpoint_before_any_is_written(tmp_path, monkeypatch,
+                                                                                                  capsys):
+    """The parameters an optimizer step wrote are checked in the next step's one host read, or before
+    the checkpoint that follows the step: a NaN written at step 6 is caught at step 7, one written at
+    step 9 before step 10's checkpoint; each restores step 5 with its learning rates halved."""
+    real = GaussianModel.after_optimizer_step
+    pending = {6, 9}
+
+    def corrupt(self, step, losses, optimizers):
+        change = real(self, step, losses, optimizers)
+        if step in pending:
+            pending.discard(step)
+            with torch.no_grad():
+                self.params["means"][0, 0] = float("nan")
+        return change
+
+    monkeypatch.setattr(GaussianModel, "after_optimizer_step", corrupt)
+    trainer = Trainer(fixed_config("3dgs", tmp_path / "run", default_steps=12, checkpoint_every=5))
+    metrics = trainer.train()
+    assert metrics["restores"] == 2 and trainer.lr_factor == 0.5 and not pending  # the checkpoint's factor, halved
+    err = capsys.readouterr().err
+    assert "non-finite parameter means at step 6: restored step-0000005.ckpt (step 5), learning rates x0.5" in err
+    assert "non-finite parameter means at step 9: restored step-0000005.ckpt (step 5), learning rates x0.5" in err
+    for p in list_checkpoints(tmp_path / "run" / "checkpoints"):
+        for t in load_checkpoint(p)["params"].values():
+            assert torch.isfinite(t).all()
+
+
 @pytest.mark.bad_input("a weight so large that every step's loss is non-finite (`--model.reg.depth-smoothness 1e308`)",
                        "exit 1, one line naming the flag; no metrics, no checkpoint")
 def test_a_run_whose_every_step_was_skipped_fails_naming_the_flag_and_writes_no_metrics(tmp_path, capsys):

@@ -51,6 +51,7 @@ Reliability contract:
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 from typing import Callable, Sequence
@@ -63,7 +64,7 @@ from ..console import phase, print_summary, say, show_progress
 from ..data import DataManager, describe_split, record_data, resolve_views
 from ..data.cache_dir import user_cache_dir
 from ..devices import resolve_config_devices
-from ..evaluation.metrics import psnr
+from ..evaluation.metrics import psnr_tensor
 from ..files import run_lock
 from ..files.output_paths import RUN_FOLDER
 from ..model.strategy import Strategy
@@ -90,6 +91,8 @@ MAX_NONFINITE = 20
 """Consecutive non-finite steps tolerated before restoring the last checkpoint."""
 MAX_RESTORES = 2
 """Checkpoint restores (each halving the learning rates) before giving up."""
+INFO_EVERY_S = 0.5
+"""Seconds between two reads of the step's loss and PSNR for the progress row (a read waits for the device)."""
 
 
 class TrainingInterrupted(Exception):
@@ -251,6 +254,9 @@ class Trainer(TrainState):
         self.densify_skipped = 0  # steps whose model hook resized the model, so the strategy did not run
         self.densified: dict[str, int] = {}  # the strategy's counts (n_clone, ...) summed over the run
         self.restores = 0
+        self._unchecked_update = False  # the last optimizer step's parameters are not yet checked for NaN / inf
+        self._shown: tuple[dict, Tensor] | None = None  # the last finished step's losses and PSNR, on the device
+        self._shown_at = -math.inf
         self.step_seconds: list[tuple[int, float]] = []  # (step, counted from 1; wall s) of this process's steps
         self.lr_factor = 1.0
         self.stop_reason: str | None = None
@@ -311,12 +317,14 @@ class Trainer(TrainState):
         if self.camera_refiner is not None:
             self.camera_refiner.set_learning_rates(step, self.lr_factor)
 
-    def train_step(self, step: int) -> tuple[dict, float] | None:
-        """One optimisation step; None when it was skipped (non-finite loss or gradients)."""
+    def train_step(self, step: int) -> tuple[dict[str, Tensor], Tensor] | None:
+        """One optimisation step: its loss terms (name -> 0-dim tensor, "loss" their sum) and its train
+        PSNR, left on the device (``float()`` them to read); None when it was skipped (non-finite loss
+        or gradients). On CUDA the step reads one value on the host: whether it was finite."""
         with section("step"):
             return self._train_step(step)
 
-    def _train_step(self, step: int) -> tuple[dict, float] | None:
+    def _train_step(self, step: int) -> tuple[dict[str, Tensor], Tensor] | None:
         model = self.model
         model.on_step_start(step)
         self._set_learning_rates(step)
@@ -328,17 +336,17 @@ class Trainer(TrainState):
                                  "which the model's loss already has")
             losses |= extra
             loss = sum(losses.values())
-        if not torch.isfinite(loss):
-            return self._fault(step, "loss")
         densify = model.densify_now(step)
         if densify:
             self.strategy.step_pre_backward(model.params, self.optimizers, self.strategy_state, step, outputs.meta)
         with section("backward"):
             loss.backward()
-        with section("finiteness checks"):
-            bad = _first_nonfinite({k: p.grad for k, p in self._trained_tensors()})
+        with section("finiteness checks"):  # the step's one host read (see _checked_tensors)
+            bad = _first_nonfinite(self._checked_tensors(loss))
         if bad is not None:
-            return self._fault(step, f"gradient of {bad}")
+            if bad.startswith("parameter "):  # the previous step's update
+                return self._fault(step - 1, bad, corrupted=True)
+            return self._fault(step, bad)
         with section("optimizer"):
             keys = model.trainable_keys(step)
             for k, opt in self.optimizers.items():
@@ -347,10 +355,7 @@ class Trainer(TrainState):
                 opt.zero_grad(set_to_none=True)
             if self.camera_refiner is not None:
                 self.camera_refiner.step()
-        with section("finiteness checks"):
-            bad = _first_nonfinite({k: p.detach() for k, p in self._optimized_tensors()})
-        if bad is not None:
-            return self._fault(step, f"parameter {bad}", corrupted=True)
+        self._unchecked_update = True
         self.nonfinite_streak = 0
         n_before, gaussians_before = row_count(model), model.num_gaussians
         with section("model hooks"):
@@ -371,9 +376,29 @@ class Trainer(TrainState):
                                                           outputs.meta)
             for k, v in (counts or {}).items():
                 self.densified[k] = self.densified.get(k, 0) + int(v)
-        with section("metrics"), torch.no_grad():
-            train_psnr = float(psnr(outputs.rgb.detach().clamp(0, 1), batch["image"]))
-            return {k: float(v.detach()) for k, v in losses.items()} | {"loss": float(loss.detach())}, train_psnr
+        with section("metrics"), torch.no_grad():  # kept on the device: read when shown (_step_info)
+            train_psnr = psnr_tensor(outputs.rgb.detach().clamp(0, 1), batch["image"])
+            return {k: v.detach() for k, v in losses.items()} | {"loss": loss.detach()}, train_psnr
+
+    def _checked_tensors(self, loss: Tensor) -> dict[str, Tensor | None]:
+        """What a step checks for NaN and inf in its one host read, after its backward: the parameters
+        the previous step's optimizers wrote (checked here rather than in a read of their own; before a
+        checkpoint by :meth:`_check_update`), then the loss, then every gradient."""
+        checked: dict[str, Tensor | None] = {}
+        if self._unchecked_update:
+            checked |= {f"parameter {k}": p.detach() for k, p in self._optimized_tensors()}
+            self._unchecked_update = False
+        checked["loss"] = loss.detach()
+        return checked | {f"gradient of {k}": p.grad for k, p in self._trained_tensors()}
+
+    def _check_update(self, step: int) -> None:
+        """Before a checkpoint: the parameters the last step wrote are finite, else the last good
+        checkpoint is restored (:meth:`_fault`, which raises)."""
+        if self._unchecked_update:
+            self._unchecked_update = False
+            bad = _first_nonfinite({k: p.detach() for k, p in self._optimized_tensors()})
+            if bad is not None:
+                self._fault(step - 1, f"parameter {bad}", corrupted=True)
 
     def _trained_tensors(self) -> list[tuple[str, Tensor]]:
         """The model's trainable tensors, then the camera corrections when they are refined."""
@@ -464,47 +489,59 @@ class Trainer(TrainState):
     def _loop(self, progress) -> int:
         """The training steps from ``start_step`` to the total (``progress``: the training phase);
         the step reached. Raises TrainingInterrupted after a stop request's checkpoint."""
-        cfg, total = self.config, self.config.total_steps
         step = self.start_step
-        while step < total:
+        while step < self.config.total_steps:
             t0 = time.perf_counter()
             try:
                 out = self.train_step(step)
+                step += 1
+                self._after_step(step, out, time.perf_counter() - t0, progress)
             except _Restart:
                 step = self.start_step
                 progress.update(step, info=self._step_info(None))
-                continue
-            step += 1
-            self.step_seconds.append((step, time.perf_counter() - t0))
-            if out is not None:
-                progress.update(step, info=self._step_info(out))
-            else:
-                progress.update(step)
-            saved = False
-            if cfg.checkpoint_every and step % cfg.checkpoint_every == 0 and step < total:
-                self.save(step)
-                saved = True
-            if cfg.eval_every and step % cfg.eval_every == 0 and step < total:
-                m = self.pipeline.evaluate()
-                say(f"step {step}: test PSNR {m['mean']['psnr']:.2f}")
-            for cb in self.callbacks:
-                cb(self, step)
-            if self.stop_reason is not None:
-                path = self.save(step) if not saved else None
-                where = path or self.checkpoint_dir
-                raise TrainingInterrupted(
-                    f"{self.stop_reason} at step {step}/{total}: checkpoint written to {where}; {self.continue_hint()}"
-                )
         return step
 
-    def _step_info(self, out: tuple[dict, float] | None) -> str:
+    def _after_step(self, step: int, out: tuple[dict, Tensor] | None, seconds: float, progress) -> None:
+        """What follows step ``step`` (counted from 1): its progress, a periodic checkpoint or
+        evaluation, the callbacks, a requested stop."""
+        cfg, total = self.config, self.config.total_steps
+        self.step_seconds.append((step, seconds))
+        if out is not None:
+            self._shown = out
+        now = time.perf_counter()
+        if self._shown is not None and (now - self._shown_at >= INFO_EVERY_S or step == total):
+            progress.update(step, info=self._step_info(self._shown))  # a host read, not one every step
+            self._shown_at = now
+        else:
+            progress.update(step)
+        saved = False
+        if cfg.checkpoint_every and step % cfg.checkpoint_every == 0 and step < total:
+            self._check_update(step)
+            self.save(step)
+            saved = True
+        if cfg.eval_every and step % cfg.eval_every == 0 and step < total:
+            m = self.pipeline.evaluate()
+            say(f"step {step}: test PSNR {m['mean']['psnr']:.2f}")
+        for cb in self.callbacks:
+            cb(self, step)
+        if step == total or self.stop_reason is not None:
+            self._check_update(step)  # the checkpoint that follows holds the last update
+        if self.stop_reason is not None:
+            path = self.save(step) if not saved else None
+            where = path or self.checkpoint_dir
+            raise TrainingInterrupted(
+                f"{self.stop_reason} at step {step}/{total}: checkpoint written to {where}; {self.continue_hint()}"
+            )
+
+    def _step_info(self, out: tuple[dict[str, Tensor], Tensor] | None) -> str:
         """The training phase's info: the last step's loss and train PSNR (none before the first
         step: never a NaN placeholder) and the Gaussian count."""
         n = f"{self.model.num_gaussians} gaussians"
         if out is None:
             return n
         losses, train_psnr = out
-        return f"loss {losses['loss']:.4f}  PSNR {train_psnr:.2f}  {n}"
+        loss, value = torch.stack([losses["loss"].double(), train_psnr.double()]).tolist()  # one host read
+        return f"loss {loss:.4f}  PSNR {value:.2f}  {n}"
 
 
 def step_costs(config: TrainConfig) -> list[tuple[int, float]]:

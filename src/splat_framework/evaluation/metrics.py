@@ -55,6 +55,13 @@ def _composite_white(pred: Tensor, gt: Tensor, mask: Tensor) -> tuple[Tensor, Te
 
 
 @torch.no_grad()
+def psnr_tensor(pred: Tensor, gt: Tensor) -> Tensor:
+    """0-dim float64 PSNR in dB of images in [0, 1], on their device, inf when MSE is 0: no host read
+    (a training step's log, read when shown)."""
+    return -10.0 * torch.log10(((pred.double() - gt.double()) ** 2).mean())
+
+
+@torch.no_grad()
 def psnr(pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> float:
     """PSNR in dB for images in [0, 1]; with ``mask``, MSE over the pixels where mask == 1 only. inf when MSE is 0."""
     pred, gt = pred.double(), gt.double()

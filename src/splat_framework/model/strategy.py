@@ -279,11 +279,12 @@ class DefaultStrategy(Strategy):
                     f"strategy state has {state[key].shape[0]} rows but params have {n}: "
                     "rows were added/removed outside the strategy; call initialize_state() again"
                 )
-        cam_ids, gs_ids = torch.where(radii > 0)
-        state["grad2d"].index_add_(0, gs_ids, grads[cam_ids, gs_ids].norm(dim=-1))
-        state["count"].index_add_(0, gs_ids, torch.ones_like(gs_ids, dtype=grads.dtype))
-        rel = radii[cam_ids, gs_ids] / float(max(info["width"], info["height"]))
-        state["radii"].scatter_reduce_(0, gs_ids, rel, reduce="amax")
+        # dense over every row (masked), not gathered at the visible ones: a gather's size is a host read
+        visible = radii > 0  # [C, N]
+        state["grad2d"] += torch.where(visible, grads.norm(dim=-1), 0.0).sum(0)
+        state["count"] += visible.sum(0).to(grads.dtype)
+        rel = torch.where(visible, radii / float(max(info["width"], info["height"])), 0.0).amax(0)
+        torch.maximum(state["radii"], rel, out=state["radii"])
 
     @torch.no_grad()
     def _grow(self, params, optimizers, state, step: int) -> tuple[int, int]:

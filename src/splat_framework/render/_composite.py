@@ -192,6 +192,11 @@ def _iter_chunks(fp: Footprints, grid: TileGrid, chunk_pairs: int, tile_done: Te
 def _torch_chunk(fp: Footprints, grid: TileGrid, chunk_pairs: int, tile_done: Tensor, pos: int, first: bool):
     """The chunk starting at ``pos`` binned with torch ops: ((gid_sorted, tile_count, tile_offset) or
     None when it holds no pair, the position after it)."""
+    v = fp.ids.numel()
+    if first and chunk_pairs >= (v - pos) * grid.n_tiles:
+        # every pair fits (a Gaussian's pairs are at most one per tile) and every rectangle holds a
+        # tile: the chunk is all of them, known without reading the counts on the host
+        return _chunk_pairs(fp, torch.arange(pos, v, device=fp.ids.device), grid, tile_done, all_alive=True), v
     if first:
         cnt = (fp.tx1 - fp.tx0 + 1) * (fp.ty1 - fp.ty0 + 1)
     else:
@@ -240,11 +245,12 @@ def _row_columns(ell: Tensor, row: Tensor, grid: TileGrid) -> tuple[Tensor, Tens
     return c0, c1
 
 
-def _chunk_pairs(fp: Footprints, sel: Tensor, grid: TileGrid, tile_done: Tensor):
+def _chunk_pairs(fp: Footprints, sel: Tensor, grid: TileGrid, tile_done: Tensor, all_alive: bool = False):
     """Pairs (unfinished tile, Gaussian fp.ids[sel]) sorted by (tile, depth); sel ascending.
 
     Pairs are enumerated per (Gaussian, tile row) over the row's unfinished tiles
-    only, so finished tiles cost nothing.
+    only, so finished tiles cost nothing. ``all_alive``: no tile is finished yet (the first chunk),
+    so their list needs no host read.
 
     Returns (gid_sorted [Pc], tile_count [n_tiles], tile_offset [n_tiles])."""
     device = fp.ids.device
@@ -253,7 +259,7 @@ def _chunk_pairs(fp: Footprints, sel: Tensor, grid: TileGrid, tile_done: Tensor)
     pre = torch.zeros(nty, ntx + 1, dtype=torch.int64, device=device)
     pre[:, 1:] = alive.cumsum(1)
     row_off = torch.cumsum(pre[:, -1], 0) - pre[:, -1]
-    alive_ids = torch.nonzero(alive.reshape(-1)).squeeze(1)
+    alive_ids = torch.arange(grid.n_tiles, device=device) if all_alive else torch.nonzero(alive.reshape(-1)).squeeze(1)
     ids = _at(fp.ids, sel)
     tx0, tx1, ty0, ty1 = _at(fp.tx0, sel), _at(fp.tx1, sel), _at(fp.ty0, sel), _at(fp.ty1, sel)
     # (Gaussian, tile row) segments
@@ -276,7 +282,8 @@ def _chunk_pairs(fp: Footprints, sel: Tensor, grid: TileGrid, tile_done: Tensor)
     # pairs are generated in depth order; a stable sort by tile keeps that order per tile
     perm = torch.sort(_sort_key(tile_id, grid.n_tiles), stable=True).indices
     gid_sorted = _at(ids, _at(gr, _at(seg, perm)))
-    tile_count = torch.bincount(tile_id, minlength=grid.n_tiles)
+    # a scatter, not bincount: on CUDA bincount reads the largest id on the host
+    tile_count = torch.zeros(grid.n_tiles, dtype=torch.int64, device=device).scatter_add_(0, tile_id, torch.ones_like(tile_id))
     tile_offset = torch.cumsum(tile_count, 0) - tile_count
     return gid_sorted, tile_count, tile_offset
 
@@ -434,8 +441,9 @@ def _kernel_forward(kernels, table, fp, grid, chunk_pairs, tile_centers, t_state
     tiles, the chunk's ids, tile offsets, entry transmittance [nA, npx], pairs each pixel included
     [nA, npx])]."""
     chunks = []
+    every_tile = torch.arange(grid.n_tiles, device=table.device) if kernels.every_tile else None
     for gid_sorted, tile_count, tile_offset in _iter_chunks(fp, grid, chunk_pairs, tile_done, kernels.binning):
-        active = torch.nonzero(tile_count > 0).squeeze(1)
+        active = every_tile if every_tile is not None else torch.nonzero(tile_count > 0).squeeze(1)
         t_entry = _at(t_state, active) if keep_rounds else None
         n_incl = kernels.composite.composite_forward(table, gid_sorted, tile_offset, tile_count, active,
                                                      tile_centers, t_state, out, grid.tile)

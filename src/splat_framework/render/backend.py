@@ -42,6 +42,9 @@ class Kernels:
         kernels' fixed order), else that many (Triton's atomic adds: 1).
     chunk_pairs_per_tile: the default depth chunk (pairs per tile): the native kernels skip tiles
         finished by nearer chunks; one chunk a render keeps Triton at one launch a pass.
+    every_tile: a chunk's kernels run over every tile, those without pairs included (they leave
+        them as they were), so the host never reads which tiles have pairs (Triton: a host read
+        would wait for the device); else over the tiles with pairs only.
     """
 
     name: str
@@ -49,6 +52,7 @@ class Kernels:
     binning: object | None
     slots: int | None
     chunk_pairs_per_tile: int
+    every_tile: bool = False
 
 
 def set_rasterizer(name: str) -> None:
@@ -134,7 +138,7 @@ def kernels_for(device: torch.device) -> Kernels | None:
     """The compositing kernels of a render on ``device``, None for the per-round torch kernels."""
     chosen = choose(device)
     if chosen == "triton":
-        return Kernels("triton", _triton_kernels(), None, 1, 1 << 20)
+        return Kernels("triton", _triton_kernels(), None, 1, 1 << 20, every_tile=True)
     native = native_for(device) if chosen == "native" else None
     if native is None:
         return None

@@ -96,6 +96,24 @@ def test_triton_ties_in_depth_match_the_torch_kernels(interpreted, monkeypatch):
     assert torch.equal(out_t.meta["radii"], out_e.meta["radii"])
 
 
+def test_a_triton_render_reads_the_device_three_times(interpreted):
+    """The Triton path's forward and backward read three values on the host (what a CUDA render waits
+    for): the visible Gaussians' count and the two sizes of the pair lists. The one depth chunk needs
+    no count, every tile goes to the kernels (no list of the tiles with pairs), the tile counts are a
+    scatter (bincount reads its largest id)."""
+    from splat_framework.testing.host_syncs import count_host_syncs
+
+    width, height = 40, 32
+    viewmat, K = ref.make_camera(width, height, dtype=torch.float32)
+    params = [p.requires_grad_() for p in ref.random_scene(60, 5, dtype=torch.float32, spread=0.8)]
+    weights = ref._loss_weights(height, width, 2, torch.float32)
+    with count_host_syncs() as syncs:
+        out, grads = _render_and_grads(params, viewmat, K, width, height, weights, tile_size=8)
+    assert (out.alpha < 0.01).any() and grads[0].abs().sum() > 0  # empty tiles among the rest
+    assert syncs.total() == 3, syncs.report()
+    assert all(place.startswith("_composite.py:") for _, place in syncs.by_place()), syncs.report()
+
+
 _AOT = """
 from splat_framework.render._triton import compile_for
 for capability, tile in ((80, 8), (90, 8), (90, 16)):
