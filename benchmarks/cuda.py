@@ -8,8 +8,10 @@ What it measures, each step a subprocess with its own time limit inside ``--budg
   3. ``splat-train scgaussian --data llff/fern --device cuda`` from an empty cache (cold) and again
      (warm), launch to exit, then ``splat-train 3dgs --data llff/fern --steps 1000``: wall time,
      test PSNR / SSIM, render FPS, peak GPU memory, the rasterizer that ran (metrics.json);
-  4. with ``--before DIR`` (the project's code before, e.g. a wheel installed with ``--target``),
-     the same fern run cold with that code, for the before/after table.
+  4. host syncs per training step on fern (``benchmarks/host_syncs.py``: torch's sync debug mode
+     counts every synchronizing call) and the step's time;
+  5. with ``--before DIR`` (the project's code before, e.g. a wheel installed with ``--target``),
+     the same fern run cold and the same sync count with that code, for the before/after table.
 Everything goes to ``--out`` (``$OUT`` on the device): logs, metrics, ``summary.md``.
 
 Prepare on the development machine (``benchmarks/cuda_prepare.sh 3.12 BEFORE_COMMIT``: wheels into
@@ -83,6 +85,16 @@ def fern_row(row: dict, run_dir: Path, out: Path) -> dict:
     return row
 
 
+def syncs_row(row: dict, path: Path) -> dict:
+    """benchmarks/host_syncs.py's figures added to ``row``: host syncs per step (torch's own count on
+    CUDA, else the project's counter) and the step's time."""
+    if path.is_file():
+        r = json.loads(path.read_text())
+        row.update({"syncs_per_step": r.get("cuda_syncs_per_step", r.get("counted_per_step")),
+                    "step_ms": r.get("step_ms"), "gaussians": r.get("gaussians")})
+    return row
+
+
 def machine(out: Path, env: dict) -> None:
     probe = ("import sys, torch; print(sys.version.split()[0], torch.__version__, torch.cuda.is_available(), "
              "torch.cuda.get_device_name() if torch.cuda.is_available() else 'no GPU'); import triton; "
@@ -97,7 +109,7 @@ def machine(out: Path, env: dict) -> None:
 
 def write_summary(out: Path, summary: list, args) -> None:
     cols = ["step", "rc", "wall_s", "train_s", "psnr", "ssim", "gaussians", "render_fps", "peak_gpu_mib",
-            "rasterizer", "skipped"]
+            "rasterizer", "syncs_per_step", "step_ms", "skipped"]
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for row in summary:
         cells = []
@@ -153,6 +165,10 @@ def main(argv: list[str] | None = None) -> None:
     row = run("3dgs-1000", train + ["3dgs", *fern, "--steps", "20" if args.dry_run else "1000",
                                     "--output", "/tmp/3dgs-1000"], out, clock, 90, env_after, summary)
     fern_row(row, Path("/tmp/3dgs-1000"), out)
+    host_syncs = [sys.executable, str(HERE / "host_syncs.py"), "--data", "llff/fern", "--device", device,
+                  "--warmup", "10" if args.dry_run else "30", "--steps", "5" if args.dry_run else "20"]
+    syncs_row(run("host-syncs", host_syncs + ["--json", str(out / "host-syncs.json"), "--output", "/tmp/host-syncs"],
+                  out, clock, 90, env_after, summary), out / "host-syncs.json")
     if args.before is not None:
         before_cache = Path("/tmp/splat-cuda-cache-before")
         shutil.rmtree(before_cache, ignore_errors=True)
@@ -161,6 +177,9 @@ def main(argv: list[str] | None = None) -> None:
         row = run("before-fern-cold", train + ["scgaussian", *fern, *steps, "--output", "/tmp/before-fern-cold"],
                   out, clock, 240, env_before, summary)
         fern_row(row, Path("/tmp/before-fern-cold"), out)
+        syncs_row(run("before-host-syncs", host_syncs + ["--json", str(out / "before-host-syncs.json"),
+                                                         "--output", "/tmp/before-host-syncs"],
+                      out, clock, 90, env_before, summary), out / "before-host-syncs.json")
     write_summary(out, summary, args)
 
 

@@ -227,3 +227,22 @@ def test_own_photos_scale_estimates_every_pair_from_a_sample_of_pairs():
     assert rate["chosen_pairs"] == 37 and rate["all_pairs"] == 190 and 1.4 < rate["random_over_chosen"] < 2.6
     fixed = {"chosen_pairs": 100, "all_pairs": 1000, "random_over_chosen": 1.0}
     assert scale.exhaustive_estimate({"posing_s": 600.0, "pose_matching_s": 500.0}, fixed) == 600 + 500 * 9
+
+
+def test_the_gpu_check_reports_torchs_own_sync_count_where_it_has_one(tmp_path):
+    cuda = load_script("cuda")
+    path = tmp_path / "host-syncs.json"
+    path.write_text(json.dumps({"counted_per_step": 2.0, "cuda_syncs_per_step": 3.5, "step_ms": 12.0, "gaussians": 9}))
+    row = cuda.syncs_row({"step": "host-syncs", "rc": 0}, path)
+    assert (row["syncs_per_step"], row["step_ms"], row["gaussians"]) == (3.5, 12.0, 9)
+    path.write_text(json.dumps({"counted_per_step": 2.0, "step_ms": 30.0}))  # a CPU: the project's counter
+    assert cuda.syncs_row({}, path)["syncs_per_step"] == 2.0
+    assert cuda.syncs_row({"step": "x"}, tmp_path / "missing.json") == {"step": "x"}  # a step that failed
+
+
+def test_host_syncs_counts_a_tiny_run_by_place(tmp_path):
+    record = load_script("host_syncs").main(["--warmup", "4", "--steps", "3", "--output", str(tmp_path / "run"),
+                                             "--json", str(tmp_path / "syncs.json")])
+    assert json.loads((tmp_path / "syncs.json").read_text()) == record
+    assert record["counted_per_step"] >= 1 and any("numerics.py" in place for place in record["counted_places"])
+    assert record["step_ms"] > 0 and "cuda_syncs_per_step" not in record

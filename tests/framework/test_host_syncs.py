@@ -4,7 +4,7 @@ On a GPU a step is fastest when the host queues kernels ahead of the device and 
 device value back (issue 81). :mod:`splat_framework.testing.host_syncs` counts the reads and the
 value-sized operations a piece of code asks for, whatever its device, so these tests hold the
 training step to its budget on machines without a GPU: one read a step in the trainer (whether the
-step was finite), none in the strategy's statistics or SCGaussian's losses (and three in a render's
+step was finite), none in the strategy's statistics or SCGaussian's losses (and one in a render's
 binning on the Triton path: render/test_triton.py).
 """
 

@@ -99,6 +99,8 @@ class Footprints:
     ty1: Tensor
     ell: Tensor  # [V, 6] (u, v, cov_xx, cov_xy, cov_yy, qmax): the ellipse alpha >= 1/255
     hit: Tensor  # [N] bool
+    rows: int | None = None  # the rectangles' tile rows summed (the torch binning reads it with V)
+    area: int | None = None  # the rectangles' tiles summed: at least the pairs of all of them
 
 
 @torch.no_grad()
@@ -138,14 +140,18 @@ def tile_footprints(
         & (px0 <= px1)
         & (py0 <= py1)
     )
-    ids = torch.nonzero(hit).squeeze(1)
-    ids = _at(ids, torch.argsort(_at(depths.detach(), ids), stable=True))
-    tx0 = _at(px0, ids).clamp(0, width - 1).long() // tile
-    tx1 = _at(px1, ids).clamp(0, width - 1).long() // tile
-    ty0 = _at(py0, ids).clamp(0, height - 1).long() // tile
-    ty1 = _at(py1, ids).clamp(0, height - 1).long() // tile
+    tx0 = px0.clamp(0, width - 1).long() // tile
+    tx1 = px1.clamp(0, width - 1).long() // tile
+    ty0 = py0.clamp(0, height - 1).long() // tile
+    ty1 = py1.clamp(0, height - 1).long() // tile
+    nrows = torch.where(hit, ty1 - ty0 + 1, 0)
+    # the render's one host read: V, the tile rows and the tiles of the rectangles, together
+    v, rows, area = torch.stack([hit.sum(), nrows.sum(), (nrows * (tx1 - tx0 + 1)).sum()]).tolist()
+    # front to back, ties in index order; the others after them (a stable sort by depth of the hit
+    # ones, as nonzero then a stable argsort, without reading their count apart)
+    ids = torch.argsort(torch.where(hit, depths.detach(), torch.inf), stable=True)[:v]
     ell = _at(torch.cat([means2d.detach(), cov2d.detach(), qmax[:, None]], dim=1), ids)
-    return Footprints(ids, tx0, tx1, ty0, ty1, ell, hit)
+    return Footprints(ids, _at(tx0, ids), _at(tx1, ids), _at(ty0, ids), _at(ty1, ids), ell, hit, rows, area)
 
 
 def _alive_counts(tile_done: Tensor, fp: Footprints, pos: int, grid: TileGrid) -> Tensor:
@@ -193,10 +199,10 @@ def _torch_chunk(fp: Footprints, grid: TileGrid, chunk_pairs: int, tile_done: Te
     """The chunk starting at ``pos`` binned with torch ops: ((gid_sorted, tile_count, tile_offset) or
     None when it holds no pair, the position after it)."""
     v = fp.ids.numel()
-    if first and chunk_pairs >= (v - pos) * grid.n_tiles:
-        # every pair fits (a Gaussian's pairs are at most one per tile) and every rectangle holds a
-        # tile: the chunk is all of them, known without reading the counts on the host
-        return _chunk_pairs(fp, torch.arange(pos, v, device=fp.ids.device), grid, tile_done, all_alive=True), v
+    if first and fp.area is not None and chunk_pairs >= fp.area:
+        # every pair fits and every rectangle holds a tile: the chunk is all of them, binned with the
+        # sizes the footprints read (no host read here)
+        return _chunk_pairs(fp, torch.arange(pos, v, device=fp.ids.device), grid, tile_done, whole=True), v
     if first:
         cnt = (fp.tx1 - fp.tx0 + 1) * (fp.ty1 - fp.ty0 + 1)
     else:
@@ -245,26 +251,29 @@ def _row_columns(ell: Tensor, row: Tensor, grid: TileGrid) -> tuple[Tensor, Tens
     return c0, c1
 
 
-def _chunk_pairs(fp: Footprints, sel: Tensor, grid: TileGrid, tile_done: Tensor, all_alive: bool = False):
+def _chunk_pairs(fp: Footprints, sel: Tensor, grid: TileGrid, tile_done: Tensor, whole: bool = False):
     """Pairs (unfinished tile, Gaussian fp.ids[sel]) sorted by (tile, depth); sel ascending.
 
     Pairs are enumerated per (Gaussian, tile row) over the row's unfinished tiles
-    only, so finished tiles cost nothing. ``all_alive``: no tile is finished yet (the first chunk),
-    so their list needs no host read.
+    only, so finished tiles cost nothing. ``whole``: sel is every Gaussian of ``fp`` and no tile is
+    finished yet (the first chunk holding them all): the sizes are the ones ``fp`` read (its
+    ``rows``, and its ``area`` as room for the pairs, the unused room sorted after the last tile),
+    so binning reads nothing on the host.
 
-    Returns (gid_sorted [Pc], tile_count [n_tiles], tile_offset [n_tiles])."""
+    Returns (gid_sorted [Pc] (with ``whole``: [fp.area], the pairs then unused room),
+    tile_count [n_tiles], tile_offset [n_tiles])."""
     device = fp.ids.device
     nty, ntx = grid.nty, grid.ntx
     alive = (~tile_done).reshape(nty, ntx)
     pre = torch.zeros(nty, ntx + 1, dtype=torch.int64, device=device)
     pre[:, 1:] = alive.cumsum(1)
     row_off = torch.cumsum(pre[:, -1], 0) - pre[:, -1]
-    alive_ids = torch.arange(grid.n_tiles, device=device) if all_alive else torch.nonzero(alive.reshape(-1)).squeeze(1)
+    alive_ids = torch.arange(grid.n_tiles, device=device) if whole else torch.nonzero(alive.reshape(-1)).squeeze(1)
     ids = _at(fp.ids, sel)
     tx0, tx1, ty0, ty1 = _at(fp.tx0, sel), _at(fp.tx1, sel), _at(fp.ty0, sel), _at(fp.ty1, sel)
     # (Gaussian, tile row) segments
     nrows = ty1 - ty0 + 1
-    n_seg = int(nrows.sum())
+    n_seg = fp.rows if whole else int(nrows.sum())
     gr = torch.repeat_interleave(torch.arange(ids.numel(), device=device), nrows, output_size=n_seg)
     row = _at(ty0 - (torch.cumsum(nrows, 0) - nrows), gr) + torch.arange(n_seg, device=device)
     flat_pre = pre.reshape(-1)
@@ -275,15 +284,29 @@ def _chunk_pairs(fp: Footprints, sel: Tensor, grid: TileGrid, tile_done: Tensor,
     a = _at(flat_pre, row * (ntx + 1) + c0)
     cnt = _at(flat_pre, row * (ntx + 1) + c1 + 1) - a
     start = _at(row_off, row) + a
-    total = int(cnt.sum())
-    seg = torch.repeat_interleave(torch.arange(n_seg, device=device), cnt, output_size=total)
-    # pair k of segment s lies in the s-th row's alive tile number start[s] + k
-    tile_id = _at(alive_ids, _at(start - (torch.cumsum(cnt, 0) - cnt), seg) + torch.arange(total, device=device))
+    ends = torch.cumsum(cnt, 0)
+    if whole:  # room for fp.area pairs: entry k is segment seg's pair, or unused once k >= the pairs
+        k = torch.arange(fp.area, device=device)
+        seg = torch.searchsorted(ends, k, right=True)
+        unused = seg >= n_seg
+        seg = seg.clamp_max(n_seg - 1)
+    else:
+        total = int(ends[-1])
+        seg = torch.repeat_interleave(torch.arange(n_seg, device=device), cnt, output_size=total)
+        k, unused = torch.arange(total, device=device), None
+    # pair k of segment s lies in the s-th row's alive tile number start[s] + k - (pairs before s)
+    local = _at(start - (ends - cnt), seg) + k
+    if unused is not None:  # unused room: tile id n_tiles, sorted after every tile, counted in none
+        local = torch.where(unused, 0, local)
+    tile_id = _at(alive_ids, local)
+    if unused is not None:
+        tile_id = torch.where(unused, grid.n_tiles, tile_id)
     # pairs are generated in depth order; a stable sort by tile keeps that order per tile
-    perm = torch.sort(_sort_key(tile_id, grid.n_tiles), stable=True).indices
+    perm = torch.sort(_sort_key(tile_id, grid.n_tiles + 1), stable=True).indices
     gid_sorted = _at(ids, _at(gr, _at(seg, perm)))
     # a scatter, not bincount: on CUDA bincount reads the largest id on the host
-    tile_count = torch.zeros(grid.n_tiles, dtype=torch.int64, device=device).scatter_add_(0, tile_id, torch.ones_like(tile_id))
+    tile_count = torch.zeros(grid.n_tiles + 1, dtype=torch.int64, device=device).scatter_add_(
+        0, tile_id, torch.ones_like(tile_id))[: grid.n_tiles]
     tile_offset = torch.cumsum(tile_count, 0) - tile_count
     return gid_sorted, tile_count, tile_offset
 

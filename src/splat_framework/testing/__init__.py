@@ -6,7 +6,9 @@
 - :mod:`.inprocess`: a scene and its data manager (:func:`scene_and_data`), a parsed command line
   (:func:`parse_train_args`), and the framework's pieces a test builds a model or a short run from
   (``Trainer``, ``MatchSet``, ``apply_overrides``, ``get_method``, ``export_ply``, ...: ``inprocess.EXPORTS``),
-  resolved on first use.
+  resolved on first use;
+- :mod:`.host_syncs`: the host syncs a step would make on CUDA, counted on any device
+  (:func:`~.host_syncs.count_host_syncs`: a plugin's loss can be held to none).
 
 A plugin's test, with the plugin installed (``pip install -e .``: its entry points registered)::
 

@@ -505,6 +505,12 @@ def test_tile_pairs_cover_every_contributing_pixel(tile):
     assert not missing.any(), f"{int(missing.sum())} contributing (Gaussian, tile) pairs missing"
     # and the listing is reasonably tight
     assert listed.sum() < 1.6 * need.sum()
+    # the whole first chunk binned with the footprints' sizes (no host read): the same lists, then
+    # unused room up to the rectangles' area, counted in no tile
+    room, count_w, offset_w = _chunk_pairs(fp, torch.arange(fp.ids.numel()), grid,
+                                           torch.zeros(grid.n_tiles, dtype=torch.bool), whole=True)
+    assert room.numel() == fp.area > gid.numel() and torch.equal(count_w, count)
+    assert torch.equal(room[: gid.numel()], gid) and torch.equal(offset_w, torch.cumsum(count, 0) - count)
 
 
 def test_all_culled_and_inference_mode():
