@@ -74,4 +74,7 @@ fi
 cp -r "$data/llff/fern/images_8" "$data/llff/fern/poses_bounds.npy" .devdata/llff/fern/
 du -sh .whl .devdata
 tracked=$(git ls-files -z | xargs -0 du -cb | tail -1 | cut -f1)
-du -cb .whl .devdata | tail -1 | awk -v t="$tracked" '{ printf "carried: %.1f MiB and the tracked tree %.1f MiB, of 64 in all\n", $1 / 2^20, t / 2^20 }'
+# the device call carries at most 64 MiB: over that, say so and fail (a run would not start)
+du -cb .whl .devdata | tail -1 | awk -v t="$tracked" '{ total = ($1 + t) / 2^20
+  printf "carried: %.1f MiB and the tracked tree %.1f MiB, %.1f of 64 in all\n", $1 / 2^20, t / 2^20, total
+  if (total > 64) { print "too much for the device call: leave out WITH_* extras or cut what is tracked"; exit 1 } }'
