@@ -60,6 +60,7 @@ def main(argv: list[str] | None = None) -> dict:
     from splat_framework.config import apply_overrides
     from splat_framework.engine.trainer import Trainer
     from splat_framework.registry import get_method
+    from splat_framework.runtime.profiling import synchronize
 
     try:
         from splat_framework.testing.host_syncs import count_host_syncs
@@ -85,7 +86,7 @@ def main(argv: list[str] | None = None) -> dict:
     }
     if device.type == "cuda":
         record["gpu"] = torch.cuda.get_device_name(device)
-    torch.cuda.synchronize(device) if device.type == "cuda" else None
+    synchronize(device)
     t0 = time.perf_counter()
     if count_host_syncs is not None:
         with count_host_syncs() as syncs:
@@ -96,13 +97,13 @@ def main(argv: list[str] | None = None) -> dict:
     else:
         for step in first:
             trainer.train_step(step)
-    torch.cuda.synchronize(device) if device.type == "cuda" else None
+    synchronize(device)
     record["step_ms_while_counting"] = 1e3 * (time.perf_counter() - t0) / args.steps
     second = range(first.stop, first.stop + args.steps)
     t0 = time.perf_counter()
     if device.type == "cuda":
         n, places = cuda_syncs(trainer, second, torch)
-        torch.cuda.synchronize(device)
+        synchronize(device)
         record["cuda_syncs_per_step"], record["cuda_sync_places"] = n / args.steps, places
     else:
         for step in second:

@@ -384,21 +384,24 @@ class Trainer(TrainState):
         """What a step checks for NaN and inf in its one host read, after its backward: the parameters
         the previous step's optimizers wrote (checked here rather than in a read of their own; before a
         checkpoint by :meth:`_check_update`), then the loss, then every gradient."""
-        checked: dict[str, Tensor | None] = {}
-        if self._unchecked_update:
-            checked |= {f"parameter {k}": p.detach() for k, p in self._optimized_tensors()}
-            self._unchecked_update = False
+        checked: dict[str, Tensor | None] = self._unchecked_parameters()
         checked["loss"] = loss.detach()
         return checked | {f"gradient of {k}": p.grad for k, p in self._trained_tensors()}
+
+    def _unchecked_parameters(self) -> dict[str, Tensor]:
+        """``"parameter NAME"`` -> tensor of what the last optimizer step wrote, once (then none until
+        the next step writes again)."""
+        if not self._unchecked_update:
+            return {}
+        self._unchecked_update = False
+        return {f"parameter {k}": p.detach() for k, p in self._optimized_tensors()}
 
     def _check_update(self, step: int) -> None:
         """Before a checkpoint: the parameters the last step wrote are finite, else the last good
         checkpoint is restored (:meth:`_fault`, which raises)."""
-        if self._unchecked_update:
-            self._unchecked_update = False
-            bad = _first_nonfinite({k: p.detach() for k, p in self._optimized_tensors()})
-            if bad is not None:
-                self._fault(step - 1, f"parameter {bad}", corrupted=True)
+        bad = _first_nonfinite(self._unchecked_parameters())
+        if bad is not None:
+            self._fault(step - 1, bad, corrupted=True)
 
     def _trained_tensors(self) -> list[tuple[str, Tensor]]:
         """The model's trainable tensors, then the camera corrections when they are refined."""

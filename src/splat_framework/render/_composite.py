@@ -296,11 +296,10 @@ def _chunk_pairs(fp: Footprints, sel: Tensor, grid: TileGrid, tile_done: Tensor,
         k, unused = torch.arange(total, device=device), None
     # pair k of segment s lies in the s-th row's alive tile number start[s] + k - (pairs before s)
     local = _at(start - (ends - cnt), seg) + k
-    if unused is not None:  # unused room: tile id n_tiles, sorted after every tile, counted in none
-        local = torch.where(unused, 0, local)
-    tile_id = _at(alive_ids, local)
-    if unused is not None:
-        tile_id = torch.where(unused, grid.n_tiles, tile_id)
+    if unused is None:
+        tile_id = _at(alive_ids, local)
+    else:  # unused room: tile id n_tiles, sorted after every tile, counted in none
+        tile_id = torch.where(unused, grid.n_tiles, _at(alive_ids, torch.where(unused, 0, local)))
     # pairs are generated in depth order; a stable sort by tile keeps that order per tile
     perm = torch.sort(_sort_key(tile_id, grid.n_tiles + 1), stable=True).indices
     gid_sorted = _at(ids, _at(gr, _at(seg, perm)))

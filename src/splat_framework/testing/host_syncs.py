@@ -47,7 +47,7 @@ def _bool_index(index) -> bool:
 def syncs_on_cuda(name: str, args: tuple, kwargs: dict) -> bool:
     """Whether the torch call ``name(*args, **kwargs)`` makes the host wait for the device on CUDA."""
     if name in READS or name in SIZED_BY_VALUES:
-        return name != "cpu" or not kwargs.get("non_blocking", False)
+        return True
     if name == "where":
         return len(args) + len(kwargs) == 1
     if name == "repeat_interleave":
@@ -79,10 +79,6 @@ class HostSyncs(TorchFunctionMode):
     def by_place(self) -> dict[tuple[str, str], int]:
         """(operation, ``file:line``) -> count, most frequent first."""
         return dict(self.places.most_common())
-
-    def in_files(self, *names: str) -> int:
-        """The syncs made by code in the files named (``"trainer.py"``, ...)."""
-        return sum(n for (_, place), n in self.places.items() if place.split(":")[0] in names)
 
     def report(self, per: int = 1) -> str:
         """One line per place, ``count/per  operation  file:line`` (``per``: divide by, e.g. the steps)."""
