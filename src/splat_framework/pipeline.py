@@ -12,6 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import torch
 from torch import Tensor
 
 from .cameras import Camera
@@ -19,6 +20,10 @@ from .console import say
 from .evaluation.held_out import evaluate
 from .render import RenderOutput
 from .runtime.profiling import section
+
+BACKGROUND_STREAM = 1_000_003
+"""Seeds of the random backgrounds: ``seed x this + step``, a stream of its own for each seed in any
+run shorter than this many steps."""
 
 
 class Pipeline:
@@ -55,12 +60,23 @@ class Pipeline:
             camera = self.camera_refiner.apply(camera, batch["train_position"])
         return camera, batch
 
+    def train_background(self, step: int) -> Tensor:
+        """[3] the colour step ``step``'s training render composites over: the scene's, or with
+        ``random_background`` on a scene of opaque photos (no white backdrop) a colour drawn from the
+        seed and the step alone (a resumed run draws the same). Over a fixed black a Gaussian may stay
+        transparent wherever the photo is dark, and a novel view then sees through it; over a colour
+        that changes every step only opaque Gaussians reproduce the photo."""
+        if not self.config.random_background or self.datamanager.scene.white_background:
+            return self.background
+        draw = torch.Generator().manual_seed(self.config.seed * BACKGROUND_STREAM + step)
+        return torch.rand(3, generator=draw).to(self.background.device, self.background.dtype)
+
     def train_losses(self, step: int) -> tuple[RenderOutput, dict[str, Any], dict[str, Tensor]]:
         """One step's (render of the step's view, its batch, the model's loss terms {name: scalar}).
         The render's ``meta`` is what the strategy sees; the trainer adds the strategy's own terms."""
         camera, batch = self.next_batch(step)
         with section("forward"):
-            outputs = self.model.get_outputs(camera, self.background, step=step)
+            outputs = self.model.get_outputs(camera, self.train_background(step), step=step)
         with section("loss"):
             losses = self.model.get_loss_dict(outputs, batch, camera, step)
         return outputs, batch, losses

@@ -21,6 +21,7 @@ OFFICIAL = {
     # data_preprocess/get_match_info.py of github.com/prstrive/SCGaussian at efb29f6
     "steps": 2000, "default_steps": 2000, "schedule_views": 0,  # iterations = 2_000, whatever the views
     "coarse_steps": 0,  # every iteration at the images' own size
+    "random_background": False,  # arguments/__init__.py:90; train.py:99-100, 141: the dataset's black or white
     "camera_refine.mode": "off",
     "model.lambda_dssim": 0.2, "model.init_opacity": 0.1, "model.init_scale": 1.0,
     "model.sh_degree": 3, "model.sh_degree_interval": 1000,

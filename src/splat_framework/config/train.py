@@ -69,6 +69,8 @@ class TrainConfig(SplatConfig):
     """The first iterations train on the images downscaled by coarse_scale (area average, cameras scaled to match): cheaper steps while the model takes its coarse shape (0 = off)."""
     coarse_scale: Annotated[float, FOLDED, Field(gt=0, lt=1, allow_inf_nan=False)] = 0.5
     """Image scale of the coarse iterations (coarse_steps)."""
+    random_background: Annotated[bool, FOLDED] = False
+    """Composite each training render over a random colour (new each step, from the seed) where the photos are opaque; white-backdrop scenes and test renders keep the scene's."""
     output: Annotated[Path | None, RUN_OPTION] = None
     """Run folder (default outputs/<scene>/<method>/<timestamp>)."""
     seed: int = Field(0, ge=0, lt=2**32)
