@@ -24,17 +24,14 @@ def config_scgaussian() -> SCGTrainConfig:
     learning twice as fast as in the 3DGS reference, for the short schedule, and over the first
     half of the run a multi-view photometric consistency of the rendered depth with the 2 nearest
     training views (compared at 1/4 size, not across occluding edges, only between views whose
-    viewing directions differ by at most 20 degrees: on LLFF, not on DTU or lego), and every
-    training render composited over a random colour where the photos are opaque
-    (``random_background``; ``scgaussian-black-background`` trains over the scene's black). Each
-    choice, with the measurements that made it, is in docs/decisions.md.
+    viewing directions differ by at most 20 degrees: on LLFF, not on DTU or lego). Each choice,
+    with the measurements that made it, is in docs/decisions.md.
     """
     return SCGTrainConfig(
         method="scgaussian",
         default_steps=1000,
         schedule_views=4,
         coarse_steps=500,
-        random_background=True,
         model=SCGModelConfig(
             ray_binding=False,
             sh_degree_interval=1000,

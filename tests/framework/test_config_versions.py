@@ -33,15 +33,13 @@ def written_at(version: int, tmp_path: Path) -> list[Path]:
     and one holding version 2's layout, as every run wrote it until version 2 (also without a version
     at all); version 2's: a run's record of its dataset, resolved before ``eval_split`` existed;
     version 3's: an SCGaussian run whose matching prior had no total budget; version 4's: an SCGaussian
-    run from before coarse steps; version 5's: an SCGaussian run from before random backgrounds."""
-    assert version in (1, 2, 3, 4, 5), "a new version needs its sample files here"
-    if version in (4, 5):
+    run from before coarse steps."""
+    assert version in (1, 2, 3, 4), "a new version needs its sample files here"
+    if version == 4:
         cfg = json.loads(json.dumps(config_payload(get_method("scgaussian").default_config())))
-        del cfg["config"]["random_background"]
-        if version == 4:
-            del cfg["config"]["coarse_steps"]
-        atomic_write_json(tmp_path / f"v{version}.json", {**cfg, "schema_version": version})
-        return [tmp_path / f"v{version}.json"]
+        del cfg["config"]["coarse_steps"]
+        atomic_write_json(tmp_path / "v4.json", {**cfg, "schema_version": 4})
+        return [tmp_path / "v4.json"]
     if version == 3:
         cfg = json.loads(json.dumps(config_payload(get_method("scgaussian").default_config())))
         del cfg["config"]["model"]["matching"]["max_total_matches"]
@@ -78,8 +76,6 @@ def test_a_file_of_each_old_version_upgrades_to_the_current_config(version, tmp_
             assert config == type(defaults).model_validate(json.loads(path.read_text())["config"])
         if path.name == "v4.json":  # every iteration at the images' own size, as it was trained
             assert config.coarse_steps == 0 and get_method(method).default_config().coarse_steps == 500
-        if path.name in ("v4.json", "v5.json"):  # over the scene's background, as it was trained
-            assert not config.random_background and get_method(method).default_config().random_background
         if path.name == "v3.json":  # its prior keeps every pair's matches, as it was trained
             assert config.model.matching.max_total_matches == 0 and config.model.matching.max_matches == 12000
         if config.resolved_data is not None:  # the record still names the run's data

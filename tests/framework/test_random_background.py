@@ -1,4 +1,4 @@
-"""Random training backgrounds (``random_background``, SCGaussian's default): each step's colour comes
+"""Random training backgrounds (``random_background``, off by default): each step's colour comes
 from the seed and the step alone, only scenes of opaque photos take one, and what it is for: a model
 trained over it renders its training views opaque, where one trained over black leaves see-through
 Gaussians in front of dark parts of the photos."""

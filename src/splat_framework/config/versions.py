@@ -23,9 +23,7 @@ Versions:
    every pair kept up to ``max_matches`` whatever the number of pairs (:func:`from_version_3`).
 4. The layout before coarse steps: there is no ``coarse_steps``, and every run trained every
    iteration at the images' own size (:func:`from_version_4`).
-5. The layout before random training backgrounds: there is no ``random_background``, and every run
-   trained over the scene's background (:func:`from_version_5`).
-6. Today's layout.
+5. Today's layout.
 """
 
 from __future__ import annotations
@@ -40,7 +38,7 @@ from .merge import deep_merge
 from .model import GaussianModelConfig, ModelConfig, OptimConfig, RegularisersConfig
 from .train import TrainConfig
 
-SCHEMA_VERSION = 6
+SCHEMA_VERSION = 5
 """Version of the ``config.json`` layout this build writes (see the module docstring)."""
 
 UNVERSIONED = 1
@@ -217,19 +215,11 @@ def from_version_4(cfg: dict, defaults: dict) -> dict:
     return {**cfg, "coarse_steps": cfg.get("coarse_steps", 0)}
 
 
-def from_version_5(cfg: dict, defaults: dict) -> dict:
-    """Version 5 to 6: the config gains ``random_background`` false (every run of version 5 trained
-    over the scene's background; SCGaussian's default is true since), so an old run resumes as it was
-    trained."""
-    return {**cfg, "random_background": cfg.get("random_background", False)}
-
-
 UPGRADES: dict[int, Callable[[dict, dict], dict]] = {
     1: from_version_1,
     2: from_version_2,
     3: from_version_3,
     4: from_version_4,
-    5: from_version_5,
 }
 """Version N -> the step taking a config dict of version N to N + 1, given the method's default
 config (as a dict); ordered, one per version below :data:`SCHEMA_VERSION`."""
