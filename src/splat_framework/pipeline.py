@@ -69,7 +69,10 @@ class Pipeline:
         if not self.config.random_background or self.datamanager.scene.white_background:
             return self.background
         draw = torch.Generator().manual_seed(self.config.seed * BACKGROUND_STREAM + step)
-        return torch.rand(3, generator=draw).to(self.background.device, self.background.dtype)
+        colour = torch.rand(3, generator=draw)  # drawn on the host: the same colours on every device
+        if self.background.device.type == "cuda":  # copied without waiting for the GPU (no host sync)
+            colour = colour.pin_memory()
+        return colour.to(self.background.device, self.background.dtype, non_blocking=True)
 
     def train_losses(self, step: int) -> tuple[RenderOutput, dict[str, Any], dict[str, Tensor]]:
         """One step's (render of the step's view, its batch, the model's loss terms {name: scalar}).
