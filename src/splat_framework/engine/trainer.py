@@ -81,6 +81,7 @@ from .memory_plan import image_memory_budget, plan_memory
 from .numerics import first_nonfinite as _first_nonfinite
 from .numerics import optimized_tensors, trainable_tensors
 from .resume_check import check_saved_config
+from .run import background_for
 from .run_folder import continue_command, prepare_run_dir, remove_if_unused
 from .run_metrics import run_metrics
 from .run_scene import load_config_scene
@@ -226,8 +227,7 @@ class Trainer(TrainState):
         if split:
             say(split)
         self.timing["data_s"] = time.perf_counter() - t0
-        bg = 1.0 if scene.white_background else 0.0
-        self.background = torch.full((3,), bg, device=self.device)
+        self.background = background_for(scene, self.device)
         t0 = time.perf_counter()
         self.model = self.spec.model_class().from_data(self.config, self.datamanager, self.generator).to(self.device)
         self.timing.update(self.model.init_timing)

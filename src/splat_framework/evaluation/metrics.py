@@ -64,17 +64,15 @@ def psnr_tensor(pred: Tensor, gt: Tensor) -> Tensor:
 @torch.no_grad()
 def psnr(pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> float:
     """PSNR in dB for images in [0, 1]; with ``mask``, MSE over the pixels where mask == 1 only. inf when MSE is 0."""
-    pred, gt = pred.double(), gt.double()
     if mask is None:
-        mse = ((pred - gt) ** 2).mean()
-    else:
-        m = (mask_bhw1(mask, pred) >= 1.0).to(pred.dtype)  # object pixels, as the reference's `mask == 1.`
-        se = ((pred - gt) ** 2).reshape(m.shape[0], *pred.shape[-3:]) * m
-        denom = m.sum() * pred.shape[-1]
-        if denom <= 0:
-            raise ValueError("psnr: mask selects no pixels")
-        mse = se.sum() / denom
-    mse = float(mse)
+        return float(psnr_tensor(pred, gt))
+    pred, gt = pred.double(), gt.double()
+    m = (mask_bhw1(mask, pred) >= 1.0).to(pred.dtype)  # object pixels, as the reference's `mask == 1.`
+    se = ((pred - gt) ** 2).reshape(m.shape[0], *pred.shape[-3:]) * m
+    denom = m.sum() * pred.shape[-1]
+    if denom <= 0:
+        raise ValueError("psnr: mask selects no pixels")
+    mse = float(se.sum() / denom)
     return math.inf if mse == 0.0 else -10.0 * math.log10(mse)
 
 
