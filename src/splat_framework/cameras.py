@@ -100,6 +100,20 @@ class Camera:
         w2c[0, 3] -= shift
         return replace(self, world_to_cam=w2c)
 
+    def between(self, other: "Camera", t: float) -> "Camera":
+        """A camera on the way from this one (``t`` = 0) to ``other`` (1): the centre moved linearly,
+        the rotation the nearest one to the blend ``(1 - t) R + t R_other`` (for the small angles
+        between neighbouring views, within a hair of the geodesic); this camera's intrinsics and size."""
+        R0, R1 = self.world_to_cam[:3, :3], other.world_to_cam[:3, :3].to(self.world_to_cam)
+        U, _, Vh = torch.linalg.svd((1 - t) * R0 + t * R1)
+        one = U.new_ones(())  # a reflection (rotations about 180 degrees apart) turned back, without a host read
+        R = (U * torch.stack([one, one, torch.linalg.det(U @ Vh).sign()])) @ Vh
+        centre = (1 - t) * self.center + t * other.center.to(self.world_to_cam)
+        w2c = torch.eye(4, dtype=self.world_to_cam.dtype, device=self.world_to_cam.device)
+        w2c[:3, :3] = R
+        w2c[:3, 3] = -R @ centre
+        return replace(self, world_to_cam=w2c)
+
     # ------------------------------------------------------------- geometry
     def world_to_camera_points(self, points: Tensor) -> Tensor:
         """[..., 3] world points -> [..., 3] camera-space points."""

@@ -52,7 +52,7 @@ their reads say nothing about the method reading a flag."""
 
 ACTIVE = {
     "reg": {"backdrop_weight": 0.5, "depth_smoothness": 0.1, "stereo_weight": 0.1, "stereo_start": 0.0,
-            "anisotropy_weight": 0.1, "drop_rate": 0.1, "multiview_weight": 0.1},
+            "anisotropy_weight": 0.1, "drop_rate": 0.1, "multiview_weight": 0.1, "pseudo_view_weight": 0.1},
     "strategy": {
         "default": {"refine_start_iter": 1, "refine_every": 2, "refine_stop_iter": 100, "reset_every": 3,
                     "refine_scale2d_stop_iter": 100, "pause_refine_after_reset": 1},

@@ -40,6 +40,12 @@ class RegularisersConfig(SplatConfig):
     """multiview_weight skips pixels whose depth spans more than this ratio over their 3x3 neighbours (occluding edges); 0 = keeps all."""
     multiview_max_angle: float = Field(180.0, gt=0, le=180)
     """multiview_weight compares a view only with partners whose viewing direction is within this many degrees of its own (180 = any)."""
+    pseudo_view_weight: NonNegative = 0.0
+    """Weight of the consistency of a render between a training view and its nearest: lifted to its depth, it must find its colours in both photos; 0 = off."""
+    pseudo_view_until: Fraction = 1.0
+    """Fraction of the run until which pseudo_view_weight applies (1: all of it)."""
+    pseudo_view_downsample: int = Field(2, ge=1, le=64)
+    """pseudo_view_weight renders its view at 1/this of the training photos' size."""
     anisotropy_weight: NonNegative = 0.0
     """Weight of the anisotropy regulariser (PhysGaussian); 0 = off."""
     max_anisotropy: Annotated[float, Field(ge=1, allow_inf_nan=False)] = 10.0

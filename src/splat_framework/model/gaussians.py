@@ -369,13 +369,21 @@ class GaussianModel(nn.Module):
         """(photometric target, {term: scalar}) of the opt-in regularisers ``model.reg`` switches on
         (:func:`~splat_framework.model.regularisers.regulariser_terms`), given what they need from
         this model: the run's seed and length, :meth:`gaussian_log_scales`, a training re-render
-        of another camera (the stereo term's partner view) and :meth:`training_partners`."""
+        of another camera (the stereo term's partner view), :meth:`training_partners` and :meth:`training_view`."""
         return regulariser_terms(
             self.config.model.reg, outputs, batch, camera, step, seed=self.config.seed,
             total_steps=self.config.total_steps, log_scales=lambda: self.gaussian_log_scales(outputs),
             render=lambda view: self.get_outputs(view, outputs.meta.get("background"), step=step),
             partners=lambda k, angle: self.training_partners(batch.get("train_position"), k, angle),
+            own=lambda: self.training_view(batch.get("train_position")),
         )
+
+    def training_view(self, view: int | None) -> tuple[Camera, Tensor] | None:
+        """(camera, photo [H, W, 3]) of training view ``view`` (its position in the split) at the
+        photos' size; None for None or a model without its training views."""
+        if view is None or view >= len(self.train_cameras):
+            return None
+        return self.train_cameras[view], self.train_images[view]
 
     def training_partners(self, view: int | None, k: int, max_angle: float = 180.0) -> list[tuple[Camera, Tensor]]:
         """(camera, photo [H, W, 3]) of the ``k`` training views whose centres lie nearest training

@@ -25,6 +25,7 @@ def regulariser_terms(
     reg: RegularisersConfig, outputs: RenderOutput, batch: dict, camera: Camera, step: int, *, seed: int,
     total_steps: int, log_scales: Callable[[], Tensor], render: Callable[[Camera], RenderOutput],
     partners: Callable[[int, float], list[tuple[Camera, Tensor]]] = lambda k, angle: [],
+    own: Callable[[], tuple[Camera, Tensor] | None] = lambda: None,
 ) -> tuple[Tensor, dict[str, Tensor]]:
     """(the photometric target [H, W, 3], {term: scalar}) of the regularisers ``reg`` switches on,
     for the training render ``outputs`` of ``camera`` at ``step`` of a ``total_steps`` run with ``seed``.
@@ -36,8 +37,11 @@ def regulariser_terms(
     training render of a sideways-shifted copy of ``camera``, from its start) and ``multiview``
     (losses.multiview_photometric against ``partners(k, angle)``, the (camera, photo) of the ``k``
     training views nearest the batch's whose viewing direction is within ``angle`` degrees of its
-    own, until its stop; none for a view outside the training split or without such partners), each
-    when its weight is > 0. A model hands these in (``GaussianModel.regulariser_terms``); nothing here reads the model.
+    own, until its stop; none for a view outside the training split or without such partners) and
+    ``pseudo_view`` (:func:`pseudo_view_consistency` between ``own()``, the (camera, photo) of the
+    batch's training view at the photos' size, and the nearest of its multi-view partners, until its
+    stop), each when its weight is > 0. A model hands these in (``GaussianModel.regulariser_terms``);
+    nothing here reads the model.
     """
     target = batch["image"]
     backdrop = batch.get("backdrop")
@@ -61,7 +65,43 @@ def regulariser_terms(
                 terms["multiview"] = reg.multiview_weight * multiview_photometric(
                     outputs.expected_depth, outputs.alpha, batch["image"], camera, views,
                     downsample=reg.multiview_downsample, edge_ratio=reg.multiview_edge_ratio)
+    if reg.pseudo_view_weight > 0 and step < reg.pseudo_view_until * total_steps:
+        home, nearest = own(), partners(1, reg.multiview_max_angle)
+        if home is not None and nearest:
+            with section("pseudo view"):
+                t = float(torch.rand((), generator=torch.Generator().manual_seed(seed * PSEUDO_VIEW_STREAM + step)))
+                terms["pseudo_view"] = reg.pseudo_view_weight * pseudo_view_consistency(
+                    home, nearest[0], t, render, downsample=reg.pseudo_view_downsample, edge_ratio=reg.multiview_edge_ratio)
     return target, terms
+
+
+PSEUDO_VIEW_STREAM = 7919
+"""Seeds of the pseudo views' draws: ``seed x this + step`` (two seeds' draws coincide only for steps
+this many apart)."""
+
+
+def pseudo_view_consistency(home: tuple[Camera, Tensor], partner: tuple[Camera, Tensor], t: float,
+                            render: Callable[[Camera], RenderOutput], *, downsample: int = 2,
+                            edge_ratio: float = 0.0) -> Tensor:
+    """A render from a view no photo was taken from must agree with the photos: the camera
+    ``home.between(partner, t)`` (at 1/``downsample`` of ``home``'s size) is rendered, and each of its
+    covered pixels, lifted to its rendered depth, must find its rendered colour in one of the two
+    photos (:func:`~splat_framework.losses.multiview_photometric`, the render's colour in place of a
+    photo). Gradients reach the render's colour and depth: a surface drawn see-through, or at a depth
+    that only the training views' own pixels agree with, shows in such a view and not in theirs.
+
+    Args:
+        home: (camera, photo [H, W, 3]) of the training view, at the photo's size.
+        partner: (camera, photo [h, w, 3]) of a training view near it.
+        t: where between them the view lies (0: ``home``, 1: ``partner``).
+        render: the model's training render of a camera.
+    Returns:
+        A scalar.
+    """
+    camera = home[0].between(partner[0], t)
+    camera = camera.resized(max(1, camera.width // downsample), max(1, camera.height // downsample))
+    out = render(camera)
+    return multiview_photometric(out.expected_depth, out.alpha, out.rgb, camera, [home, partner], edge_ratio=edge_ratio)
 
 
 def _stereo_loss(outputs: RenderOutput, image: Tensor, camera: Camera, disparity: float,

@@ -146,3 +146,81 @@ def test_the_partners_are_chosen_once_per_view_not_every_step(dm, monkeypatch):
     model.keep_training_views(dm)
     model.get_loss_dict(model.get_outputs(cam, step=3), batch, cam, 3)
     assert calls == [(0, 2, 180.0)] * 2
+
+
+def _turned(x: float, degrees: float) -> Camera:
+    """``_camera(x)`` turned by ``degrees`` about the world y axis."""
+    cam = _camera(x)
+    a = torch.tensor(degrees, dtype=torch.float64).deg2rad()
+    R = torch.tensor([[a.cos(), 0.0, a.sin()], [0.0, 1.0, 0.0], [-a.sin(), 0.0, a.cos()]], dtype=torch.float64)
+    w2c = torch.eye(4, dtype=torch.float64)
+    w2c[:3, :3] = R
+    w2c[:3, 3] = -R @ torch.tensor([x, 0.0, 0.0], dtype=torch.float64)
+    return Camera(K=cam.K, world_to_cam=w2c, width=W, height=H)
+
+
+def test_a_camera_between_two_moves_its_centre_and_turns_its_axes_in_proportion():
+    a, b = _turned(0.0, 0.0), _turned(0.3, 10.0)
+    b = Camera(K=b.K * 2.0, world_to_cam=b.world_to_cam, width=2 * W, height=2 * H)  # another size: the first's is kept
+    assert torch.allclose(a.between(b, 0.0).world_to_cam, a.world_to_cam, atol=1e-12)
+    assert torch.allclose(a.between(b, 1.0).world_to_cam, b.world_to_cam, atol=1e-12)
+    mid = a.between(b, 0.25)
+    assert torch.allclose(mid.center, torch.tensor([0.075, 0.0, 0.0], dtype=torch.float64), atol=1e-12)
+    R = mid.world_to_cam[:3, :3]
+    assert torch.allclose(R @ R.T, torch.eye(3, dtype=torch.float64), atol=1e-12) and torch.linalg.det(R) > 0
+    assert float(torch.atan2(R[0, 2], R[0, 0]).rad2deg()) == pytest.approx(2.5, abs=0.01)  # a quarter of 10 degrees
+    assert (mid.width, mid.height) == (W, H) and torch.equal(mid.K, a.K)
+
+
+def _plane_render(colour_gain: float = 1.0, depth: float = PLANE):
+    """A stand-in for a model's render: what a camera sees of the textured plane (its colours times
+    ``colour_gain``, drawn at ``depth``), at the camera's own size."""
+    from splat_framework.render import RenderOutput
+
+    def render(cam: Camera) -> RenderOutput:
+        u = torch.arange(cam.width, dtype=torch.float64) + 0.5
+        v = torch.arange(cam.height, dtype=torch.float64) + 0.5
+        uv = torch.stack(torch.meshgrid(u, v, indexing="xy"), dim=-1)
+        p = cam.unproject_depth(uv, torch.full((cam.height, cam.width), PLANE, dtype=torch.float64))
+        x, y = p[..., 0], p[..., 1]
+        rgb = torch.stack([0.5 + 0.4 * torch.sin(3 * x), 0.5 + 0.4 * torch.cos(2 * y + x), 0.5 + 0.3 * torch.sin(5 * x - y)], -1)
+        ones = torch.ones(cam.height, cam.width, 1, dtype=torch.float64)
+        return RenderOutput(rgb=(rgb * colour_gain).requires_grad_(), depth=ones * depth, alpha=ones, depth_mode="expected")
+    return render
+
+
+@pytest.mark.parametrize("downsample", [1, 2])
+def test_a_render_between_two_photos_agrees_with_them_only_with_the_scenes_depth_and_colours(downsample):
+    from splat_framework.model.regularisers import pseudo_view_consistency
+    home, partner = (_camera(0.0), _photo(_camera(0.0))), (_camera(0.3), _photo(_camera(0.3)))
+
+    def loss(**kw):
+        return pseudo_view_consistency(home, partner, 0.4, _plane_render(**kw), downsample=downsample).item()
+    right = loss()
+    assert right < 4e-3
+    assert min(loss(depth=1.6), loss(depth=2.6)) > max(10 * right, 0.01)  # drawn nearer or farther
+    assert loss(colour_gain=0.7) > right + 0.1  # see-through over black: darker than the photos
+    rendered = []
+    pseudo_view_consistency(home, partner, 0.4, lambda c: rendered.append(c) or _plane_render()(c), downsample=downsample)
+    assert rendered[0].width == W // downsample and float(rendered[0].center[0]) == pytest.approx(0.12)
+
+
+def test_the_pseudo_view_term_draws_its_view_per_seed_and_step_stops_and_reaches_the_gaussians(dm):
+    cfg = apply_overrides(get_method("3dgs").default_config(), {
+        "steps": 20, "model": {"reg": {"pseudo_view_weight": 1.0, "pseudo_view_until": 0.5}, "init": {"num_points": 2000}}})
+    model = GaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
+    cam, batch = next(iter(dm.train_views()))
+    assert model.training_view(0)[0] is model.train_cameras[0] and model.training_view(None) is None
+
+    def term(step):
+        return model.get_loss_dict(model.get_outputs(cam, step=step), batch, cam, step).get("pseudo_view")
+    first = term(3)
+    assert first.item() > 0 and term(3).item() == first.item() and term(4).item() != first.item()
+    assert term(10) is None  # half the run
+    first.backward()
+    assert model.params["means"].grad.abs().sum() > 0 and model.params["sh0"].grad.abs().sum() > 0
+    narrow = apply_overrides(cfg, {"model": {"reg": {"multiview_max_angle": 4.0}}})  # view 2's nearest is 5.8 degrees away
+    narrow_model = GaussianModel.from_data(narrow, dm, torch.Generator().manual_seed(0))
+    for k, (view, b) in enumerate(dm.train_views()):
+        terms = narrow_model.get_loss_dict(narrow_model.get_outputs(view, step=1), b, view, 1)
+        assert ("pseudo_view" in terms) == (k != 2)
