@@ -185,7 +185,7 @@ def depth_smoothness(depth: Tensor, image: Tensor, alpha: Tensor, gamma: float =
 
 def multiview_photometric(depth: Tensor, alpha: Tensor, image: Tensor, camera: Camera,
                           partners: list[tuple[Camera, Tensor]], min_alpha: float = 0.5, downsample: int = 1,
-                          edge_ratio: float = 0.0) -> Tensor:
+                          edge_ratio: float = 0.0, compare: str = "colour", min_texture: float = 1e-4) -> Tensor:
     """Multi-view photometric consistency of a rendered depth: each pixel of the view, lifted to its
     rendered depth and projected into the other training views, must find there the colour it has
     in its own photo (the plane-sweep rule of multi-view stereo, on the training photos themselves).
@@ -198,6 +198,12 @@ def multiview_photometric(depth: Tensor, alpha: Tensor, image: Tensor, camera: C
     ``downsample`` f > 1 the comparison runs on the depth, opacity and photos area-averaged to 1/f
     of their size, with the cameras resized to match: the consistency of the coarse geometry, at
     1/f^2 of the cost.
+
+    ``compare="ncc"`` judges a pixel by the normalised cross-correlation of the grey 3x3 patches
+    around it, its photo's against the partner's colours at the projections of the patch's pixels
+    (error ``(1 - ncc) / 2``, 0 for patches equal up to gain and offset), as multi-view stereo does:
+    a change of exposure or a sheen between the photos costs nothing, and a pixel whose own patch's
+    grey variance is at most ``min_texture`` is left out (a flat wall says nothing of its depth).
 
     Args:
         depth: [H, W, 1] the view's rendered (expected) depth, camera z (``camera``'s size).
@@ -225,13 +231,31 @@ def multiview_photometric(depth: Tensor, alpha: Tensor, image: Tensor, camera: C
         grid = torch.stack([2.0 * puv[..., 0] / pw - 1.0, 2.0 * puv[..., 1] / ph - 1.0], dim=-1)
         seen = F.grid_sample(_to_bchw(photo.to(depth.dtype)), grid[None], mode="bilinear", padding_mode="border",
                              align_corners=False)[0].permute(1, 2, 0)
-        err = (seen - image).abs().mean(-1)
+        if compare == "ncc":
+            err, textured = _patch_ncc_error(image, seen)
+            inside = inside & (textured > min_texture)
+        else:
+            err = (seen - image).abs().mean(-1)
         best = torch.where(inside & (err < best), err, best)
     valid = (alpha[..., 0] > min_alpha) & torch.isfinite(best)
     if flat is not None:
         valid = valid & flat
     err = torch.where(valid, best, 0.0).sum() + depth.sum() * 0.0  # a graph even when nothing is seen
     return err / valid.sum().clamp_min(1)  # no host sync
+
+
+def _patch_ncc_error(image: Tensor, seen: Tensor) -> tuple[Tensor, Tensor]:
+    """([h, w] ``(1 - ncc) / 2`` of the grey 3x3 patches of ``image`` and ``seen`` [h, w, 3] around
+    each pixel, [h, w] the grey variance of ``image``'s patch); patches cut by the border are averaged
+    over their pixels inside."""
+    a, b = image.mean(-1)[None, None], seen.mean(-1)[None, None]
+
+    def box(t: Tensor) -> Tensor:
+        return F.avg_pool2d(t, 3, 1, 1, count_include_pad=False)
+    mean_a, mean_b = box(a), box(b)
+    var_a, var_b = box(a * a) - mean_a * mean_a, box(b * b) - mean_b * mean_b
+    ncc = (box(a * b) - mean_a * mean_b) / torch.sqrt(var_a.clamp_min(0) * var_b.clamp_min(0) + 1e-8)
+    return ((1 - ncc) / 2)[0, 0], var_a[0, 0]
 
 
 def _depth_span(depth: Tensor, camera: Camera, factor: int) -> Tensor:

@@ -40,6 +40,10 @@ class RegularisersConfig(SplatConfig):
     """multiview_weight skips pixels whose depth spans more than this ratio over their 3x3 neighbours (occluding edges); 0 = keeps all."""
     multiview_max_angle: float = Field(180.0, gt=0, le=180)
     """multiview_weight compares a view only with partners whose viewing direction is within this many degrees of its own (180 = any)."""
+    multiview_compare: Literal["colour", "ncc"] = "colour"
+    """How multiview_weight compares a pixel with a partner: its colour, or its 3x3 patch's normalised cross-correlation (textured pixels only)."""
+    multiview_min_texture: NonNegative = 1e-4
+    """With multiview_compare ncc: pixels whose 3x3 patch has at most this grey variance are left out."""
     pseudo_view_weight: NonNegative = 0.0
     """Weight of the consistency of a render between a training view and its nearest: lifted to its depth, it must find its colours in both photos; 0 = off."""
     pseudo_view_until: Fraction = 1.0

@@ -64,7 +64,8 @@ def regulariser_terms(
             with section("multi-view"):
                 terms["multiview"] = reg.multiview_weight * multiview_photometric(
                     outputs.expected_depth, outputs.alpha, batch["image"], camera, views,
-                    downsample=reg.multiview_downsample, edge_ratio=reg.multiview_edge_ratio)
+                    downsample=reg.multiview_downsample, edge_ratio=reg.multiview_edge_ratio,
+                    compare=reg.multiview_compare, min_texture=reg.multiview_min_texture)
     if reg.pseudo_view_weight > 0 and step < reg.pseudo_view_until * total_steps:
         home, nearest = own(), partners(1, reg.multiview_max_angle)
         if home is not None and nearest:

@@ -13,6 +13,7 @@ from splat_framework.model.gaussians import GaussianModel
 from splat_framework.registry import get_method
 
 H, W, PLANE = 24, 32, 2.0
+FINE = 4.0
 
 
 def _camera(x: float) -> Camera:
@@ -22,13 +23,14 @@ def _camera(x: float) -> Camera:
     return Camera(K=intrinsics(30.0, 30.0, W / 2, H / 2).double(), world_to_cam=w2c, width=W, height=H)
 
 
-def _photo(cam: Camera) -> torch.Tensor:
-    """[H, W, 3] what ``cam`` sees of a textured plane at z = PLANE (the texture a function of world x, y)."""
+def _photo(cam: Camera, fine: float = 1.0) -> torch.Tensor:
+    """[H, W, 3] what ``cam`` sees of a textured plane at z = PLANE (the texture a function of world x, y,
+    its frequencies times ``fine``)."""
     u = torch.arange(W, dtype=torch.float64) + 0.5
     v = torch.arange(H, dtype=torch.float64) + 0.5
     uv = torch.stack(torch.meshgrid(u, v, indexing="xy"), dim=-1)
     p = cam.unproject_depth(uv, torch.full((H, W), PLANE, dtype=torch.float64))
-    x, y = p[..., 0], p[..., 1]
+    x, y = fine * p[..., 0], fine * p[..., 1]
     return torch.stack([0.5 + 0.4 * torch.sin(3 * x), 0.5 + 0.4 * torch.cos(2 * y + x), 0.5 + 0.3 * torch.sin(5 * x - y)], -1)
 
 
@@ -224,3 +226,34 @@ def test_the_pseudo_view_term_draws_its_view_per_seed_and_step_stops_and_reaches
     for k, (view, b) in enumerate(dm.train_views()):
         terms = narrow_model.get_loss_dict(narrow_model.get_outputs(view, step=1), b, view, 1)
         assert ("pseudo_view" in terms) == (k != 2)
+
+
+@pytest.mark.parametrize("downsample", [1, 2])
+def test_patch_correlation_is_least_at_the_true_depth_ignores_exposure_and_leaves_flat_pixels_out(downsample):
+    view, partners = _camera(0.0), [_camera(0.15), _camera(-0.15)]
+    photo, alpha = _photo(view, FINE), torch.ones(H, W, 1, dtype=torch.float64)  # texture within a 3x3 patch
+    pairs = [(c, _photo(c, FINE)) for c in partners]
+
+    def loss(z, pairs=pairs, image=photo):
+        return multiview_photometric(torch.full((H, W, 1), z, dtype=torch.float64), alpha, image, view, pairs,
+                                     downsample=downsample, compare="ncc").item()
+    at = {z: loss(z) for z in (1.6, 1.8, 2.0, 2.2, 2.5)}
+    assert at[2.0] < 6e-3 and at[1.6] > at[1.8] > at[2.0] < at[2.2] < at[2.5]
+    brighter = [(c, 0.6 * p + 0.3) for c, p in pairs]  # another exposure: the colours differ, the patterns do not
+    assert loss(2.0, brighter) == pytest.approx(at[2.0], abs=2e-3)
+    assert multiview_photometric(torch.full((H, W, 1), 2.0, dtype=torch.float64), alpha, photo, view, brighter,
+                                 downsample=downsample).item() > 0.05
+    flat = torch.full_like(photo, 0.5)  # no texture: nothing to judge a depth by, so no pixel counts
+    assert loss(1.6, [(c, flat) for c, _ in pairs], flat) == 0.0
+
+
+def test_the_multiview_comparison_is_chosen_by_its_flag(dm):
+    cfg = apply_overrides(get_method("3dgs").default_config(), {
+        "steps": 20, "model": {"reg": {"multiview_weight": 1.0}, "init": {"num_points": 2000}}})
+    cam, batch = next(iter(dm.train_views()))
+    terms = {}
+    for compare in ("colour", "ncc"):
+        model = GaussianModel.from_data(apply_overrides(cfg, {"model": {"reg": {"multiview_compare": compare}}}), dm,
+                                        torch.Generator().manual_seed(0))
+        terms[compare] = model.get_loss_dict(model.get_outputs(cam, step=1), batch, cam, 1)["multiview"].item()
+    assert terms["colour"] > 0 and terms["ncc"] > 0 and terms["colour"] != pytest.approx(terms["ncc"])
