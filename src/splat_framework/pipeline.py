@@ -20,10 +20,7 @@ from .console import say
 from .evaluation.held_out import evaluate
 from .render import RenderOutput
 from .runtime.profiling import section
-
-BACKGROUND_STREAM = 1_000_003
-"""Seeds of the random backgrounds: ``seed x this + step``, a stream of its own for each seed in any
-run shorter than this many steps."""
+from .runtime.rng import keyed_generator
 
 
 class Pipeline:
@@ -68,7 +65,7 @@ class Pipeline:
         that changes every step only opaque Gaussians reproduce the photo."""
         if not self.config.random_background or self.datamanager.scene.white_background:
             return self.background
-        draw = torch.Generator().manual_seed(self.config.seed * BACKGROUND_STREAM + step)
+        draw = keyed_generator(self.config.seed, step, 2)  # stream 2 (1: the stereo partner, 3: the pseudo view)
         colour = torch.rand(3, generator=draw)  # drawn on the host: the same colours on every device
         if self.background.device.type == "cuda":  # copied without waiting for the GPU (no host sync)
             colour = colour.pin_memory()

@@ -56,7 +56,7 @@ def regulariser_terms(
         terms["anisotropy"] = reg.anisotropy_weight * scale_anisotropy(log_scales(), reg.max_anisotropy)
     if reg.stereo_weight > 0 and step >= reg.stereo_start * total_steps:
         with section("stereo"):
-            draw = float(torch.rand((), generator=keyed_generator(seed, step, 1))) * 2.0 - 1.0
+            draw = float(torch.rand((), generator=keyed_generator(seed, step, 1))) * 2.0 - 1.0  # stream 1 (2: background, 3: pseudo view)
             terms["stereo"] = reg.stereo_weight * _stereo_loss(outputs, batch["image"], camera, draw * reg.stereo_disparity, render)
     if reg.multiview_weight > 0 and step < reg.multiview_until * total_steps:
         views = partners(reg.multiview_partners, reg.multiview_max_angle)
@@ -70,15 +70,10 @@ def regulariser_terms(
         home, nearest = own(), partners(1, reg.multiview_max_angle)
         if home is not None and nearest:
             with section("pseudo view"):
-                t = float(torch.rand((), generator=torch.Generator().manual_seed(seed * PSEUDO_VIEW_STREAM + step)))
+                t = float(torch.rand((), generator=keyed_generator(seed, step, 3)))  # stream 3 (1: stereo, 2: background)
                 terms["pseudo_view"] = reg.pseudo_view_weight * pseudo_view_consistency(
                     home, nearest[0], t, render, downsample=reg.pseudo_view_downsample, edge_ratio=reg.multiview_edge_ratio)
     return target, terms
-
-
-PSEUDO_VIEW_STREAM = 7919
-"""Seeds of the pseudo views' draws: ``seed x this + step`` (two seeds' draws coincide only for steps
-this many apart)."""
 
 
 def pseudo_view_consistency(home: tuple[Camera, Tensor], partner: tuple[Camera, Tensor], t: float,
