@@ -14,7 +14,7 @@ def config_scgaussian() -> SCGTrainConfig:
 
     Densification as the public code (from iteration 500, SH degree raised every 1000) but with a
     gradient threshold of 0.0003 (the public code's 0.0004, 3DGS's 0.0002); 1000 main iterations for
-    up to 4 training views, in proportion beyond; the iterations before densification starts (500)
+    up to 3 training views, in proportion beyond (each view seen as often as with 3); the iterations before densification starts (500)
     train on the images at half size (``coarse_steps``), about twice as fast.
     Not in the paper: the matched Gaussians leave their rays after the warm-up and move in 3D as
     the ordinary ones (``ray_binding=False``, the paper's "only non-structure" row;
@@ -30,7 +30,7 @@ def config_scgaussian() -> SCGTrainConfig:
     return SCGTrainConfig(
         method="scgaussian",
         default_steps=1000,
-        schedule_views=4,
+        schedule_views=3,
         coarse_steps=500,
         model=SCGModelConfig(
             ray_binding=False,

@@ -299,26 +299,26 @@ def test_steps_rescale_the_whole_schedule():
 
 
 def test_more_views_than_the_schedule_is_written_for_scale_it():
-    """scgaussian's schedule is written for 4 views: 8 train twice as long; --steps and --views all keep their meaning."""
+    """scgaussian's schedule is written for 3 views: 6 train twice as long, 5 five thirds; --steps and --views all keep their meaning."""
     from scg_plugin.method import config_scgaussian
 
     base = config_scgaussian()
-    assert base.schedule_views == 4
-    for views in (3, 4):
+    assert base.schedule_views == 3
+    for views in (2, 3):
         same = base.model_copy(update={"views": views})
         assert resolve_steps(same) == same and same.total_steps == 1000
-    eight = resolve_steps(base.model_copy(update={"views": 8}))
-    assert eight.total_steps == 2000 and eight.strategy.refine_stop_iter == 2000
-    assert eight.strategy.reset_every is None and eight.model.warmup_steps == 4000
-    assert eight.strategy.refine_start_iter == 500  # a start (StartSteps) does not grow with the run
-    assert eight.model.sh_degree_interval == 1000  # nor the SH degree's period (RampPeriod): degree 1 from 1000
-    assert eight.strategy.opacity_decay == pytest.approx(0.99 ** 0.5)  # half the decay per step over twice the steps
-    assert eight == resolve_steps(base.model_copy(update={"views": 8, "steps": 2000}))
-    assert resolve_steps(eight) == eight  # a resumed run resolves to the same schedule
-    assert resolve_steps(base.model_copy(update={"views": 6})).total_steps == 1500
+    six = resolve_steps(base.model_copy(update={"views": 6}))
+    assert six.total_steps == 2000 and six.strategy.refine_stop_iter == 2000
+    assert six.strategy.reset_every is None and six.model.warmup_steps == 4000
+    assert six.strategy.refine_start_iter == 500  # a start (StartSteps) does not grow with the run
+    assert six.model.sh_degree_interval == 1000  # nor the SH degree's period (RampPeriod): degree 1 from 1000
+    assert six.strategy.opacity_decay == pytest.approx(0.99 ** 0.5)  # half the decay per step over twice the steps
+    assert six == resolve_steps(base.model_copy(update={"views": 6, "steps": 2000}))
+    assert resolve_steps(six) == six  # a resumed run resolves to the same schedule
+    assert [resolve_steps(base.model_copy(update={"views": v})).total_steps for v in (4, 5, 8)] == [1333, 1667, 2667]
     assert resolve_steps(base.model_copy(update={"views": 8, "steps": 500})).total_steps == 500
     assert resolve_steps(base.model_copy(update={"views": "all"})).total_steps == 1000
-    short = base.model_copy(update={"views": 8, "default_steps": 40})  # a test's short schedule stays short
+    short = base.model_copy(update={"views": 6, "default_steps": 40})  # a test's short schedule stays short
     assert resolve_steps(short).total_steps == 80
     assert resolve_steps(TrainConfig(views=40)).total_steps == 3000  # 3dgs: no rule
 

@@ -142,11 +142,11 @@ def test_resume_reproduces_uninterrupted_run_scgaussian(tmp_path):
     assert_same_params(straight.model, resumed.model)
     assert resumed.model.num_match_gaussians == straight.model.num_match_gaussians
     # a run written before a field existed takes the method's default (scgaussian's
-    # schedule_views is 4, the base class's 0), not the class default, so it still resumes
+    # schedule_views is 3, the base class's 0), not the class default, so it still resumes
     forget_fields(tmp_path / "b" / "config.json", "schedule_views", "strategy.kind")
     Trainer(cfg_fn(tmp_path / "b", resume=True))
     config, rebuilt = load_trained_model(tmp_path / "b")
-    assert config.schedule_views == 4 and config.strategy.kind == "ray-gaussian"
+    assert config.schedule_views == 3 and config.strategy.kind == "ray-gaussian"
     # rebuilt by normal construction: no training views, its ray rows frozen, its matches restored
     assert rebuilt.train_cameras == [] and not rebuilt.params["ray_o"].requires_grad
     assert torch.equal(rebuilt.bundle.z.cpu(), resumed.model.bundle.z.cpu())
