@@ -56,7 +56,7 @@ class SCGaussianModel(GaussianModel):
         cameras = [c for c, _ in views]
         images = [b["image"] for _, b in views]
         timing, stats = {}, {}
-        bundle, n_matches = ray_prior(config, datamanager, generator, timing)
+        bundle, n_matches = ray_prior(config, datamanager, generator, timing, stats)
         bundle = warm_up_prior(bundle, [c.to("cpu") for c in cameras], config.model, timing, stats)
         pts, cols = ordinary_points(config.model, datamanager, bundle, n_matches, generator)
         baseline = config.model.thin_prior_baseline and thin_prior(config.model, bundle, n_matches)

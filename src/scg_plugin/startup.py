@@ -44,16 +44,18 @@ from splat_framework.plugin import (
 from .ray_gaussians import MatchCache, RayBundle, build_ray_bundle, warm_up, warmup_step_size
 
 
-def ray_prior(config, datamanager, generator: torch.Generator, timing: dict) -> tuple[RayBundle | None, int]:
+def ray_prior(config, datamanager, generator: torch.Generator, timing: dict, stats: dict) -> tuple[RayBundle | None, int]:
     """Step 1: (the ray bundle of the verified matches or None, the number of matches found).
 
-    ``timing["matching_s"]`` is set."""
+    ``timing["matching_s"]`` and ``stats["matches_digest"]`` (``MatchSet.digest``: which matches the
+    run trained on) are set."""
     cfg = config.model
     views = datamanager.train_views()
     ids = [int(b["index"]) for _, b in views]
     t0 = time.perf_counter()
     match_set = compute_match_set(cfg.matching, datamanager)
     timing["matching_s"] = time.perf_counter() - t0
+    stats["matches_digest"] = match_set.digest()
     bundle = build_ray_bundle(match_pairs(match_set, ids), [c.to("cpu") for c, _ in views], generator)
     n_matches = len(bundle) // 2
     if n_matches < cfg.min_matches:

@@ -310,6 +310,27 @@ def test_matchset_roundtrip(tmp_path):
     assert np.array_equal(a, ms.matches[(1, 10)][0]) and np.array_equal(b, ms.matches[(1, 10)][1])
     flat = ld.concatenated()
     assert flat["pix_a"].shape == (8, 2) and list(flat["view_b"]) == [10] * 5 + [19] * 3
+    assert ld.digest() == ms.digest()  # the cache gives the matches it was written with
+
+
+def test_matchset_digest_follows_every_matched_pixel_and_the_views():
+    """Two runs' numbers differ by their code or by their matches: the digest tells which. One
+    pixel moved by a float32 step, a pair's pixels swapped between views, other view ids, a pair
+    without its matches: each another digest; the stats, warnings and sizes are not the matches."""
+    ms = _toy_set()
+    digest = ms.digest()
+    assert len(digest) == 16 and int(digest, 16) >= 0 and _toy_set().digest() == digest
+    a, b = ms.matches[(1, 10)]
+    nudged = a.copy()
+    nudged[2, 1] = np.nextafter(nudged[2, 1], np.float32(np.inf))
+    others = [
+        replace(ms, matches=ms.matches | {(1, 10): (nudged, b)}),
+        replace(ms, matches=ms.matches | {(1, 10): (b, a)}),
+        replace(ms, view_ids=[1, 10, 20]),
+        replace(ms, matches={p: m for p, m in ms.matches.items() if p != (10, 19)}),
+    ]
+    assert len({digest} | {o.digest() for o in others}) == 1 + len(others)
+    assert replace(ms, stats={}, warnings={}, image_sizes={}, meta={"seconds": 1.0}).digest() == digest
 
 
 def test_cache_hit_invalidation_and_corruption(tmp_path, monkeypatch, plane_scene):

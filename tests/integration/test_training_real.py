@@ -48,4 +48,8 @@ def test_short_training_on_fern_beats_the_untrained_model(method, tmp_path, monk
     assert [v["index"] for v in saved["per_view"]] == [0, 8, 16]
     if method == "scgaussian":
         assert saved["init_stats"]["num_matches"] > 1000
+        # the matches it trained on, by name: the cached set the prior reads gives the same digest
+        from splat_framework.plugin import compute_match_set
+        digest = compute_match_set(tr.config.model.matching, tr.datamanager).digest()
+        assert saved["init_stats"]["matches_digest"] == digest
         assert {"matching_s", "warmup_s", "train_s", "eval_s", "total_s"} <= set(saved["timing"])

@@ -317,6 +317,9 @@ def test_too_few_matches_warn_and_fall_back_to_ordinary_gaussians(scene, monkeyp
     metrics = tr.train()
     assert metrics["init_stats"]["num_matches"] == 0 and metrics["mean"]["psnr"] > 5
     assert metrics["init_stats"]["baseline_schedule"] is True
+    # which matches the run trained on (none here), as the framework's MatchSet names them
+    empty = MatchSet(view_ids=[int(i) for i in tr.datamanager.scene.train_indices], matches={})
+    assert metrics["init_stats"]["matches_digest"] == empty.digest()
 
 
 def assert_baseline_schedule(trainer):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 from dataclasses import dataclass, field
@@ -53,6 +54,20 @@ class MatchSet:
 
     def count(self, i: int, j: int) -> int:
         return len(self.get(i, j)[0])
+
+    def digest(self) -> str:
+        """16 hex digits of a sha1 over the views and every pair's matched pixels, bit for bit: the
+        same matches give the same digest on any machine. A run records it (SCGaussian's
+        ``init_stats["matches_digest"]`` in metrics.json), because matching's sums, and so a few of
+        its matches, follow the thread count and the processor, and a run on other matches follows
+        another path (a seed's PSNR moved by up to 0.2 dB, docs/results.md): two runs' numbers differ
+        by their code or by their matches, and the digest tells which."""
+        h = hashlib.sha1(json.dumps([int(v) for v in self.view_ids]).encode())
+        for pair in self.pairs():
+            h.update(f"{pair}".encode())
+            for pts in self.matches[pair]:
+                h.update(np.ascontiguousarray(pts, np.float32).tobytes())
+        return h.hexdigest()[:16]
 
     def total(self) -> int:
         """Number of matches over all pairs."""
