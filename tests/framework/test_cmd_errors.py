@@ -100,6 +100,13 @@ def test_a_path_through_a_file_is_one_line_exit_2_wherever_it_is_met(tmp_path, c
     assert e.value.code == 2 and err == f"error: {tmp_path / 'file' / 'sub'}: Not a directory", err
 
 
+def _as_from_a_terminal() -> None:
+    """A child's SIGINT as a terminal's foreground command has it (the default, so Python raises
+    KeyboardInterrupt): a suite started in the background (``cmd &``) hands its children SIGINT
+    ignored, and Python then keeps it ignored, as a background command should."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @pytest.mark.bad_input("Ctrl-C during `splat-match` or `splat-scene`", "exit 130, `interrupted`; nothing half-written (`matches.npz` written last and atomically; a scene built aside and moved in at the end)")
 def test_match_ctrl_c_exits_130_and_leaves_nothing_half_written(tmp_path):
     """SIGINT while pairs are being matched: exit 130, one line "interrupted", no result written
@@ -110,7 +117,7 @@ def test_match_ctrl_c_exits_130_and_leaves_nothing_half_written(tmp_path):
     proc = subprocess.Popen(
         [sys.executable, "-m", "splat_framework.cli.match", "--data", str(scene), "--out", str(out),
          "--views", "all", "--kind", "sift", "--no-cache"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=cli_env(),
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=cli_env(), preexec_fn=_as_from_a_terminal,
     )
     line = proc.stdout.readline()  # "matching 5 views (10 pairs) with sift...": inside run_cli, matching
     assert line.startswith("matching "), (line, proc.stderr.read() if proc.poll() is not None else "")
@@ -220,7 +227,7 @@ def test_scene_ctrl_c_exits_130_and_leaves_nothing(tmp_path):
     proc = subprocess.Popen(
         [sys.executable, "-m", "splat_framework.cli.scene", "forward", "--out", str(out), "--views", "300",
          "--width", "160", "--height", "120"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=cli_env(),
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=cli_env(), preexec_fn=_as_from_a_terminal,
     )
     deadline = time.monotonic() + 60
     while proc.poll() is None and time.monotonic() < deadline and not list(tmp_path.glob(".s.work-*/images/*.png")):
