@@ -331,6 +331,9 @@ def test_matchset_digest_follows_every_matched_pixel_and_the_views():
     ]
     assert len({digest} | {o.digest() for o in others}) == 1 + len(others)
     assert replace(ms, stats={}, warnings={}, image_sizes={}, meta={"seconds": 1.0}).digest() == digest
+    as_numpy = replace(ms, view_ids=[np.int64(v) for v in ms.view_ids],
+                       matches={(np.int64(i), np.int64(j)): m for (i, j), m in ms.matches.items()})
+    assert as_numpy.digest() == digest  # a pair's ids as numpy or Python ints
 
 
 def test_cache_hit_invalidation_and_corruption(tmp_path, monkeypatch, plane_scene):

@@ -64,7 +64,7 @@ class MatchSet:
         by their code or by their matches, and the digest tells which."""
         h = hashlib.sha1(json.dumps([int(v) for v in self.view_ids]).encode())
         for pair in self.pairs():
-            h.update(f"{pair}".encode())
+            h.update(f"{int(pair[0])},{int(pair[1])}".encode())  # numpy or Python ints alike
             for pts in self.matches[pair]:
                 h.update(np.ascontiguousarray(pts, np.float32).tobytes())
         return h.hexdigest()[:16]
