@@ -78,7 +78,7 @@ class ScaffoldModel(GaussianModel):
         model.keep_training_views(datamanager)
         model.init_timing = start.timing
         model.init_stats = {"num_points": int(points.shape[0]), "num_anchors": model.num_anchors,
-                            "voxel_size": model.voxel_size}
+                            "voxel_size": model.voxel_size} | start.stats
         return model
 
     def init_params(self, points: Tensor, colors: Tensor) -> dict[str, nn.Parameter]:

@@ -115,9 +115,12 @@ def test_registry_lists_the_plugin_methods_from_its_entry_points():
 
 @pytest.mark.parametrize("method", sorted(METHODS))
 def test_triangulated_anchors_start_from_the_matching_prior(dm, method):
-    _, model = build(dm, triang=True, method=method)
+    cfg, model = build(dm, triang=True, method=method)
     assert model.init_stats["num_points"] >= 50 and model.num_anchors > 0
     assert "matching_s" in model.init_timing
+    # which matches the anchors came from (the cached set the prior reads: the same digest)
+    from splat_framework.plugin import compute_match_set
+    assert model.init_stats["matches_digest"] == compute_match_set(cfg.model.init.matching, dm).digest()
 
 
 @pytest.mark.parametrize("method", sorted(METHODS))

@@ -57,8 +57,8 @@ class MatchSet:
 
     def digest(self) -> str:
         """16 hex digits of a sha1 over the views and every pair's matched pixels, bit for bit: the
-        same matches give the same digest on any machine. A run records it (SCGaussian's
-        ``init_stats["matches_digest"]`` in metrics.json), because matching's sums, and so a few of
+        same matches give the same digest on any machine. A run whose model starts from matches
+        records it (``init_stats["matches_digest"]`` in metrics.json), because matching's sums, and so a few of
         its matches, follow the thread count and the processor, and a run on other matches follows
         another path (a seed's PSNR moved by up to 0.2 dB, docs/results.md): two runs' numbers differ
         by their code or by their matches, and the digest tells which."""

@@ -115,10 +115,11 @@ def triangulate(cam_a: Camera, cam_b: Camera, uv_a: Tensor, uv_b: Tensor) -> tup
     return pts.float(), err.float()
 
 
-def triangulated_points(matching: MatchConfig, max_reprojection_px: float, datamanager) -> tuple[Tensor, Tensor, dict]:
+def triangulated_points(matching: MatchConfig, max_reprojection_px: float, datamanager) -> tuple[Tensor, Tensor, dict, str]:
     """The training views' matches triangulated with their poses: (points [N, 3], colours [N, 3] of
-    the first view's pixel, on the images' device; ``{"matching_s": seconds}``). Points whose
-    reprojection error exceeds ``max_reprojection_px`` in either view are dropped; N may be 0."""
+    the first view's pixel, on the images' device; ``{"matching_s": seconds}``; the matches'
+    ``MatchSet.digest``). Points whose reprojection error exceeds ``max_reprojection_px`` in either
+    view are dropped; N may be 0."""
     views = datamanager.train_views()
     cameras = [c.to("cpu") for c, _ in views]
     images = [b["image"] for _, b in views]
@@ -140,7 +141,7 @@ def triangulated_points(matching: MatchConfig, max_reprojection_px: float, datam
         pts.append(p[ok])
         cols.append(img[y, x])
     dev = images[0].device
-    return torch.cat(pts).to(dev), torch.cat(cols).to(dev), timing
+    return torch.cat(pts).to(dev), torch.cat(cols).to(dev), timing, match_set.digest()
 
 
 __all__ = ["compute_match_set", "match_pairs", "triangulate", "triangulated_points"]

@@ -193,7 +193,7 @@ class GaussianModel(nn.Module):
         model = cls(config, datamanager.scene.scene_radius, start.points, start.colors)
         model.keep_training_views(datamanager)
         model.init_timing = start.timing
-        model.init_stats = {"num_points": int(start.points.shape[0])}
+        model.init_stats = {"num_points": int(start.points.shape[0])} | start.stats
         return model
 
     def keep_training_views(self, datamanager) -> None:

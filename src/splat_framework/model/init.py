@@ -29,12 +29,14 @@ MIN_TRIANGULATED = 50
 @dataclass
 class StartPoints:
     """Where a model starts: points [N, 3] and colours [N, 3] in [0, 1] (on the training images'
-    device once :func:`initial_points` returns them), and seconds per named set-up phase
-    (metrics.json's timing, e.g. ``matching_s``)."""
+    device once :func:`initial_points` returns them), seconds per named set-up phase
+    (metrics.json's timing, e.g. ``matching_s``) and what the start was built from (metrics.json's
+    init_stats, e.g. ``matches_digest``: ``MatchSet.digest`` of the matches it triangulated)."""
 
     points: Tensor
     colors: Tensor
     timing: dict[str, float] = field(default_factory=dict)
+    stats: dict[str, object] = field(default_factory=dict)
 
 
 def initial_points(init, datamanager, generator: torch.Generator) -> StartPoints:
@@ -133,13 +135,13 @@ def triangulated_points(init, datamanager, generator: torch.Generator) -> StartP
     """Kind "triangulated": the training views' matches (``init.matching``) triangulated with their
     poses, points whose reprojection error exceeds ``init.max_reprojection_px`` dropped; with fewer
     than ``MIN_TRIANGULATED`` of them (texture-less views), the ``init.fallback`` start (one warning).
-    Timing: ``matching_s``."""
-    points, colors, timing = prior.triangulated_points(init.matching, init.max_reprojection_px, datamanager)
+    Timing: ``matching_s``; stats: ``matches_digest``."""
+    points, colors, timing, digest = prior.triangulated_points(init.matching, init.max_reprojection_px, datamanager)
     if points.shape[0] < MIN_TRIANGULATED:
         warnings.warn("too few triangulated matches: falling back to random initialisation", stacklevel=3)
         fallback = initial_points(init.fallback, datamanager, generator)
         points, colors = fallback.points, fallback.colors
-    return StartPoints(points, colors, timing)
+    return StartPoints(points, colors, timing, {"matches_digest": digest})
 
 
 def sfm_points(init, datamanager, generator: torch.Generator) -> StartPoints:

@@ -178,3 +178,5 @@ def test_triangulation_without_matches_falls_back_to_the_reference_random_init(f
     assert (means >= box[0] - 1e-5).all() and (means <= box[1] + 1e-5).all()
     sh0 = model.params["sh0"].detach()
     assert torch.all(sh0 == sh0[0])  # grey, like 3dgs
+    # the run still names the (empty) matches it tried to start from
+    assert model.init_stats["matches_digest"] == MatchSet(view_ids=[int(i) for i in dm.scene.train_indices], matches={}).digest()
