@@ -1,7 +1,9 @@
 """The LLFF scene-by-scene table against the official SCGaussian code: each scene's test PSNR
 (mean ± std over seeds), SSIM and ST-LPIPS from finished sweeps, beside the official code's
 independent re-run (HBSplat, arXiv 2509.24893, Tab. III), the difference and the goal (+0.5 dB),
-and the mean of every scene; one table per view count.
+the matches the runs trained from (a scene's number moves with its matches' bits, so two tables
+compare on the same matches only where these agree) and the mean of every scene; one table per
+view count.
 
 Usage (the sweeps of ``benchmarks/ablation.py``, any number of them):
     python benchmarks/ablation.py --data llff/fern llff/flower llff/fortress llff/horns llff/room llff/trex \\
@@ -41,14 +43,23 @@ def rows_of(sweeps: list[Path], method: str) -> dict[tuple[int, str], dict]:
     return found
 
 
+def matches_cell(row: dict) -> str:
+    """The row's matches (``MatchSet.digest``, 8 of its 16 hex digits) as the table names them: one
+    digest when every seed trained from the same matches, each seed's otherwise, "n/a" for a sweep
+    written before runs recorded it."""
+    digests = row.get("matches_digests") or []
+    return " / ".join(f"`{d[:8]}`" for d in digests) if digests else "n/a"
+
+
 def table(views: int, rows: dict[tuple[int, str], dict]) -> list[str]:
     """The Markdown lines of the view count's table (the scenes of :data:`OFFICIAL` this sweep ran)."""
     scenes = [s for s in OFFICIAL[views] if (views, s) in rows]
     if not scenes:
         return []
     lines = [f"#### {views} training views", "",
-             "| scene | this project: PSNR (mean ± std) / SSIM / ST-LPIPS | seeds | official code (re-run) | difference | goal |",
-             "|---|--:|--:|--:|--:|--:|"]
+             "| scene | this project: PSNR (mean ± std) / SSIM / ST-LPIPS | seeds | official code (re-run) | difference | goal "
+             "| matches |",
+             "|---|--:|--:|--:|--:|--:|---|"]
     ours, theirs = [], []
     for scene in scenes:
         r, (psnr, ssim) = rows[(views, scene)], OFFICIAL[views][scene]
@@ -57,11 +68,11 @@ def table(views: int, rows: dict[tuple[int, str], dict]) -> list[str]:
         official = f"{psnr:.2f}" + (f" / {ssim:.3f}" if ssim is not None else "")
         lines.append(f"| {scene} | {r['psnr_mean']:.2f} ± {r['psnr_std'] or 0:.2f} / {r['ssim_mean']:.3f} / "
                      f"{r['st_lpips_mean']:.3f} | {r['n_ok']} | {official} | {r['psnr_mean'] - psnr:+.2f} | "
-                     f"{psnr + MARGIN[views]:.2f} |")
+                     f"{psnr + MARGIN[views]:.2f} | {matches_cell(r)} |")
     if len(scenes) > 1:
         mean_ours, mean_theirs = statistics.fmean(ours), statistics.fmean(theirs)
         lines.append(f"| **mean of the {len(scenes)}** | **{mean_ours:.2f}** | | {mean_theirs:.2f} | "
-                     f"{mean_ours - mean_theirs:+.2f} | {mean_theirs + MARGIN[views]:.2f} |")
+                     f"{mean_ours - mean_theirs:+.2f} | {mean_theirs + MARGIN[views]:.2f} | |")
     return [*lines, ""]
 
 

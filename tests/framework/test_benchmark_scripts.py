@@ -164,16 +164,19 @@ def test_first_hour_against_another_tree_gives_the_alternated_ratio_and_names_ea
 def test_llff_table_sets_each_scene_beside_the_official_rerun_with_the_mean(tmp_path):
     llff = load_script("llff_table")
     row = {"method": "scgaussian", "n_ok": 3, "ssim_mean": 0.8, "st_lpips_mean": 0.1, "load_average_mean": 1.0}
-    rows = [row | {"data": "llff/fern", "views": 3, "psnr_mean": 23.15, "psnr_std": 0.1},
-            row | {"data": "llff/trex", "views": 3, "psnr_mean": 20.12, "psnr_std": 0.2},
+    rows = [row | {"data": "llff/fern", "views": 3, "psnr_mean": 23.15, "psnr_std": 0.1,
+                   "matches_digests": ["0123456789abcdef"]},
+            row | {"data": "llff/trex", "views": 3, "psnr_mean": 20.12, "psnr_std": 0.2,
+                   "matches_digests": ["0123456789abcdef", "fedcba9876543210"]},
             row | {"data": "llff/flower", "views": 3, "psnr_mean": 21.66, "psnr_std": 0.0},
             row | {"data": "llff/horns", "views": 5, "psnr_mean": 23.0, "psnr_std": 0.3},
             row | {"data": "llff/fern", "views": 3, "psnr_mean": 1.0, "method": "3dgs"}]
     (tmp_path / "results.json").write_text(json.dumps({"rows": rows}))
     text = llff.main([str(tmp_path), "--md", str(tmp_path / "t.md")])
-    assert "| fern | 23.15 ± 0.10 / 0.800 / 0.100 | 3 | 22.15 / 0.741 | +1.00 | 22.65 |" in text
-    assert "| trex | 20.12 ± 0.20 / 0.800 / 0.100 | 3 | 20.62 | -0.50 | 21.12 |" in text
-    assert "| **mean of the 3** | **21.64** | | 21.48 | +0.17 | 21.98 |" in text
+    assert "| fern | 23.15 ± 0.10 / 0.800 / 0.100 | 3 | 22.15 / 0.741 | +1.00 | 22.65 | `01234567` |" in text
+    assert "| trex | 20.12 ± 0.20 / 0.800 / 0.100 | 3 | 20.62 | -0.50 | 21.12 | `01234567` / `fedcba98` |" in text
+    assert "| flower | 21.66 ± 0.00 / 0.800 / 0.100 | 3 | 21.66 | +0.00 | 22.16 | n/a |" in text  # an older sweep
+    assert "| **mean of the 3** | **21.64** | | 21.48 | +0.17 | 21.98 | |" in text
     assert "#### 5 training views" in text and "| horns | 23.00 ± 0.30" in text and "#### 2 training views" not in text
     assert (tmp_path / "t.md").read_text() == text
 

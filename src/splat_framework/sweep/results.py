@@ -64,6 +64,7 @@ def record_for(run: RunSpec, status: str, result: dict | None = None, metrics: d
         "status": status,
         "error": (result or {}).get("error"),
         "wall_s": (result or {}).get("wall_s"),
+        "matches_digest": None,
     }
     for k in NUMERIC_FIELDS:
         rec[k] = None
@@ -84,6 +85,8 @@ def record_for(run: RunSpec, status: str, result: dict | None = None, metrics: d
             rec["steps"] = metrics["steps"]
         if metrics.get("lpips_note"):
             rec["lpips_note"] = metrics["lpips_note"]
+        digest = (metrics.get("init_stats") or {}).get("matches_digest")
+        rec["matches_digest"] = digest if isinstance(digest, str) else None
     return rec
 
 
@@ -113,6 +116,9 @@ def aggregate(records: list[dict]) -> list[dict]:
     Each numeric field gets ``<field>_mean`` and ``<field>_std`` over the seeds
     that finished (sample standard deviation; None with fewer than two values,
     both None when no seed has a value, e.g. LPIPS without the lpips package).
+    ``matches_digests`` lists the distinct ``MatchSet.digest`` values the
+    finished seeds trained from, in seed order (empty for a method without
+    matches): two rows compare on the same matches only where these agree.
     """
     groups: dict[tuple, list[dict]] = {}
     for r in records:
@@ -130,6 +136,7 @@ def aggregate(records: list[dict]) -> list[dict]:
             "n_failed": sum(r["status"] in ("failed", "interrupted") for r in rs),
             "n_pending": sum(r["status"] in ("pending", "running") for r in rs),
             "errors": [f"seed {r['seed']}: {r['error']}" for r in rs if r["status"] in ("failed", "interrupted")],
+            "matches_digests": list(dict.fromkeys(r["matches_digest"] for r in ok if r.get("matches_digest"))),
         }
         for f in NUMERIC_FIELDS:
             vals = [r[f] for r in ok if r.get(f) is not None]
@@ -237,7 +244,7 @@ def csv_table(rows: list[dict]) -> str:
     cols = ["method", "data", "views", "seeds", "n_runs", "n_ok", "n_failed", "n_pending"]
     for f in NUMERIC_FIELDS:
         cols += [f"{f}_mean", f"{f}_std"]
-    cols.append("errors")
+    cols += ["matches_digests", "errors"]
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(cols)
@@ -245,7 +252,7 @@ def csv_table(rows: list[dict]) -> str:
         out = []
         for c in cols:
             v = row.get(c)
-            if c == "seeds":
+            if c in ("seeds", "matches_digests"):
                 v = " ".join(str(s) for s in v)
             elif c == "errors":
                 v = " | ".join(v)

@@ -28,9 +28,11 @@ def _private_cache(tmp_path, monkeypatch):
     monkeypatch.setenv("SPLAT_CACHE", str(tmp_path / "cache"))
 
 
-def fake_metrics(path: Path, method: str, data: str, psnr: float, ssim: float, lpips=None, steps=10, **timing):
+def fake_metrics(path: Path, method: str, data: str, psnr: float, ssim: float, lpips=None, steps=10, digest=None,
+                 **timing):
     path.mkdir(parents=True, exist_ok=True)
     (path / "metrics.json").write_text(json.dumps({
+        **({"init_stats": {"matches_digest": digest}} if digest else {}),
         "method": method, "data": data, "steps": steps,
         "mean": {"psnr": psnr, "ssim": ssim, "lpips": lpips, "avg": None if lpips is None else lpips / 2},
         "per_view": [],
@@ -112,7 +114,8 @@ def test_aggregation_and_resume_without_training(tmp_path, monkeypatch):
     grid = Grid(["3dgs", "scgaussian"], ["synthetic/forward"], [3], [0, 1, 2], steps=10)
     psnr = {"3dgs": [20.0, 21.0, 22.5], "scgaussian": [24.0, 25.0, 23.0]}
     for run in grid.runs(out):
-        extra = {"matching_s": 2.0 + run.seed, "warmup_s": 5.0} if run.method == "scgaussian" else {}
+        extra = ({"matching_s": 2.0 + run.seed, "warmup_s": 5.0, "digest": "b" * 16 if run.seed == 1 else "a" * 16}
+                 if run.method == "scgaussian" else {})
         lp = 0.2 + 0.01 * run.seed if run.method == "scgaussian" else None
         fake_metrics(run.run_dir, run.method, run.data, psnr[run.method][run.seed], 0.5 + 0.1 * run.seed, lp, **extra)
     for name in ("run_local", "run_serial", "run_ray", "execute_run"):
@@ -126,6 +129,8 @@ def test_aggregation_and_resume_without_training(tmp_path, monkeypatch):
     assert by["scgaussian"]["matching_s_mean"] == pytest.approx(3.0)
     assert by["3dgs"]["lpips_mean"] is None and by["3dgs"]["matching_s_mean"] is None
     assert by["scgaussian"]["lpips_mean"] == pytest.approx(0.21)
+    # the matches each row trained from: distinct digests in seed order; none for a method without matches
+    assert by["scgaussian"]["matches_digests"] == ["a" * 16, "b" * 16] and by["3dgs"]["matches_digests"] == []
 
     md = (out / "results.md").read_text()
     line3 = next(ln for ln in md.splitlines() if ln.startswith("| 3dgs |"))
@@ -142,8 +147,10 @@ def test_aggregation_and_resume_without_training(tmp_path, monkeypatch):
     assert [r["method"] for r in rows] == ["3dgs", "scgaussian"]
     assert float(rows[0]["psnr_mean"]) == pytest.approx(21.1666, abs=1e-3) and rows[0]["lpips_mean"] == ""
     assert rows[1]["seeds"] == "0 1 2" and rows[1]["n_ok"] == "3"
+    assert rows[1]["matches_digests"] == f"{'a' * 16} {'b' * 16}" and rows[0]["matches_digests"] == ""
     js = json.loads((out / "results.json").read_text())
     assert len(js["runs"]) == 6 and js["rows"][1]["warmup_s_mean"] == pytest.approx(5.0)
+    assert [r["matches_digest"] for r in js["runs"] if r["method"] == "scgaussian"] == ["a" * 16, "b" * 16, "a" * 16]
     assert js["sweep"]["grid"]["seeds"] == [0, 1, 2]
 
 
