@@ -270,6 +270,11 @@ def test_ablation_script_two_methods_writes_table_figure_and_readme(tmp_path):
     lines = [ln for ln in text.splitlines() if ln.startswith("| ")]
     assert lines[1].startswith("| 3DGS (reference random init) | `3dgs` |") and "`scgaussian`" in lines[2]
     assert "failed" not in text and (out / "results.csv").is_file()
+    # a trained run's matches reach its row: the digest its metrics.json records, none for 3dgs
+    rows = {r["method"]: r for r in json.loads((out / "results.json").read_text())["rows"]}
+    scg = json.loads((out / "runs/synthetic-forward-tiny/scgaussian/v3-s0/metrics.json").read_text())
+    assert rows["scgaussian"]["matches_digests"] == [scg["init_stats"]["matches_digest"]]
+    assert rows["3dgs"]["matches_digests"] == []
     fig = tmp_path / "results" / "abl-synthetic-forward-tiny-v3.jpg"
     assert fig.is_file() and "](abl-synthetic-forward-tiny-v3.jpg)" in text
     new = readme.read_text()
