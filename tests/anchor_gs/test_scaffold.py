@@ -10,6 +10,7 @@ import torch
 from anchor_gs.method import config_octree_gs, config_scaffold_gs
 from anchor_gs.model import ScaffoldModel, voxelize
 from anchor_gs.octree import OctreeModel
+from splat_framework.plugin import compute_match_set
 from splat_framework.testing import (
     Trainer,
     apply_overrides,
@@ -119,7 +120,6 @@ def test_triangulated_anchors_start_from_the_matching_prior(dm, method):
     assert model.init_stats["num_points"] >= 50 and model.num_anchors > 0
     assert "matching_s" in model.init_timing
     # which matches the anchors came from (the cached set the prior reads: the same digest)
-    from splat_framework.plugin import compute_match_set
     assert model.init_stats["matches_digest"] == compute_match_set(cfg.model.init.matching, dm).digest()
 
 
