@@ -1,18 +1,32 @@
-"""Shared test fixtures."""
+"""Shared test fixtures, and the test tiers (:mod:`tiers`: which tests are slow, the fast tier's limit)."""
 
+import shutil
 from pathlib import Path
 
 import pytest
 
+pytest_plugins = ["tiers"]
+
 
 @pytest.fixture(autouse=True, scope="session")
 def _tiny_scenes(tmp_path_factory):
-    """The tiny built-in scenes, generated once before any test: a command's first use would print
-    its "generating the built-in scene" phase line before the one-line error a test expects."""
-    from splat_framework.testing import TINY_SCENES, tiny_scene
+    """The tiny built-in scenes in this session's cache before any test (a command's first use would
+    print its "generating the built-in scene" phase line before the one-line error a test expects):
+    generated once per machine into :func:`tiers.machine_cache`, keyed by the generator's sources,
+    and copied from there (a test may change its copy; the machine's stays as generated)."""
+    from tiers import SRC, machine_cache, sources_digest
 
+    from splat_framework.data.synthetic import ensure_scene
+    from splat_framework.runtime.trusted import private_folder
+    from splat_framework.testing import TINY_SCENES
+
+    kept = machine_cache() / f"scenes-{sources_digest(SRC / 'splat_framework' / 'data' / 'synthetic')}"
+    private_folder(kept)
+    session = tmp_path_factory.getbasetemp() / "splatcache" / "synthetic"
     for name in TINY_SCENES:
-        tiny_scene(tmp_path_factory.getbasetemp() / "splatcache", name)
+        folder = ensure_scene(name, kept)
+        if not (session / folder.name).exists():
+            shutil.copytree(folder, session / folder.name)
 
 
 @pytest.fixture(autouse=True)

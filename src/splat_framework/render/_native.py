@@ -12,10 +12,12 @@ ninja) falls back to the ``torch.compile`` kernels with a one-line warning.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import platform
 import shutil
+import subprocess
 import sys
 import tempfile
 import warnings
@@ -49,12 +51,27 @@ def _flags() -> list[str]:
     return flags
 
 
+@functools.cache
+def _compiler() -> str:
+    """The C++ compiler torch's extension builder runs (``$CXX``, else ``c++``): its resolved path
+    and the first line of its ``--version`` ("" where it cannot be run), part of the build's key."""
+    found = shutil.which(os.environ.get("CXX", "c++"))
+    if found is None:
+        return ""
+    try:
+        out = subprocess.run([found, "--version"], capture_output=True, text=True, timeout=30).stdout
+    except (OSError, subprocess.SubprocessError):
+        out = ""
+    return f"{os.path.realpath(found)} {(out.splitlines() or [''])[0]}"
+
+
 def _build_dir(cache_dir: Path | None) -> Path | None:
+    """``cache_dir/native/kernels-KEY``: KEY over the sources, the flags, torch, the CPU and the compiler."""
     if cache_dir is None:
         return None
     key = hashlib.sha256(
         b"".join((_FOLDER / name).read_bytes() for name in _SOURCES) + " ".join(_flags()).encode() + torch.__version__.encode()
-        + torch.backends.cpu.get_cpu_capability().encode() + platform.machine().encode()
+        + torch.backends.cpu.get_cpu_capability().encode() + platform.machine().encode() + _compiler().encode()
     ).hexdigest()[:16]
     return Path(cache_dir) / "native" / f"kernels-{key}"
 
@@ -132,7 +149,7 @@ def _checked_build(build: Path, root: Path) -> Path:
 
 def _import_library(library: Path):
     """The built extension at ``library``, imported as it is: its folder is keyed by the sources,
-    flags, torch and CPU (:func:`_build_dir`) and its manifest was checked, so nothing is asked of
+    flags, torch, the CPU and the compiler (:func:`_build_dir`) and its manifest was checked, so nothing is asked of
     ninja. Asking it (``cpp_extension.load`` on a built folder) rebuilt the library in every later
     process once its ``.ninja_deps`` was cut short (a build killed while writing it): 60-75 s a run."""
     import importlib.util

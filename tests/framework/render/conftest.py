@@ -1,10 +1,13 @@
-"""The native kernels, built once per test session (a build takes about 25 s on 2 idle cores: docs/figures.toml)."""
+"""The native kernels, built once per machine for the tests (a build takes about 25 s on 2 idle cores:
+docs/figures.toml) and loaded from :func:`tiers.machine_cache` by every later session and worker."""
 
 from __future__ import annotations
 
 import os
 import shutil
+import time
 import warnings
+from pathlib import Path
 
 import pytest
 
@@ -17,14 +20,21 @@ HAVE_TOOLCHAIN = bool((shutil.which("c++") or shutil.which("g++")) and shutil.wh
 
 
 @pytest.fixture(scope="session")
-def native_module(tmp_path_factory):
-    """The loaded extension (render/native/*.cpp), built into this session's temporary folder."""
+def native_module():
+    """The loaded extension (render/native/*.cpp), from this machine's test cache: built there when
+    its sources, flags, torch or compiler changed, else loaded (the product's cache rules)."""
+    from tiers import machine_cache, note
+
     from splat_framework.render import _native
 
     if not HAVE_TOOLCHAIN:
         pytest.skip("no C++ compiler or ninja on this machine: the native kernels cannot be built here")
+    t0 = time.time()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        module = _native.native_kernels(tmp_path_factory.mktemp("native-cache"))
+        module = _native.native_kernels(machine_cache())
     assert module is not None, [str(w.message) for w in caught]  # with a toolchain the build must work
+    library = Path(module.__file__)
+    built = library.stat().st_mtime >= t0
+    note(f"native kernels: {'built' if built else 'loaded'} ({time.time() - t0:.1f} s), {library.parent}")
     return module
