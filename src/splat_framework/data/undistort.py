@@ -146,7 +146,8 @@ def _undistortion(lens: Lens) -> Undistortion | None:
     fx, fy, cx, cy = float(P[0, 0]), float(P[1, 1]), float(P[0, 2]), float(P[1, 2])
     out = Undistortion(lens, fx, fy, cx + 0.5 - crop[0], cy + 0.5 - crop[1], crop)
     ok = np.isfinite([fx, fy, cx, cy]).all() and fx > 0 and fy > 0 and crop[2] >= 1 and crop[3] >= 1
-    return out if ok and _round_trip_error(out) <= ROUND_TRIP_PX else None
+    with np.errstate(all="ignore"):  # absurd coefficients overflow: refused below, not warned about
+        return out if ok and _round_trip_error(out) <= ROUND_TRIP_PX else None
 
 
 def _round_trip_error(u: Undistortion, samples: int = 17) -> float:

@@ -19,6 +19,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from cli_harness import cli_env, run_cli
 from splat_framework.data import DataError, load_scene
@@ -226,6 +228,27 @@ def test_colmap_models_read_as_the_opencv_lens_pycolmap_projects(name):
     project = cv2.fisheye.projectPoints if lens_model == "fisheye" else cv2.projectPoints
     ours = project(pts.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), opencv_K(K), np.array(coeffs))[0].reshape(-1, 2) + 0.5
     assert np.abs(ours - expected).max() < 1e-6, name
+
+
+_coefficient = st.one_of(st.floats(-2.0, 2.0), st.floats(allow_nan=True, allow_infinity=True, width=64))
+
+
+@settings(max_examples=80, deadline=None)
+@given(fisheye=st.booleans(), coeffs=st.lists(_coefficient, min_size=8, max_size=8),
+       focal=st.floats(1.0, 1e5), centre=st.tuples(st.floats(-50.0, 150.0), st.floats(-50.0, 150.0)))
+def test_any_coefficients_give_an_undistortion_or_one_data_error(fisheye, coeffs, focal, centre):
+    """Whatever a file states (huge, tiny, non-finite): a pinhole image, or a DataError naming it,
+    never another exception or a warning."""
+    lens = Lens("fisheye" if fisheye else "perspective", focal, focal, *centre,
+                tuple(coeffs[:4] if fisheye else coeffs), (WIDTH, HEIGHT))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        try:
+            u = undistortion(lens, "cameras.txt: camera 1")
+        except DataError as e:
+            assert str(e).startswith("cameras.txt: camera 1: ") and "\n" not in str(e)
+            return
+    assert u.fx > 0 and u.fy > 0 and u.size[0] >= 1 and u.size[1] >= 1
 
 
 def _transforms(root: Path, **meta) -> Path:
