@@ -153,7 +153,7 @@ def _qvec(R: np.ndarray) -> np.ndarray:
     return -q if q[0] < 0 else q
 
 
-COLMAP_MODELS = {"SIMPLE_PINHOLE": 0, "PINHOLE": 1, "SIMPLE_RADIAL": 2, "OPENCV": 4}
+COLMAP_MODELS = {"SIMPLE_PINHOLE": 0, "PINHOLE": 1, "SIMPLE_RADIAL": 2, "OPENCV": 4, "FOV": 7}
 
 
 def colmap_scene(n_images: int = 9, n_points: int = 200, seed: int = 0):
@@ -186,6 +186,7 @@ def make_colmap(
         "PINHOLE": [30.0, 31.0, 16.0, 12.0],
         "SIMPLE_RADIAL": [30.0, 16.0, 12.0, 0.01],
         "OPENCV": [30.0, 31.0, 16.0, 12.0, 0.01, 0.0, 0.0, 0.0],
+        "FOV": [30.0, 31.0, 16.0, 12.0, 0.5],
     }[model]
     pts, images = colmap_scene(n_images)
     sparse = root / sparse_sub

@@ -130,7 +130,7 @@ def main(args: MatchArgs) -> "MatchSet":
     """Load the scene's training views and run :func:`run_matching` (bad input: DataError, exit 2)."""
     from rich.console import Console
 
-    from splat_framework.data.images import load_image
+    from splat_framework.data.datamanager import load_view_image
     from splat_framework.data.parsers import load_scene
     from splat_framework.sfm.own_photos import resolve_data_path
 
@@ -141,10 +141,7 @@ def main(args: MatchArgs) -> "MatchSet":
     check_output(args.out, MATCH_FOLDER, overwrite=args.overwrite, inputs=inputs)
     scene = load_scene(root, views=args.views)
     ids = [int(i) for i in scene.train_indices]
-    images = [
-        load_image(scene.image_paths[i], scale=scene.image_scale, white_background=scene.white_background)
-        for i in ids
-    ]
+    images = [load_view_image(scene, i) for i in ids]
     cameras = [scene.cameras[i] for i in ids]
     cache = None if not args.config.cache else (args.cache_dir or Path(args.out) / "cache")
     claim_output(args.out, MATCH_FOLDER, overwrite=args.overwrite, inputs=inputs)

@@ -1,7 +1,8 @@
 """Decoded images on the device, and the order in which training sees them.
 
 ``DataManager`` decodes every image used by the split (train and test only)
-once, into float32 tensors on the device:
+once, into float32 tensors on the device, undistorted where the scene's lens is distorted
+(``scene.undistort``: the image, its mask and depth map alike; :func:`load_view_image`):
 
 - ``image`` [H, W, 3] in [0, 1] (RGBA composited per ``scene.white_background``),
 - ``mask`` [H, W, 1] in {0, 1} when the scene has masks,
@@ -48,6 +49,34 @@ Batch = dict
 
 OPTIONAL_FIELDS = ("backdrop",)
 """Batch fields made only when asked for (``DataManager(fields=...)``); the others always are."""
+
+
+def decoded_size(scene: SceneData, i: int) -> tuple[int, int]:
+    """(width, height) of camera ``i``'s image as decoded, before any undistortion."""
+    u = scene.undistort[i] if scene.undistort is not None else None
+    cam = scene.cameras[i]
+    return u.lens.size if u is not None else (cam.width, cam.height)
+
+
+def undistorted(scene: SceneData, i: int, a: np.ndarray, *, nearest: bool = False) -> np.ndarray:
+    """``a`` ([H, W] or [H, W, C] at :func:`decoded_size`) as camera ``i`` sees it: undistorted where
+    its lens is distorted (``nearest``: nearest-neighbour resampling, for depth), else itself."""
+    u = scene.undistort[i] if scene.undistort is not None else None
+    return a if u is None else u.apply(a, nearest=nearest)
+
+
+def load_view_image(scene: SceneData, i: int) -> np.ndarray:
+    """[H, W, 3] float32 in [0, 1]: camera ``i``'s image as training sees it, decoded at
+    ``scene.image_scale``, composited per ``scene.white_background`` and undistorted; a DataError
+    naming the file when it decodes to another size than its camera's."""
+    path = Path(scene.image_paths[i])
+    img = load_image(path, scale=scene.image_scale, white_background=scene.white_background)
+    w, h = decoded_size(scene, i)
+    if img.shape[:2] != (h, w):
+        cam = scene.cameras[i]
+        raise DataError(f"{path}: image is {img.shape[1]}x{img.shape[0]} but its camera is {cam.width}x{cam.height}"
+                        + (f" (undistorted from {w}x{h})" if (w, h) != (cam.width, cam.height) else ""))
+    return undistorted(scene, i, img)
 
 
 def area_resized(x: Tensor, width: int, height: int) -> Tensor:
@@ -145,31 +174,26 @@ class DataManager:
 
     # ------------------------------------------------------------ decoding
     def _check_size(self, i: int) -> None:
-        cam = self.scene.cameras[i]
         path = Path(self.scene.image_paths[i])
         w, h = read_image_size(path)
         size = scaled_size(w, h, self.scene.image_scale)
-        if size != (cam.width, cam.height):
+        expected = decoded_size(self.scene, i)
+        if size != expected:
             raise DataError(
                 f"{path}: image decodes to {size[0]}x{size[1]} but its camera is "
-                f"{cam.width}x{cam.height} (mixed image sizes?)"
+                f"{expected[0]}x{expected[1]} (mixed image sizes?)"
             )
 
     def _decode(self, i: int) -> Batch:
         scene = self.scene
-        cam = scene.cameras[i]
-        path = Path(scene.image_paths[i])
-        img = load_image(path, scale=scene.image_scale, white_background=scene.white_background)
-        if img.shape[:2] != (cam.height, cam.width):
-            raise DataError(
-                f"{path}: image is {img.shape[1]}x{img.shape[0]} but its camera is {cam.width}x{cam.height}"
-            )
+        img = load_view_image(scene, i)
         batch: Batch = {"image": self._tensor(img), "index": i}
-        size = (cam.width, cam.height)
+        size = decoded_size(scene, i)
         if scene.mask_paths is not None:
-            batch["mask"] = self._tensor(load_mask(scene.mask_paths[i], size)[:, :, None])
+            batch["mask"] = self._tensor(undistorted(scene, i, load_mask(scene.mask_paths[i], size))[:, :, None])
         if scene.depth_paths is not None:
-            batch["depth"] = self._tensor(load_depth(scene.depth_paths[i], size)[:, :, None])
+            depth = undistorted(scene, i, load_depth(scene.depth_paths[i], size), nearest=True)
+            batch["depth"] = self._tensor(depth[:, :, None])
         if self.backdrop and i in self.train_indices:
             batch["backdrop"] = self._tensor(dark_backdrop_mask(img)[:, :, None])
         return batch
@@ -180,7 +204,8 @@ class DataManager:
         Only images that carry alpha (RGBA renders such as Blender's) have it;
         evaluation masks (``mask_paths``, DTU) are not alpha and never appear here.
         """
-        return load_alpha(Path(self.scene.image_paths[index]), scale=self.scene.image_scale)
+        alpha = load_alpha(Path(self.scene.image_paths[index]), scale=self.scene.image_scale)
+        return None if alpha is None else undistorted(self.scene, index, alpha)
 
     def _tensor(self, a: np.ndarray) -> Tensor:
         return torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32)).to(self.device)

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from ..cameras import Camera
 from ..errors import DataError  # noqa: F401  (re-exported)
+from .undistort import Undistortion
 
 
 @dataclass
@@ -17,7 +18,7 @@ class SceneData:
         root: the dataset folder.
         format: parser name ("llff", "blender", "dtu", "transforms", "colmap").
         cameras: one Camera per image, already matching the size at which the
-            images will be decoded (after ``image_scale``).
+            images will be decoded (after ``image_scale`` and ``undistort``).
         image_paths: one image file per camera.
         train_indices: indices into ``cameras`` used for training.
         test_indices: indices into ``cameras`` held out for evaluation (the views scored).
@@ -31,6 +32,9 @@ class SceneData:
         mask_paths: optional per-image foreground masks (DTU); None where absent.
         depth_paths: optional per-image ground-truth depth maps (``.npy``,
             float32 [H, W] camera z at stored resolution; 0 = no surface).
+        undistort: per camera, how its decoded image (and mask, depth map) loses the lens
+            distortion its dataset states (:mod:`~splat_framework.data.undistort`), None for a
+            pinhole camera; None when every camera is one. ``cameras`` are the undistorted ones.
         scene_center: [3] centre of the region of interest (world).
         scene_radius: radius of that region (used for random init and lr scaling).
         masked_metrics: compute PSNR/SSIM on mask pixels only (DTU protocol).
@@ -55,6 +59,7 @@ class SceneData:
     white_background: bool = False
     mask_paths: list[Path] | None = None
     depth_paths: list[Path] | None = None
+    undistort: list[Undistortion | None] | None = None
     scene_center: tuple[float, float, float] = (0.0, 0.0, 0.0)
     scene_radius: float = 1.0
     masked_metrics: bool = False

@@ -74,7 +74,7 @@ def posing_matches(matching: MatchConfig, datamanager, ids: list[int], cameras: 
 
     learned = reused_matcher(matching)
     scene = datamanager.scene
-    if learned is None:
+    if learned is None or scene.undistort is not None:  # the file's pixels are those of pinhole photos
         return {}, ""
     paths = [Path(scene.image_paths[i]) for i in ids]
     return known_sparse_matches(Path(scene.root), paths, [(c.width, c.height) for c in cameras], ids, learned, matching)

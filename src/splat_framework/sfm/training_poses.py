@@ -41,6 +41,8 @@ def estimate_training_poses(data: str | Path, *, views: int | str, format: str =
 
     root = resolve_data_path(data)
     scene = load_scene(root, format=format, views=views, downscale=downscale)
+    if scene.undistort is not None:  # the photos are posed as SIMPLE_PINHOLE ones
+        raise DataError(f"{root}: its lenses are distorted; estimated training poses need pinhole photos")
     train = list(scene.train_indices)
     quarter = load_scene(root, format=format, views=views, downscale=4.0)
     photos_of = quarter if quarter.cameras[train[0]].width > scene.cameras[train[0]].width else scene

@@ -173,17 +173,13 @@ def test_decompose_projection_sign_invariant():
 
 
 @pytest.mark.parametrize("binary", [False, True])
-@pytest.mark.parametrize("model", ["PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL"])
+@pytest.mark.parametrize("model", ["PINHOLE", "SIMPLE_PINHOLE"])
 def test_colmap_text_and_binary(tmp_path, binary, model):
     root = make_colmap(tmp_path / "c", binary=binary, model=model)
-    with warnings.catch_warnings(record=True) as rec:
-        warnings.simplefilter("always")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
         scene = load_scene(root)
-    radial_warnings = [w for w in rec if "SIMPLE_RADIAL" in str(w.message)]
-    assert len(radial_warnings) == (1 if model == "SIMPLE_RADIAL" else 0)
-    if radial_warnings:
-        assert "cameras." in str(radial_warnings[0].message)
-    assert scene.format == "colmap"
+    assert scene.format == "colmap" and scene.undistort is None
     assert [p.name for p in scene.image_paths] == [f"frame_{i:02d}.png" for i in range(9)]
     _, images = colmap_scene(9)
     cam = scene.cameras[4]
@@ -215,9 +211,25 @@ def test_colmap_text_and_binary_agree(tmp_path):
 
 @pytest.mark.parametrize("binary", [False, True])
 def test_colmap_unsupported_model(tmp_path, binary):
-    root = make_colmap(tmp_path / "c", binary=binary, model="OPENCV")
-    with pytest.raises(DataError, match="OPENCV"):
+    root = make_colmap(tmp_path / "c", binary=binary, model="FOV")
+    with pytest.raises(DataError, match=r"cameras\.(txt|bin): camera 1: model FOV is not supported"):
         load_scene(root)
+
+
+@pytest.mark.parametrize("binary", [False, True])
+@pytest.mark.parametrize("model", ["SIMPLE_RADIAL", "OPENCV"])
+def test_colmap_distorted_cameras_load_undistorted_from_text_and_binary(tmp_path, binary, model):
+    """A distorted camera (its images and intrinsics undistorted: tests/framework/data/test_distortion.py)
+    reads the same from either file, with no warning."""
+    root = make_colmap(tmp_path / "c", binary=binary, model=model)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        scene = load_scene(root)
+    u = scene.undistort[4]
+    assert u.lens.model == "perspective" and u.lens.coeffs[0] == 0.01 and u.lens.size == (16, 12)
+    assert u.lens.fx == pytest.approx(15.0) and (u.lens.cx, u.lens.cy) == (8.0, 6.0)  # the camera is 2x the images
+    cam = scene.cameras[4]
+    assert (cam.width, cam.height) == u.size and cam.K[0, 0].item() == pytest.approx(u.fx)
 
 
 def test_scene_extent(tmp_path):

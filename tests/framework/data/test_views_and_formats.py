@@ -89,13 +89,17 @@ def test_a_transforms_json_frame_with_a_zero_or_nan_rotation_is_one_line_naming_
     assert "\n" not in str(info.value)
 
 
-def test_transforms_json_distortion_is_ignored_with_a_warning_and_fisheye_refused(built_in, tmp_path):
+def test_transforms_json_distortion_is_removed_without_a_warning_and_panoramas_refused(built_in, tmp_path):
     root = write_transforms(built_in, tmp_path / "k", k1=0.01, p2=0.0)
-    with pytest.warns(UserWarning, match=r"distortion \(k1\) is ignored"):
-        load_scene(root)
-    fisheye = write_transforms(built_in, tmp_path / "f", camera_model="OPENCV_FISHEYE")
-    with pytest.raises(DataError, match="camera_model 'OPENCV_FISHEYE' is not supported"):
-        load_scene(fisheye)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        scene = load_scene(root)  # the images and intrinsics undistorted: tests/framework/data/test_distortion.py
+    assert all(u is not None and u.lens.coeffs == (0.01, 0.0, 0.0, 0.0, 0.0) for u in scene.undistort)
+    fisheye = write_transforms(built_in, tmp_path / "f", camera_model="OPENCV_FISHEYE", k1=0.0, k2=0.0, k3=0.0, k4=0.0)
+    assert all(u.lens.model == "fisheye" for u in load_scene(fisheye).undistort)  # equidistant: still a lens
+    panorama = write_transforms(built_in, tmp_path / "e", camera_model="EQUIRECTANGULAR")
+    with pytest.raises(DataError, match="camera_model 'EQUIRECTANGULAR' is not supported"):
+        load_scene(panorama)
     bare = tmp_path / "bare"
     shutil.copytree(built_in / "images", bare / "images")
     (bare / "transforms.json").write_text(json.dumps({"frames": [{"file_path": "images/image000.png",
@@ -116,12 +120,13 @@ def test_transforms_json_reads_each_frames_own_intrinsics_over_the_top_levels(bu
     for key in ("fl_x", "fl_y", "cx", "cy"):  # image007 states all four itself; no top-level fl_x left ...
         by_path["images/image007.png"][key] = meta[key]
     (root / "transforms.json").write_text(json.dumps(meta))
-    with pytest.warns(UserWarning, match=r"transforms.json: distortion \(k1\) is ignored"):
-        scene = load_scene(root)
+    scene = load_scene(root)
+    assert [u is not None for u in scene.undistort] == [c.name == "image005" for c in scene.cameras]
+    assert scene.undistort[5].lens.cx == pytest.approx(K[0, 2] + 3.0)
     Ks = {c.name: c.K for c in scene.cameras}
     assert torch.allclose(Ks["image003"][:2, :2], 2 * torch.tensor(K[:2, :2], dtype=torch.float32), atol=1e-4)
     assert torch.allclose(Ks["image003"][:2, 2], torch.tensor(K[:2, 2], dtype=torch.float32), atol=1e-4)
-    assert abs(float(Ks["image005"][0, 2]) - (K[0, 2] + 3.0)) < 1e-4 and abs(float(Ks["image005"][0, 0]) - K[0, 0]) < 1e-4
+    assert abs(float(Ks["image005"][0, 2]) - (K[0, 2] + 3.0)) < 0.5  # its own principal point, undistorted
     assert torch.allclose(Ks["image000"], torch.tensor(K, dtype=torch.float32), atol=1e-4)
     for key in ("fl_x", "fl_y", "cx", "cy"):  # ... so a frame without its own has none, and the error names it
         meta.pop(key)

@@ -1,9 +1,11 @@
 """COLMAP sparse models (``sparse/0/``, ``sparse/`` or nerfstudio's ``colmap/sparse/0/``), binary or text.
 
-Supported camera models: SIMPLE_PINHOLE, PINHOLE and SIMPLE_RADIAL (its
-radial distortion is ignored with a warning; undistort first for exact
-results). COLMAP already puts pixel centres at +0.5 (the upper-left pixel's
-centre is (0.5, 0.5)), which is our convention, so principal points are used
+Camera models: SIMPLE_PINHOLE and PINHOLE; the perspective SIMPLE_RADIAL, RADIAL, OPENCV and
+FULL_OPENCV and the fisheye OPENCV_FISHEYE, SIMPLE_RADIAL_FISHEYE, RADIAL_FISHEYE, SIMPLE_FISHEYE
+and FISHEYE, whose distortion is removed as the images are decoded (:mod:`~..undistort`: each is
+OpenCV's perspective or fisheye model with some coefficients 0); the others (FOV, the thin-prism,
+division and EUCM models) are refused. COLMAP already puts pixel centres at +0.5 (the upper-left
+pixel's centre is (0.5, 0.5)), which is our convention, so principal points are used
 as stored. COLMAP poses are world-to-camera in OpenCV axes.
 
 near/far per camera = 0.1% / 99.9% percentiles of the depths of the 3D points
@@ -32,6 +34,7 @@ from .common import (
     choose_image_dir,
     decoded_size,
     make_camera,
+    pinhole_intrinsics,
     pixel_ratios,
 )
 
@@ -48,9 +51,32 @@ CAMERA_MODELS = {
     8: ("SIMPLE_RADIAL_FISHEYE", 4),
     9: ("RADIAL_FISHEYE", 5),
     10: ("THIN_PRISM_FISHEYE", 12),
+    11: ("RAD_TAN_THIN_PRISM_FISHEYE", 16),
+    12: ("SIMPLE_DIVISION", 4),
+    13: ("DIVISION", 5),
+    14: ("SIMPLE_FISHEYE", 3),
+    15: ("FISHEYE", 4),
+    16: ("EUCM", 6),
 }
 MODEL_PARAMS = {name: n for name, n in CAMERA_MODELS.values()}
-SUPPORTED = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL")
+LENSES = {
+    # model: (lens model, which params give fx, fy, cx, cy, and OpenCV's coefficients: a param index or 0.0)
+    "SIMPLE_PINHOLE": (None, (0, 0, 1, 2), ()),
+    "PINHOLE": (None, (0, 1, 2, 3), ()),
+    "SIMPLE_RADIAL": ("perspective", (0, 0, 1, 2), (3, 0.0, 0.0, 0.0, 0.0)),
+    "RADIAL": ("perspective", (0, 0, 1, 2), (3, 4, 0.0, 0.0, 0.0)),
+    "OPENCV": ("perspective", (0, 1, 2, 3), (4, 5, 6, 7, 0.0)),
+    "FULL_OPENCV": ("perspective", (0, 1, 2, 3), (4, 5, 6, 7, 8, 9, 10, 11)),
+    "OPENCV_FISHEYE": ("fisheye", (0, 1, 2, 3), (4, 5, 6, 7)),
+    "SIMPLE_RADIAL_FISHEYE": ("fisheye", (0, 0, 1, 2), (3, 0.0, 0.0, 0.0)),
+    "RADIAL_FISHEYE": ("fisheye", (0, 0, 1, 2), (3, 4, 0.0, 0.0)),
+    "SIMPLE_FISHEYE": ("fisheye", (0, 0, 1, 2), (0.0, 0.0, 0.0, 0.0)),
+    "FISHEYE": ("fisheye", (0, 1, 2, 3), (0.0, 0.0, 0.0, 0.0)),
+}
+"""How each supported COLMAP model reads as a pinhole camera and an OpenCV lens (COLMAP's
+fisheye models are OpenCV's Kannala-Brandt one with fewer terms; SIMPLE_FISHEYE and FISHEYE are
+equidistant: all four 0)."""
+SUPPORTED = tuple(LENSES)
 MIN_POINTS_PER_IMAGE = 16
 
 
@@ -325,7 +351,6 @@ def load_colmap(root: Path, *, views: Views = "all", downscale: float | None = N
         rgb = np.zeros((0, 3), np.uint8)
         order = sorted_ids = np.zeros(0, np.int64)
 
-    warned: set[int] = set()
     poses = []
     for im in entries:
         where = f"{img_file}: image {im.name!r}"
@@ -335,14 +360,10 @@ def load_colmap(root: Path, *, views: Views = "all", downscale: float | None = N
         if cam.model not in SUPPORTED:
             raise DataError(
                 f"{cam_file}: camera {cam.id}: model {cam.model} is not supported "
-                f"(use {', '.join(SUPPORTED)}; undistort with COLMAP first)"
+                f"(use {', '.join(SUPPORTED)}; undistort with COLMAP's image_undistorter first)"
             )
-        if cam.model == "SIMPLE_RADIAL" and cam.id not in warned:
-            warned.add(cam.id)
-            warnings.warn(
-                f"{cam_file}: camera {cam.id} is SIMPLE_RADIAL; its distortion (k={cam.params[3]:g}) is ignored",
-                stacklevel=3,
-            )
+        if not np.isfinite(cam.params).all():
+            raise DataError(f"{cam_file}: camera {cam.id}: non-finite parameters ({' '.join(f'{p:g}' for p in cam.params)})")
         if not np.isfinite(im.qvec).all() or not np.isfinite(im.tvec).all():
             raise DataError(f"{where}: non-finite pose")
         qn = np.linalg.norm(im.qvec)
@@ -359,7 +380,7 @@ def load_colmap(root: Path, *, views: Views = "all", downscale: float | None = N
         if len(xyz):
             warnings.warn(f"{pts_file}: too few points in front of the cameras; near/far default to 0.01/100", stacklevel=3)
 
-    cameras = []
+    cameras, undistort = [], []
     for (R, t, cam), im, p, z_all in zip(poses, entries, paths, all_z or [None] * len(poses)):
         where = f"{img_file}: image {im.name!r}"
         bounds = None
@@ -374,18 +395,16 @@ def load_colmap(root: Path, *, views: Views = "all", downscale: float | None = N
         if cam.width < 1 or cam.height < 1:
             raise DataError(f"{cam_file}: camera {cam.id}: invalid size {cam.width}x{cam.height}")
         sx, sy = pixel_ratios((w, h), (cam.width, cam.height), str(p), f"{cam_file.name} camera {cam.id} is")
-        if cam.model == "PINHOLE":
-            fx, fy, cx, cy = cam.params[:4]
-        else:
-            fx, cx, cy = cam.params[:3]
-            fy = fx
+        lens, (fx, fy, cx, cy), coeffs = _lens(cam)
+        pinhole, u = pinhole_intrinsics(fx * sx, fy * sy, cx * sx, cy * sy, (w, h), lens, coeffs,
+                                        f"{cam_file}: camera {cam.id}")
         center = -R.T @ t
         cameras.append(
             make_camera(
-                R.T, center, fx * sx, fy * sy, cx * sx, cy * sy, w, h, near, far,
-                Path(im.name).with_suffix("").as_posix().replace("/", "_"), where,
+                R.T, center, *pinhole, near, far, Path(im.name).with_suffix("").as_posix().replace("/", "_"), where,
             )
         )
+        undistort.append(u)
 
     train, test = own_scene_split(len(cameras), views)
     return build_scene(
@@ -396,5 +415,13 @@ def load_colmap(root: Path, *, views: Views = "all", downscale: float | None = N
         train,
         test,
         image_scale=image_scale,
+        undistort=undistort if any(undistort) else None,
         extras={"points3d": xyz.astype(np.float32), "points3d_rgb": rgb},
     )
+
+
+def _lens(cam: ColmapCamera) -> tuple[str | None, tuple[float, float, float, float], tuple[float, ...]]:
+    """(lens model or None for a pinhole, (fx, fy, cx, cy), OpenCV's coefficients) of a supported camera."""
+    lens, (ifx, ify, icx, icy), coeffs = LENSES[cam.model]
+    p = cam.params
+    return lens, (p[ifx], p[ify], p[icx], p[icy]), tuple(float(p[c]) if isinstance(c, int) else c for c in coeffs)

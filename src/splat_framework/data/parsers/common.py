@@ -14,6 +14,7 @@ import torch
 from ...cameras import Camera
 from ..images import list_images, read_image_size, scaled_size
 from ..scene import DataError, SceneData
+from ..undistort import Lens, LensModel, Undistortion, undistortion
 
 ROTATION_TOL = 2e-3
 DEFAULT_BOUNDS = (0.01, 100.0)
@@ -141,6 +142,32 @@ def clean_rotation(R: np.ndarray, where: str) -> np.ndarray:
     return u @ vt
 
 
+def check_intrinsics(fx: float, fy: float, cx: float, cy: float, width: int, height: int, where: str) -> None:
+    """A DataError naming ``where`` unless the intrinsics are finite, the focal lengths positive and
+    the size not empty."""
+    if not np.isfinite(np.array([fx, fy, cx, cy], dtype=np.float64)).all():
+        raise DataError(f"{where}: non-finite intrinsics")
+    if not (fx > 1e-6 * width and fy > 1e-6 * height):
+        raise DataError(f"{where}: focal length must be positive and non-degenerate (fx={fx:g}, fy={fy:g})")
+    if width < 1 or height < 1:
+        raise DataError(f"{where}: image size {width}x{height} is empty")
+
+
+def pinhole_intrinsics(
+    fx: float, fy: float, cx: float, cy: float, size: tuple[int, int], model: LensModel | None,
+    coeffs: Sequence[float], where: str,
+) -> tuple[tuple[float, float, float, float, int, int], Undistortion | None]:
+    """((fx, fy, cx, cy, width, height), undistortion) of the pinhole camera whose images are decoded
+    at ``size`` with the stated intrinsics (decoded pixels): as stated where the lens is a pinhole one
+    (``model`` None, or "perspective" with every coefficient 0), else those of the undistorted image
+    (:func:`~splat_framework.data.undistort.undistortion`; ``coeffs`` in OpenCV's order)."""
+    if model is None or (model == "perspective" and not any(coeffs)):
+        return (fx, fy, cx, cy, *size), None
+    check_intrinsics(fx, fy, cx, cy, *size, where)
+    u = undistortion(Lens(model, float(fx), float(fy), float(cx), float(cy), tuple(map(float, coeffs)), size), where)
+    return (u.fx, u.fy, u.cx, u.cy, *u.size), u
+
+
 def make_camera(
     R_c2w: np.ndarray,
     center: np.ndarray,
@@ -163,13 +190,7 @@ def make_camera(
     c = np.asarray(center, dtype=np.float64).reshape(3)
     if not np.isfinite(c).all():
         raise DataError(f"{where}: camera centre is not finite")
-    vals = np.array([fx, fy, cx, cy], dtype=np.float64)
-    if not np.isfinite(vals).all():
-        raise DataError(f"{where}: non-finite intrinsics")
-    if not (fx > 1e-6 * width and fy > 1e-6 * height):
-        raise DataError(f"{where}: focal length must be positive and non-degenerate (fx={fx:g}, fy={fy:g})")
-    if width < 1 or height < 1:
-        raise DataError(f"{where}: image size {width}x{height} is empty")
+    check_intrinsics(fx, fy, cx, cy, width, height, where)
     if not (math.isfinite(near) and math.isfinite(far) and near > 0 and far > near):
         raise DataError(f"{where}: invalid near/far bounds ({near:g}, {far:g}); need 0 < near < far")
     w2c = np.eye(4)

@@ -6,16 +6,16 @@ Its ``frames`` hold ``file_path`` (relative to the folder) and ``transform_matri
 COLMAP, whose pixel centres are at +0.5 like ours, so the principal point is used as stored), each
 read from the frame where the frame has it (nerfstudio's per-frame intrinsics, e.g. several
 cameras of one size), else from the top level; or ``camera_angle_x`` (and ``camera_angle_y``) with
-the principal point at the centre. Distortion coefficients (``k1`` ... ``p2``, at the top level or
-in a frame) are ignored with a warning (undistort first for exact results);
-fisheye and panoramic cameras are refused. Frames are taken in natural order of their paths and
+the principal point at the centre. Lens distortion is removed as the images are decoded
+(:mod:`~..undistort`): the coefficients ``k1``, ``k2``, ``k3``, ``p1``, ``p2`` (at the top level or
+in a frame) of a perspective ``camera_model``, and ``k1`` ... ``k4`` of ``OPENCV_FISHEYE`` (or
+instant-ngp's ``is_fisheye``), all four required; panoramic cameras are refused. Frames are taken in natural order of their paths and
 split as a COLMAP scene is (:func:`~..splits.own_scene_split`: every 8th held out); images
 are decoded at full resolution unless ``--downscale`` says otherwise.
 """
 
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -41,13 +41,18 @@ from .common import (
     clean_rotation,
     decoded_size,
     make_camera,
+    pinhole_intrinsics,
     pixel_ratios,
 )
 
 TRANSFORMS = "transforms.json"
 PERSPECTIVE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
-"""nerfstudio's ``camera_model`` values read as pinhole cameras (any distortion ignored)."""
+"""nerfstudio's ``camera_model`` values of perspective lenses (OpenCV's model: k1, k2, k3, p1, p2)."""
+FISHEYE_MODEL = "OPENCV_FISHEYE"
+"""nerfstudio's ``camera_model`` of a fisheye lens (OpenCV's model: k1, k2, k3, k4)."""
 DISTORTION = ("k1", "k2", "k3", "k4", "p1", "p2")
+LENS_KEYS = {"perspective": ("k1", "k2", "p1", "p2", "k3"), "fisheye": ("k1", "k2", "k3", "k4")}
+"""The keys of each lens model's coefficients, in OpenCV's order."""
 PER_FRAME = ("fl_x", "fl_y", "cx", "cy", "w", "h", *DISTORTION)
 """The keys a frame may give for itself (as nerfstudio's parser reads them), over the top level's."""
 MIN_CONVERGENCE = 1e-3
@@ -69,22 +74,25 @@ def load_transforms(root: Path, *, views: Views = "all", downscale: float | None
     paths = [frame_image(root, fp, path) for fp, _ in frames]
     stored = check_same_size(paths)
     w, h = decoded_size(stored, image_scale)
-    names = [f"{path}: frame {fp!r}" for fp, _ in frames]  # how errors and warnings name each frame
-    _check_camera_model(meta, path, names, own)
+    names = [f"{path}: frame {fp!r}" for fp, _ in frames]  # how errors name each frame
+    model = _lens_model(meta, path)
     c2ws = [opencv_camera_to_world(m) for _, m in frames]
     for c2w, where in zip(c2ws, names):  # a zero or NaN rotation: one line, before the bounds use its axis
         clean_rotation(c2w[:3, :3], where)
     near, far = _depth_bounds(c2ws)
     per_frame = any(own)  # else the intrinsics are global: an error about them names the file
-    cameras = []
+    cameras, undistort = [], []
     for values, c2w, name, where in zip(own, c2ws, _camera_names(paths, root), names):
         stated_by = where if per_frame else str(path)
         fx, fy, cx, cy, width, height = _intrinsics({**meta, **values}, stated_by, stored)
         sx, sy = pixel_ratios((w, h), (width, height), stated_by, "its w, h give")
-        cameras.append(make_camera(c2w[:3, :3], c2w[:3, 3], fx * sx, fy * sy, cx * sx, cy * sy, w, h, near, far,
-                                   name, where))
+        pinhole, u = pinhole_intrinsics(fx * sx, fy * sy, cx * sx, cy * sy, (w, h), model,
+                                        _coefficients({**meta, **values}, model, stated_by), stated_by)
+        cameras.append(make_camera(c2w[:3, :3], c2w[:3, 3], *pinhole, near, far, name, where))
+        undistort.append(u)
     train, test = own_scene_split(len(cameras), views)
-    return build_scene(root, "transforms", cameras, paths, train, test, image_scale=image_scale)
+    return build_scene(root, "transforms", cameras, paths, train, test, image_scale=image_scale,
+                       undistort=undistort if any(undistort) else None)
 
 
 def _intrinsics(meta: dict, path: str, stored: tuple[int, int]) -> tuple[float, float, float, float, float, float]:
@@ -113,19 +121,35 @@ def _intrinsics(meta: dict, path: str, stored: tuple[int, int]) -> tuple[float, 
     return fx, fy, width / 2, height / 2, width, height
 
 
-def _check_camera_model(meta: dict, path: Path, wheres: list[str], own: list[dict]) -> None:
-    """A DataError for a camera model that is not a pinhole one; one warning when the file (its top
-    level or any frame, ``own[i]`` the keys of the frame ``wheres[i]`` names) gives distortion
-    coefficients, which are ignored."""
+def _lens_model(meta: dict, path: Path) -> str:
+    """"perspective" or "fisheye": the lens model of ``camera_model`` (or instant-ngp's ``is_fisheye``);
+    a DataError for a panoramic one."""
     model = meta.get("camera_model", "PINHOLE")
+    if model == FISHEYE_MODEL or meta.get("is_fisheye") is True:
+        return "fisheye"
     if model not in PERSPECTIVE_MODELS:
-        raise DataError(f"{path}: camera_model {model!r} is not supported (use {', '.join(PERSPECTIVE_MODELS)})")
-    given = {k for values, where in [(meta, str(path)), *zip(own, wheres)] for k in DISTORTION
-             if k in values and number(values[k], f"{where}: {k}") != 0.0}
-    if given:
-        names = ", ".join(k for k in DISTORTION if k in given)
-        warnings.warn(f"{path}: distortion ({names}) is ignored; undistort the images first for exact results",
-                      stacklevel=3)
+        raise DataError(f"{path}: camera_model {model!r} is not supported "
+                        f"(use {', '.join(PERSPECTIVE_MODELS)} or {FISHEYE_MODEL})")
+    return "perspective"
+
+
+def _coefficients(meta: dict, model: str, where: str) -> tuple[float, ...]:
+    """The distortion coefficients of one camera (``meta``: the top level with its frame's keys over
+    it; ``where`` names it in errors) in OpenCV's order for lens ``model``: a perspective lens's
+    missing ones are 0; a fisheye lens needs all four, and neither takes the other's coefficients."""
+    keys = LENS_KEYS[model]
+    values = {k: number(meta[k], f"{where}: {k}") for k in DISTORTION if k in meta}
+    foreign = [k for k in DISTORTION if k not in keys and values.get(k, 0.0) != 0.0]
+    if foreign:
+        kind, lens = (("perspective", "a fisheye lens") if model == "fisheye" else
+                      ("fisheye", f"a perspective lens (camera_model {meta.get('camera_model', 'PINHOLE')})"))
+        many = len(foreign) > 1
+        raise DataError(f"{where}: {', '.join(foreign)} {'are' if many else 'is a'} {kind} coefficient{'s' if many else ''}; "
+                        f"{lens} has none")
+    missing = [k for k in keys if k not in values]
+    if model == "fisheye" and missing:
+        raise DataError(f"{where}: a fisheye lens needs k1, k2, k3 and k4 (missing {', '.join(missing)})")
+    return tuple(values.get(k, 0.0) for k in keys)
 
 
 def _depth_bounds(c2ws: list[np.ndarray]) -> tuple[float, float]:

@@ -102,8 +102,14 @@ def screen_candidates(scene: Scene, view: ViewSpec) -> list:
     return out
 
 
-def render_view(scene: Scene, view: ViewSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def render_view(scene: Scene, view: ViewSpec, directions: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Ray-cast one view.
+
+    Args:
+        directions: camera-space ray directions [H*W, 3] (z = 1) of the pixels, row-major, for a
+            lens that is not ``view.K``'s pinhole (a distorted one); default: through the pixel
+            centres of ``view.K``.
 
     Returns:
         rgb: [H, W, 3] float32 in [0, 1] (0 where nothing is hit).
@@ -112,7 +118,9 @@ def render_view(scene: Scene, view: ViewSpec) -> tuple[np.ndarray, np.ndarray, n
     """
     o, d_all = pixel_rays(view)
     n_all = len(d_all)
-    cand = screen_candidates(scene, view)
+    if directions is not None:  # the pinhole's screen rectangles do not bound another lens's pixels
+        d_all = np.asarray(directions, np.float64).reshape(n_all, 3) @ view.world_to_cam[:3, :3]
+    cand = screen_candidates(scene, view) if directions is None else [None] * len(scene.primitives)
     # only rays inside some primitive's screen rectangle can hit anything
     if any(c is None for c in cand):
         active = np.arange(n_all)
