@@ -30,7 +30,10 @@ def test_every_environment_variable_the_code_reads_is_documented():
     assert set(VARIABLES) - named == set(), "documented but never read"
 
 
+@pytest.mark.slow
 def test_the_site_builds_strictly(tmp_path):
+    """Every page in the nav, every link and anchor resolving (mkdocs.yml's validation: a warning fails
+    a strict build)."""
     mkdocs = shutil.which("mkdocs", path=str(Path(sys.executable).parent))
     if mkdocs is None:
         pytest.skip("mkdocs is not installed (pip install -e '.[docs]')")
@@ -38,6 +41,41 @@ def test_the_site_builds_strictly(tmp_path):
                          capture_output=True, text=True, cwd=ROOT)
     assert out.returncode == 0, out.stdout + out.stderr
     assert (tmp_path / "site" / "cli" / "index.html").is_file()
+    assert (tmp_path / "site" / "history" / "index.html").is_file()
+
+
+def _sections(page: Path) -> dict[str, list[str]]:
+    """A page's ``## `` sections: heading -> its lines, the heading's included (code fences respected)."""
+    sections: dict[str, list[str]] = {}
+    current, fence = None, False
+    for line in page.read_text().splitlines():
+        fence ^= line.startswith("```")
+        if not fence and line.startswith("## "):
+            current = line[3:]
+            sections[current] = []
+        if current is not None:
+            sections[current].append(line)
+    return sections
+
+
+def test_results_and_decisions_are_short_and_link_their_evidence():
+    """Issue 107: the results page holds the current tables (at most 400 lines), the decisions log
+    each current default in at most 15 lines with a link to the history page or table that is its
+    evidence (at most 600 lines); the dated logs are history pages, each in the site's nav."""
+    results, decisions = ROOT / "docs" / "results.md", ROOT / "docs" / "decisions.md"
+    assert len(results.read_text().splitlines()) <= 400
+    assert len(decisions.read_text().splitlines()) <= 600
+    for heading, lines in _sections(decisions).items():
+        body = "\n".join(lines).rstrip()
+        assert len(body.splitlines()) <= 15, f"decisions.md: '{heading}' takes {len(body.splitlines())} lines"
+        assert re.search(r"\]\((history/|results\.md|flags\.md)", body), f"decisions.md: '{heading}' links no evidence"
+    days = sorted(p.name for p in (ROOT / "docs" / "history").glob("2*.md"))
+    assert days and all(re.fullmatch(r"\d{4}-\d\d-\d\d\.md", d) for d in days)
+    nav = (ROOT / "mkdocs.yml").read_text()
+    assert all(f"history/{d}" in nav for d in days)
+    # the tables lead to the days they came from
+    linked = set(re.findall(r"history/(\d{4}-\d\d-\d\d\.md)", results.read_text() + decisions.read_text()))
+    assert set(days) <= linked, set(days) - linked
 
 
 def test_the_project_has_a_licence_a_free_name_and_a_citation():
