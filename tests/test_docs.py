@@ -78,6 +78,33 @@ def test_results_and_decisions_are_short_and_link_their_evidence():
     assert set(days) <= linked, set(days) - linked
 
 
+def _code_blocks(text: str) -> list[str]:
+    return re.findall(r"^```bash\n(.*?)^```", text, re.S | re.M)
+
+
+def test_the_readmes_first_command_trains_without_the_test_tools_and_its_test_command_is_cis():
+    """Issue 107: the README opens with two commands in two blocks: the first installs what training
+    needs (no extra) and trains; the second installs the extras CI installs and runs what .ci/run runs.
+    torch is installed by one rule wherever a page says how: PyTorch's CPU index on Linux."""
+    readme = (ROOT / "README.md").read_text()
+    first, second = _code_blocks(readme)[:2]
+    assert len(first.strip().splitlines()) == 1 and len(second.strip().splitlines()) == 1
+    steps = [s.strip() for s in first.split("&&")]
+    assert "pip install -e ." in steps and not any("[" in s for s in steps if s.startswith("pip install -e"))
+    assert steps[-1] == "splat-train scgaussian --data synthetic/forward" and "pytest" not in first
+    ci = (ROOT / ".ci" / "run").read_text()
+    install, test = [s.strip() for s in second.split("&&")]
+    assert test == ci.strip().splitlines()[-1], "the README's test command is the one .ci/run runs"
+    extras = re.fullmatch(r'pip install -e "(\.\[[a-z,]+\])"', install).group(1)
+    assert f'pip install -q -e "{extras}"' in ci, "the README installs the extras CI installs"
+    cpu = "pip install torch --index-url https://download.pytorch.org/whl/cpu"
+    install_page = (ROOT / "docs" / "install.md").read_text()
+    assert cpu in steps and cpu in readme.split("## Install")[1] and cpu in install_page
+    torch_lines = {ln.split("#")[0].strip() for page in (readme, install_page) for block in _code_blocks(page)
+                   for part in block.split("&&") for ln in part.splitlines() if re.search(r"pip install torch( |$)", ln)}
+    assert torch_lines == {cpu}, torch_lines
+
+
 def test_the_project_has_a_licence_a_free_name_and_a_citation():
     """Issue 61: a LICENSE named in pyproject, the distribution name used by every hint (``splat``
     is another project's on PyPI; ``splat-framework`` was free on 2026-11-27), a CITATION.cff."""
