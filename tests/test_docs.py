@@ -105,6 +105,23 @@ def test_the_readmes_first_command_trains_without_the_test_tools_and_its_test_co
     assert torch_lines == {cpu}, torch_lines
 
 
+def test_the_readmes_links_into_the_docs_resolve():
+    """The site's strict build checks the docs' own links; the README is not in it, so its links to a
+    page, and to a heading of it, are checked here (the heading's anchor as MkDocs' toc makes it)."""
+    toc = pytest.importorskip("markdown.extensions.toc", reason="markdown comes with the docs extra")
+    readme = (ROOT / "README.md").read_text()
+    broken = []
+    for target, anchor in re.findall(r"\]\(((?:docs/)?[\w./-]+\.md)(?:#([\w-]+))?\)", readme):
+        page = ROOT / target
+        if not page.is_file():
+            broken.append(target)
+        elif anchor:
+            headings = re.findall(r"^#{1,6} (.+)$", re.sub(r"^```.*?^```", "", page.read_text(), flags=re.S | re.M), re.M)
+            if anchor not in {toc.slugify(h.replace("`", ""), "-") for h in headings}:
+                broken.append(f"{target}#{anchor}")
+    assert broken == []
+
+
 def test_the_project_has_a_licence_a_free_name_and_a_citation():
     """Issue 61: a LICENSE named in pyproject, the distribution name used by every hint (``splat``
     is another project's on PyPI; ``splat-framework`` was free on 2026-11-27), a CITATION.cff."""
