@@ -47,13 +47,13 @@ def _discover(asked: str | None):
     import warnings
 
     from ..errors import DataError
-    from ..registry import VariantWarning, discover_methods, invalid_variant
+    from ..registry import VariantWarning, discover_methods, left_out
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", VariantWarning)
         methods = discover_methods()
-    if asked and asked not in methods and invalid_variant(asked):  # one line naming the file, not tyro's box
-        raise DataError(invalid_variant(asked))
+    if asked and asked not in methods and left_out(asked):  # one line naming the file or plugin, not tyro's box
+        raise DataError(left_out(asked))
     for w in caught:
         warnings.showwarning(w.message, w.category, w.filename, w.lineno)
     return methods
@@ -87,7 +87,7 @@ def load_saved_experiment(path: str, methods: dict):
 
     from pydantic import ValidationError
 
-    from ..config import RUN_OPTION, read_config_json, upgrade_saved_config
+    from ..config import read_config_json, run_options, upgrade_saved_config
     from ..errors import DataError
     from .common import did_you_mean
 
@@ -110,9 +110,7 @@ def load_saved_experiment(path: str, methods: dict):
         from .common import format_validation_error
 
         raise DataError(f"{file}: not a {method} config ({format_validation_error(e)})") from None
-    run_options = {name: getattr(defaults, name) for name, info in type(defaults).model_fields.items()
-                   if any(m is RUN_OPTION for m in info.metadata)}
-    return method, saved.model_copy(update=run_options)
+    return method, saved.model_copy(update={name: getattr(defaults, name) for name in run_options(type(defaults))})
 
 
 def check_data_before_loading(data: str) -> None:
