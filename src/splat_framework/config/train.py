@@ -82,7 +82,7 @@ class TrainConfig(SplatConfig):
     overwrite: Annotated[bool, RUN_OPTION] = False
     """Allow writing into an existing non-empty --output folder."""
     trust_edited_config: Annotated[bool, RUN_OPTION, FOLDED] = False
-    """With --resume: accept a config.json that is missing or edited by hand."""
+    """With --resume or --load-config: accept a config.json that is missing its checksum or edited by hand."""
     eval_every: Annotated[Steps, RUN_OPTION] = 0
     """Evaluate the test views every this many iterations (0 = at the end)."""
     checkpoint_every: Annotated[Steps, FOLDED] = 1000
