@@ -51,8 +51,8 @@ def load_matcher(name: str, entry) -> object:
     except IMPORT_FAILURES as e:
         raise DataError(f"photo matcher '{name}' of {entry} cannot be imported ({raised(e)})") from None
     if not callable(match):
-        raise DataError(f"photo matcher '{name}' of {entry} is a {type(match).__name__}, not a function "
-                        "match(images, pairs=None) -> {(i, j): (pts_i [M, 2], pts_j [M, 2])}")
+        raise DataError(f"photo matcher '{name}' of {entry} is not callable (it is of type {type(match).__name__}); "
+                        "it must be a function match(images, pairs=None) -> {(i, j): (pts_i [M, 2], pts_j [M, 2])}")
     return match
 
 
