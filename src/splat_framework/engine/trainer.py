@@ -454,7 +454,7 @@ class Trainer(TrainState):
         cfg = self.config
         if cfg.resume:
             if not self.restore():
-                say(f"warning: {self.checkpoint_dir}: no checkpoint to resume from; training from the start", "yellow")
+                say(f"no checkpoint in {self.checkpoint_dir} yet: training from the start")  # a fresh sweep run
             self.write_config()  # this run's config, now that the checkpoint's record agrees with it
         total = cfg.total_steps
         self._train_t0 = time.perf_counter()
