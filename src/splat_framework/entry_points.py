@@ -44,6 +44,7 @@ GROUPS: dict[str, str] = {
 }
 """Every entry-point group a plugin may declare parts in -> what one entry names."""
 PLUGINS_VARIABLE = "SPLAT_PLUGINS"
+INSTALLED_VARIABLE = "SPLAT_INSTALLED_PLUGINS"
 
 
 FRAMEWORK_DISTRIBUTION = "splat-framework"
@@ -84,8 +85,13 @@ class Entry:
 
 def _installed(group: str) -> list[Entry]:
     """The installed packages' entry points of ``group``: the framework's own first, then the others
-    in ``importlib.metadata``'s order."""
+    in ``importlib.metadata``'s order (none with ``SPLAT_INSTALLED_PLUGINS=off``; an entry point of no
+    distribution, a test's, is kept)."""
+    from .environment import installed_plugins_setting
+
     eps = list(entry_points(group=group))
+    if not installed_plugins_setting(os.environ.get(INSTALLED_VARIABLE)):
+        eps = [ep for ep in eps if _distribution(ep) in (None, FRAMEWORK_DISTRIBUTION)]
     found = []
     for ep in sorted(eps, key=lambda ep: _distribution(ep) != FRAMEWORK_DISTRIBUTION):
         dist = _distribution(ep)

@@ -108,6 +108,8 @@ KINDS = {
 
 
 @pytest.mark.parametrize("kind", sorted(KINDS))
+@pytest.mark.bad_input("a plugin's method, variant, strategy, init or photo matcher named like a built-in one",
+                       "one warning line naming both sources; the built-in keeps the name")
 def test_a_plugins_part_named_like_a_builtin_leaves_the_builtin_in_place(taker, tmp_path, kind):
     """For every kind of part, a plugin's entry under a built-in's name is left out with one warning naming
     both sources, and the name keeps its meaning."""
@@ -123,9 +125,8 @@ def test_a_plugins_part_named_like_a_builtin_leaves_the_builtin_in_place(taker, 
     assert all("\n" not in line for line in lines)
 
 
-@pytest.mark.bad_input("a plugin's method, variant, strategy, init or photo matcher named like a built-in one "
-                       "(`aliked-lightglue`, `3dgs`, a `3dgs.toml` variant)",
-                       "one warning line naming both; the built-in keeps the name and nothing else moves")
+@pytest.mark.bad_input("a plugin's photo matcher named like a built-in one (`aliked-lightglue`)",
+                       "one warning line naming both; the built-in keeps the name and `--matcher auto` picks it")
 def test_a_plugins_photo_matcher_named_like_the_builtin_is_one_warning_line(taker, tmp_path):
     """Through the commands: ``--matcher`` lists the framework's matchers once, with one warning naming
     the plugin's entry and the built-in."""
@@ -140,6 +141,8 @@ def test_a_plugins_photo_matcher_named_like_the_builtin_is_one_warning_line(take
     assert len(warned) == 1 and "SPLAT_PLUGINS module 'taker'" in warned[0] and "splat-framework" in warned[0], r.stderr
 
 
+@pytest.mark.bad_input("a user's variant file named like a method (`3dgs.toml` on scgaussian) or a shipped variant",
+                       "one warning line naming both; the method and the variants built on it keep their meaning")
 def test_a_users_variant_named_like_a_method_changes_nothing(tmp_path):
     """A user's ``3dgs.toml`` (on scgaussian) is refused with one line naming both; ``3dgs`` and the shipped
     variants built on it keep their meaning (``3dgs-triang`` is not reported invalid)."""
