@@ -148,6 +148,7 @@ def _load_variants(methods: Parts[MethodSpec], dirs: list[Path]) -> dict[str, Me
                 pending[f.stem] = f
     _BROKEN.update(names.refused)
     docs: dict[str, dict] = {}
+    classes: dict[Callable, type] = {}
     resolved: dict[str, MethodSpec] = dict(methods.parts)
     progress = True
     while pending and progress:  # variants may build on other variants
@@ -170,7 +171,9 @@ def _load_variants(methods: Parts[MethodSpec], dirs: list[Path]) -> dict[str, Me
                 del pending[name]
                 continue
             p = resolved[parent]
-            problem = _run_option_problem(doc.get("overrides", {}), p)
+            if p.config_factory not in classes:  # one config built per base method, not per variant
+                classes[p.config_factory] = type(p.config_factory())
+            problem = _run_option_problem(doc.get("overrides", {}), classes[p.config_factory])
             if problem:
                 _skip(name, f"{f}: {problem}")
                 del pending[name]
@@ -209,16 +212,15 @@ def _variant_problem(doc: dict) -> str | None:
     return None
 
 
-def _run_option_problem(overrides: dict, base: MethodSpec) -> str | None:
+def _run_option_problem(overrides: dict, config_cls: type) -> str | None:
     """One phrase naming the first run option that ``overrides`` sets, or None: a variant sets the
     experiment, never where or how a run goes (the output folder, overwriting, resuming, the viewer
     and its address, the device, ...); those come only from the command line. The run options are
-    :func:`~splat_framework.config.run_options` of the base's config, the list ``--load-config``
-    follows too."""
+    :func:`~splat_framework.config.run_options` of the base's config class ``config_cls``, the list
+    ``--load-config`` follows too."""
     from .config import flag_name, run_options
 
-    options = run_options(type(base.config_factory()))
-    taken = [k for k in overrides if k in options]
+    taken = [k for k in overrides if k in run_options(config_cls)]
     if not taken:
         return None
     return (f"overrides.{taken[0]} is a run option: a variant sets the experiment, never where or how a run goes "

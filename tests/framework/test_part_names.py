@@ -251,3 +251,35 @@ def test_unknown_keys_and_tables_of_a_variant_are_refused_by_name(tmp_path):
     for name, (_, why) in cases.items():
         run_cli("train", name, "--data", "synthetic/forward-tiny", code=2, env=env, watch=[tmp_path],
                 match=(str(tmp_path / f"{name}.toml"), why))
+
+
+def test_an_installed_plugin_that_exits_or_fails_on_import_is_one_warning_and_asking_for_it_one_line(tmp_path,
+                                                                                                   monkeypatch):
+    """An installed entry point whose module calls ``sys.exit(0)`` or raises ``KeyboardInterrupt`` while
+    importing is left out with one warning naming it and what it raised (the command goes on); asking
+    for the method it declared is one DataError line saying why."""
+    from importlib.metadata import EntryPoint
+
+    from splat_framework import entry_points as plugins
+    from splat_framework.errors import DataError
+
+    (tmp_path / "exits_on_import.py").write_text("import sys\nsys.exit(0)\n")
+    (tmp_path / "interrupts_on_import.py").write_text("raise KeyboardInterrupt\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    group = registry.ENTRY_POINT_GROUP
+    fake = [EntryPoint("3dgs", "splat_framework.methods.gaussian_splatting:spec_3dgs", group),
+            EntryPoint("exits", "exits_on_import:spec", group), EntryPoint("interrupts", "interrupts_on_import:spec", group)]
+    monkeypatch.setattr(plugins, "entry_points", lambda group: [e for e in fake if e.group == group])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        methods = registry.discover_methods(config_dirs=[])
+    assert list(methods) == ["3dgs"]
+    lines = sorted(str(w.message) for w in caught)
+    assert lines == ["method 'exits' of an installed package (exits_on_import:spec) failed to import "
+                     "(SystemExit(0): it called sys.exit); ignored",
+                     "method 'interrupts' of an installed package (interrupts_on_import:spec) failed to import "
+                     "(KeyboardInterrupt); ignored"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(DataError, match=r"^method 'exits' of an installed package .* \(SystemExit\(0\)"):
+            registry.get_method("exits")
