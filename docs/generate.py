@@ -34,10 +34,10 @@ DOCS = Path(__file__).resolve().parent
 FIGURES = DOCS / "figures.toml"
 FIGURE = re.compile(r"<!-- figure:([a-z0-9-]+) -->(.*?)<!-- /figure:([a-z0-9-]+) -->", re.S)
 HELP_COLUMNS = "100"
-SHIPPED = {"splat_framework", "scg_plugin", "anchor_gs"}
-"""The packages of this repository: the methods page lists theirs only, not other installed plugins'."""
-ENV = {"COLUMNS": HELP_COLUMNS, "NO_COLOR": "1", "TERM": "dumb", "SPLAT_CONFIG_PATH": ""}
-"""The environment the help is captured in: a fixed width, no colour, no user variants."""
+ONLY_SHIPPED = {"SPLAT_CONFIG_PATH": "", "SPLAT_PLUGINS": "", "SPLAT_INSTALLED_PLUGINS": "off"}
+"""The parts of this repository only: no user variants, no plugin installed beside the project or named in SPLAT_PLUGINS."""
+ENV = {"COLUMNS": HELP_COLUMNS, "NO_COLOR": "1", "TERM": "dumb", **ONLY_SHIPPED}
+"""The environment the help is captured in: a fixed width, no colour, this repository's parts only."""
 
 
 def command_help(argv: list[str]) -> str:
@@ -95,11 +95,9 @@ def methods_block() -> str:
     from splat_framework.registry import discover_methods
 
     rows = ["| name | what it is |", "|---|---|"]
-    with mock.patch.dict(os.environ, {"SPLAT_CONFIG_PATH": ""}):
+    with mock.patch.dict(os.environ, ONLY_SHIPPED):
         methods = discover_methods()
     for name, spec in sorted(methods.items()):
-        if spec.model.partition(".")[0] not in SHIPPED:
-            continue  # a plugin installed beside the project
         rows.append(f"| `{name}` | {spec.description.strip().splitlines()[0]} |")
     return "\n".join(rows)
 

@@ -1,11 +1,22 @@
 """Shared test fixtures, and the test tiers (:mod:`tiers`: which tests are slow, the fast tier's limit)."""
 
+import os
 import shutil
 from pathlib import Path
 
 import pytest
 
 pytest_plugins = ["tiers"]
+
+
+def pytest_configure(config):
+    """Every test sees the framework's own registered parts and those it sets up itself (a fake entry
+    point, a module in SPLAT_PLUGINS, a variant folder), never a plugin installed beside the project
+    nor the developer's SPLAT_PLUGINS or SPLAT_CONFIG_PATH: the suite passes with the example plugin
+    installed (CI installs it). Set before collection: test modules list the methods as they load."""
+    os.environ["SPLAT_INSTALLED_PLUGINS"] = "off"
+    for name in ("SPLAT_PLUGINS", "SPLAT_CONFIG_PATH"):
+        os.environ.pop(name, None)
 
 
 @pytest.fixture(autouse=True, scope="session")

@@ -30,12 +30,15 @@ VARIABLES: dict[str, str] = {
                      "count; `off` leaves it alone.",
     "SPLAT_IMAGE_MEMORY_BUDGET": "Bytes of decoded training images kept in memory (suffixes K, M, G; unset: no "
                                 "limit); images beyond it are decoded again when needed.",
-    "SPLAT_CONFIG_PATH": "`:`-separated folders of TOML config variants, searched before the installed "
-                         "packages' variants.",
+    "SPLAT_CONFIG_PATH": "`:`-separated folders of TOML config variants, registered after the installed "
+                         "packages' variants (a name already taken is refused with one warning naming both files).",
     "SPLAT_PLUGINS": "Plugins used without installing a package: comma-separated module names (importable, "
                      "on `PYTHONPATH`), each declaring its parts (methods, strategies, start kinds, photo matchers, "
                      "config variants) in a dict `ENTRY_POINTS = {group: {name: \"module:object\"}}`, the table an "
                      "installed package's entry points hold (`SPLAT_PLUGINS=my_plugin splat-train my-method --data ...`).",
+    "SPLAT_INSTALLED_PLUGINS": "`on` (the default) or `off`: with `off`, the parts of installed packages other than "
+                               "splat itself are not registered (`SPLAT_PLUGINS`'s modules still are): run without "
+                               "a plugin you installed, as the documentation generator and the test suite do.",
     "SPLAT_METHODS": "No longer read: a set `SPLAT_METHODS` is refused with one line; name a module in "
                      "`SPLAT_PLUGINS` whose `ENTRY_POINTS` holds `{\"splat_framework.methods\": {NAME: \"module:spec\"}}`.",
 }
@@ -83,6 +86,16 @@ def compile_setting(value: str | None) -> bool | None:
         return None
     if text not in _SWITCH:
         raise _bad("SPLAT_COMPILE", value or "", "expected 1 or 0 (also true/false, yes/no, on/off)")
+    return _SWITCH[text]
+
+
+def installed_plugins_setting(value: str | None) -> bool:
+    """``SPLAT_INSTALLED_PLUGINS``: whether installed packages' parts register (on unless 0, false, no, off)."""
+    text = (value or "").strip().lower()
+    if not text:
+        return True
+    if text not in _SWITCH:
+        raise _bad("SPLAT_INSTALLED_PLUGINS", value or "", "expected on or off (also 1/0, true/false, yes/no)")
     return _SWITCH[text]
 
 
@@ -166,6 +179,7 @@ def check_environment(environ=None) -> None:
         "SPLAT_DATA": lambda v: _folder("SPLAT_DATA", v, must_exist=False),
         "SPLAT_CONFIG_PATH": lambda v: _folder("SPLAT_CONFIG_PATH", v, must_exist=True),
         "SPLAT_PLUGINS": plugin_modules,
+        "SPLAT_INSTALLED_PLUGINS": installed_plugins_setting,
         "SPLAT_METHODS": _replaced_methods_variable,
     }
     for name, check in checks.items():

@@ -4,8 +4,9 @@ A package declares methods in the entry-point group ``splat_framework.methods``;
 each entry point names a :class:`MethodSpec`. Without a package, a module named in
 ``$SPLAT_PLUGINS`` declares the same entries in its ``ENTRY_POINTS`` table
 (:mod:`splat_framework.entry_points`: one path for every kind of part); they register after the
-installed ones. An entry that does not import or is not a MethodSpec is left out with one warning
-naming it. Named config variants (the paper's rows) are TOML files::
+installed ones, which register after the framework's own. An entry that does not import, is not a
+MethodSpec or whose spec's name is not its entry's is left out with one warning naming it. Named
+config variants (the paper's rows) are TOML files::
 
     # configs/scgaussian-hybrid.toml
     base = "scgaussian"
@@ -19,11 +20,14 @@ in the entry-point group ``splat_framework.configs`` (``splat = "splat_configs"`
 here; a plugin ships its own the same way), so they are found from a checkout, an
 editable install or a wheel alike.
 
-Search order: the folders of ``$SPLAT_CONFIG_PATH`` (os.pathsep-separated), in
-order, then the entry-point packages in the order ``importlib.metadata`` lists
-them. The first file of a name wins; every later file of the same name is
-ignored with one warning naming both files. A variant keeps its own name, so
-runs of different variants never share an output folder.
+Registration order: the entry-point packages (the framework's ``splat_configs`` first, then in
+the order ``importlib.metadata`` lists them), then the folders of ``$SPLAT_CONFIG_PATH``
+(os.pathsep-separated), in order. Every kind of part follows one rule
+(:class:`~splat_framework.entry_points.Parts`): a variant is named by its file, and a name taken by
+a method or by an earlier file keeps what it means; the later file is refused with one warning
+naming both. A variant shapes the experiment only: a run option in its overrides (``output``,
+``overwrite``, ``viewer_host``, ...), an unknown top-level key or table, is refused naming it. A
+variant keeps its own name, so runs of different variants never share an output folder.
 
 Importing this module and listing methods never imports torch.
 """
@@ -40,7 +44,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from .entry_points import CONFIG_ENTRY_POINT_GROUP, registered
+from .entry_points import CONFIG_ENTRY_POINT_GROUP, Parts, RegistrationWarning, registered
 from .entry_points import METHOD_ENTRY_POINT_GROUP as ENTRY_POINT_GROUP
 
 
@@ -91,84 +95,95 @@ class MethodSpec:
 
 
 def default_config_dirs() -> list[Path]:
-    """Folders searched for TOML variants, in precedence order: ``$SPLAT_CONFIG_PATH``, then the
-    packages named in the ``splat_framework.configs`` entry points (package data), each once."""
+    """Folders searched for TOML variants, in the order they register: the packages named in the
+    ``splat_framework.configs`` entry points (package data; the framework's own first), then the
+    folders of ``$SPLAT_CONFIG_PATH``, each once."""
     dirs = []
-    env = os.environ.get("SPLAT_CONFIG_PATH")
-    if env:
-        dirs += [Path(p) for p in env.split(os.pathsep) if p]
     for ep in registered(CONFIG_ENTRY_POINT_GROUP):
         try:
             folder = Path(str(importlib.resources.files(ep.value)))
         except (ImportError, TypeError, ValueError) as e:  # a broken plugin must not kill the CLI
-            warnings.warn(f"config variants '{ep.name}' ({ep.value}) cannot be located: {e}", stacklevel=2)
+            warnings.warn(f"config variants '{ep.name}' of {ep} cannot be located: {e}", stacklevel=2)
             continue
         if folder.is_dir() and folder not in dirs:
             dirs.append(folder)
+    env = os.environ.get("SPLAT_CONFIG_PATH")
+    if env:
+        dirs += [d for d in (Path(p) for p in env.split(os.pathsep) if p) if d not in dirs]
     return dirs
 
 
-def _load_entry_points(group: str) -> dict[str, MethodSpec]:
-    from .entry_points import load_entry_points
+def _load_methods() -> Parts[MethodSpec]:
+    """The methods of the entry points (:class:`~splat_framework.entry_points.Parts`' rule: the
+    framework's first, a taken name keeps its first registration)."""
 
-    specs: dict[str, MethodSpec] = {}
-    for name, spec in load_entry_points(group, "method").items():
+    def check(name: str, spec: object) -> str | None:
         if not isinstance(spec, MethodSpec):
-            warnings.warn(f"method plugin '{name}' is not a MethodSpec; ignored", stacklevel=2)
-            continue
-        if spec.name in specs:
-            warnings.warn(f"method '{spec.name}' registered twice; keeping the first", stacklevel=2)
-            continue
-        specs[spec.name] = spec
-    return specs
+            return f"not a MethodSpec (a {type(spec).__name__})"
+        return None if spec.name == name else f"its name is {spec.name!r}, not its entry-point name '{name}'"
+
+    return Parts("method").load(ENTRY_POINT_GROUP, check)
 
 
-def _load_variants(base: dict[str, MethodSpec], dirs: list[Path]) -> dict[str, MethodSpec]:
+VARIANT_KEYS = ("base", "description", "overrides")
+"""The top-level keys of a TOML variant."""
+
+
+def _load_variants(methods: Parts[MethodSpec], dirs: list[Path]) -> dict[str, MethodSpec]:
+    """The variants of the ``*.toml`` files in ``dirs`` (in order), each under the name of its file:
+    a name taken by a method or an earlier file, or that is not a name, is refused (one warning naming
+    both), and so is a file that is not a variant (:func:`_variant_problem`); the others resolve
+    their ``base`` chains."""
     from .config import deep_merge
 
     variants: dict[str, MethodSpec] = {}
     pending: dict[str, Path] = {}
     _BROKEN.clear()
-    docs: dict[str, dict] = {}
-    for d in dirs:  # the first folder with a name wins
+    _BROKEN.update(methods.refused)
+    names: Parts[Path] = Parts("config variant", VariantWarning)
+    names.sources.update(methods.sources)
+    for d in dirs:  # the first registration of a name keeps it
         for f in sorted(_toml_files(d)):
-            first = pending.setdefault(f.stem, f)
-            if first != f:
-                warnings.warn(f"{f}: variant '{f.stem}' is also defined by {first}, which wins; ignored",
-                              VariantWarning, stacklevel=2)
-    resolved = dict(base)
+            if names.add(f.stem, f, str(f)):
+                pending[f.stem] = f
+    _BROKEN.update(names.refused)
+    docs: dict[str, dict] = {}
+    classes: dict[Callable, type] = {}
+    resolved: dict[str, MethodSpec] = dict(methods.parts)
     progress = True
     while pending and progress:  # variants may build on other variants
         progress = False
         for name, f in list(pending.items()):
             if name not in docs:
                 doc = _read_variant(f)
-                if isinstance(doc, str):
-                    _skip(name, f"{f}: {doc}")
+                problem = doc if isinstance(doc, str) else _variant_problem(doc)
+                if problem:
+                    _skip(name, f"{f}: {problem}")
                     del pending[name]
                     continue
                 docs[name] = doc
             doc = docs[name]
-            parent = doc.get("base")
-            overrides = doc.get("overrides", {})
-            if not isinstance(parent, str) or not isinstance(overrides, dict):
-                _skip(name, f"{f}: a variant needs base = \"METHOD\" and an [overrides] table")
-                del pending[name]
-                continue
+            parent = doc["base"]
             if parent not in resolved:
                 if parent in pending:
                     continue
-                _skip(name, f"{f}: base method '{parent}' is not registered")
+                _skip(name, f"{f}: {_missing_base(parent, resolved)}")
                 del pending[name]
                 continue
             p = resolved[parent]
-
+            if p.config_factory not in classes:  # one config built per base method, not per variant
+                classes[p.config_factory] = type(p.config_factory())
+            problem = _run_option_problem(doc.get("overrides", {}), classes[p.config_factory])
+            if problem:
+                _skip(name, f"{f}: {problem}")
+                del pending[name]
+                continue
             spec = MethodSpec(
                 name=name,
                 description=str(doc.get("description", f"{parent} variant")),
                 config_factory=p.config_factory,
                 model=p.model,
-                overrides=deep_merge(p.overrides, overrides),
+                overrides=deep_merge(p.overrides, doc.get("overrides", {})),
                 pipeline=p.pipeline,
                 base=p.base or parent,
             )
@@ -182,6 +197,43 @@ def _load_variants(base: dict[str, MethodSpec], dirs: list[Path]) -> dict[str, M
     for name, f in pending.items():
         _skip(name, f"{f}: variant '{name}' has a circular base ({_cycle(name, docs)})")
     return variants
+
+
+def _variant_problem(doc: dict) -> str | None:
+    """Why the parsed TOML ``doc`` is not a variant, in one phrase naming the key, or None: a variant
+    holds ``base = "METHOD"``, a ``description`` and an ``[overrides]`` table, nothing else."""
+    from .errors import did_you_mean
+
+    for key in doc:
+        if key not in VARIANT_KEYS:
+            return f"unknown key '{key}'{did_you_mean(key, VARIANT_KEYS)}; a variant holds {', '.join(VARIANT_KEYS)}"
+    if not isinstance(doc.get("base"), str) or not isinstance(doc.get("overrides", {}), dict):
+        return "a variant needs base = \"METHOD\" and an [overrides] table"
+    return None
+
+
+def _run_option_problem(overrides: dict, config_cls: type) -> str | None:
+    """One phrase naming the first run option that ``overrides`` sets, or None: a variant sets the
+    experiment, never where or how a run goes (the output folder, overwriting, resuming, the viewer
+    and its address, the device, ...); those come only from the command line. The run options are
+    :func:`~splat_framework.config.run_options` of the base's config class ``config_cls``, the list
+    ``--load-config`` follows too."""
+    from .config import flag_name, run_options
+
+    taken = [k for k in overrides if k in run_options(config_cls)]
+    if not taken:
+        return None
+    return (f"overrides.{taken[0]} is a run option: a variant sets the experiment, never where or how a run goes "
+            f"(give {flag_name(taken[0])} on the command line)")
+
+
+def _missing_base(parent: str, resolved: dict) -> str:
+    """Why ``parent`` is no base: skipped (its own reason's file named) or not registered."""
+    from .errors import did_you_mean
+
+    if parent in _BROKEN:
+        return f"base '{parent}' is left out ({_BROKEN[parent]})"
+    return f"base method '{parent}' is not registered{did_you_mean(parent, resolved)}"
 
 
 MAX_VARIANT_BYTES = 1 << 20
@@ -246,12 +298,12 @@ def _skip(name: str, reason: str) -> None:
     warnings.warn(f"{reason}; ignored", VariantWarning, stacklevel=3)
 
 
-class VariantWarning(UserWarning):
-    """A config variant was skipped (unreadable, not a regular file, not UTF-8 TOML, invalid, or its
-    base does not resolve): always one line naming the file."""
+class VariantWarning(RegistrationWarning):
+    """A config variant was skipped (its name taken or not a name, unreadable, not a regular file, not
+    UTF-8 TOML, not a variant, invalid, or its base does not resolve): always one line naming the file."""
 
 
-#: name -> one-line reason naming the file, for every variant found but skipped
+#: name -> one-line reason naming the file or the plugin, for every method or variant left out
 _BROKEN: dict[str, str] = {}
 
 
@@ -271,16 +323,13 @@ def _invalid_config(spec: MethodSpec) -> str | None:
 
 
 def discover_methods(config_dirs: list[Path] | None = None) -> dict[str, MethodSpec]:
-    """All registered methods and config variants, by name (the installed entry points first, then
-    those the modules of ``$SPLAT_PLUGINS`` declare: :func:`splat_framework.entry_points.registered`)."""
-    specs = _load_entry_points(ENTRY_POINT_GROUP)
+    """All registered methods and config variants, by name: the entry points (the framework's own
+    first, then installed packages', then those the modules of ``$SPLAT_PLUGINS`` declare:
+    :func:`splat_framework.entry_points.registered`), then the variants of ``config_dirs`` (default:
+    :func:`default_config_dirs`). A name keeps its first registration; see :func:`left_out`."""
+    methods = _load_methods()
     dirs = default_config_dirs() if config_dirs is None else config_dirs
-    for name, spec in _load_variants(specs, dirs).items():
-        if name in specs:
-            warnings.warn(f"config variant '{name}' shadows a registered method; ignored", stacklevel=2)
-            continue
-        specs[name] = spec
-    return specs
+    return {**methods.parts, **_load_variants(methods, dirs)}
 
 
 def registered_defaults(config):
@@ -296,18 +345,19 @@ def registered_defaults(config):
     return resolve_steps(defaults.model_copy(update={"steps": config.total_steps, "views": config.views}))
 
 
-def invalid_variant(name: str) -> str | None:
-    """Why the variant ``name`` was skipped by the last discovery (one line naming its file), or None."""
+def left_out(name: str) -> str | None:
+    """Why the method or variant ``name`` was left out by the last discovery (one line naming its
+    file or plugin: a variant that is invalid, a plugin's method that failed to import), or None."""
     return _BROKEN.get(name)
 
 
 def get_method(name: str) -> MethodSpec:
-    """The method or variant ``name``; a variant skipped as invalid raises DataError naming its file."""
+    """The method or variant ``name``; one left out (:func:`left_out`) raises DataError naming its file or plugin."""
     methods = discover_methods()
-    if name not in methods and invalid_variant(name):
+    if name not in methods and left_out(name):
         from .errors import DataError
 
-        raise DataError(invalid_variant(name))
+        raise DataError(left_out(name))
     if name not in methods:
         known = ", ".join(sorted(methods))
         raise KeyError(f"unknown method '{name}' (registered: {known})")

@@ -29,6 +29,7 @@ def _env(site, tmp_path):
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(site), env.get("PYTHONPATH", "")])
     env["SPLAT_CACHE"] = str(tmp_path / "cache")
+    env["SPLAT_INSTALLED_PLUGINS"] = "on"  # installed into site: its entry points are what these tests are about
     return env
 
 

@@ -233,7 +233,7 @@ def test_a_bad_variant_file_is_one_warning_line(tmp_path, case):
     methods, msgs = _discover(tmp_path)
     assert "3dgs" in methods and "bad" not in methods
     assert len(msgs) == 1 and "bad.toml" in msgs[0] and needle in msgs[0] and "\n" not in msgs[0], msgs
-    assert registry.invalid_variant("bad") == msgs[0].removesuffix("; ignored")
+    assert registry.left_out("bad") == msgs[0].removesuffix("; ignored")
 
 
 @pytest.mark.bad_input("a binary, UTF-16 or oversized `.toml`, or a FIFO or folder named `*.toml`, in `$SPLAT_CONFIG_PATH`", "`--help` and every command work; one warning line per file; special files are never opened")
@@ -255,7 +255,7 @@ def test_circular_bases_are_one_line_per_file_naming_the_cycle(tmp_path):
     methods, msgs = _discover(tmp_path)
     assert not {"a", "b", "c"} & set(methods)
     assert len(msgs) == 3 and all("\n" not in m for m in msgs), msgs
-    assert "a -> b -> a" in registry.invalid_variant("a") and "c -> c" in registry.invalid_variant("c")
+    assert "a -> b -> a" in registry.left_out("a") and "c -> c" in registry.left_out("c")
 
 
 # ------------------------------------------------------------------ the command line

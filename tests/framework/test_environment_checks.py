@@ -22,6 +22,7 @@ INVALID = {
     "SPLAT_CONFIG_PATH": ["MISSING"],
     "SPLAT_PLUGINS": ["my plugin", "my_plugin,not a module", "mod:spec", "pkg..parts", "1mod"],
     "SPLAT_METHODS": ["my_methods:spec", "anything"],
+    "SPLAT_INSTALLED_PLUGINS": ["maybe", "2"],
 }
 VALID = {
     "SPLAT_THREADS": ["auto", "off", "1", "16", " Auto ", "", "4096"],
@@ -33,6 +34,7 @@ VALID = {
     "SPLAT_CONFIG_PATH": ["DIR"],
     "SPLAT_PLUGINS": ["my_plugin", "pkg.parts, other,", ""],
     "SPLAT_METHODS": ["", " "],
+    "SPLAT_INSTALLED_PLUGINS": ["on", "off", "0", "Yes", ""],
 }
 
 

@@ -109,3 +109,31 @@ def test_a_flat_matching_block_of_an_old_run_loads_as_its_matchers_config(varian
     assert guided == ([4, None] if block.kind == "auto" else ["n/a", "n/a"])
     matching = loaded.model.init.matching if variant.endswith("-triang") else loaded.model.matching
     assert type(matching) is type(block) and all(getattr(matching, k) == v for k, v in edits.items())
+
+
+@pytest.mark.bad_input("`splat-train --load-config` of an edited or unsigned config.json; one nested thousands deep",
+                       "exit 2, one line naming the file and `--trust-edited-config`, which then loads it; "
+                       "deep nesting: one line naming the file")
+def test_load_config_of_an_edited_file_needs_and_takes_trust_edited_config(run_dir, tmp_path):
+    """An edited config.json is refused naming ``--trust-edited-config``, and with it the edit is the experiment
+    (checked before the parser: --help shows the edited value); a deeply nested file is one line."""
+    payload = json.loads((run_dir / "config.json").read_text())
+    payload["config"]["seed"] = 41  # edited by hand: the checksum no longer matches
+    edited = tmp_path / "edited.json"
+    edited.write_text(json.dumps(payload))
+    run_cli("train", "--load-config", edited, "--help", code=2, match=("edited.json", "--trust-edited-config"),
+            watch=[tmp_path])
+    new = tmp_path / "again"
+    run_cli("train", "--load-config", edited, "--trust-edited-config", "--steps", "2", "--output", new,
+            "--no-progress", "--no-save-renders", code=0, watch=[run_dir])
+    assert read_config_json(new / "config.json").config["seed"] == 41
+    run_cli("train", "--load-config", edited, "--trust-edited-config", "--no-trust-edited-config", code=2,
+            match="--trust-edited-config", watch=[tmp_path])
+    deep = tmp_path / "deep.json"
+    deep.write_text('{"config": ' + "[" * 100_000 + "]" * 100_000 + "}")
+    for trust in ((), ("--trust-edited-config",)):
+        run_cli("train", "--load-config", deep, *trust, code=2, match=("deep.json", "nested too deeply"), watch=[tmp_path])
+    payload["config"]["model"] = {"init": [[[[[[["x"]]]]]]]}
+    (tmp_path / "odd.json").write_text(json.dumps(payload))
+    run_cli("train", "--load-config", tmp_path / "odd.json", "--trust-edited-config", code=2,
+            match=("odd.json", "not a 3dgs config"), watch=[tmp_path])

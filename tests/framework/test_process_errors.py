@@ -190,3 +190,61 @@ def test_sigterm_after_pycolmap_is_loaded_stops_like_ctrl_c():
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130 and err.strip() == "interrupted", err[-2000:]
+
+
+def _corrupt_body(path: Path) -> None:
+    """Overwrite bytes in the middle of a JPEG's compressed data: libjpeg decodes it with garbage,
+    printing only its own warning."""
+    data = bytearray(path.read_bytes())
+    middle = len(data) // 2
+    for k in range(middle, middle + 40):
+        data[k] = 0xFF if k % 7 == 0 else data[k] ^ 0x5A
+    path.write_bytes(bytes(data))
+
+
+@pytest.mark.bad_input("own photos: a JPEG with a corrupt body; a FIFO or a link to `/dev/zero` named `*.jpg`",
+                       "exit 2, one line naming the photo and the decoder's complaint (libjpeg's own line not "
+                       "printed); a special file: one warning line naming it, skipped, never opened")
+def test_a_corrupt_jpeg_is_named_with_the_decoders_complaint_and_special_files_are_skipped_naming_them(tmp_path):
+    photos = tmp_path / "photos"
+    corrupt = noise_photos(photos, 3, 64, 48)[0]
+    _corrupt_body(corrupt)
+    os.mkfifo(photos / "fifo.jpg")  # opening it would wait for a writer forever
+    (photos / "zero.jpg").symlink_to("/dev/zero")  # reading it would never end
+    r = run_cli("process", "images", photos, "--out", tmp_path / "scene", code=2, max_lines=3, watch=[tmp_path],
+                match=(corrupt.name, "corrupt JPEG (Corrupt JPEG data"))
+    lines = r.message.splitlines()
+    assert sorted(lines[:2]) == [f"warning: {photos / 'fifo.jpg'}: not a regular file (a FIFO); skipped",
+                                 f"warning: {photos / 'zero.jpg'}: not a regular file (a device); skipped"], r.stderr
+    assert lines[2].startswith("error: ") and sum("Corrupt JPEG data" in line for line in lines) == 1, r.stderr
+
+
+BAD_MATCHERS = '''
+import numpy as np
+
+ENTRY_POINTS = {"splat_framework.photo_matchers": {"not-callable": "bad_matchers:NOT_CALLABLE",
+                                                   "bad-shape": "bad_matchers:bad_shape"}}
+NOT_CALLABLE = 3
+
+
+def bad_shape(images, pairs=None):
+    return {(0, 1): (np.zeros((5, 3)), np.zeros((5, 3)))}
+'''
+
+
+@pytest.mark.bad_input("a plugin's photo matcher that is not callable or returns matches of the wrong shape",
+                       "exit 2, one line naming the matcher, its plugin and what is wrong")
+def test_a_plugin_photo_matcher_that_is_not_callable_or_returns_the_wrong_shape_is_one_line(tmp_path):
+    code = tmp_path / "code"
+    code.mkdir()
+    (code / "bad_matchers.py").write_text(BAD_MATCHERS)
+    env = cli_env(PYTHONPATH=os.pathsep.join(p for p in (str(code), os.environ.get("PYTHONPATH")) if p),
+                  SPLAT_PLUGINS="bad_matchers")
+    photos = tmp_path / "photos"
+    noise_photos(photos, 3, 64, 48)
+    run_cli("process", "images", photos, "--out", tmp_path / "a", "--matcher", "not-callable", code=2, env=env,
+            watch=[photos], match=("photo matcher 'not-callable' of SPLAT_PLUGINS module 'bad_matchers' "
+                                   "(bad_matchers:NOT_CALLABLE) is not callable (it is of type int)"), timeout=600)
+    run_cli("process", "images", photos, "--out", tmp_path / "b", "--matcher", "bad-shape", code=2, env=env, max_lines=2,
+            watch=[photos], match=("photo matcher 'bad-shape' returned for (0, 1) points of shapes [[5, 3], [5, 3]], "
+                                   "not two [M, 2]"), timeout=600)

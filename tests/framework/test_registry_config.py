@@ -100,12 +100,21 @@ BROKEN_PLUGINS = {
     "bad_group": "ENTRY_POINTS = {'splat_framework.method': {'a': 'm:b'}}\n",
     "bad_entries": "ENTRY_POINTS = {'splat_framework.methods': ['m:b']}\n",
     "raises": "raise RuntimeError('plugin broke')\n",
+    "exits_0": "import sys\nsys.exit(0)\n",
+    "exits_3": "import sys\nsys.exit(3)\n",
+    "interrupts": "raise KeyboardInterrupt\n",
+    "attribute": "import os\nos.no_such_function()\n",
+    "empty_entry": "ENTRY_POINTS = {'splat_framework.methods': {'a': ''}}\n",
+    "no_colon": "ENTRY_POINTS = {'splat_framework.methods': {'a': 'my_methods.spec'}}\n",
+    "bad_name": "ENTRY_POINTS = {'splat_framework.methods': {'My Method': 'my_methods:spec'}}\n",
 }
 
 
-@pytest.mark.bad_input("`SPLAT_PLUGINS` naming something that is not a module name, a module that does not import, "
-                       "or one without a well-formed `ENTRY_POINTS` table; `SPLAT_METHODS` set (no longer read)",
-                       "exit 2, one line naming the variable and the module")
+@pytest.mark.bad_input("`SPLAT_PLUGINS` naming something that is not a module name, a module that does not import "
+                       "(whatever it raises: `sys.exit(0)`, `KeyboardInterrupt`, an `AttributeError`), or one without "
+                       "a well-formed `ENTRY_POINTS` table (an entry `\"\"` or without a colon, a name that is not one); "
+                       "`SPLAT_METHODS` set (no longer read)",
+                       "exit 2, one line naming the variable, the module and what it raised (`--help` included)")
 def test_a_method_registered_by_splat_plugins_trains_without_a_package(tmp_path):
     """A module on PYTHONPATH, named by ``SPLAT_PLUGINS``, declares a method in its ENTRY_POINTS as an
     installed package's entry points would: listed, trained, saved under its name; a bad module is
@@ -128,9 +137,18 @@ def test_a_method_registered_by_splat_plugins_trains_without_a_package(tmp_path)
     for value, why in (("my methods", "entry 'my methods' is not a module name"),
                        ("no_such_module", "module 'no_such_module' cannot be imported"),
                        ("no_table", "has no ENTRY_POINTS"), ("bad_group", "names group 'splat_framework.method'"),
-                       ("bad_entries", "is not a dict of name"), ("raises", "cannot be imported (plugin broke)")):
+                       ("bad_entries", "is not a dict of name"),
+                       ("raises", "cannot be imported (RuntimeError: plugin broke)"),
+                       ("exits_0", "cannot be imported (SystemExit(0): it called sys.exit)"),
+                       ("exits_3", "cannot be imported (SystemExit(3): it called sys.exit)"),
+                       ("interrupts", "cannot be imported (KeyboardInterrupt)"),
+                       ("attribute", "cannot be imported (AttributeError: module 'os' has no attribute"),
+                       ("empty_entry", "ENTRY_POINTS['splat_framework.methods']['a']: '' is not a 'module:object' path"),
+                       ("no_colon", "'my_methods.spec' is not a 'module:object' path"),
+                       ("bad_name", "'My Method' is not a name")):
         run_cli("train", "my-3dgs", "--help", code=2, env={**env, "SPLAT_PLUGINS": value},
                 match=(f"SPLAT_PLUGINS={value!r}: ", why), watch=[tmp_path])
+    run_cli("train", "--help", code=2, env={**env, "SPLAT_PLUGINS": "exits_0"}, match="SystemExit(0)", watch=[tmp_path])
     run_cli("train", "--help", code=2, env={**env, "SPLAT_METHODS": "my_methods:spec"},
             match=("SPLAT_METHODS='my_methods:spec': no longer read; name a module in SPLAT_PLUGINS",), watch=[tmp_path])
 
@@ -150,7 +168,9 @@ def test_variant_files_override_base(tmp_path, monkeypatch):
     assert methods["3dgs"].default_config().model.sh_degree == 3
 
 
-def test_user_folder_wins_and_a_broken_variant_package_warns(tmp_path, monkeypatch):
+def test_a_shipped_variant_keeps_its_name_and_a_broken_variant_package_warns(tmp_path, monkeypatch):
+    """The packages' variants register before ``$SPLAT_CONFIG_PATH``'s: a user's file named like a shipped
+    variant is refused with one warning naming both files, and the name keeps its meaning."""
     eps = [
         EntryPoint("3dgs", "splat_framework.methods.gaussian_splatting:spec_3dgs", registry.ENTRY_POINT_GROUP),
         EntryPoint("splat", "splat_configs", registry.CONFIG_ENTRY_POINT_GROUP),
@@ -163,12 +183,12 @@ def test_user_folder_wins_and_a_broken_variant_package_warns(tmp_path, monkeypat
         warnings.simplefilter("always")
         dirs = registry.default_config_dirs()
         methods = registry.discover_methods()
-    assert dirs == [tmp_path, REPO / "configs"]
+    assert dirs == [REPO / "configs", tmp_path]
     assert any("gone" in str(x.message) and "cannot be located" in str(x.message) for x in w)
-    assert methods["3dgs-frustum"].description == "mine"
-    shadowed = [str(x.message) for x in w if "also defined by" in str(x.message)]
-    assert shadowed == [f"{REPO / 'configs' / '3dgs-frustum.toml'}: variant '3dgs-frustum' is also defined by "
-                        f"{tmp_path / '3dgs-frustum.toml'}, which wins; ignored"]
+    assert methods["3dgs-frustum"].description != "mine"
+    shadowed = [str(x.message) for x in w if "already registered" in str(x.message)]
+    assert shadowed == [f"config variant '3dgs-frustum' of {tmp_path / '3dgs-frustum.toml'} is already registered by "
+                        f"{REPO / 'configs' / '3dgs-frustum.toml'}, which keeps it; ignored"]
 
 
 def test_the_paper_rows_live_in_the_top_level_configs_folder():

@@ -555,3 +555,67 @@ def load_run_scene_camera(config, index: int):
     from splat_framework.engine.run_scene import load_config_scene
 
     return load_config_scene(config).cameras[index].world_to_cam
+
+
+@pytest.mark.slow
+@pytest.mark.bad_input("SIGTERM (or Ctrl-C) during the final evaluation of `splat-train`",
+                       "exit 130, one line: the training is saved (its checkpoint named), metrics.json not written, "
+                       "and the command that continues (which scores the run)")
+def test_sigterm_during_the_evaluation_says_what_is_saved_and_the_command_that_continues(tmp_path):
+    import shlex
+    import time
+
+    from cli_harness import cli_env
+    from cli_harness import run_cli as run_command
+
+    out = tmp_path / "run"
+    args = ["3dgs", "--data", "synthetic/forward-tiny", "--steps", "4", "--model.init.num-points", "200",
+            "--no-progress", "--no-save-renders", "--test-pose-steps", "60", "--output", str(out)]
+    proc = subprocess.Popen([sys.executable, "-m", "splat_framework.cli.train", *args], env=cli_env(), text=True,
+                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.time() + 240
+    while not list((out / "checkpoints").glob("step-0000004.ckpt")):  # the last step's checkpoint: evaluation follows
+        assert proc.poll() is None and time.time() < deadline, proc.communicate()
+        time.sleep(0.05)
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGTERM)
+    _, stderr = proc.communicate(timeout=120)
+    lines = message_lines(stderr)
+    assert proc.returncode == 130 and "Traceback" not in stderr, stderr
+    assert lines[-1].startswith("stopped: interrupted during the evaluation: training is done and saved in "), stderr
+    assert "metrics.json was not written" in lines[-1] and not (out / "metrics.json").exists()
+    command = shlex.split(lines[-1].partition("continue with: ")[2])
+    assert command[0] == "splat-train" and command[-1] == "--resume", lines[-1]
+    run_command("train", *command[1:], code=0)
+    assert read_json(out / "metrics.json")["steps"] == 4
+
+
+@pytest.mark.bad_input("SIGTERM (or Ctrl-C) during `splat-eval`",
+                       "exit 130, one line: metrics.json unchanged, and the command to run again")
+def test_sigterm_during_splat_eval_says_metrics_are_unchanged_and_the_command(run_dir, tmp_path):
+    import shlex
+    import shutil
+    import time
+
+    from cli_harness import cli_env
+    from splat_framework.files.run_lock import LOCK_NAME
+
+    run = tmp_path / "run"
+    shutil.copytree(run_dir, run)
+    before = (run / "metrics.json").read_bytes()
+    proc = subprocess.Popen([sys.executable, "-m", "splat_framework.cli.eval", str(run), "--test-pose-steps", "500"],
+                            env=cli_env(), text=True, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    deadline = time.time() + 120
+    while not (run / LOCK_NAME).exists():  # it owns the run: whatever it does next, a stop leaves metrics.json as it was
+        assert proc.poll() is None and time.time() < deadline, proc.communicate()
+        time.sleep(0.05)
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGTERM)
+    _, stderr = proc.communicate(timeout=120)
+    lines = message_lines(stderr)
+    assert proc.returncode == 130 and "Traceback" not in stderr, stderr
+    assert lines[-1] == (f"stopped: interrupted during the evaluation: {run / 'metrics.json'} is unchanged (renders/ "
+                         f"may hold some views of this evaluation); run it again: "
+                         f"{shlex.join(['splat-eval', str(run), '--test-pose-steps', '500'])}"), stderr
+    assert (run / "metrics.json").read_bytes() == before

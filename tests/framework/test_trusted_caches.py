@@ -328,3 +328,64 @@ def test_a_planted_graph_with_a_regenerated_manifest_is_never_unpickled(tmp_path
     assert not marker.exists() and graph() == "compiled here" and compiled == [1]
     (message,) = [str(w.message) for w in caught]
     assert message.startswith(f"compiled rasterizer kernels not loaded: {folder / MANIFEST}: missing, unreadable or not signed")
+
+
+def _unusable_key(config: Path, case: str) -> Path:
+    """``config/splat/cache-key`` made unusable as ``case`` says; the key file."""
+    key = config / "splat" / "cache-key"
+    private_folder(key.parent)
+    good = "ab" * 32
+    if case == "mode 644":
+        key.write_text(good)
+        os.chmod(key, 0o644)
+    elif case == "folder":
+        key.mkdir()
+    elif case == "symlink":
+        (key.parent / "elsewhere").write_text(good)
+        os.chmod(key.parent / "elsewhere", 0o600)
+        key.symlink_to(key.parent / "elsewhere")
+    elif case == "not hex":
+        key.write_text("not a key at all")
+        os.chmod(key, 0o600)
+    elif case == "fifo":
+        os.mkfifo(key, 0o600)  # opening it for reading would block forever
+    elif case == "folder 777":
+        key.write_text(good)
+        os.chmod(key, 0o600)
+        os.chmod(key.parent, 0o777)
+    return key
+
+
+UNUSABLE_KEYS = {"mode 644": ("mode 644", "rm -r"), "folder": ("a folder, not a file", "rm -r"),
+                 "symlink": ("a symbolic link, not a file", "rm -r"), "not hex": ("does not hold a key", "rm -r"),
+                 "fifo": ("a FIFO, not a file", "rm -r"), "folder 777": ("writable by others (mode 777)", "chmod 700")}
+SIGN_AND_CHECK = """
+import sys
+from splat_framework.runtime.trusted import manifest_mismatch, write_manifest
+if sys.argv[2] == "write":
+    write_manifest(sys.argv[1], ["a.bin"])
+print(manifest_mismatch(sys.argv[1], ["a.bin"]))
+"""
+
+
+@needs_owners
+@pytest.mark.parametrize("case", sorted(UNUSABLE_KEYS))
+@pytest.mark.bad_input("an unusable cache signing key (mode 0644, a folder, a symlink, not hex, a FIFO, a 0777 config "
+                       "folder)", "one warning line a process naming the key file, what is wrong and the command that "
+                       "fixes it; a FIFO is never opened; the caches' check names the key, not the manifest")
+def test_an_unusable_signing_key_is_one_warning_naming_it_and_the_fix(tmp_path, case):
+    """The process signs with a key of its own (its own caches verify), warns once naming the key file, what
+    is wrong and the fixing command; the next process's check of those caches names the key as the cause.
+    A FIFO is never opened (the command would hang)."""
+    key = _unusable_key(tmp_path / "config", case)
+    folder = private_folder(tmp_path / "cache")
+    (folder / "a.bin").write_bytes(b"x")
+    env = {**os.environ, "XDG_CONFIG_HOME": str(tmp_path / "config")}
+    what, fix = UNUSABLE_KEYS[case]
+    for step, verdict in (("write", "None"), ("check", "not signed by this process's key")):
+        r = subprocess.run([sys.executable, "-W", "default", "-c", SIGN_AND_CHECK, str(folder), step], env=env,
+                           capture_output=True, text=True, timeout=60)
+        lines = [line for line in r.stderr.splitlines() if "Warning: " in line]
+        assert r.returncode == 0 and len(lines) == 1, r.stderr
+        assert f"{key}: unusable cache signing key: " in lines[0] and what in lines[0] and fix in lines[0], lines
+        assert verdict in r.stdout and (step == "write" or f"signing key {key}: " in r.stdout), r.stdout

@@ -24,15 +24,29 @@ class EvalArgs:
     """Fit each test camera's pose to its photo by this many Adam steps before scoring it, the model frozen (the protocol of pose-free methods: BARF, CF-3DGS); for runs on poses estimated from the training photos alone (splat-process), whose test cameras inherit the estimate's error. 0 = score the dataset's test poses as they are; default: the run's own --test-pose-steps."""
 
 
+class EvaluationInterrupted(Exception):
+    """Ctrl-C or SIGTERM stopped splat-eval; the message says what is on disk and how to go on (exit 130)."""
+
+    cli_exit_code = 130
+    cli_prefix = "stopped"
+
+
 def main(args: EvalArgs) -> dict:
     """Rescore the run, owning its folder meanwhile (it rewrites metrics.json and renders/)."""
+    import shlex
+
     from ..files.run_lock import owned
 
     if args.test_pose_steps is not None and args.test_pose_steps < 0:
         print(f"error: --test-pose-steps must be >= 0, got {args.test_pose_steps}", file=sys.stderr)
         sys.exit(2)
     with owned(args.run_dir):
-        return evaluate_run(args)
+        try:
+            return evaluate_run(args)
+        except KeyboardInterrupt:  # metrics.json is replaced at the end, atomically: still the previous one
+            raise EvaluationInterrupted(
+                f"interrupted during the evaluation: {args.run_dir / 'metrics.json'} is unchanged (renders/ may hold "
+                f"some views of this evaluation); run it again: {shlex.join(['splat-eval', *sys.argv[1:]])}") from None
 
 
 def evaluate_run(args: EvalArgs) -> dict:

@@ -47,13 +47,13 @@ def _discover(asked: str | None):
     import warnings
 
     from ..errors import DataError
-    from ..registry import VariantWarning, discover_methods, invalid_variant
+    from ..registry import VariantWarning, discover_methods, left_out
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", VariantWarning)
         methods = discover_methods()
-    if asked and asked not in methods and invalid_variant(asked):  # one line naming the file, not tyro's box
-        raise DataError(invalid_variant(asked))
+    if asked and asked not in methods and left_out(asked):  # one line naming the file or plugin, not tyro's box
+        raise DataError(left_out(asked))
     for w in caught:
         warnings.showwarning(w.message, w.category, w.filename, w.lineno)
     return methods
@@ -79,15 +79,17 @@ def _load_config_flag(argv: list[str]) -> tuple[list[str], str | None]:
     return rest, path
 
 
-def load_saved_experiment(path: str, methods: dict):
+def load_saved_experiment(path: str, methods: dict, trust_edits: bool = False):
     """(method name, config) of the experiment a run's ``config.json`` at ``path`` saved, for a new run:
     the saved config in today's layout, its run options (output folder, resume, device, ...) the
-    method's defaults. A missing, unreadable or foreign file is a one-line DataError."""
+    method's defaults (:func:`~splat_framework.config.run_options`). A missing, unreadable or foreign
+    file is a one-line DataError, and so is an edited or unsigned one unless ``trust_edits`` (the
+    command line's ``--trust-edited-config``)."""
     from pathlib import Path
 
     from pydantic import ValidationError
 
-    from ..config import RUN_OPTION, read_config_json, upgrade_saved_config
+    from ..config import read_config_json, run_options, upgrade_saved_config
     from ..errors import DataError
     from .common import did_you_mean
 
@@ -96,12 +98,12 @@ def load_saved_experiment(path: str, methods: dict):
         what = "not a regular file" if file.exists() else "no such file"
         raise DataError(f"{file}: {what} (--load-config takes a run's config.json)")
     try:
-        method, raw, version = read_config_json(file)
-    except (UnicodeDecodeError, ValueError) as e:
+        method, raw, version = read_config_json(file, trust_edits=trust_edits)
+    except (UnicodeDecodeError, ValueError, RecursionError) as e:
         if isinstance(e, DataError):
             raise
         raise DataError(f"{file}: not a run's config.json ({type(e).__name__})") from None
-    if method not in methods:
+    if not isinstance(method, str) or method not in methods:
         raise DataError(f"{file}: method {method!r} is not registered{did_you_mean(str(method), methods)}")
     defaults = methods[method].default_config()
     try:
@@ -110,9 +112,19 @@ def load_saved_experiment(path: str, methods: dict):
         from .common import format_validation_error
 
         raise DataError(f"{file}: not a {method} config ({format_validation_error(e)})") from None
-    run_options = {name: getattr(defaults, name) for name, info in type(defaults).model_fields.items()
-                   if any(m is RUN_OPTION for m in info.metadata)}
-    return method, saved.model_copy(update=run_options)
+    except (ValueError, TypeError, RecursionError) as e:  # an edited file the upgrades cannot read
+        raise DataError(f"{file}: not a {method} config ({type(e).__name__}: {str(e)[:200]})") from None
+    return method, saved.model_copy(update={name: getattr(defaults, name) for name in run_options(type(defaults))})
+
+
+TRUST_FLAG = "--trust-edited-config"
+
+
+def _trusts_edits(argv: list[str]) -> bool:
+    """Whether ``argv`` says ``--trust-edited-config`` (the last of it and ``--no-trust-edited-config``
+    wins, as the parser will read it): ``--load-config`` reads its file before the parser runs."""
+    said = [a for a in argv if a in (TRUST_FLAG, "--no-" + TRUST_FLAG[2:])]
+    return bool(said) and said[-1] == TRUST_FLAG
 
 
 def check_data_before_loading(data: str) -> None:
@@ -145,7 +157,7 @@ def main(args: list[str] | None = None) -> dict:
     methods = _discover(asked)
     loaded = None
     if load is not None:
-        method, loaded = load_saved_experiment(load, methods)
+        method, loaded = load_saved_experiment(load, methods, trust_edits=_trusts_edits(argv))
         if asked not in (None, method):
             raise ArgumentsError(f"{LOAD_CONFIG_FLAG} {load} trains its own method {method!r}; leave out {asked!r}")
         if asked is None:

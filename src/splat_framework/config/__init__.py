@@ -72,7 +72,7 @@ from .model import GaussianModelConfig, ModelConfig, OptimConfig, RegularisersCo
 from .persist import SavedConfig, config_payload, read_config_json, save_config
 from .schedule import follows_schedule, resolve_steps, scale_schedule
 from .strategy import DensifyConfig, RegisteredStrategies, StrategyConfig, strategy_field, strategy_kinds
-from .train import TrainConfig, experiment_fields
+from .train import TrainConfig, experiment_fields, run_options
 from .versions import SCHEMA_VERSION, UPGRADES, upgrade_saved_config
 
 __all__ = [
@@ -83,7 +83,7 @@ __all__ = [
     "Period", "Positive", "RampPeriod", "RandomInitConfig", "RegisteredStrategies", "RegularisersConfig",
     "SavedConfig", "SplatConfig", "StartSteps", "StepFactor", "Steps", "StrategyConfig", "TrainConfig", "UPGRADES",
     "apply_overrides", "cli_parsing", "config_payload", "deep_merge", "experiment_fields", "init_field", "init_kinds", "read_config_json",
-    "flag_name", "follows_schedule", "resolve_steps", "save_config", "scale_schedule", "strategy_field", "strategy_kinds",
+    "run_options", "flag_name", "follows_schedule", "resolve_steps", "save_config", "scale_schedule", "strategy_field", "strategy_kinds",
     "upgrade_saved_config",
     "AlikedLightGlueMatchConfig", "AutoMatchConfig", "DenseMatchConfig", "DiskLightGlueMatchConfig", "LoFTRMatchConfig",
     "MatchKinds", "SiftMatchConfig", "match_config", "match_kinds",

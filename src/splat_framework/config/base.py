@@ -2,14 +2,13 @@
 annotation markers code reads (:data:`Steps`, :data:`RUN_OPTION`, ...), the bounded field types
 and the command-line validation context (:func:`cli_parsing`).
 
-Torch-free and importing nothing of the project, so that every module holding a config (the
+Torch-free and importing nothing of the project but the part names' pattern, so that every module holding a config (the
 run's, the matcher's, the initialisations') can build on it without an import circle;
 ``splat_framework.config`` re-exports all of it.
 """
 
 from __future__ import annotations
 
-import re
 import typing
 from contextlib import contextmanager
 from contextvars import ContextVar
@@ -17,6 +16,8 @@ from typing import Annotated, Any, ContextManager, Iterator, Literal, TypeVar
 
 import tyro
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from ..entry_points import PART_NAME
 
 
 class Marker:
@@ -174,8 +175,8 @@ Kind = Annotated[_T, KIND_FLAG]
 """The one way a kind-tagged config declares its tag: ``kind: Kind[Literal["mcmc"]] = "mcmc"`` (a
 one-value Literal, its default the same tag). :class:`KindConfig` checks every subclass for it."""
 
-KIND_TAG = re.compile(r"[a-z0-9]+(-[a-z0-9]+)*")
-"""A kind tag: lower-case words joined by hyphens (``ray-gaussian``), as methods and flags are named."""
+KIND_TAG = PART_NAME
+"""A kind tag: lower-case words joined by hyphens (``ray-gaussian``), as every part is named."""
 
 
 _DERIVED_VIEW: ContextVar[bool] = ContextVar("derived_view", default=False)
@@ -216,25 +217,22 @@ class KindConfig(SplatConfig):
 
 def registered_kinds(group: str, what: str, base: type, builtins: dict[str, type]) -> dict[str, type]:
     """{kind: config class} of a kind-tagged config family: ``builtins``, then the classes named in
-    the entry-point ``group`` (``KIND = "module:ConfigClass"``). An entry that is not a subclass of
-    ``base``, whose ``kind`` tag is not its entry-point name, or that repeats a kind, is left out with
-    one warning naming it (a broken plugin must not kill the CLI)."""
-    import warnings
+    the entry-point ``group`` (``KIND = "module:ConfigClass"``), under the one rule of every kind
+    (:class:`~splat_framework.entry_points.Parts`: a taken kind keeps its first registration). An
+    entry that is not a subclass of ``base``, or whose ``kind`` tag is not its entry-point name, is
+    left out with one warning naming it (a broken plugin must not kill the CLI)."""
+    from ..entry_points import Parts
 
-    from ..entry_points import load_entry_points
-
-    kinds = dict(builtins)
-    for name, cls in load_entry_points(group, what).items():
+    def check(name: str, cls: object) -> str | None:
         if not (isinstance(cls, type) and issubclass(cls, base)):
-            warnings.warn(f"{what} plugin '{name}' is not a {base.__name__} subclass; ignored", stacklevel=2)
-        elif (tag := cls.model_fields["kind"].default) != name:
-            warnings.warn(f"{what} plugin '{name}' ({cls.__module__}:{cls.__qualname__}): its kind tag is {tag!r}, "
-                          f"not its entry-point name '{name}'; ignored", stacklevel=2)
-        elif name in kinds:
-            warnings.warn(f"{what} kind '{name}' registered twice; keeping the first", stacklevel=2)
-        else:
-            kinds[name] = cls
-    return kinds
+            return f"not a {base.__name__} subclass"
+        tag = cls.model_fields["kind"].default
+        return None if tag == name else f"its kind tag is {tag!r}, not its entry-point name '{name}'"
+
+    kinds: Parts[type] = Parts(what)
+    for name, cls in builtins.items():
+        kinds.add(name, cls, f"the framework ({cls.__module__}:{cls.__qualname__})")
+    return kinds.load(group, check).parts
 
 
 def as_registered_kind(value: Any, kinds: dict[str, type], default_kind: str, what: str) -> Any:

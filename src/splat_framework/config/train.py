@@ -82,7 +82,7 @@ class TrainConfig(SplatConfig):
     overwrite: Annotated[bool, RUN_OPTION] = False
     """Allow writing into an existing non-empty --output folder."""
     trust_edited_config: Annotated[bool, RUN_OPTION, FOLDED] = False
-    """With --resume: accept a config.json that is missing or edited by hand."""
+    """With --resume or --load-config: accept a config.json that is missing its checksum or edited by hand."""
     eval_every: Annotated[Steps, RUN_OPTION] = 0
     """Evaluate the test views every this many iterations (0 = at the end)."""
     checkpoint_every: Annotated[Steps, FOLDED] = 1000
@@ -115,6 +115,14 @@ class TrainConfig(SplatConfig):
         return self.steps if self.steps is not None else self.default_steps
 
 
+def run_options(config_cls: type[SplatConfig]) -> set[str]:
+    """Top-level fields of ``config_cls`` marked :data:`RUN_OPTION`: how a run is carried out (where it
+    goes, whether it overwrites or resumes, the viewer and its address, the device, ...). The one list:
+    they come only from the command line, never from a TOML variant (refused, naming the key) nor from
+    ``--load-config``'s file (the method's defaults instead), and may change on ``--resume``."""
+    return {name for name, info in config_cls.model_fields.items() if any(m is RUN_OPTION for m in info.metadata)}
+
+
 def experiment_fields(config_cls: type[SplatConfig]) -> set[str]:
-    """Top-level fields of ``config_cls`` that define the experiment: all but those marked :data:`RUN_OPTION`."""
-    return {name for name, info in config_cls.model_fields.items() if not any(m is RUN_OPTION for m in info.metadata)}
+    """Top-level fields of ``config_cls`` that define the experiment: all but its :func:`run_options`."""
+    return set(config_cls.model_fields) - run_options(config_cls)

@@ -11,7 +11,12 @@ from __future__ import annotations
 import os
 import re
 import struct
+import tempfile
+import threading
+import warnings
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
@@ -126,12 +131,42 @@ def _decode(path: Path, data: bytes, flags: int | None = None) -> np.ndarray:
         raise DataError(f"{path}: truncated PNG (no IEND chunk)")
     buf = np.frombuffer(data, dtype=np.uint8)
     try:
-        arr = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED if flags is None else flags)
+        with _decoder_messages() as complaints:
+            arr = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED if flags is None else flags)
     except cv2.error as e:  # pragma: no cover - depends on codec
         raise DataError(f"{path}: cannot decode image ({str(e).strip().splitlines()[-1]})") from None
+    if data[:2] == b"\xff\xd8" and complaints:  # libjpeg says so only of corrupt data, which it decodes as garbage
+        raise DataError(f"{path}: corrupt JPEG ({complaints[0]})")
     if arr is None or arr.size == 0:
-        raise DataError(f"{path}: cannot decode image (corrupt or unsupported format)")
+        why = complaints[0] if complaints else "corrupt or unsupported format"
+        raise DataError(f"{path}: cannot decode image ({why})")
     return arr
+
+
+_DECODER_STDERR = threading.Lock()
+
+
+@contextmanager
+def _decoder_messages() -> Iterator[list[str]]:
+    """Inside, what the image libraries print on the process's stderr (file descriptor 2: libjpeg's
+    ``Corrupt JPEG data: ...``, libpng's errors) is kept instead of shown; the list holds its lines
+    after the block, for the one-line error that names the file. One decode at a time: the
+    descriptor is the process's."""
+    lines: list[str] = []
+    with _DECODER_STDERR, tempfile.TemporaryFile() as sink:
+        try:
+            saved = os.dup(2)
+        except OSError:  # no stderr at all: nothing to keep off it
+            yield lines
+            return
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield lines
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            sink.seek(0)
+            lines += [line.strip() for line in sink.read().decode("utf-8", "replace").splitlines() if line.strip()]
 
 
 def read_photo(path: Path | str) -> np.ndarray:
@@ -313,12 +348,18 @@ def natural_key(name: str) -> tuple:
 
 def list_images(folder: Path, *, natural: bool = True) -> list[Path]:
     """Image files directly in ``folder`` (hidden files skipped), in natural order (:func:`natural_key`),
-    or by plain name with ``natural=False`` (the order that LLFF's and DTU's pose files follow)."""
+    or by plain name with ``natural=False`` (the order that LLFF's and DTU's pose files follow). A
+    special file named like an image (a FIFO, a link to a device) is skipped with one warning naming
+    it, never opened; a folder so named is skipped."""
     if not folder.is_dir():
         raise DataError(f"{folder}: image folder not found")
-    files = [
-        p
-        for p in folder.iterdir()
-        if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in IMAGE_SUFFIXES
-    ]
+    files = []
+    for p in folder.iterdir():
+        if p.name.startswith(".") or p.suffix.lower() not in IMAGE_SUFFIXES or p.is_dir():
+            continue
+        problem = image_file_problem(p)
+        if problem is None:
+            files.append(p)
+        else:
+            warnings.warn(f"{p}: {problem}; skipped", stacklevel=2)
     return sorted(files, key=lambda p: natural_key(p.name) if natural else p.name)

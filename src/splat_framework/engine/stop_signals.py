@@ -6,7 +6,8 @@ says so in one line; the loop then writes the step's checkpoint and raises ``Tra
 A second signal before that raises KeyboardInterrupt at once (a step can take long: the first
 one compiles kernels), which the loop turns into a ``TrainingInterrupted`` whose message says what
 was saved (:func:`abandoned_message`); while the checkpoint is being written, the write finishes
-first. Both exit with code 130 in the CLIs.
+first. Both exit with code 130 in the CLIs. A stop during the final evaluation (outside the loop)
+says the training is saved and how to score it (:func:`evaluation_stopped_message`).
 """
 
 from __future__ import annotations
@@ -60,3 +61,11 @@ def abandoned_message(reason: str | None, step: int, total: int, checkpoint_dir:
     else:
         kept = f"nothing was saved (no checkpoint yet: resuming starts the run over); {hint}"
     return f"{what} during step {step + 1}/{total}: stopped at once, this step's checkpoint was not written; {kept}"
+
+
+def evaluation_stopped_message(checkpoint_dir: Path, hint: str) -> str:
+    """The one-line message of a run stopped (Ctrl-C, SIGTERM) during its final evaluation: the training
+    is saved, what was not written, then ``hint``, how to continue (its ``--resume`` scores it again)."""
+    saved = list_checkpoints(checkpoint_dir)
+    done = f"training is done and saved in {saved[-1]}" if saved else "training is done"
+    return f"interrupted during the evaluation: {done}; metrics.json was not written (renders/ may hold some views); {hint}"

@@ -85,7 +85,7 @@ from .run import background_for
 from .run_folder import continue_command, prepare_run_dir, remove_if_unused
 from .run_metrics import run_metrics
 from .run_scene import load_config_scene
-from .stop_signals import abandoned_message, stop_signals
+from .stop_signals import abandoned_message, evaluation_stopped_message, stop_signals
 from .train_state import TrainState
 
 MAX_NONFINITE = 20
@@ -454,7 +454,7 @@ class Trainer(TrainState):
         cfg = self.config
         if cfg.resume:
             if not self.restore():
-                say(f"warning: {self.checkpoint_dir}: no checkpoint to resume from; training from the start", "yellow")
+                say(f"no checkpoint in {self.checkpoint_dir} yet: training from the start")  # a fresh sweep run
             self.write_config()  # this run's config, now that the checkpoint's record agrees with it
         total = cfg.total_steps
         self._train_t0 = time.perf_counter()
@@ -481,8 +481,11 @@ class Trainer(TrainState):
             self.datamanager.cameras = refined_cameras(self.datamanager.cameras, self.datamanager.train_indices,
                                                        self.camera_refiner.state_dict())
         t0 = time.perf_counter()
-        results = self.pipeline.evaluate(self.run_dir / "renders" if cfg.save_renders else None,
-                                         pose_steps=cfg.test_pose_steps)
+        try:
+            results = self.pipeline.evaluate(self.run_dir / "renders" if cfg.save_renders else None,
+                                             pose_steps=cfg.test_pose_steps)
+        except KeyboardInterrupt:  # Ctrl-C or SIGTERM (the CLI's) while scoring: the training is saved
+            raise TrainingInterrupted(evaluation_stopped_message(self.checkpoint_dir, self.continue_hint())) from None
         self.timing["eval_s"] = time.perf_counter() - t0
         self.timing["total_s"] = sum(v for k, v in self.timing.items() if k != "total_s")
         metrics = run_metrics(self, results)

@@ -200,7 +200,7 @@ def _is_legacy_sweep(folder: Path) -> bool:
 
 
 SWEEP_ENTRIES = ("runs", "results.md", "results.csv", "figures", ".results.*.tmp")
-SWEEP_FOLDER = OutputKind("sweep", "sweep folder", "splat-sweep", True, recognise=_is_legacy_sweep)
+SWEEP_FOLDER = OutputKind("sweep", "sweep folder", "splat-sweep", True, recognise=_is_legacy_sweep, ignored=(LOCK_NAME,))
 
 
 def _describe_special(mode: int) -> str:

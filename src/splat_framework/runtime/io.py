@@ -128,6 +128,8 @@ def read_json(path: Path, require_checksum: bool = False, verify: bool = True) -
         raise DataError(f"{path}: cannot read ({e.strerror or e})") from None
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
         raise DataError(f"{path}: not valid JSON, truncated or corrupt ({e})") from None
+    except RecursionError:  # [[[[...]]]] deeper than the interpreter's stack
+        raise DataError(f"{path}: JSON nested too deeply to be a file splat wrote") from None
     if not isinstance(payload, dict):
         raise DataError(f"{path}: expected a JSON object")
     stored = payload.get(CHECKSUM_KEY)

@@ -27,12 +27,14 @@ import json
 import os
 import secrets
 import stat
+import warnings
 from pathlib import Path
 
 MANIFEST = "manifest.json"
 """The file, beside the artefacts it records, that maps each artefact's name to its sha256."""
 _FORMAT = "splat-manifest-2"
 _KEY: dict[str, bytes] = {}  # the signing key, read once
+_UNUSABLE: dict[str, str] = {}  # key file -> why it is not used (this process signs with its own key)
 
 
 def signing_key_path() -> Path:
@@ -43,15 +45,16 @@ def signing_key_path() -> Path:
 
 
 def _signing_key() -> bytes:
-    """This user's secret (32 random bytes), made 0600 on first use; where it cannot be kept (no
-    writable home) or is not this user's alone, a secret of this process only (its caches are then
-    built again by the next process)."""
+    """This user's secret (32 random bytes), made 0600 on first use. Where it cannot be made or used
+    (:func:`key_problem`), a secret of this process only, with one warning naming the file, what is
+    wrong and the command that fixes it (once a process): the caches it signs vouch for nothing in
+    the next process, whose kernels are built again until the key is fixed."""
     path = signing_key_path()
     if str(path) in _KEY:
         return _KEY[str(path)]
-    key = None
+    key, problem = None, None
     try:
-        if not path.exists():  # written aside, then linked in: two processes starting at once agree on one key
+        if not os.path.lexists(path):  # written aside, then linked in: two processes starting at once agree on one key
             private_folder(path.parent)
             fresh = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}")
             fd = os.open(fresh, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
@@ -63,12 +66,76 @@ def _signing_key() -> bytes:
                 pass
             finally:
                 fresh.unlink()
-        if untrusted_reason(path, path.parent) is None and not path.is_symlink() and stat.S_IMODE(path.stat().st_mode) & 0o077 == 0:
-            key = bytes.fromhex(path.read_text().strip())
-    except (OSError, ValueError):
-        key = None
-    _KEY[str(path)] = key if key and len(key) >= 16 else secrets.token_bytes(32)
+    except OSError as e:
+        problem = (f"cannot be made ({e.strerror or type(e).__name__})",
+                   f"make {path.parent} a folder of yours, or set XDG_CONFIG_HOME to one")
+    if problem is None:
+        key, problem = _read_key(path)
+    if problem is not None:
+        _UNUSABLE[str(path)] = f"{path}: {problem[0]}"
+        warnings.warn(f"{path}: unusable cache signing key: {problem[0]}; this process signs with a key of its own, "
+                      f"so every process builds the cached kernels again until it is fixed: {problem[1]}", stacklevel=3)
+    _KEY[str(path)] = key if key is not None else secrets.token_bytes(32)
     return _KEY[str(path)]
+
+
+KEY_BYTES = 32
+"""The signing key's length: a file holds its 64 hex digits."""
+
+
+def _read_key(path: Path) -> tuple[bytes | None, tuple[str, str] | None]:
+    """(the key in ``path``, None), or (None, (what is wrong, the command that fixes it)): the file
+    must be a regular file (never a link, a folder, a FIFO or a device: none is opened), of this user
+    alone (mode 0600), in a folder nobody else may write, and hold 64 hex digits."""
+    remove = f"rm -r '{path}' (the next run makes a new key)"
+    try:
+        st = os.lstat(path)
+    except OSError as e:
+        return None, (f"cannot be read ({e.strerror or type(e).__name__})", remove)
+    kind = _file_kind(st.st_mode)
+    if kind:
+        return None, (f"a {kind}, not a file", remove)
+    folder = untrusted_reason(path.parent)
+    if folder:
+        return None, (f"its folder {folder}: anyone who may write it may swap the key",
+                      f"chmod 700 '{path.parent}' && {remove}")
+    if not _owner_ok(st.st_uid):
+        return None, (f"belongs to another user (uid {st.st_uid})", remove)
+    if stat.S_IMODE(st.st_mode) & 0o077:
+        return None, (f"mode {stat.S_IMODE(st.st_mode):o}: others may read it and sign for you", remove)
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
+        with os.fdopen(fd, "rb") as f:
+            if not stat.S_ISREG(os.fstat(f.fileno()).st_mode):  # swapped since the lstat
+                return None, ("not a regular file", remove)
+            text = f.read(4 * KEY_BYTES)
+    except OSError as e:
+        return None, (f"cannot be read ({e.strerror or type(e).__name__})", remove)
+    try:
+        key = bytes.fromhex(text.decode("ascii").strip())
+    except (UnicodeDecodeError, ValueError):
+        key = b""
+    if len(key) != KEY_BYTES:
+        return None, (f"does not hold a key ({2 * KEY_BYTES} hex digits)", remove)
+    return key, None
+
+
+def _file_kind(mode: int) -> str | None:
+    """What a path of ``mode`` is when it is not a regular file (``symbolic link``, ``folder``, ``FIFO``...)."""
+    if stat.S_ISREG(mode):
+        return None
+    kinds = {stat.S_ISLNK: "symbolic link", stat.S_ISDIR: "folder", stat.S_ISFIFO: "FIFO", stat.S_ISSOCK: "socket"}
+    return next((name for test, name in kinds.items() if test(mode)), "device or special file")
+
+
+def _key_note() -> str:
+    """How the manifest check's failure reads: whose key did not sign it (this user's, or, where the
+    key file is unusable, this process's own)."""
+    path = str(signing_key_path())
+    _signing_key()
+    if path in _UNUSABLE:
+        return f"not signed by this process's key (the signing key {_UNUSABLE[path]})"
+    return "not signed by this user's key"
 
 
 def _signature(entries: dict[str, str]) -> str:
@@ -175,7 +242,7 @@ def manifest_mismatch(folder: Path, names: list[str], root: Path | None = None) 
     folder = Path(folder)
     entries = _read_entries(folder)
     if entries is None:
-        return (f"{folder / MANIFEST}: missing, unreadable or not signed by this user's key (the files were not "
+        return (f"{folder / MANIFEST}: missing, unreadable or {_key_note()} (the files were not "
                 "built by this user's runs of this version)")
     for name in names:
         if (folder / name).is_symlink():
@@ -217,7 +284,7 @@ def folder_mismatch(folder: Path, root: Path | None = None) -> str | None:
     folder = Path(folder)
     entries = _read_entries(folder)
     if entries is None:
-        return (f"{folder / MANIFEST}: missing, unreadable or not signed by this user's key (the folder was not "
+        return (f"{folder / MANIFEST}: missing, unreadable or {_key_note()} (the folder was not "
                 "written by this user's runs of this version)")
     present = _files_under(folder)
     for name in present:

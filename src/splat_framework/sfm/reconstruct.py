@@ -32,7 +32,7 @@ from ..files.work_folder import scratch
 from ..runtime.threads import machine_threads
 from .colmap import load_pycolmap, verified_pair_counts, write_matches
 from .pair_selection import EXHAUSTIVE_MAX_PHOTOS, all_pairs, choose_pairs, linked_groups
-from .photo_matchers import AUTO_MATCHER, AUTO_PREFERRED, choose_matcher, photo_matchers, run_matcher
+from .photo_matchers import AUTO_MATCHER, AUTO_PREFERRED, choose_matcher, load_matcher, photo_matchers, run_matcher
 from .photos import stage_images
 
 MAPPERS = ("incremental", "global")
@@ -150,6 +150,7 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
     plugins = photo_matchers()
     auto = matcher == AUTO_MATCHER
     matcher = choose_matcher(matcher, plugins)
+    match = load_matcher(matcher, plugins[matcher]) if matcher != "sift" else None  # before any work
     out = Path(out)
     check_output(out, PROCESSED_SCENE, overwrite=overwrite, inputs={Path(p).parent for p in images})
     pycolmap = load_pycolmap()
@@ -178,7 +179,7 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
                 # the matcher shows its own progress (the framework's: one phase naming the work)
                 say(f"matching {of_all} with {matcher} for the poses")
                 with machine_threads():
-                    found = run_matcher(plugins[matcher].load(), rgb, chosen)
+                    found = run_matcher(match, rgb, chosen, matcher)
                 write_matches(pycolmap, db, staged, found)
             except FileNotFoundError as e:  # the matcher's weights are not installed
                 if not auto:

@@ -38,8 +38,10 @@ Importing this package never imports torch or ray.
 from __future__ import annotations
 
 import json
+from contextlib import ExitStack, contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Iterator
 
 from ..files.output_paths import SWEEP_FOLDER, check_output, data_inputs, mark_output
 from ..runtime.resources import available_cores
@@ -128,107 +130,129 @@ def run_sweep(
     unknown = [m for m in unique(grid.methods) if m not in known]
     if unknown:
         raise SweepError(f"unknown method(s) {', '.join(unknown)} (registered: {', '.join(sorted(known))})")
-    workers = workers or default_workers(mem_per_run_gb)
-    settings = {
-        "grid": asdict(grid), "out": str(out), "backend": backend, "workers": workers,
-        "threads": threads, "address": address,
-    }
+    with ExitStack() as held:
+        if not dry_run:  # one sweep writes into a folder at a time: the second is refused before it plans
+            out.mkdir(parents=True, exist_ok=True)
+            mark_output(out, SWEEP_FOLDER)
+            held.enter_context(_own_sweep_folder(out))
+        workers = workers or default_workers(mem_per_run_gb)
+        settings = {
+            "grid": asdict(grid), "out": str(out), "backend": backend, "workers": workers,
+            "threads": threads, "address": address,
+        }
 
-    records: dict[RunSpec, dict] = {}
-    todo: list[RunSpec] = []
-    data_ok: dict[str, str | None] = {}
-    for run in runs:
-        state, msg = run_state(run)
-        if state == "done":
-            try:
-                records[run] = load_finished(run) | {"skipped": True}
-                continue
-            except (OSError, json.JSONDecodeError):
-                state = "partial"
-        if state == "conflict":
-            records[run] = record_for(run, "failed", {"error": msg})
-            continue
-        try:
-            build_config(spec_dict(run))
-        except Exception as e:
-            records[run] = record_for(run, "failed", {"error": one_line(e)})
-            continue
-        if backend != "ray":  # on a cluster the data may live on the workers only
-            if run.data not in data_ok:
-                data_ok[run.data] = _check_data(run.data)
-            if data_ok[run.data]:
-                records[run] = record_for(run, "failed", {"error": data_ok[run.data]})
-                continue
-        records[run] = record_for(run, "pending")
-        todo.append(run)
-
-    ordered = lambda: [records[r] for r in runs]  # noqa: E731
-    skipped = sum(1 for r in records.values() if r.get("skipped"))
-    reporter = Reporter(console, live=live, total=len(runs))
-    reporter.counts["skipped"] = skipped
-    reporter.counts["failed"] = sum(1 for r in records.values() if r["status"] == "failed")
-    if dry_run:
+        records: dict[RunSpec, dict] = {}
+        todo: list[RunSpec] = []
+        data_ok: dict[str, str | None] = {}
         for run in runs:
-            rec = records[run]
-            what = "to run" if rec["status"] == "pending" else ("done" if rec["status"] == "ok" else rec["status"])
-            reporter.console.print(f"{what:>7}  {run.run_dir}" + (f"  ({rec['error']})" if rec.get("error") else ""),
-                                   markup=False, highlight=False, soft_wrap=True)
-        return SweepResult(out, ordered(), aggregate(ordered()), 0, skipped, 0)
+            state, msg = run_state(run)
+            if state == "done":
+                try:
+                    records[run] = load_finished(run) | {"skipped": True}
+                    continue
+                except (OSError, json.JSONDecodeError):
+                    state = "partial"
+            if state == "conflict":
+                records[run] = record_for(run, "failed", {"error": msg})
+                continue
+            try:
+                build_config(spec_dict(run))
+            except Exception as e:
+                records[run] = record_for(run, "failed", {"error": one_line(e)})
+                continue
+            if backend != "ray":  # on a cluster the data may live on the workers only
+                if run.data not in data_ok:
+                    data_ok[run.data] = _check_data(run.data)
+                if data_ok[run.data]:
+                    records[run] = record_for(run, "failed", {"error": data_ok[run.data]})
+                    continue
+            records[run] = record_for(run, "pending")
+            todo.append(run)
 
-    out.mkdir(parents=True, exist_ok=True)
-    mark_output(out, SWEEP_FOLDER)
-    write_tables(out, ordered(), settings)
-    workers = max(1, min(workers, len(todo) or 1))
-    if backend != "serial":  # serial runs in this process: leave its thread count alone unless asked
-        threads = threads or threads_per_worker(workers)
-    settings.update(workers=workers, threads=threads)
-    if not reporter.use_live:
+        ordered = lambda: [records[r] for r in runs]  # noqa: E731
+        skipped = sum(1 for r in records.values() if r.get("skipped"))
+        reporter = Reporter(console, live=live, total=len(runs))
+        reporter.counts["skipped"] = skipped
+        reporter.counts["failed"] = sum(1 for r in records.values() if r["status"] == "failed")
+        if dry_run:
+            for run in runs:
+                rec = records[run]
+                what = "to run" if rec["status"] == "pending" else ("done" if rec["status"] == "ok" else rec["status"])
+                reporter.console.print(f"{what:>7}  {run.run_dir}" + (f"  ({rec['error']})" if rec.get("error") else ""),
+                                       markup=False, highlight=False, soft_wrap=True)
+            return SweepResult(out, ordered(), aggregate(ordered()), 0, skipped, 0)
+
+        write_tables(out, ordered(), settings)
+        workers = max(1, min(workers, len(todo) or 1))
+        if backend != "serial":  # serial runs in this process: leave its thread count alone unless asked
+            threads = threads or threads_per_worker(workers)
+        settings.update(workers=workers, threads=threads)
+        if not reporter.use_live:
+            reporter.console.print(
+                f"sweep: {len(runs)} runs, {skipped} already done, {len(todo)} to run "
+                f"({backend}, {workers} worker(s) x {threads or 'default'} thread(s)) -> {out}",
+                markup=False, highlight=False, soft_wrap=True,
+            )
+
+        def on_start(run: RunSpec) -> None:
+            records[run] = record_for(run, "running")
+            reporter.counts["running"] += 1
+            reporter.update(ordered())
+
+        def on_result(run: RunSpec, result: dict) -> None:
+            status = result.get("status", "failed")
+            rec = record_for(run, status, result, result.get("metrics") if status == "ok" else None)
+            records[run] = rec
+            reporter.counts["running"] = max(0, reporter.counts["running"] - 1)
+            reporter.run_finished(rec)
+            write_tables(out, ordered(), settings)
+            reporter.update(ordered())
+
+        reporter.start(ordered())
+        try:
+            if todo:
+                if backend == "serial":
+                    run_serial(todo, threads, on_start, on_result)
+                elif backend == "local":
+                    run_local(todo, workers, threads, on_start, on_result)
+                else:
+                    run_ray(todo, threads, address, on_start, on_result, local_cpus=available_cores())
+        finally:
+            for run in runs:  # interrupted: what never finished is pending again
+                if records[run]["status"] == "running":
+                    records[run] = record_for(run, "pending")
+            reporter.stop(ordered())
+            rows = write_tables(out, ordered(), settings)
+        recs = ordered()
+        figures = write_figures(out, recs)
+        failed = sum(1 for r in recs if r["status"] in ("failed", "interrupted"))
+        if not reporter.use_live:
+            reporter.console.print(markdown_table(rows), markup=False, highlight=False, soft_wrap=True)
         reporter.console.print(
-            f"sweep: {len(runs)} runs, {skipped} already done, {len(todo)} to run "
-            f"({backend}, {workers} worker(s) x {threads or 'default'} thread(s)) -> {out}",
+            f"sweep: {len(todo)} run(s) trained, {skipped} skipped (already done), {failed} failed; "
+            f"tables in {out}/results.{{md,csv,json}}" + (f", {len(figures)} comparison figure(s)" if figures else ""),
             markup=False, highlight=False, soft_wrap=True,
         )
+        return SweepResult(out, recs, rows, len(todo), skipped, failed)
 
-    def on_start(run: RunSpec) -> None:
-        records[run] = record_for(run, "running")
-        reporter.counts["running"] += 1
-        reporter.update(ordered())
 
-    def on_result(run: RunSpec, result: dict) -> None:
-        status = result.get("status", "failed")
-        rec = record_for(run, status, result, result.get("metrics") if status == "ok" else None)
-        records[run] = rec
-        reporter.counts["running"] = max(0, reporter.counts["running"] - 1)
-        reporter.run_finished(rec)
-        write_tables(out, ordered(), settings)
-        reporter.update(ordered())
+@contextmanager
+def _own_sweep_folder(out: Path) -> Iterator[None]:
+    """Hold the sweep folder ``out``'s lock (:mod:`splat_framework.files.run_lock`) for the block; another
+    sweep holding it is one DataError line naming it (its runs are its own: never recorded as failed here)."""
+    from ..errors import DataError
+    from ..files import run_lock
 
-    reporter.start(ordered())
     try:
-        if todo:
-            if backend == "serial":
-                run_serial(todo, threads, on_start, on_result)
-            elif backend == "local":
-                run_local(todo, workers, threads, on_start, on_result)
-            else:
-                run_ray(todo, threads, address, on_start, on_result, local_cpus=available_cores())
+        lock = run_lock.acquire(out)
+    except run_lock.RunFolderBusy:
+        who = run_lock.holder(out) or "identity not written yet"
+        raise DataError(f"{out}: another sweep is running into this folder ({who}); wait for it to finish or "
+                        "stop it") from None
+    try:
+        yield
     finally:
-        for run in runs:  # interrupted: what never finished is pending again
-            if records[run]["status"] == "running":
-                records[run] = record_for(run, "pending")
-        reporter.stop(ordered())
-        rows = write_tables(out, ordered(), settings)
-    recs = ordered()
-    figures = write_figures(out, recs)
-    failed = sum(1 for r in recs if r["status"] in ("failed", "interrupted"))
-    if not reporter.use_live:
-        reporter.console.print(markdown_table(rows), markup=False, highlight=False, soft_wrap=True)
-    reporter.console.print(
-        f"sweep: {len(todo)} run(s) trained, {skipped} skipped (already done), {failed} failed; "
-        f"tables in {out}/results.{{md,csv,json}}" + (f", {len(figures)} comparison figure(s)" if figures else ""),
-        markup=False, highlight=False, soft_wrap=True,
-    )
-    return SweepResult(out, recs, rows, len(todo), skipped, failed)
+        lock.release()
 
 
 def _check_data(data: str) -> str | None:

@@ -389,3 +389,36 @@ def test_ablation_named_table_has_its_rows_title_and_readme_markers(tmp_path, ta
     rows = [ln.split("|")[2].strip() for ln in text.splitlines() if ln.startswith("| ") and "`" in ln.split("|")[2]]
     assert rows == [f"`{c}`" for c in configs]
     assert label in text and "OLD TABLE" not in readme.read_text() and "KEPT" in readme.read_text()
+
+
+@pytest.mark.bad_input("two identical `splat-sweep` commands at once", "the second exits 2 with one line naming the "
+                       "sweep holding the folder, recording nothing; the first's running run is never marked failed")
+def test_a_second_sweep_on_the_same_folder_is_refused_while_the_first_runs(tmp_path, tmp_path_factory):
+    """The second sweep is refused before it plans (it never records the first's running run as failed);
+    the first's fresh run logs no warning about a missing checkpoint. The first is then stopped: its run
+    is pending again, not failed."""
+    import signal
+    import subprocess
+    import time
+
+    from cli_harness import cli_env, run_cli
+
+    out = tmp_path / "sw"
+    args = ["--methods", "3dgs", "--data", "synthetic/forward-tiny", "--seeds", "0", "--steps", "10", "--out", str(out),
+            "--workers", "1", "--override", "model.init.num_points=300", "--override", "save_renders=false", "--no-live"]
+    env = cli_env(SPLAT_CACHE=tmp_path_factory.getbasetemp() / "splatcache", SPLAT_COMPILE="0")  # the tiny scenes are there
+    first = subprocess.Popen([sys.executable, "-m", "splat_framework.cli.sweep", *args], env=env, text=True,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    log = out / "runs/synthetic-forward-tiny/3dgs/v3-s0/sweep.log"
+    deadline = time.time() + 240
+    while "training from the start" not in (log.read_text() if log.is_file() else ""):  # the run is running
+        assert first.poll() is None and time.time() < deadline, first.communicate()
+        time.sleep(0.1)
+    tables = (out / "results.json").read_bytes()
+    run_cli("sweep", *args, code=2, env=env, match=(str(out), "another sweep is running into this folder", "pid "))
+    assert (out / "results.json").read_bytes() == tables
+    first.send_signal(signal.SIGTERM)
+    first.communicate(timeout=120)
+    assert first.returncode == 130
+    assert json.loads((out / "results.json").read_text())["runs"][0]["status"] == "pending"
+    assert "warning" not in log.read_text().lower(), log.read_text()
