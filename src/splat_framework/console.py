@@ -403,8 +403,8 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
     table.add_row("run folder", str(run_dir))
     Console().print(table)
     if split == "train":
-        say("Training-view metrics: the scene has no held-out test view (every photo is a training view); "
-            "splat-render RUN --path auto renders a video of novel views", "yellow")
+        say("Training-view metrics: the scene has no held-out test view (every photo is a training view; "
+            "--test-every K holds out every K-th); splat-render RUN --path auto renders a video of novel views", "yellow")
     for line in _missing_metric_lines(missing, metrics.get("lpips_note")):
         say(line, "yellow")
 
