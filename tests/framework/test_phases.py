@@ -374,6 +374,44 @@ def test_a_mistyped_builtin_scene_is_refused_at_once(tmp_path):
     assert time.perf_counter() - t0 < 5.0
 
 
+def test_the_remaining_time_counts_the_unit_under_way(terminal, monkeypatch):
+    """Issue 107: 3 pairs, the first matched in 28.5 s: the remaining time counts down while the
+    second runs (the terminal's row too, between two updates: not ``~0:00:57`` at 0:00:32 and
+    0:00:46 alike), and grows once the second runs longer than the first did; the plain line alike."""
+    clock = [100.0]
+    monkeypatch.setattr(console_mod.time, "perf_counter", lambda: clock[0])
+
+    def row() -> str:
+        screen = Console(file=io.StringIO(), width=100, color_system=None, force_terminal=True)
+        for r in console_mod._TERMINAL.progress.get_renderables():
+            screen.print(r)
+        return screen.file.getvalue()
+
+    with console_mod.phase("matching", 3, unit="pairs", quiet_s=0) as ph:
+        assert ph.remaining_seconds() is None  # nothing measured yet
+        clock[0] += 28.5
+        ph.update(1)
+        seen = {}
+        for t in (28.5, 32.0, 46.0, 57.0, 60.0, 80.0):  # seconds since the phase began; no update meanwhile
+            clock[0] = 100.0 + t
+            seen[t] = ph.remaining_seconds()
+        assert seen[28.5] == pytest.approx(57.0) and seen[32.0] == pytest.approx(53.5)
+        assert seen[46.0] == pytest.approx(39.5) and seen[57.0] == pytest.approx(28.5)  # its share: 28.5 s
+        assert seen[60.0] == pytest.approx(30.0) and seen[80.0] == pytest.approx(40.0)  # late: 80 s for 2 pairs
+        clock[0] = 132.0
+        assert "1/3 " in row() and "~0:00:53" in row(), row()
+        clock[0] = 146.0
+        assert "~0:00:39" in row() and "about 0:00:39 left" in ph.line(), row()
+        clock[0] = 180.0
+        assert "~0:00:40" in row() and "about 0:00:40 left" in ph.line(), row()
+        ph.update(2)  # the second pair took 51.5 s: 80 s for 2, 40 s a pair
+        assert ph.remaining_seconds() == pytest.approx(40.0)
+        clock[0] = 190.0
+        assert ph.remaining_seconds() == pytest.approx(30.0)
+        ph.update(3)
+        assert ph.remaining_seconds() == 0.0
+
+
 def test_the_remaining_time_weights_coarse_and_full_steps(monkeypatch):
     """Half-size coarse steps of 1 s, then full-size steps of 2 s: at the switch the remaining time is
     the full steps' (not the coarse rate extrapolated), and from 10 full steps on their own rate."""
