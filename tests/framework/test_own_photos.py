@@ -262,27 +262,27 @@ def test_photos_are_held_out_at_any_count_with_test_every():
     """``--test-every K``: every K-th photo (the first, the K+1-th, ...) is a test view, also of 8
     photos or fewer; the line names the rule and the photos; a benchmark split by it says so too;
     Blender's and DTU's protocol lists are not replaced."""
-    from splat_framework.data.run_data import test_every_split
+    from splat_framework.data.run_data import every_kth_split
 
-    few = test_every_split(_scene(8, "all"), 3, "all")
+    few = every_kth_split(_scene(8, "all"), 3, "all")
     assert few.test_indices == [0, 3, 6] and few.train_indices == [1, 2, 4, 5, 7]
     assert describe_split(few, "all", 3) == (
         "training on all 5 views of a COLMAP scene (its default; --views N for a few-shot split): IMG_2, IMG_3, "
         "IMG_5, IMG_6, IMG_8; 3 test views held out (every 3rd image): IMG_1, IMG_4, IMG_7")
-    two = test_every_split(_scene(4, "all"), 2, 1)
+    two = every_kth_split(_scene(4, "all"), 2, 1)
     assert (two.train_indices, two.test_indices) == ([1], [0, 2])
     assert describe_split(two, 1, 2) == ("training on 1 view of a COLMAP scene: IMG_2; 2 test views held out "
                                          "(every 2nd image): IMG_1, IMG_3")
-    assert test_every_split(few, None, "all") is few
+    assert every_kth_split(few, None, "all") is few
     llff = _scene(10, 3)
     llff.format = "llff"
-    assert describe_split(test_every_split(llff, 5, 3), 3, 5).endswith("2 test views held out (every 5th image): IMG_1, IMG_6")
+    assert describe_split(every_kth_split(llff, 5, 3), 3, 5).endswith("2 test views held out (every 5th image): IMG_1, IMG_6")
     blender = _scene(10, "all")
     blender.format = "blender"
     with pytest.raises(DataError, match="--test-every holds out every K-th image of LLFF, COLMAP and transforms.json"):
-        test_every_split(blender, 2, "all")
+        every_kth_split(blender, 2, "all")
     with pytest.raises(DataError, match="views=4 is more than the 2 images"):
-        test_every_split(_scene(4, "all"), 2, 4)
+        every_kth_split(_scene(4, "all"), 2, 4)
 
 
 def test_a_training_view_without_any_verified_match_is_named():

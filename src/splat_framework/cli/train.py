@@ -152,6 +152,7 @@ def main(args: list[str] | None = None) -> dict:
     from .common import ArgumentsError, parse_cli
     from .help_screen import flag_names
     from .help_screen import help_group as help_group_of
+    from .kinds import flag_value
 
     given = list(sys.argv[1:] if args is None else args)  # as typed: a stop names the command that continues
     argv, load = _load_config_flag(given)
@@ -159,8 +160,6 @@ def main(args: list[str] | None = None) -> dict:
         asked = next((a for a in argv if not a.startswith("-")), None)
     else:  # the method, if named at all, comes first (a later word is a flag's value)
         asked = argv[0] if argv and not argv[0].startswith("-") else None
-    from .kinds import flag_value
-
     check_data_before_loading(flag_value(argv, "--data"))  # before the methods load: at once
     methods = _discover(asked)
     if load is None:

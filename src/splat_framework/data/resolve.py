@@ -26,9 +26,8 @@ def locate_data(spec: str | Path) -> Path:
         return path
     name = builtin_scene_name(text)
     if name is not None:
-        refused = unknown_scene_message(name)
-        if refused:
-            raise DataError(refused)
+        if not name:
+            raise DataError(f"{text}: missing synthetic scene name (synthetic/<name>)")
         from . import synthetic  # lazy: written separately, heavy
 
         return Path(synthetic.ensure_scene(name))

@@ -41,7 +41,7 @@ EVERY_KTH_FORMATS = ("llff", "colmap", "transforms")
 DTU's are their protocols' own lists."""
 
 
-def test_every_split(scene: SceneData, test_every: int | None, views) -> SceneData:
+def every_kth_split(scene: SceneData, test_every: int | None, views) -> SceneData:
     """``scene`` holding out every ``test_every``-th image (the first, the ``test_every``+1-th, ...,
     in the scene's name order) as a test view at any image count, ``views`` of the rest trained on
     (the LLFF rule, :func:`~.splits.llff_split`); unchanged when ``test_every`` is None. A DataError

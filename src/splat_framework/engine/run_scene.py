@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..data.parsers import load_scene
 from ..data.pose_file import apply_pose_file
-from ..data.run_data import held_out_views, resolve_views, test_every_split, with_split
+from ..data.run_data import every_kth_split, held_out_views, resolve_views, with_split
 from ..data.scene import DataError, SceneData
 from ..sfm.own_photos import resolve_data_path
 
@@ -34,6 +34,6 @@ def load_config_scene(config) -> SceneData:
         scene = with_split(scene, record.train, record.test)
         scene = replace(scene, held_out=config.eval_split)
     else:
-        scene = held_out_views(test_every_split(scene, config.test_every, config.views), config.eval_split)
+        scene = held_out_views(every_kth_split(scene, config.test_every, config.views), config.eval_split)
     poses = record.train_poses if record is not None else config.train_poses
     return apply_pose_file(scene, poses) if poses is not None else scene
