@@ -124,23 +124,31 @@ class Phase:
             self.segment_started = (self.completed, self.updated_at)  # the units since the last update are the new kind's
 
     def remaining_seconds(self) -> float | None:
-        """The time the units left should take: at the rate measured so far, each unit weighted by its
-        cost (:attr:`costs`: the full-size training steps after the coarse ones take about twice as
-        long, not as long as the coarse ones did); the current segment's own rate once 10 of its
-        units are done. None before any unit."""
-        rate = self.rate()
-        if rate is None or self.total is None:
+        """The time the units left should take, the unit under way counted. The finished units give
+        the seconds per unit, each unit weighted by its cost (:attr:`costs`: the full-size training
+        steps after the coarse ones take about twice as long, not as long as the coarse ones did;
+        the current segment's own rate once 10 of its units are done). The unit under way has run
+        for some of its share: that time is taken off, so the estimate counts down between units;
+        once it has run longer than its share, it counts as done now and the rate it then makes
+        prices the units after it, so the estimate grows while it runs late (a pair of photos that
+        matches slowly). None before any unit."""
+        if self.total is None or self.completed <= self.start_completed:
             return None
-        if not self.costs:
-            return (self.total - self.completed) / rate
-        seg_units, seg_t = self.segment_started or (self.start_completed, self.t0)
-        seg_done, now = self.completed - seg_units, time.perf_counter()
-        if seg_done >= ETA_AFTER_UNITS and now > seg_t:  # seconds per unit of cost, measured in this segment
-            per_cost = (now - seg_t) / self._cost_between(seg_units, self.completed)
-        else:
-            done_cost = self._cost_between(self.start_completed, self.completed)
-            per_cost = (now - self.t0) / done_cost if done_cost > 0 else 1.0 / rate
-        return per_cost * self._cost_between(self.completed, self.total)
+        if self.completed >= self.total:
+            return 0.0
+        span_units, span_t = self.start_completed, self.t0
+        if self.costs and self.segment_started is not None and self.completed - self.segment_started[0] >= ETA_AFTER_UNITS:
+            span_units, span_t = self.segment_started  # seconds per unit of cost, measured in this segment
+        done_cost = self._cost_between(span_units, self.completed)
+        if done_cost <= 0 or self.updated_at <= span_t:
+            return None
+        per_cost = (self.updated_at - span_t) / done_cost
+        now = time.perf_counter()
+        running, current = max(0.0, now - self.updated_at), self._cost(self.completed)
+        left = self._cost_between(self.completed, self.total)
+        if running <= per_cost * current:
+            return per_cost * left - running
+        return (now - span_t) / (done_cost + current) * (left - current)
 
     def rate(self) -> float | None:
         """Units per second since the phase began (None before the first unit)."""
@@ -158,8 +166,9 @@ class Phase:
         rate = self.rate()
         if rate:
             parts.append(_speed(rate, self.unit))
-            if self.total and not done and self.completed < self.total and self.eta_due():
-                parts.append(f"about {_clock(self.remaining_seconds())} left")
+            left = self.remaining_seconds() if self.total and not done and self.completed < self.total else None
+            if left is not None and self.eta_due():
+                parts.append(f"about {_clock(left)} left")
         if self.info:
             parts.append(self.info)
         return f"{self.name}: " + ", ".join(parts)
@@ -242,12 +251,11 @@ class _Terminal:
             self.progress = _Rows(console=console, transient=True)
             self.progress.start()
         ph.task = self.progress.add_task(ph.name, total=ph.total, completed=ph.completed, info=ph.info, unit=ph.unit,
-                                         left=None)
+                                         phase=ph)
 
     def changed(self, ph: Phase) -> None:
         if self.progress is not None:
-            self.progress.update(ph.task, completed=ph.completed, info=ph.info,
-                                 left=ph.remaining_seconds() if ph.eta_due() else None)
+            self.progress.update(ph.task, completed=ph.completed, info=ph.info)
 
     def restart(self, ph: Phase) -> None:
         if self.progress is not None:
@@ -299,11 +307,16 @@ class _CountColumn(TextColumn):
 
 
 class _RemainingColumn(TextColumn):
+    """The phase's remaining time, estimated anew at each refresh (the unit under way counted:
+    :meth:`Phase.remaining_seconds`), not only when a unit ends."""
+
     def __init__(self):
         super().__init__("")
 
     def render(self, task):
-        left = task.fields.get("left") if task.total is not None and not task.finished else None
+        ph = task.fields.get("phase")
+        due = ph is not None and task.total is not None and not task.finished and ph.eta_due()
+        left = ph.remaining_seconds() if due else None
         return Text(f"~{_clock(left)}" if left is not None else "", style="progress.remaining")
 
 
@@ -403,8 +416,8 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
     table.add_row("run folder", str(run_dir))
     Console().print(table)
     if split == "train":
-        say("Training-view metrics: the scene has no held-out test view (every photo is a training view); "
-            "splat-render RUN --path auto renders a video of novel views", "yellow")
+        say("Training-view metrics: the scene has no held-out test view (every photo is a training view; "
+            "--test-every K holds out every K-th); splat-render RUN --path auto renders a video of novel views", "yellow")
     for line in _missing_metric_lines(missing, metrics.get("lpips_note")):
         say(line, "yellow")
 

@@ -13,8 +13,12 @@ class CheckpointError(RuntimeError):
 
 
 def did_you_mean(word: str, choices) -> str:
-    """`` (did you mean 'x'?)`` for the closest of ``choices`` to ``word`` (difflib), or ""."""
+    """`` (did you mean 'x'?)`` for the closest of ``choices`` to ``word`` (difflib, letter case aside:
+    ``3DGS`` finds ``3dgs``), or ""."""
     import difflib
 
-    close = difflib.get_close_matches(word, [str(c) for c in choices], n=1, cutoff=0.6)
-    return f" (did you mean '{close[0]}'?)" if close else ""
+    by_folded = {}
+    for c in map(str, choices):
+        by_folded.setdefault(c.casefold(), c)
+    close = difflib.get_close_matches(word.casefold(), list(by_folded), n=1, cutoff=0.6)
+    return f" (did you mean '{by_folded[close[0]]}'?)" if close else ""

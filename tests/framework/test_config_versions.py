@@ -33,8 +33,17 @@ def written_at(version: int, tmp_path: Path) -> list[Path]:
     and one holding version 2's layout, as every run wrote it until version 2 (also without a version
     at all); version 2's: a run's record of its dataset, resolved before ``eval_split`` existed;
     version 3's: an SCGaussian run whose matching prior had no total budget; version 4's: an SCGaussian
-    run from before coarse steps."""
-    assert version in (1, 2, 3, 4), "a new version needs its sample files here"
+    run from before coarse steps; version 5's: a run's record of its dataset, resolved before
+    ``test_every`` existed."""
+    assert version in (1, 2, 3, 4, 5), "a new version needs its sample files here"
+    if version == 5:
+        payload = json.loads(json.dumps(config_payload(get_method("3dgs").default_config())))
+        cfg = payload["config"]
+        del cfg["test_every"]
+        source = {k: cfg[k] for k in ("data", "format", "views", "downscale", "eval_split", "train_poses", "photos")}
+        cfg["resolved_data"] = {"path": str(tmp_path), "train": ["a"], "test": ["b"], "train_poses": None, "source": source}
+        atomic_write_json(tmp_path / "v5.json", {**payload, "schema_version": 5})
+        return [tmp_path / "v5.json"]
     if version == 4:
         cfg = json.loads(json.dumps(config_payload(get_method("scgaussian").default_config())))
         del cfg["config"]["coarse_steps"]
@@ -80,6 +89,7 @@ def test_a_file_of_each_old_version_upgrades_to_the_current_config(version, tmp_
             assert config.model.matching.max_total_matches == 0 and config.model.matching.max_matches == 12000
         if config.resolved_data is not None:  # the record still names the run's data
             assert config.resolved_data.resolves(config) and config.eval_split == "test", path
+            assert config.test_every is None, path
 
 
 @pytest.mark.bad_input("a run's `config.json` written by a newer splat (a higher schema version)",

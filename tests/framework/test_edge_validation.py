@@ -288,6 +288,7 @@ BAD_ARGUMENTS = {  # issue 40's cases, in a subprocess -> what the one line says
     "huge count": (["scaffold-gs", "--model.feat-dim", "1000000000"], "model.feat_dim: Input should be less than or equal to 1024"),
     "views abc": (["3dgs", "--views", "abc"], "--views: expected {None}|INT|{all}, got ['abc']"),
     "unknown method": (["3dgx", "--steps", "1"], "unknown method '3dgx' (did you mean '3dgs'?)"),
+    "mistyped flag": (["3dgs", "--dta", "x"], "unrecognized arguments: --dta x (did you mean '--data'?); see splat-train --help"),
     "bad choice": (["3dgs", "--format", "llf"], "--format: 'llf' is not one of auto, llff, blender, dtu, transforms, colmap (did you mean 'llff'?)"),
     "unavailable matching device": (["scgaussian", "--model.matching.device", "nosuchdevice", "--data", "synthetic/forward-tiny"],
                                     "--model.matching.device: 'nosuchdevice' is not a torch device"),
@@ -306,6 +307,10 @@ def test_bad_train_arguments_are_one_line(tmp_path, case):
 OTHER_BAD_ARGUMENTS = {  # tyro's other error kinds, in-process (the same main as the subprocess runs)
     "nan threshold": (["scgaussian", "--model.matching.magsac-threshold", "nan"], "magsac_threshold"),
     "unknown flag": (["3dgs", "--bogus", "3"], "unrecognized arguments: --bogus 3; see splat-train --help"),
+    "mistyped flags": (["scgaussian", "--stpes", "3", "--model.matching.magsac-treshold=2"],
+                       "unrecognized arguments: --stpes 3 --model.matching.magsac-treshold=2 (did you mean '--steps' "
+                       "for --stpes, '--model.matching.magsac-threshold' for --model.matching.magsac-treshold?)"),
+    "unknown method in capitals": (["3DGX"], "unknown method '3DGX' (did you mean '3dgs'?); splat-train --help lists them"),
     "missing value": (["3dgs", "--steps"], "--steps"),
     "no method": ([], "missing a command: expected one of {3dgs"),
     "fractional count": (["3dgs", "--model.init.num-points", "1.5"], "--model.init.num-points: invalid literal for int()"),
@@ -325,6 +330,19 @@ def test_other_parse_errors_are_one_line(case, capsys):
     assert needle in str(e.value) and "\n" not in str(e.value if isinstance(e.value, ArgumentsError) else
                                                        format_validation_error(e.value.error))
     assert capsys.readouterr().err == ""  # tyro's box was not printed
+
+
+def test_a_method_is_named_in_any_letter_case():
+    """``splat-train 3DGS``: 3dgs's own command line (its parse error, not an unknown method), and
+    the config of 3dgs; a variant's name too."""
+    from splat_framework.cli.common import ArgumentsError
+    from splat_framework.cli.train import main, method_named
+
+    with pytest.raises(ArgumentsError, match=r"^--views: expected .*; see splat-train --help$"):
+        main(["3DGS", "--views", "abc"])
+    methods = {"3dgs": None, "3dgs-triang": None, "scgaussian": None}
+    assert method_named(["3DGS-Triang", "--steps", "1"], "3DGS-Triang", methods) == (["3dgs-triang", "--steps", "1"], "3dgs-triang")
+    assert method_named(["scgaussian"], "scgaussian", methods) == (["scgaussian"], "scgaussian")
 
 
 @pytest.mark.bad_input("`--views abc`, an unknown method (`3dgx`), a bad choice (`--format llf`), an unknown flag", "exit 2, one line (with \"did you mean\" where one is close)")

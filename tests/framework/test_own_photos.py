@@ -18,7 +18,7 @@ from splat_framework.config.data import PhotoPosesConfig
 from splat_framework.data import describe_split
 from splat_framework.data.images import list_images, natural_key
 from splat_framework.data.parsers.common import find_images
-from splat_framework.data.scene import SceneData
+from splat_framework.data.scene import DataError, SceneData
 from splat_framework.data.splits import own_scene_split
 from splat_framework.matching.matchset import MatchSet
 from splat_framework.matching.report import warn_empty
@@ -57,7 +57,8 @@ def test_a_folder_of_photos_trains_in_one_command_on_all_of_a_few(photo_run):
     assert "photos: estimating the poses of 4 photos (pycolmap, incremental mapper, sift matches)" in out, out
     assert "photos: 4 of 4 images registered" in out, out
     assert ("training on all 4 views of a COLMAP scene (its default; --views N for a few-shot split): IMG_9, IMG_18, "
-            "IMG_27, IMG_100; nothing is held out, so the metrics are training-view metrics") in out, out
+            "IMG_27, IMG_100; nothing is held out, so the metrics are training-view metrics (--test-every K holds out "
+            "every K-th image)") in out, out
     assert "train psnr" in res.stdout and "test psnr" not in res.stdout and "Training-view metrics" in out
     config = read_json(run / "config.json")["config"]
     assert config["views"] == "all"
@@ -67,6 +68,26 @@ def test_a_folder_of_photos_trains_in_one_command_on_all_of_a_few(photo_run):
     metrics = read_json(run / "metrics.json")
     assert [(v["view"], v["split"]) for v in metrics["per_view"]] == [(n, "train") for n in NAMES]
     assert all((run / "renders" / f"{n}_render.png").is_file() for n in NAMES)
+
+
+def test_a_few_photos_give_a_held_out_figure_with_test_every(photo_run, tmp_path):
+    """Issue 107: 4 photos and ``--test-every 2``: IMG_9 and IMG_27 held out and scored (a test PSNR,
+    not a training-view one), the poses read from the cache, the split recorded for splat-eval."""
+    _, _, photos, env = photo_run
+    run = tmp_path / "run"
+    res = run_cli("train", "3dgs", "--data", photos, "--test-every", "2", "--steps", "2", "--output", run,
+                  "--no-progress", "--photos.matcher", "sift", "--model.init.num-points", "300", code=0, env=env)
+    out = " ".join((res.stdout + res.stderr).split())
+    assert "photos: poses from the cache" in out, out
+    assert ("training on all 2 views of a COLMAP scene (its default; --views N for a few-shot split): IMG_18, IMG_100; "
+            "2 test views held out (every 2nd image): IMG_9, IMG_27") in out, out
+    assert "test psnr" in res.stdout and "train psnr" not in res.stdout and "Training-view metrics" not in out
+    metrics = read_json(run / "metrics.json")
+    assert [(v["view"], v["split"]) for v in metrics["per_view"]] == [("IMG_9", "test"), ("IMG_27", "test")]
+    assert np.isfinite(metrics["mean"]["psnr"]) and metrics["mean"]["psnr"] > 5
+    record = read_json(run / "config.json")["config"]["resolved_data"]
+    assert (record["train"], record["test"]) == (["IMG_18", "IMG_100"], ["IMG_9", "IMG_27"])
+    assert read_json(run / "config.json")["config"]["test_every"] == 2
 
 
 def test_the_run_folder_evaluates_from_another_folder_and_shell(photo_run, tmp_path):
@@ -230,10 +251,38 @@ def test_more_photos_say_which_train_and_which_test_by_name():
         "training on all 17 views of a COLMAP scene (its default; --views N for a few-shot split); "
         "3 test views held out (every 8th image): IMG_1, IMG_9, IMG_17")
     assert describe_split(_scene(3, 3), 3) == ("training on 3 views of a COLMAP scene: IMG_1, IMG_2, IMG_3; nothing is "
-                                               "held out, so the metrics are training-view metrics")
+                                               "held out, so the metrics are training-view metrics (--test-every K "
+                                               "holds out every K-th image)")
     benchmark = _scene(10, 3)
     benchmark.format = "llff"
     assert describe_split(benchmark, 3) is None
+
+
+def test_photos_are_held_out_at_any_count_with_test_every():
+    """``--test-every K``: every K-th photo (the first, the K+1-th, ...) is a test view, also of 8
+    photos or fewer; the line names the rule and the photos; a benchmark split by it says so too;
+    Blender's and DTU's protocol lists are not replaced."""
+    from splat_framework.data.run_data import every_kth_split
+
+    few = every_kth_split(_scene(8, "all"), 3, "all")
+    assert few.test_indices == [0, 3, 6] and few.train_indices == [1, 2, 4, 5, 7]
+    assert describe_split(few, "all", 3) == (
+        "training on all 5 views of a COLMAP scene (its default; --views N for a few-shot split): IMG_2, IMG_3, "
+        "IMG_5, IMG_6, IMG_8; 3 test views held out (every 3rd image): IMG_1, IMG_4, IMG_7")
+    two = every_kth_split(_scene(4, "all"), 2, 1)
+    assert (two.train_indices, two.test_indices) == ([1], [0, 2])
+    assert describe_split(two, 1, 2) == ("training on 1 view of a COLMAP scene: IMG_2; 2 test views held out "
+                                         "(every 2nd image): IMG_1, IMG_3")
+    assert every_kth_split(few, None, "all") is few
+    llff = _scene(10, 3)
+    llff.format = "llff"
+    assert describe_split(every_kth_split(llff, 5, 3), 3, 5).endswith("2 test views held out (every 5th image): IMG_1, IMG_6")
+    blender = _scene(10, "all")
+    blender.format = "blender"
+    with pytest.raises(DataError, match="--test-every holds out every K-th image of LLFF, COLMAP and transforms.json"):
+        every_kth_split(blender, 2, "all")
+    with pytest.raises(DataError, match="views=4 is more than the 2 images"):
+        every_kth_split(_scene(4, "all"), 2, 4)
 
 
 def test_a_training_view_without_any_verified_match_is_named():

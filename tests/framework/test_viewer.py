@@ -1,6 +1,7 @@
 """splat-view: the viser viewer of a trained run serves its page, shows every Gaussian and the
 cameras, renders a chosen camera with splat's rasterizer; in a real browser when Chromium is installed."""
 
+import contextlib
 import logging
 import threading
 import time
@@ -136,20 +137,80 @@ def test_render_with_splat_says_it_is_busy(viewer, monkeypatch):
     assert seen == [(True, BUSY_LABEL)] * 2 and (viewer._render.disabled, viewer._render.label) == (False, RENDER_LABEL)
 
 
+@contextlib.contextmanager
+def _open_page(viewer):
+    """A websocket client doing what the viewer's page does when a browser opens it: connect as its own
+    client (viser's subprotocol, the viewer's Origin) and report its camera (the start view), after
+    which viser counts it as a connected client."""
+    import msgspec
+    import viser
+    from websockets.sync.client import connect
+
+    start = viewer.server.initial_camera
+    camera = {"type": "ViewerCameraMessage", "wxyz": [1.0, 0.0, 0.0, 0.0], "position": list(map(float, start.position)),
+              "fov": float(start.fov), "near": 0.01, "far": 1000.0, "image_height": 480, "image_width": 640,
+              "look_at": list(map(float, start.look_at)), "up_direction": list(map(float, start.up))}
+    with connect(f"ws://127.0.0.1:{viewer.port}", subprotocols=[f"viser-v{viser.__version__}"],
+                 origin=f"http://127.0.0.1:{viewer.port}", max_size=None, open_timeout=30) as ws:
+        ws.send(msgspec.msgpack.encode(camera))
+        yield ws
+
+
+def test_a_page_that_opens_finds_the_panel_rendered(run_dir, monkeypatch):
+    """Issue 107: the panel is not an empty strip until "Render with splat" is pressed: a page that
+    connects gets the chosen camera's render (the first training camera's, where browsers start), as
+    the button makes it; a second page finds it there (no render again), a new model (the training
+    viewer's next copy) is rendered for the next page that opens."""
+    from splat_framework.cli.view import ViewArgs, main
+
+    v = main(ViewArgs(run_dir=run_dir, port=0, host="127.0.0.1"), serve=False)
+    try:
+        assert v._image.image.shape == (8, 24, 3)  # the placeholder: no page has opened yet
+        renders, render = [], v.render_panel
+        monkeypatch.setattr(v, "render_panel", lambda label: renders.append(label) or render(label))
+
+        def page_opens(count: int) -> None:
+            with _open_page(v):
+                deadline = time.time() + 60
+                while len(renders) < count or v._render.disabled:  # rendered in viser's thread pool
+                    assert time.time() < deadline, renders
+                    time.sleep(0.05)
+                time.sleep(0.3)  # a render that should not happen would have started by now
+
+        first = v._chosen.options[0]
+        page_opens(1)
+        assert renders == [first] and first.startswith("train/"), renders
+        camera, _ = v._cameras[first]
+        assert v._image.image.shape == (camera.height, 3 * camera.width, 3) and first in v._image.label
+        assert np.array_equal(v._image.image, render(first))  # the picture the button would show
+        page_opens(1)
+        assert renders == [first]  # the second page finds it rendered
+        v.set_model(v._model, v._background, note="(step 20)", snapshot=True)
+        page_opens(2)
+        assert renders == [first, first]
+    finally:
+        v.close()
+
+
 @pytest.mark.skipif(chromium_binary() is None,
                     reason="Chromium is not installed (Debian: apt-get install -y chromium); the browser test needs it")
 def test_the_first_frame_shows_the_scene_in_headless_chromium(viewer):
     """A browser opening http://127.0.0.1:PORT (a loopback page the client guard accepts) draws the scene
     from the first training camera before anything is clicked: the page's own client connects and
-    receives the model (its panel names the Gaussian count), the canvas is covered by splats, and it
-    is the picture splat's rasterizer renders at that camera (over the page's white background)."""
+    receives the model (its panel names the Gaussian count) and splat's own render of that camera in
+    the side panel, the canvas is covered by splats, and it is the picture splat's rasterizer renders
+    at that camera (over the page's white background)."""
     camera, _ = viewer._cameras[viewer._chosen.options[0]]
     big = camera.scaled(4)  # the viewport has the camera's aspect: the canvas is the camera's picture
     with torch.no_grad():
         expect = viewer._model.get_outputs(big, torch.ones(3)).rgb.clamp(0, 1).numpy()
     with HeadlessPage(f"http://127.0.0.1:{viewer.port}", size=(big.width, big.height)) as page:
-        text = page.wait_for_text(f"{viewer.num_splats:,} Gaussians", timeout=60)
-        assert f"{viewer.num_splats:,} Gaussians" in text and "Render with splat" in text
+        page.wait_for_text(f"{viewer.num_splats:,} Gaussians", timeout=60)
+        # the panel holds splat's own render of the camera the page starts at, with no click (issue 107),
+        # and the button, which read "Rendering…" meanwhile, is back
+        page.wait_for_text(f"splat render of {viewer._chosen.options[0]}", timeout=60)
+        text = page.wait_for_text("Render with splat", timeout=60)
+        assert f"{viewer.num_splats:,} Gaussians" in text and f"splat render of {viewer._chosen.options[0]}" in text
         page.only_canvases()
         deadline, shot = time.time() + 30, None
         while True:  # the splats are sorted in a web worker and fade in: wait for two equal frames

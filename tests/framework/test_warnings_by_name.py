@@ -17,6 +17,7 @@ import pytest
 from cli_harness import cli_env, run_cli
 from splat_framework.matching.matchset import MatchSet
 from splat_framework.matching.report import empty_pairs_line, unmatched_views_line
+from splat_framework.sfm.posing_record import posing_record
 from splat_framework.sfm.reconstruct import SfmSummary
 
 NOISE = 3
@@ -86,6 +87,69 @@ def test_training_names_the_pairs_left_empty_and_the_view_without_a_match_also_f
         assert not INDEX.search(res.stdout + res.stderr), res.stderr
 
 
+def test_the_pairs_left_empty_say_whether_the_poses_of_ones_photos_lack_any(tmp_path, capsys, monkeypatch):
+    """Issue 107: the prior's pairs left empty on photos posed by splat (``posing.json``): every photo
+    registered, an information line saying the poses are not affected (no warning); some left out, a
+    warning naming them and what may pose them (the flags of ``--data PHOTOS`` or of splat-process);
+    a dataset's own poses (no record), the warning as before."""
+    import warnings
+
+    from splat_framework.matching.report import warn_empty
+    from splat_framework.sfm.posing_record import posing_record, write_posing_record
+
+    some, none = np.ones((20, 2), np.float32), np.zeros((0, 2), np.float32)
+    ms = MatchSet(view_ids=[0, 1, 2], matches={(0, 1): (some, some), (0, 2): (some, some), (1, 2): (none, none)},
+                  warnings={(1, 2): "left empty"})
+    names = {0: "IMG_1", 1: "IMG_2", 2: "IMG_3"}
+    empty = "1 of 3 pairs left empty (fewer than 8 verified matches): IMG_2-IMG_3"
+    photos = ["IMG_1.jpg", "IMG_2.jpg", "IMG_3.jpg", "IMG_4.jpg"]
+    monkeypatch.setenv("SPLAT_CACHE", str(tmp_path / "cache"))
+    process, cached = tmp_path / "my_scene", tmp_path / "cache" / "photos" / "0123abcd" / "scene"
+    for scene in (process, cached):
+        scene.mkdir(parents=True)
+    assert posing_record(process) is None  # a scene posed elsewhere: no record
+
+    write_posing_record(process, photos[:3], [], "sift", "incremental")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        warn_empty(ms, names, posing_record(process))
+    assert " ".join(capsys.readouterr().err.split()) == (
+        f"{empty}; the poses are not affected (all 3 photos registered): those photos overlap too little for the "
+        "prior's matches")
+
+    write_posing_record(process, photos, ["IMG_4.jpg"], "sift", "incremental")
+    with pytest.warns(UserWarning) as caught:
+        warn_empty(ms, names, posing_record(process))
+    assert [str(w.message) for w in caught] == [
+        f"{empty}; the poses lack 1 of the 4 photos, not registered (left out of the scene): IMG_4.jpg; more photos "
+        "overlapping them, or splat-process with --matcher aliked-lightglue or --mapper global may pose them"]
+    write_posing_record(cached, photos, ["IMG_4.jpg"], "aliked-lightglue", "global")
+    assert posing_record(cached).retry == "more photos overlapping them, or --photos.mapper incremental"
+    write_posing_record(cached, photos, ["IMG_4.jpg"], "sift", "incremental")
+    assert posing_record(cached).retry == ("more photos overlapping them, --photos.matcher aliked-lightglue, or "
+                                           "--photos.mapper global")
+    with pytest.warns(UserWarning) as caught:
+        warn_empty(ms, names, None)
+    assert [str(w.message) for w in caught] == [empty]
+
+
+def test_a_run_on_photos_that_all_registered_says_the_poses_are_not_affected(noisy_scene, tmp_path):
+    """The prior of a run on a scene whose ``posing.json`` says every photo registered: its pairs left
+    empty are an information line, not a warning (the view without a match stays one)."""
+    from splat_framework.sfm.posing_record import write_posing_record
+
+    scene = tmp_path / "scene"
+    shutil.copytree(noisy_scene, scene)
+    write_posing_record(scene, [f"IMG_{k + 1}.jpg" for k in range(5)], [], "sift", "incremental")
+    res = run_cli("train", "3dgs-triang", "--data", scene, "--views", "all", "--steps", "1", "--output",
+                  tmp_path / "run", "--no-progress", "--model.init.matching.kind", "sift", code=0,
+                  env=cli_env(SPLAT_CACHE=str(tmp_path / "cache")))
+    lines = warning_lines(res.stderr)
+    assert len(lines) == 1 and lines[0].startswith("warning: training view image003 has no verified match"), res.stderr
+    assert ("3 of 6 pairs left empty (fewer than 8 verified matches): image001-image003, image002-image003, "
+            "image003-image004; the poses are not affected (all 5 photos registered)") in " ".join(res.stderr.split())
+
+
 def test_splat_match_names_the_pairs_left_empty_and_the_view_without_a_match(noisy_scene, tmp_path):
     res = run_cli("match", "--data", noisy_scene, "--views", "all", "--kind", "sift", "--out", tmp_path / "m",
                   code=0)
@@ -116,6 +180,8 @@ def test_splat_process_lists_a_photo_that_did_not_register_with_its_verified_mat
     assert ("IMG_4.jpg not registered (left out of the scene): verified matches with IMG_1.jpg 0, IMG_2.jpg 0, "
             "IMG_3.jpg 0, IMG_5.jpg 0") in res.stdout.splitlines(), res.stdout
     assert not warning_lines(res.stderr) and not INDEX.search(res.stdout + res.stderr), res.stderr
+    record = posing_record(tmp_path / "scene")  # what a run's prior says about the poses, kept beside them
+    assert record.photos == [f"IMG_{k + 1}.jpg" for k in range(5)] and record.left_out == ["IMG_4.jpg"], record
 
 
 def test_training_on_photos_lists_the_photo_left_out_also_from_the_cache(noisy_photos, tmp_path):

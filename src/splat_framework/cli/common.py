@@ -115,9 +115,10 @@ def _subclasses(cls: type) -> list[type]:
 
 
 def parse_cli(f, *, prog: str, args: list[str] | None = None, field_prefix: str | None = None, subcommands=(),
-              **kwargs):
+              flags=(), **kwargs):
     """``tyro.cli(f)`` under :func:`one_line_parse_errors`: whatever tyro rejects is one line (exit 2).
-    ``subcommands``: the names its first argument may take (methods), for an unknown one's message.
+    ``subcommands``: the names its first argument may take (methods), for an unknown one's message;
+    ``flags``: the flags it takes (``cli.help_screen.flag_names``), for an unknown one's.
 
     ``field_prefix``: for a command whose config is not a training config (splat-match,
     splat-scene), the dotted path its fields' errors are named under ("" = the flag's own
@@ -128,7 +129,7 @@ def parse_cli(f, *, prog: str, args: list[str] | None = None, field_prefix: str 
     from ..errors import DataError
 
     try:
-        with one_line_parse_errors(prog, subcommands):
+        with one_line_parse_errors(prog, subcommands, flags):
             return tyro.cli(f, prog=prog, args=sys.argv[1:] if args is None else args, **kwargs)
     except InvalidArguments as e:
         if field_prefix is None:
@@ -240,13 +241,14 @@ _BOX = re.compile(r"[\u2500-\u257f]")
 _RULE = re.compile(r"^[\s\u2500-\u257f-]*$")
 
 
-def tyro_error_line(box: str, prog: str, subcommands=()) -> str:
+def tyro_error_line(box: str, prog: str, subcommands=(), flags=()) -> str:
     """One line for the error box tyro prints on stderr (title, then its first section up to the
     next rule, lines rejoined; UTF-8 or ASCII boxes), e.g.
     ``--views: expected INT|{all}, got ['abc']; see splat-train --help``.
 
     ``subcommands``: the names the first positional argument may take (methods), so that an unknown
-    one reads ``unknown method 'x' (did you mean 'y'?)``."""
+    one reads ``unknown method 'x' (did you mean 'y'?)``; ``flags``: the flags the command takes, so
+    that an unknown one reads ``unrecognized arguments: --dta x (did you mean '--data'?)``."""
     lines = [ln for ln in box.splitlines() if ln.strip()]
     title = _BOX.sub("", lines[0]).strip() if lines else ""
     body: list[str] = []
@@ -262,7 +264,7 @@ def tyro_error_line(box: str, prog: str, subcommands=()) -> str:
         tokens = re.findall(r"(\S+) \(applied to [^)]*\)", text) or text.split(":", 1)[1].strip().split(", ")
         if subcommands and tokens and not tokens[0].startswith("-") and tokens[0] not in subcommands:
             return f"unknown method '{tokens[0]}'{did_you_mean(tokens[0], subcommands)}; {prog} --help lists them"
-        text = "unrecognized arguments: " + " ".join(tokens)
+        text = "unrecognized arguments: " + " ".join(tokens) + _closest_flags(tokens, flags)
     elif text.startswith("Error parsing "):  # "Value error": the flag, tyro's message, then every union member's
         text = text[len("Error parsing "):].split(" Got errors:")[0].rstrip(".")
         text = re.sub(r"no type matching (.*) could be instantiated from (.*)", r"expected \1, got \2", text)
@@ -276,13 +278,28 @@ def tyro_error_line(box: str, prog: str, subcommands=()) -> str:
     return f"{text.rstrip('.')}; {see}" if text else f"invalid arguments; {see}"
 
 
+def _closest_flags(tokens: list[str], flags) -> str:
+    """`` (did you mean '--data'?)`` for the unknown flags among ``tokens`` that are close to one of
+    ``flags`` (``--dta``; several: ``'--data' for --dta, '--steps' for --stpes``), or ""."""
+    close = {}
+    for token in tokens:
+        name = token.partition("=")[0]
+        hint = did_you_mean(name, flags) if name.startswith("--") else ""
+        if hint:
+            close[name] = hint[len(" (did you mean "):-len("?)")]
+    if len(close) <= 1:
+        return "".join(f" (did you mean {flag}?)" for flag in close.values())
+    return f" (did you mean {', '.join(f'{flag} for {name}' for name, flag in close.items())}?)"
+
+
 @contextmanager
-def one_line_parse_errors(prog: str, subcommands=()) -> Iterator[None]:
+def one_line_parse_errors(prog: str, subcommands=(), flags=()) -> Iterator[None]:
     """Around ``tyro.cli(...)``: a command line tyro rejects raises :class:`ArgumentsError` with one
     line (``run_cli`` prints it and exits 2) instead of tyro's box (:func:`tyro_error_line`), and an
     invalid config value raises ``config.InvalidArguments`` naming its field (``config.cli_parsing``).
     ``--help`` (stdout, exit 0) is untouched; what else reaches stderr meanwhile is passed on.
-    ``subcommands``: the names of the command's subcommands (methods), for an unknown one's message."""
+    ``subcommands``: the names of the command's subcommands (methods), for an unknown one's message;
+    ``flags``: the flags the command takes, for an unknown one's."""
     import io
 
     from ..config import cli_parsing
@@ -294,7 +311,7 @@ def one_line_parse_errors(prog: str, subcommands=()) -> Iterator[None]:
             yield
     except SystemExit as e:
         if e.code not in (0, None):
-            raise ArgumentsError(tyro_error_line(captured.getvalue(), prog, subcommands)) from None
+            raise ArgumentsError(tyro_error_line(captured.getvalue(), prog, subcommands, flags)) from None
         raise
     finally:
         sys.stderr = real

@@ -58,6 +58,23 @@ def _leaf_groups(config: BaseModel, path: str = "") -> typing.Iterator[tuple[str
             yield path.rstrip("."), name, info
 
 
+def flag_names(config: BaseModel, argv: list[str] = ()) -> list[str]:
+    """Every flag of ``config`` on the command line (``--data``, ``--model.init.kind``,
+    ``--model.sh-degree``; with the kinds ``argv`` chooses), the help flags included: the names a
+    mistyped flag is matched against (``cli.common.tyro_error_line``)."""
+    from .kinds import choose_kinds
+
+    def walk(value: BaseModel, path: str) -> typing.Iterator[str]:
+        for name, info in type(value).model_fields.items():
+            sub = value.__dict__.get(name)
+            if isinstance(sub, BaseModel):
+                yield from walk(sub, f"{path}{name}.")
+            elif not suppressed(info):
+                yield "--" + _flag(path + name)
+
+    return [*HELP_FLAGS, *walk(choose_kinds(config, list(argv)), "")]
+
+
 def groups(config: BaseModel) -> dict[str, int]:
     """{group (as its flags spell it; :data:`TOP` for the top level): number of flags} of ``config``."""
     out: dict[str, int] = {}

@@ -30,7 +30,7 @@ class PhotoPosesConfig(SplatConfig):
     """Pairs matched: auto (every pair up to 10 photos; above, each photo's 5 most similar photos, and for a video each frame's 3 next frames too) or exhaustive (every pair)."""
 
 
-SOURCE_FIELDS = ("data", "format", "views", "downscale", "eval_split", "train_poses", "photos")
+SOURCE_FIELDS = ("data", "format", "views", "downscale", "eval_split", "test_every", "train_poses", "photos")
 """The TrainConfig fields a :class:`ResolvedData` was resolved from."""
 
 

@@ -49,6 +49,8 @@ class TrainConfig(SplatConfig):
     """Image downscale factor (default: the dataset's, 8 on LLFF, 2 on Blender)."""
     eval_split: Literal["test", "val"] = "test"
     """Score the test views, or the validation views (neither trained nor tested: choose defaults on these)."""
+    test_every: Annotated[int, Field(ge=2, le=MAX_VIEWS)] | None = None
+    """Hold out every K-th image (the first, the K+1-th, ...) as a test view, at any image count (default: every 8th, and none up to 8 photos of one's own; LLFF, COLMAP and transforms.json scenes)."""
     train_poses: Annotated[Path | None, FOLDED] = None
     """Pose file (JSON) replacing the training views' cameras."""
     photos: PhotoPosesConfig = Field(default_factory=PhotoPosesConfig)

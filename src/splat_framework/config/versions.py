@@ -23,7 +23,9 @@ Versions:
    every pair kept up to ``max_matches`` whatever the number of pairs (:func:`from_version_3`).
 4. The layout before coarse steps: there is no ``coarse_steps``, and every run trained every
    iteration at the images' own size (:func:`from_version_4`).
-5. Today's layout.
+5. The layout before ``--test-every``: ``resolved_data.source`` has no ``test_every``; every such
+   run held out its format's test views (:func:`from_version_5`).
+6. Today's layout.
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ from .merge import deep_merge
 from .model import GaussianModelConfig, ModelConfig, OptimConfig, RegularisersConfig
 from .train import TrainConfig
 
-SCHEMA_VERSION = 5
+SCHEMA_VERSION = 6
 """Version of the ``config.json`` layout this build writes (see the module docstring)."""
 
 UNVERSIONED = 1
@@ -215,11 +217,22 @@ def from_version_4(cfg: dict, defaults: dict) -> dict:
     return {**cfg, "coarse_steps": cfg.get("coarse_steps", 0)}
 
 
+def from_version_5(cfg: dict, defaults: dict) -> dict:
+    """Version 5 to 6: a recorded dataset's source gains ``test_every`` None (the format's own test
+    views: what every run of version 5 held out), so the record still resolves the run's config."""
+    record = cfg.get("resolved_data")
+    if isinstance(record, dict) and isinstance(record.get("source"), dict):
+        source = {**record["source"], "test_every": record["source"].get("test_every")}
+        cfg = {**cfg, "resolved_data": {**record, "source": source}}
+    return cfg
+
+
 UPGRADES: dict[int, Callable[[dict, dict], dict]] = {
     1: from_version_1,
     2: from_version_2,
     3: from_version_3,
     4: from_version_4,
+    5: from_version_5,
 }
 """Version N -> the step taking a config dict of version N to N + 1, given the method's default
 config (as a dict); ordered, one per version below :data:`SCHEMA_VERSION`."""

@@ -21,3 +21,17 @@ def builtin_scene_name(spec: object) -> str | None:
     when ``spec`` does not name a built-in scene."""
     posix = str(spec).replace("\\", "/")
     return posix[len(SYNTHETIC_PREFIX):].strip("/") if posix.startswith(SYNTHETIC_PREFIX) else None
+
+
+def unknown_scene_message(name: str) -> str | None:
+    """The one line refusing ``synthetic/NAME`` when NAME is missing or names no built-in scene (with
+    the closest name and the known ones), or None when it names one. Torch-free: ``splat-train``
+    says it before PyTorch loads, and the generator says the same."""
+    from ..errors import did_you_mean
+
+    if not name:
+        return f"{SYNTHETIC_PREFIX}: missing synthetic scene name ({SYNTHETIC_PREFIX}<name>)"
+    if name in NAMED_SCENES:
+        return None
+    return (f"{SYNTHETIC_PREFIX}{name}: unknown synthetic scene{did_you_mean(name, NAMED_SCENES)} "
+            f"(known: {', '.join(NAMED_SCENES)})")

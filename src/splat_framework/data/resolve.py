@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..errors import DataError, did_you_mean
 from ..files.output_paths import data_inputs
-from .builtin_scenes import NAMED_SCENES, SYNTHETIC_PREFIX, builtin_scene_name
+from .builtin_scenes import NAMED_SCENES, SYNTHETIC_PREFIX, builtin_scene_name, unknown_scene_message
 
 
 def locate_data(spec: str | Path) -> Path:
@@ -35,6 +35,17 @@ def locate_data(spec: str | Path) -> Path:
     if found:
         return found[0]
     raise DataError(missing_data_message(text, path))
+
+
+def check_data(spec: str | Path) -> None:
+    """Raise the DataError that :func:`locate_data` would for ``spec``, without generating a built-in
+    scene: what ``splat-train`` refuses before PyTorch loads (a mistyped folder or built-in name)."""
+    text = str(spec)
+    name = builtin_scene_name(text)
+    if name is None or Path(text).expanduser().exists():
+        locate_data(text)
+    elif refused := unknown_scene_message(name):
+        raise DataError(refused)
 
 
 def missing_data_message(text: str, path: Path) -> str:

@@ -19,7 +19,7 @@ from .parsers.common import scene_extent
 from .photos import photo_source
 from .resolve import locate_data
 from .scene import DataError, SceneData
-from .splits import FEW_SHOT_FORMATS, LLFF_HOLDOUT, default_views
+from .splits import FEW_SHOT_FORMATS, LLFF_HOLDOUT, default_views, llff_split
 
 
 def with_split(scene: SceneData, train: list[str], test: list[str]) -> SceneData:
@@ -34,6 +34,25 @@ def with_split(scene: SceneData, train: list[str], test: list[str]) -> SceneData
         return scene
     center, radius = scene_extent(scene.cameras, train_idx)
     return replace(scene, train_indices=train_idx, test_indices=test_idx, scene_center=center, scene_radius=radius)
+
+
+EVERY_KTH_FORMATS = ("llff", "colmap", "transforms")
+"""The formats whose test views are every K-th image (K = 8; ``--test-every K``); Blender's and
+DTU's are their protocols' own lists."""
+
+
+def every_kth_split(scene: SceneData, test_every: int | None, views) -> SceneData:
+    """``scene`` holding out every ``test_every``-th image (the first, the ``test_every``+1-th, ...,
+    in the scene's name order) as a test view at any image count, ``views`` of the rest trained on
+    (the LLFF rule, :func:`~.splits.llff_split`); unchanged when ``test_every`` is None. A DataError
+    naming the folder for a format whose test views are a protocol's list (Blender, DTU)."""
+    if test_every is None:
+        return scene
+    if scene.format not in EVERY_KTH_FORMATS:
+        raise DataError(f"{scene.root}: --test-every holds out every K-th image of LLFF, COLMAP and transforms.json "
+                        f"scenes (one's own photos); a {scene.format} scene's test views are its protocol's")
+    train, test = llff_split(len(scene.cameras), views, test_every)
+    return with_split(scene, [scene.cameras[i].name for i in train], [scene.cameras[i].name for i in test])
 
 
 def held_out_views(scene: SceneData, split: str) -> SceneData:
@@ -105,15 +124,16 @@ def resumed_views(config):
 
 NAMED_VIEWS = 8
 """Up to this many training (or test) views, the line describing the split names them."""
-SCENE_KINDS = {"colmap": "a COLMAP scene", "transforms": "a transforms.json scene"}
+SCENE_KINDS = {"colmap": "a COLMAP scene", "transforms": "a transforms.json scene", "llff": "an LLFF scene"}
 
 
-def describe_split(scene: SceneData, views) -> str | None:
+def describe_split(scene: SceneData, views, test_every: int | None = None) -> str | None:
     """One line saying how many views train and how many are held out for testing (naming them when
-    few) and, where ``views`` is the format's default, that it is and how to ask for another; for a
-    scene of one's own (COLMAP: splat-process or photos given as --data; transforms.json). None for
-    the benchmarks, whose few-shot split is the papers'."""
-    if scene.format in FEW_SHOT_FORMATS:
+    few; every ``test_every``-th image when given, else every 8th) and, where ``views`` is the
+    format's default, that it is and how to ask for another; for a scene of one's own (COLMAP:
+    splat-process or photos given as --data; transforms.json), or any scene split by
+    ``--test-every``. None for the benchmarks otherwise, whose few-shot split is the papers'."""
+    if scene.format in FEW_SHOT_FORMATS and test_every is None:
         return None
     kind = SCENE_KINDS.get(scene.format, f"a {scene.format} scene")
     line = f"training on {'all ' if views == 'all' else ''}{_counted(scene.train_indices, 'view')} of {kind}"
@@ -121,11 +141,19 @@ def describe_split(scene: SceneData, views) -> str | None:
         line += " (its default; --views N for a few-shot split)"
     line += _names(scene, scene.train_indices)
     if not scene.test_indices:
-        return line + "; nothing is held out, so the metrics are training-view metrics"
+        return line + ("; nothing is held out, so the metrics are training-view metrics (--test-every K holds out "
+                       "every K-th image)")
     if scene.held_out == "val":
         return line + f"; {_counted(scene.test_indices, 'validation view')} scored (neither trained on nor tested)"
     held_out = _counted(scene.test_indices, "test view")
-    return line + f"; {held_out} held out (every {LLFF_HOLDOUT}th image){_names(scene, scene.test_indices)}"
+    every = ordinal(test_every or LLFF_HOLDOUT)
+    return line + f"; {held_out} held out (every {every} image){_names(scene, scene.test_indices)}"
+
+
+def ordinal(k: int) -> str:
+    """``2nd``, ``3rd``, ``8th``, ``11th``, ``21st``."""
+    suffix = "th" if 10 <= k % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(k % 10, "th")
+    return f"{k}{suffix}"
 
 
 def _counted(indices: list[int], noun: str) -> str:

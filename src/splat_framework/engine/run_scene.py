@@ -8,15 +8,15 @@ from pathlib import Path
 
 from ..data.parsers import load_scene
 from ..data.pose_file import apply_pose_file
-from ..data.run_data import held_out_views, resolve_views, with_split
+from ..data.run_data import every_kth_split, held_out_views, resolve_views, with_split
 from ..data.scene import DataError, SceneData
 from ..sfm.own_photos import resolve_data_path
 
 
 def load_config_scene(config) -> SceneData:
     """The scene a training config names (``data``, ``format``, ``views``, ``downscale``; a folder of
-    photos or a video posed with ``photos``), scoring the views ``eval_split`` names, its training
-    cameras replaced from ``train_poses`` when set. With ``resolved_data`` recorded for these fields: its folder (``data`` again where that
+    photos or a video posed with ``photos``; every ``test_every``-th image held out when set),
+    scoring the views ``eval_split`` names, its training cameras replaced from ``train_poses`` when set. With ``resolved_data`` recorded for these fields: its folder (``data`` again where that
     folder is gone) and its split, by image name. Unset ``views`` are settled first (:func:`resolve_views`)."""
     config = resolve_views(config)
     record = config.resolved_data if config.resolved_data is not None and config.resolved_data.resolves(config) else None
@@ -34,6 +34,6 @@ def load_config_scene(config) -> SceneData:
         scene = with_split(scene, record.train, record.test)
         scene = replace(scene, held_out=config.eval_split)
     else:
-        scene = held_out_views(scene, config.eval_split)
+        scene = held_out_views(every_kth_split(scene, config.test_every, config.views), config.eval_split)
     poses = record.train_poses if record is not None else config.train_poses
     return apply_pose_file(scene, poses) if poses is not None else scene

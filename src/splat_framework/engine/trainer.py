@@ -223,7 +223,7 @@ class Trainer(TrainState):
                 fields=self.spec.model_class().batch_fields(self.config),
             )
         self.config = record_data(self.config, scene)  # config.json names the folder and split: eval from any shell
-        split = describe_split(scene, self.config.views)
+        split = describe_split(scene, self.config.views, self.config.test_every)
         if split:
             say(split)
         self.timing["data_s"] = time.perf_counter() - t0

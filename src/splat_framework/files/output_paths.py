@@ -168,7 +168,8 @@ SCENE_FOLDER = OutputKind(
              "scene.json"),
     recognise=_is_synthetic_scene,
 )
-PROCESSED_SCENE = OutputKind("processed-scene", "scene folder", "splat-process", True, entries=("images", "sparse"))
+PROCESSED_SCENE = OutputKind("processed-scene", "scene folder", "splat-process", True,
+                             entries=("images", "sparse", "posing.json"))
 PLY_FILE = OutputKind(
     "ply", "PLY file", "splat-export", False,
     recognise=lambda p: _ply_is_ours(p) or (Path(p).name == "point_cloud.ply" and _in_run_folder(p)),

@@ -26,8 +26,11 @@ from .report import view_names, warn_empty
 
 def compute_match_set(matching: MatchConfig, datamanager) -> MatchSet:
     """Matches between all pairs of training views (cached on disk unless ``matching.cache`` is off), with
-    a warning naming the pairs left empty and one naming the views without any verified match (each view
-    by its image's name, :func:`~.report.warn_empty`; also when the matches come from the cache)."""
+    a line naming the pairs left empty (for photos posed by splat, saying whether the poses lack any:
+    an information line when every photo registered) and a warning naming the views without any
+    verified match (each view by its image's name, :func:`~.report.warn_empty`; also when the matches
+    come from the cache)."""
+    from ..sfm.posing_record import posing_record
     from .pipeline import compute_matches
 
     views = datamanager.train_views()
@@ -44,7 +47,7 @@ def compute_match_set(matching: MatchConfig, datamanager) -> MatchSet:
     match_set = compute_matches(images, cameras, ids, matching, cache_dir, masks, known=known, label=label, pairs=pairs)
     if origin and not known:
         warnings.warn(origin)
-    warn_empty(match_set, view_names(ids, cameras))
+    warn_empty(match_set, view_names(ids, cameras), posing_record(Path(datamanager.scene.root)))
     return match_set
 
 

@@ -2,8 +2,9 @@
 ``describe_split`` names them: ``IMG_9``), never by their indices in the dataset.
 
 :func:`~.pipeline.compute_matches` records why a pair was left empty (``MatchSet.warnings``);
-whoever asked for the matches reports it with :func:`warn_empty`: at most two warning lines,
-one naming the pairs left empty, one naming the views without any verified match.
+whoever asked for the matches reports it with :func:`warn_empty`: at most two lines, one naming
+the pairs left empty (and, for photos posed by splat, whether that touches the poses), one naming
+the views without any verified match.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from .matchset import MatchSet, Pair
 
 if TYPE_CHECKING:  # pragma: no cover
     from splat_framework.cameras import Camera
+    from splat_framework.sfm.posing_record import PosingRecord
 
 LISTED = 10
 """Up to this many pairs or views are named in a line; more are counted."""
@@ -57,12 +59,35 @@ def unmatched_views_line(match_set: MatchSet, names: dict[int, str]) -> str | No
             f"{'it' if len(lost) == 1 else 'them'} (photos with more overlap, or another matcher, help)")
 
 
-def warn_empty(match_set: MatchSet, names: dict[int, str]) -> None:
-    """Warn (one line each) about the pairs of ``match_set`` left empty and the views it leaves without
-    any verified match, every view by its name (``names``: view id -> name, :func:`view_names`)."""
-    for line in (empty_pairs_line(match_set, names), unmatched_views_line(match_set, names)):
-        if line is not None:
-            warnings.warn(line, stacklevel=3)
+def poses_clause(posing: "PosingRecord") -> str:
+    """What the pairs left empty mean for the poses of photos posed by splat (``posing``): nothing,
+    when every photo registered; else which photos the poses lack, and what may pose them."""
+    n = len(posing.photos)
+    if not posing.left_out:
+        return (f"the poses are not affected (all {n} photos registered): those photos overlap too little "
+                "for the prior's matches")
+    return (f"the poses lack {len(posing.left_out)} of the {n} photos, not registered (left out of the scene): "
+            f"{listed(posing.left_out)}; {posing.retry} may pose them")
 
 
-__all__ = ["LISTED", "empty_pairs_line", "listed", "pair_name", "unmatched_views_line", "view_names", "warn_empty"]
+def warn_empty(match_set: MatchSet, names: dict[int, str], posing: "PosingRecord | None" = None) -> None:
+    """Report (one line each) the pairs of ``match_set`` left empty and the views it leaves without
+    any verified match, every view by its name (``names``: view id -> name, :func:`view_names`).
+
+    ``posing``: the record of the posing of the scene's photos by splat (None for a dataset's own
+    poses). With it, the empty pairs' line says what they mean for the poses: an information line
+    when every photo registered, else a warning naming the photos left out and what to try."""
+    from ..console import say
+
+    empty = empty_pairs_line(match_set, names)
+    if empty is not None and posing is not None and not posing.left_out:
+        say(f"{empty}; {poses_clause(posing)}")
+    elif empty is not None:
+        warnings.warn(f"{empty}; {poses_clause(posing)}" if posing is not None else empty, stacklevel=3)
+    lost = unmatched_views_line(match_set, names)
+    if lost is not None:
+        warnings.warn(lost, stacklevel=3)
+
+
+__all__ = ["LISTED", "empty_pairs_line", "listed", "pair_name", "poses_clause", "unmatched_views_line", "view_names",
+           "warn_empty"]

@@ -34,6 +34,7 @@ from .colmap import load_pycolmap, verified_pair_counts, write_matches
 from .pair_selection import EXHAUSTIVE_MAX_PHOTOS, all_pairs, choose_pairs, linked_groups
 from .photo_matchers import AUTO_MATCHER, AUTO_PREFERRED, choose_matcher, load_matcher, photo_matchers, run_matcher
 from .photos import stage_images
+from .posing_record import write_posing_record
 
 MAPPERS = ("incremental", "global")
 PAIR_CHOICES = get_args(PairChoice)
@@ -231,6 +232,7 @@ def estimate_scene(images: list[Path], out: Path, *, mapper: str = "incremental"
             seconds=time.perf_counter() - t0, mapper=mapper, matcher=matcher, pair_matches=pairs,
             photos=[Path(p).name for p in images],
         )
+        write_posing_record(scene, summary.photos, summary.left_out, matcher, mapper)
         install_output(scene, out, PROCESSED_SCENE)
         return summary
 

@@ -14,7 +14,10 @@ project's CPU rasterizer is slow. Beside it:
   (RGB | depth | |error| against its photo) into the side panel, so the
   browser's splats and the real renderer can be compared at the same pose; the
   camera is scaled down to :data:`PANEL_PIXELS` pixels, and the button reads
-  "Rendering…" (disabled) until the render is done;
+  "Rendering…" (disabled) until the render is done. A page that opens finds the
+  panel holding the chosen camera's render of the model shown (the first training
+  camera's, where the browser starts): rendered when the page connects, unless the
+  panel already shows it;
 - "Colour by type" (models with ray-based Gaussians, SCGaussian): ray-based
   Gaussians orange, ordinary ones blue: the picture of the paper's claim.
 
@@ -224,6 +227,10 @@ class Viewer:
         self._render = gui.add_button(RENDER_LABEL)
         self._render.on_click(from_client(lambda _: self.render_chosen()))
         self._image = gui.add_image(np.zeros((8, 24, 3), np.uint8), label="splat render: RGB | depth | |error|")
+        self._model_version = 0  # counts the models shown (set_model)
+        self._panel_shows: tuple[int, str] | None = None  # (model version, camera label) of the panel; None: placeholder
+        self._panel_busy = threading.Lock()  # one render of the panel at a time
+        self.server.on_client_connect(from_client(lambda _: self.page_opened()))  # in viser's thread pool
 
     @property
     def url(self) -> str:
@@ -241,6 +248,7 @@ class Viewer:
                 model = copy.deepcopy(model)
         with self._lock:
             self._model, self._background = model, background
+            self._model_version += 1
         has_types = _has_types(model)
         self._by_type.visible = has_types
         self._draw_splats()
@@ -329,6 +337,22 @@ class Viewer:
         finally:
             self._render.disabled, self._render.label = False, RENDER_LABEL
 
+    def page_opened(self) -> np.ndarray | None:
+        """A browser connected: the panel gets the chosen camera's render of the model shown (as
+        "Render with splat" makes it), unless it already holds that render or one is under way (a
+        second page opening meanwhile), so that no page opens on an empty panel. The new panel, or
+        None when nothing was rendered (no model yet: the training viewer before its first step)."""
+        with self._lock:
+            shown = self._model_version if self._model is not None else None
+        if shown is None or self._panel_shows == (shown, self._chosen.value):
+            return None
+        if not self._panel_busy.acquire(blocking=False):
+            return None
+        try:
+            return self.render_chosen()
+        finally:
+            self._panel_busy.release()
+
     @torch.no_grad()
     def render_panel(self, label: str) -> np.ndarray | None:
         """Render dataset camera ``label``, scaled down by :func:`panel_camera`, with this project's
@@ -345,6 +369,7 @@ class Viewer:
             model, bg = self._model, self._background
             if model is None:
                 return None
+            version = self._model_version
             out = model.get_outputs(camera.to(bg.device), bg)
         rgb = out.rgb.clamp(0, 1)
         depth = colorize_depth(out.expected_depth, out.alpha)
@@ -355,6 +380,7 @@ class Viewer:
         panel = np.concatenate([to_uint8(rgb), depth, err], axis=1)
         self._image.image = panel
         self._image.label = f"splat render of {label}, {camera.width}x{camera.height}: RGB | depth | |error|"
+        self._panel_shows = (version, label)
         return panel
 
     def close(self) -> None:

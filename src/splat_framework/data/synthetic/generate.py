@@ -14,8 +14,7 @@ import cv2
 import numpy as np
 
 from ...console import phase
-from ...errors import did_you_mean
-from ..builtin_scenes import NAMED_SCENES
+from ..builtin_scenes import NAMED_SCENES, unknown_scene_message
 from ..cache_dir import user_cache_dir
 from ..scene import DataError
 from .raycast import Scene, cast_rays
@@ -306,11 +305,10 @@ def generate_scene(
 # ------------------------------------------------------------------ cache
 def scene_params(name: str) -> dict:
     """Generator parameters of a named scene (see :data:`NAMED_SCENES`)."""
-    try:
-        return dict(NAMED_SCENES[name])
-    except KeyError:
-        raise DataError(f"synthetic/{name}: unknown synthetic scene{did_you_mean(name, NAMED_SCENES)} "
-                        f"(known: {', '.join(NAMED_SCENES)})") from None
+    refused = unknown_scene_message(name)
+    if refused:
+        raise DataError(refused)
+    return dict(NAMED_SCENES[name])
 
 
 def default_cache_dir() -> Path:
