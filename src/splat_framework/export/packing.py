@@ -80,15 +80,29 @@ def _spread_bits(v: np.ndarray) -> np.ndarray:
     return (v | (v << 2)) & 0x09249249
 
 
-def morton_order(means: np.ndarray) -> np.ndarray:
-    """[N] permutation visiting the Gaussians along a Morton (Z-order) curve of their positions,
-    10 bits per axis over the bounding box (ties keep their order): neighbours in the order are
-    neighbours in space, which chunked and texture formats need for precision and size."""
-    lo, hi = means.min(axis=0), means.max(axis=0)
-    cells = (means - lo) / np.where(hi > lo, hi - lo, 1.0) * 1023.0
-    ix, iy, iz = (np.clip(np.floor(cells[:, i] + 0.5), 0, 1023) for i in range(3))
-    code = _spread_bits(ix) | (_spread_bits(iy) << 1) | (_spread_bits(iz) << 2)
-    return np.argsort(code, kind="stable")
+def morton_order(means: np.ndarray, bucket: int = 256) -> np.ndarray:
+    """[N] permutation visiting the Gaussians along a Morton (Z-order) curve of their positions, 10
+    bits per axis over their bounding box, each run of more than ``bucket`` Gaussians in one cell
+    ordered again over its own box (as splat-transform orders them; ties keep their order): neighbours
+    in the order are neighbours in space, which the chunks and textures need for precision and size."""
+    order = np.arange(len(means))
+    todo = [(0, len(means))]
+    while todo:
+        start, end = todo.pop()
+        idx = order[start:end]
+        p = means[idx].astype(np.float64)
+        lo, hi = p.min(axis=0), p.max(axis=0)
+        if not (hi > lo).any():
+            continue  # all in one point
+        cells = np.minimum(np.floor((p - lo) * np.where(hi > lo, 1024.0 / np.where(hi > lo, hi - lo, 1.0), 0.0)), 1023)
+        code = _spread_bits(cells[:, 0]) | (_spread_bits(cells[:, 1]) << 1) | (_spread_bits(cells[:, 2]) << 2)
+        sort = np.argsort(code, kind="stable")
+        order[start:end] = idx[sort]
+        code = code[sort]
+        edges = np.flatnonzero(np.diff(code)) + 1
+        runs = zip(np.concatenate([[0], edges]), np.concatenate([edges, [len(code)]]))
+        todo.extend((start + a, start + b) for a, b in runs if b - a > bucket)
+    return order
 
 
 FIT_VALUES = 1 << 19
