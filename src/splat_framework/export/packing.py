@@ -105,27 +105,32 @@ def morton_order(means: np.ndarray, bucket: int = 256) -> np.ndarray:
     return order
 
 
-FIT_VALUES = 1 << 19
-"""The most values a codebook is fitted to: more are thinned evenly through their sorted order."""
-
-
-def codebook_1d(values: np.ndarray, size: int = 256, iterations: int = 20) -> np.ndarray:
-    """At most ``size`` sorted float32 values fitted to ``values`` (any shape): all of them when
-    they take no more than ``size`` distinct values, else 1-D k-means (Lloyd's iterations from the
-    quantiles; of at most :data:`FIT_VALUES` of them, every k-th in sorted order), each centre the
-    mean of the values nearest to it."""
-    v = np.sort(np.asarray(values, np.float64).ravel())
+def codebook_1d(values: np.ndarray, size: int = 256, bins: int = 4096, alpha: float = 0.5,
+                iterations: int = 50) -> np.ndarray:
+    """At most ``size`` sorted float32 values fitted to ``values`` (any shape): all of them when they
+    take no more than ``size`` distinct values; else 1-D k-means over a ``bins``-bin histogram of
+    their range, each bin (at the mean of its values) weighing its count to the power ``alpha``, so
+    that sparse tails (the few large scales a scene's look depends on) get entries of their own, as
+    splat-transform's codebooks weigh them (Lloyd's iterations from the weighted quantiles)."""
+    v = np.asarray(values, np.float64).ravel()
     distinct = np.unique(v)
     if len(distinct) <= size:
         return distinct.astype(np.float32)
-    v = v[:: -(-len(v) // FIT_VALUES)]
-    centres = v[np.minimum(((2 * np.arange(size) + 1) * len(v)) // (2 * size), len(v) - 1)]
-    centres = np.unique(centres)
+    lo, hi = distinct[0], distinct[-1]
+    index = np.minimum(((v - lo) / (hi - lo) * bins).astype(np.int64), bins - 1)
+    counts = np.bincount(index, minlength=bins)
+    occupied = counts > 0
+    x = np.bincount(index, weights=v, minlength=bins)[occupied] / counts[occupied]
+    if len(x) <= size:
+        return x.astype(np.float32)
+    w = counts[occupied].astype(np.float64) ** alpha
+    cumulative = np.cumsum(w)
+    centres = np.unique(x[np.searchsorted(cumulative, (np.arange(size) + 0.5) / size * cumulative[-1])])
     for _ in range(iterations):
-        labels = np.searchsorted((centres[1:] + centres[:-1]) / 2, v)
-        counts = np.bincount(labels, minlength=len(centres))
-        sums = np.bincount(labels, weights=v, minlength=len(centres))
-        moved = np.where(counts > 0, sums / np.maximum(counts, 1), centres)
+        labels = np.searchsorted((centres[1:] + centres[:-1]) / 2, x)
+        weight = np.bincount(labels, weights=w, minlength=len(centres))
+        moved = np.where(weight > 0, np.bincount(labels, weights=w * x, minlength=len(centres))
+                         / np.maximum(weight, 1e-300), centres)
         if np.array_equal(moved, centres):
             break
         centres = np.unique(moved)

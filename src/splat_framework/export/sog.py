@@ -17,7 +17,8 @@ order; RGBA channels:
                          ``meta.shN.codebook`` index of each channel's value
 =====================  ========================================================================
 
-Each codebook is 1-D k-means of the values (all of them when they take at most 256 values); the
+Each codebook is 1-D k-means of the values, sparse values weighing more
+(:func:`~splat_framework.export.packing.codebook_1d`; all of them when they take at most 256); the
 palette holds every Gaussian's own SH up to 65,536 Gaussians, else 65,536 groups of neighbouring
 SH vectors (median splits, :func:`~splat_framework.export.packing.palette`). WebP's lossless
 encoder keeps no colour under a zero alpha: a Gaussian whose opacity byte is 0 keeps no sh0 (as in
