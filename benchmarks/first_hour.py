@@ -230,7 +230,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
             rec = timed(train("scgaussian", "--data", str(photos), out=f"run-{job}"), env)  # not into the photos
             run = work / f"run-{job}"
         elif job == "export":
-            rec = timed([str(bin_dir / "splat-export"), str(work / "fern"), "--ply", str(work / "fern.ply"), "--overwrite"], env)
+            rec = timed([str(bin_dir / "splat-export"), str(work / "fern"), "--out", str(work / "fern.ply"), "--overwrite"], env)
         else:
             timed(train("3dgs", "--data", "llff/fern", "--steps", "15", out="3dgs-once"), env)
             rec = timed(train("3dgs", "--data", "llff/fern", "--steps", "15", out="3dgs-again"), env)

@@ -2,7 +2,7 @@
 
 A test that proves what the tools do with a bad input carries the marker
 
-    @pytest.mark.bad_input("`splat-export --ply` naming a FIFO or a device", "exit 2, one line; nothing opened")
+    @pytest.mark.bad_input("`splat-export --out` naming a FIFO or a device", "exit 2, one line; nothing opened")
 
 and this module collects the markers (by reading the test files, without importing
 them) into the table between ``<!-- bad-input-table -->`` and ``<!-- /bad-input-table -->``

@@ -2,7 +2,7 @@
 tests use too (importable from every test folder, ``pythonpath = ["tests"]``)::
 
     from cli_harness import run_cli
-    run_cli("export", run, "--ply", target, code=2, match="exists", watch=[tmp_path])
+    run_cli("export", run, "--out", target, code=2, match="exists", watch=[tmp_path])
 """
 
 from splat_framework.testing import CliResult, changed_paths, cli_env, message_lines, run_cli, snapshot, stop_training

@@ -235,6 +235,26 @@ def make_colmap(
     return root
 
 
+# ------------------------------------------------------------ an independent splat reader
+SPLAT_TRANSFORM = REPO / ".tools" / "node" / "node_modules" / ".bin" / "splat-transform"
+"""Where .ci/run installs PlayCanvas's splat-transform (npm, @playcanvas/splat-transform 3.x)."""
+
+
+def splat_transform_command() -> tuple[list[str] | None, str]:
+    """(the command that runs PlayCanvas's splat-transform, or None; why it is missing): the
+    executable ``$SPLAT_TRANSFORM`` names, else :data:`SPLAT_TRANSFORM`; both need ``node``."""
+    import shutil
+
+    given = os.environ.get("SPLAT_TRANSFORM")
+    path = Path(given) if given else SPLAT_TRANSFORM
+    if shutil.which("node") is None:
+        return None, "node is not installed (Debian: apt-get install -y nodejs npm)"
+    if not path.is_file():
+        return None, (f"splat-transform is not installed at {path} (npm install --prefix .tools/node "
+                      "@playcanvas/splat-transform@3, as .ci/run does, or set $SPLAT_TRANSFORM)")
+    return [str(path)], ""
+
+
 # ------------------------------------------------------------ a real browser
 def chromium_binary() -> str | None:
     """Path of a Chromium / Chrome executable, or None."""

@@ -4,19 +4,23 @@ summary table (rich).
 Messages and progress go to stderr (``console``); the summary table to stdout. Every long step of a
 command (loading data, matching, the SCGaussian warm-up, compiling kernels, training, evaluation,
 ``splat-process``'s steps) runs inside :func:`phase`, one mechanism for all: a live row in a
-terminal, plain lines at a steady cadence in a log.
+terminal, plain lines at a steady cadence in a log. A run's log file (:func:`add_log`) gets the
+plain lines whatever the terminal shows: every message, each phase's lines as a log would, the
+summary table.
 """
 
 from __future__ import annotations
 
+import io
 import math
 import re
 import threading
 import time
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator, Sequence
+from typing import Callable, Iterator, Sequence
 
+from rich import box
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Column, Table
@@ -26,10 +30,32 @@ from .runtime.threads import follow_load
 
 console = Console(stderr=True)
 
+_LOGS: list[Callable[[str], None]] = []
+"""The open logs (a run's log file): each takes one line (no newline) of every message and phase."""
+
+
+def add_log(write: Callable[[str], None]) -> None:
+    """From now on, also hand every line a log would hold to ``write`` (one line, no newline):
+    messages, plain progress lines of each phase (whatever the terminal shows), the summary table."""
+    _LOGS.append(write)
+
+
+def remove_log(write: Callable[[str], None]) -> None:
+    """Stop handing lines to ``write`` (:func:`add_log`)."""
+    if write in _LOGS:
+        _LOGS.remove(write)
+
+
+def _log(text: str) -> None:
+    for write in list(_LOGS):
+        for line in text.splitlines() or [""]:
+            write(line)
+
 
 def say(message: str, style: str | None = None) -> None:
-    """One line on stderr, never wrapped, never parsed as markup."""
+    """One line on stderr, never wrapped, never parsed as markup (and in the open logs)."""
     console.print(Text(message, style=style or ""), soft_wrap=True)
+    _log(message)
 
 
 PLAIN_EVERY_S = 5.0
@@ -73,6 +99,7 @@ class Phase:
         self.printed_at: float | None = None  # plain display: when its last line was printed
         self.printed_completed = completed
         self.display: _Terminal | _Plain | None = None
+        self.log_display: _Plain | None = None  # the open logs' lines, when the display's do not reach them
         self.task = None  # the terminal display's rich task
 
     def advance(self, n: int = 1) -> None:
@@ -86,8 +113,9 @@ class Phase:
                 self.clock_from_first = False  # the first unit (lazy loads, kernel builds) is behind us
                 self.t0, self.start_completed = time.perf_counter(), completed
                 self.segment_started = None
-                if self.display is not None:
-                    self.display.restart(self)
+                for display in (self.display, self.log_display):
+                    if display is not None:
+                        display.restart(self)
             if self.costs and not self.clock_from_first:
                 self._follow_segments(completed)
             self.completed = completed
@@ -95,8 +123,9 @@ class Phase:
         if info is not None:
             self.info = info
         follow_load()  # every phase's threads follow the machine's load (runtime.threads)
-        if self.display is not None:
-            self.display.changed(self)
+        for display in (self.display, self.log_display):
+            if display is not None:
+                display.changed(self)
 
     def eta_due(self) -> bool:
         """Whether a remaining time is worth showing: after 10 units or 5 % of the total, whichever
@@ -210,13 +239,17 @@ def phase(name: str, total: int | None = None, *, completed: int = 0, unit: str 
     if _SHOW["enabled"]:
         ph.display = _TERMINAL if console.is_terminal else _PLAIN
         ph.display.open(ph)
+    if _LOGS and ph.display is not _PLAIN:  # the plain display's lines reach the logs through say()
+        ph.log_display = _LOG_PLAIN
+        ph.log_display.open(ph)
     ok = False
     try:
         yield ph
         ok = True
     finally:
-        if ph.display is not None:
-            ph.display.close(ph, ok)
+        for display in (ph.display, ph.log_display):
+            if display is not None:
+                display.close(ph, ok)
 
 
 @contextmanager
@@ -266,8 +299,8 @@ class _Terminal:
             return
         self.progress.remove_task(ph.task)
         self.progress.refresh()  # the finished row goes before its summary line is printed above the rows
-        if ok:
-            say(ph.line(done=True), "dim")
+        if ok:  # the terminal's only: a log's summary line comes from its own display
+            console.print(Text(ph.line(done=True), style="dim"), soft_wrap=True)
         if not self.progress.tasks:
             self.progress.stop()
             self.progress = None
@@ -330,10 +363,12 @@ class _SpeedColumn(TextColumn):
 
 
 class _Plain:
-    """Plain progress lines for a log: a background thread prints the innermost phase when it has
-    gone quiet (a compilation inside the training phase: its lines, not the waiting training's)."""
+    """Plain progress lines for a log, each handed to ``emit``: a background thread prints the
+    innermost phase when it has gone quiet (a compilation inside the training phase: its lines, not
+    the waiting training's)."""
 
-    def __init__(self):
+    def __init__(self, emit: Callable[[str], None] = say):
+        self.emit = emit
         self.lock = threading.RLock()
         self.open_phases: list[Phase] = []
         self.thread: threading.Thread | None = None
@@ -366,13 +401,13 @@ class _Plain:
     def _print(self, ph: Phase, now: float) -> None:
         with self.lock:
             ph.printed_at, ph.printed_completed = now, ph.completed
-            say(ph.line())
+            self.emit(ph.line())
 
     def close(self, ph: Phase, ok: bool) -> None:
         with self.lock:
             self.open_phases.remove(ph)
             if ok and (ph.printed_at is not None or ph.quiet_s == 0):
-                say(ph.line(done=True))
+                self.emit(ph.line(done=True))
 
     def _tick(self) -> None:
         while True:
@@ -388,7 +423,8 @@ class _Plain:
 
 
 _TERMINAL = _Terminal()
-_PLAIN = _Plain()
+_PLAIN = _Plain(say)
+_LOG_PLAIN = _Plain(_log)
 
 def print_summary(metrics: dict, run_dir: Path) -> None:
     """The final rich table: test metrics, Gaussian count and time per phase."""
@@ -415,6 +451,11 @@ def print_summary(metrics: dict, run_dir: Path) -> None:
         table.add_row("slowest step", f"{st['max_s']:.2f} s at {st['slowest_step']}{ratio}")
     table.add_row("run folder", str(run_dir))
     Console().print(table)
+    if _LOGS:
+        text = io.StringIO()
+        table.box = box.ASCII  # a log's table in plain characters
+        Console(file=text, width=100, color_system=None).print(table)
+        _log(text.getvalue().rstrip("\n"))
     if split == "train":
         say("Training-view metrics: the scene has no held-out test view (every photo is a training view; "
             "--test-every K holds out every K-th); splat-render RUN --path auto renders a video of novel views", "yellow")

@@ -27,12 +27,12 @@ def test_snapshot_sees_content_mode_link_and_special_changes(tmp_path):
 
 def test_run_cli_checks_code_lines_and_changes(tmp_path):
     missing = tmp_path / "no-run"
-    r = run_cli("export", missing, "--ply", tmp_path / "out.ply", code=2, match="no such run folder", watch=[tmp_path])
+    r = run_cli("export", missing, "--out", tmp_path / "out.ply", code=2, match="no such run folder", watch=[tmp_path])
     assert len(r.message.splitlines()) == 1
     with pytest.raises(AssertionError, match="expected exit 0"):
-        run_cli("export", missing, "--ply", tmp_path / "out.ply", code=0)
+        run_cli("export", missing, "--out", tmp_path / "out.ply", code=0)
     with pytest.raises(AssertionError, match="not in the message"):
-        run_cli("export", missing, "--ply", tmp_path / "out.ply", match="something it never says")
+        run_cli("export", missing, "--out", tmp_path / "out.ply", match="something it never says")
 
 
 def test_run_cli_fails_a_change_outside_the_allowed_paths(tmp_path):

@@ -203,7 +203,7 @@ def test_cli_export_falls_back_from_a_nan_checkpoint_with_one_warning_line(run_c
     ck = load_checkpoint(list_checkpoints(folder)[-1])
     bad = _write_raw(checkpoint_path(folder, 30), {**ck, "step": 30, "params": _nan(ck["params"])})
     out = tmp_path / "g.ply"
-    r = run_cli("export", run_copy, "--ply", out, code=0, watch=[tmp_path], allowed=[out])
+    r = run_cli("export", run_copy, "--out", out, code=0, watch=[tmp_path], allowed=[out])
     warned = message_lines(r.stderr)
     assert len(warned) == 1 and bad.name in warned[0] and "non-finite" in warned[0], r.stderr
     assert out.is_file()

@@ -127,7 +127,7 @@ def test_round_trip_renders_identically(run_dir, tmp_path, monkeypatch):
     from splat_framework.engine.run import background_for, load_run
 
     out = tmp_path / "out.ply"
-    monkeypatch.setattr(sys, "argv", ["splat-export", str(run_dir), "--ply", str(out)])
+    monkeypatch.setattr(sys, "argv", ["splat-export", str(run_dir), "--out", str(out)])
     entrypoint()
     lines, _ = read_header(out)
     assert [p.split()[-1] for p in lines[3:-1]] == REFERENCE_NAMES
@@ -156,7 +156,7 @@ def test_round_trip_renders_identically(run_dir, tmp_path, monkeypatch):
     assert (got.alpha - expect.alpha).abs().max() < 1e-5
 
 
-@pytest.mark.bad_input("`splat-scene --out FILE`, `splat-export --ply DIR`, `--data some/dir/..`", "exit 2 with one line; run folders never leave `outputs/`")
+@pytest.mark.bad_input("`splat-scene --out FILE`, `splat-export --out DIR`, `--data some/dir/..`", "exit 2 with one line; run folders never leave `outputs/`")
 def test_default_output_and_bad_run_dir(run_dir, tmp_path, monkeypatch, capsys):
     # the default output lands in the run folder; work on a copy so the shared run stays untouched
     import shutil
@@ -165,7 +165,7 @@ def test_default_output_and_bad_run_dir(run_dir, tmp_path, monkeypatch, capsys):
 
     copy = tmp_path / "run"
     shutil.copytree(run_dir, copy, ignore=shutil.ignore_patterns("renders"))
-    assert main(ExportArgs(copy)) == copy / "point_cloud.ply"
+    assert main(ExportArgs(copy)) == [copy / "point_cloud.ply"]
     assert load_ply(copy / "point_cloud.ply")["means"].shape[0] > 0
 
     from splat_framework.cli.export import entrypoint
@@ -176,9 +176,9 @@ def test_default_output_and_bad_run_dir(run_dir, tmp_path, monkeypatch, capsys):
     assert e.value.code == 2
     err = capsys.readouterr().err.strip()
     assert err == f"error: {tmp_path / 'nope'}: no such run folder"
-    # --ply naming an existing folder: exit 2, one line, nothing written
+    # --out naming an existing folder: exit 2, one line, nothing written
     (tmp_path / "a_dir").mkdir()
-    monkeypatch.setattr(sys, "argv", ["splat-export", str(copy), "--ply", str(tmp_path / "a_dir")])
+    monkeypatch.setattr(sys, "argv", ["splat-export", str(copy), "--out", str(tmp_path / "a_dir")])
     with pytest.raises(SystemExit) as e:
         entrypoint()
     assert e.value.code == 2

@@ -155,38 +155,38 @@ def test_train_refuses_an_output_inside_its_data(dataset, tmp_path):
 def test_export_refuses_a_fifo_and_a_device_node(run_dir, tmp_path):
     fifo = tmp_path / "pipe.ply"
     os.mkfifo(fifo)
-    run_cli("export", run_dir, "--ply", fifo, "--overwrite", code=2, match="FIFO", watch=[tmp_path])
+    run_cli("export", run_dir, "--out", fifo, "--overwrite", code=2, match="FIFO", watch=[tmp_path])
     device = tmp_path / "null.ply"
     os.symlink("/dev/null", device)  # /dev/null itself stays out of reach of a failing test
-    run_cli("export", run_dir, "--ply", device, "--overwrite", code=2, match="device node", watch=[tmp_path])
+    run_cli("export", run_dir, "--out", device, "--overwrite", code=2, match="device node", watch=[tmp_path])
 
 
 @pytest.mark.bad_input("an existing folder or file that the command did not write (a dataset for `splat-scene --out`, a user's folder for `--output`/`--out`, someone's PLY or video)", "exit 2, one line; never replaced, `--overwrite` or not")
 def test_export_never_replaces_a_file_it_did_not_write(run_dir, tmp_path):
     theirs = tmp_path / "scan.ply"
     theirs.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 0\nend_header\n")
-    run_cli("export", run_dir, "--ply", theirs, "--overwrite", code=2, match="not a PLY file written by splat-export",
+    run_cli("export", run_dir, "--out", theirs, "--overwrite", code=2, match="not a PLY file written by splat-export",
             watch=[tmp_path])
 
 
 @pytest.mark.bad_input("an output that the same command wrote before", "exit 2 asking for `--overwrite`; with it, only what the command wrote is removed (the user's other files stay; symlinks are unlinked, never followed)")
 def test_export_replaces_its_own_ply_only_with_overwrite(run_dir, tmp_path):
     ply = tmp_path / "out.ply"
-    run_cli("export", run_dir, "--ply", ply, code=0, watch=[tmp_path], allowed=[ply])
+    run_cli("export", run_dir, "--out", ply, code=0, watch=[tmp_path], allowed=[ply])
     assert PLY_COMMENT.encode() in ply.read_bytes().split(b"end_header")[0]
-    run_cli("export", run_dir, "--ply", ply, code=2, match="--overwrite", watch=[tmp_path])
-    run_cli("export", run_dir, "--ply", ply, "--overwrite", code=0, watch=[tmp_path], allowed=[ply])
+    run_cli("export", run_dir, "--out", ply, code=2, match="--overwrite", watch=[tmp_path])
+    run_cli("export", run_dir, "--out", ply, "--overwrite", code=0, watch=[tmp_path], allowed=[ply])
 
 
 @pytest.mark.bad_input("an output path that is a FIFO or a device node, lies below a file, or is in a folder that cannot be written", "exit 2 (1 when not writable), one line; nothing opened or renamed over it")
 def test_export_path_below_a_file_and_an_unwritable_folder(run_dir, tmp_path):
     (tmp_path / "notes.txt").write_text("mine")
-    run_cli("export", run_dir, "--ply", tmp_path / "notes.txt" / "out.ply", code=2, match="is not a folder",
+    run_cli("export", run_dir, "--out", tmp_path / "notes.txt" / "out.ply", code=2, match="is not a folder",
             watch=[tmp_path])
     locked = Path("/proc/sys")  # not writable even by root
     if os.access(locked, os.W_OK):
         pytest.skip("/proc/sys is writable here")
-    run_cli("export", run_dir, "--ply", locked / "out.ply", code=1, match="cannot write", watch=[tmp_path])
+    run_cli("export", run_dir, "--out", locked / "out.ply", code=1, match="cannot write", watch=[tmp_path])
 
 
 # ------------------------------------------------------------------ splat-render
@@ -224,19 +224,19 @@ def _dataset_of(run: Path) -> Path:
     return Path(json.loads((run / "config.json").read_text())["config"]["resolved_data"]["path"])
 
 
-@pytest.mark.bad_input("`splat-export --ply` or `splat-render --out` inside an input run's checkpoints/renders or inside the dataset folder", "exit 2, one line naming the path; nothing written")
+@pytest.mark.bad_input("`splat-export --out` or `splat-render --out` inside an input run's checkpoints/renders or inside the dataset folder", "exit 2, one line naming the path; nothing written")
 def test_export_refuses_a_ply_inside_the_runs_checkpoints(run_dir, tmp_path):
     target = run_dir / "checkpoints" / "new.ply"
-    r = run_cli("export", run_dir, "--ply", target, code=2, watch=[run_dir, tmp_path])
-    assert r.message == (f"error: {target}: --ply is inside the run folder's checkpoints/ (managed by splat-train); "
+    r = run_cli("export", run_dir, "--out", target, code=2, watch=[run_dir, tmp_path])
+    assert r.message == (f"error: {target}: --out is inside the run folder's checkpoints/ (managed by splat-train); "
                          f"choose a separate PLY file")
     os.symlink(run_dir / "checkpoints", tmp_path / "link")  # compared resolved: links followed, `..` removed
     for sneaky in (tmp_path / "link" / "new.ply", run_dir / "no-such" / ".." / "checkpoints" / "new.ply"):
-        run_cli("export", run_dir, "--ply", sneaky, "--overwrite", code=2,
+        run_cli("export", run_dir, "--out", sneaky, "--overwrite", code=2,
                 match="is inside the run folder's checkpoints/", watch=[run_dir, tmp_path])
 
 
-@pytest.mark.bad_input("`splat-export --ply` or `splat-render --out` inside an input run's checkpoints/renders or inside the dataset folder", "exit 2, one line naming the path; nothing written")
+@pytest.mark.bad_input("`splat-export --out` or `splat-render --out` inside an input run's checkpoints/renders or inside the dataset folder", "exit 2, one line naming the path; nothing written")
 def test_render_refuses_an_output_inside_the_runs_dataset_folder(run_dir, tmp_path):
     data = _dataset_of(run_dir)
     target = data / "my-renders"
@@ -249,7 +249,7 @@ def test_render_refuses_an_output_inside_the_runs_dataset_folder(run_dir, tmp_pa
             code=2, match="is inside the run's dataset folder", watch=[data, run_dir])
 
 
-@pytest.mark.bad_input("`splat-export --ply` or `splat-render --out` inside an input run's checkpoints/renders or inside the dataset folder", "exit 2, one line naming the path; nothing written")
+@pytest.mark.bad_input("`splat-export --out` or `splat-render --out` inside an input run's checkpoints/renders or inside the dataset folder", "exit 2, one line naming the path; nothing written")
 def test_render_never_writes_a_video_over_the_runs_own_files(run_dir):
     """A video in a run folder is recognised as splat-render's, but not in place of config.json."""
     config = run_dir / "config.json"

@@ -124,5 +124,5 @@ def test_a_mistyped_run_folder_is_no_such_run_folder(tmp_path):
     run_cli("render", missing, code=2, match=f"error: {missing}: no such run folder", watch=[tmp_path])
     run_cli("eval", missing, code=2, match=f"error: {missing}: no such run folder", watch=[tmp_path])
     (tmp_path / "afile").write_text("x")
-    run_cli("export", tmp_path / "afile", "--ply", tmp_path / "x.ply", code=2,
+    run_cli("export", tmp_path / "afile", "--out", tmp_path / "x.ply", code=2,
             match="not a run folder (a file, not a folder)", watch=[tmp_path])

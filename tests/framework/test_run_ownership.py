@@ -113,7 +113,7 @@ def test_writers_into_a_held_run_are_refused_readers_are_not_and_a_dead_holder_b
         for args in (("train", *train_args(run, 10, "--overwrite")), ("eval", run), ("render", run), ("export", run)):
             run_cli(*args, code=2, match=who, watch=[tmp_path])
         elsewhere = tmp_path / "copy.ply"
-        run_cli("export", run, "--ply", elsewhere, code=0, watch=[tmp_path], allowed=[elsewhere])
+        run_cli("export", run, "--out", elsewhere, code=0, watch=[tmp_path], allowed=[elsewhere])
     finally:
         holder.kill()
         holder.wait()

@@ -101,7 +101,7 @@ def test_metrics_and_summary_name_the_slowest_step_against_the_median(tmp_path, 
     assert f"s at {slow_index + 1}, " in out and "slowest step" in out
 
 
-@pytest.mark.bad_input("`splat-scene --out FILE`, `splat-export --ply DIR`, `--data some/dir/..`", "exit 2 with one line; run folders never leave `outputs/`")
+@pytest.mark.bad_input("`splat-scene --out FILE`, `splat-export --out DIR`, `--data some/dir/..`", "exit 2 with one line; run folders never leave `outputs/`")
 def test_default_run_dirs_are_new_timestamped_folders(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     cfg = get_method("3dgs").default_config().model_copy(update={"data": "synthetic/forward-tiny"})

@@ -84,6 +84,7 @@ from .resume_check import check_saved_config
 from .run import background_for
 from .run_folder import continue_command, prepare_run_dir, remove_if_unused
 from .run_metrics import run_metrics
+from .run_outputs import RunLog, write_run_outputs
 from .run_scene import load_config_scene
 from .stop_signals import abandoned_message, evaluation_stopped_message, stop_signals
 from .train_state import TrainState
@@ -189,6 +190,7 @@ class Trainer(TrainState):
         self.run_dir = prepare_run_dir(self.config)  # owned by this process from here on (run_lock)
         show_progress(self.config.progress)
         try:
+            self.run_log = RunLog(self.run_dir, self.command, self.config.resume)  # train.log from here on
             # before any data or model work; whether config.json vouches for the checkpoints
             self._config_verified = check_saved_config(self.config, self.spec, self.run_dir) if self.config.resume else True
             try:
@@ -289,7 +291,10 @@ class Trainer(TrainState):
         save_config(self.config, self.run_dir / "config.json")
 
     def release(self) -> None:
-        """Give up the run folder (its lock; see :mod:`splat_framework.files.run_lock`): done writing."""
+        """Give up the run folder: its log closed (:class:`~splat_framework.engine.run_outputs.RunLog`),
+        then its lock (:mod:`splat_framework.files.run_lock`): done writing."""
+        if getattr(self, "run_log", None) is not None:  # None: released before the log opened
+            self.run_log.close()
         run_lock.release(self.run_dir)
 
     def save(self, step: int) -> Path:
@@ -480,6 +485,7 @@ class Trainer(TrainState):
         if self.camera_refiner is not None:  # training views are scored at the poses they trained at
             self.datamanager.cameras = refined_cameras(self.datamanager.cameras, self.datamanager.train_indices,
                                                        self.camera_refiner.state_dict())
+        write_run_outputs(self.run_dir, self.datamanager, self.model, step)  # the reference's point_cloud/, cameras.json
         t0 = time.perf_counter()
         try:
             results = self.pipeline.evaluate(self.run_dir / "renders" if cfg.save_renders else None,

@@ -5,8 +5,10 @@ splat-render, splat-match, splat-sweep) checks its target here before any work:
 
 - the target is new (or an empty folder), or recognisably written by the same
   command: a run folder (``config.json`` with our checksum), a folder carrying our
-  marker file ``.splat-output.json``, a PLY with our header comment, a video or
-  render folder inside a run folder;
+  marker file ``.splat-output.json``, a PLY or compressed PLY with our header comment, an SPZ
+  with our gzip comment, a SOG whose ``meta.json`` names splat-export, a ``.splat`` (a format
+  with no room for a mark: any file of whole, well-formed 32-byte records), a video or render
+  folder inside a run folder;
 - never an input (:class:`Input`), inside it, or a folder that holds it: the folders or files the
   command reads (``--data``'s folder, the photos), and for a command that reads a run folder the
   entries of its layout (checkpoints/, renders/, config.json, ...; :func:`run_inputs`) and its
@@ -39,7 +41,8 @@ from .run_lock import LOCK_NAME
 
 __all__ = [
     "MARKER", "PLY_COMMENT", "Input", "OutputKind", "OutputNotWritable", "RUN_FOLDER", "SCENE_FOLDER", "PROCESSED_SCENE",
-    "PLY_FILE", "RENDER_FOLDER", "VIDEO_FILE", "MATCH_FOLDER", "SWEEP_FOLDER", "check_path", "check_output",
+    "PLY_FILE", "COMPRESSED_PLY_FILE", "SPZ_FILE", "SOG_FILE", "DOT_SPLAT_FILE", "EXPORT_FILES", "EXPORT_SUFFIXES",
+    "SPZ_COMMENT", "SOG_GENERATOR", "RENDER_FOLDER", "VIDEO_FILE", "MATCH_FOLDER", "SWEEP_FOLDER", "check_path", "check_output",
     "clear_output", "mark_output", "claim_output", "install_output", "is_run_folder", "data_inputs", "run_inputs",
     "RUN_LAYOUT",
 ]
@@ -48,7 +51,11 @@ MARKER = ".splat-output.json"
 """File that a folder-writing command leaves in its output folder: ``{"written_by": ..., "kind": ...}``."""
 
 PLY_COMMENT = "comment written by splat-export"
-"""Header line of every PLY that :func:`splat_framework.export.ply.write_ply` writes."""
+"""Header line of every PLY (and compressed PLY) that splat-export writes."""
+SPZ_COMMENT = "written by splat-export"
+"""The gzip header comment (FCOMMENT) of every SPZ that splat-export writes."""
+SOG_GENERATOR = "splat-export"
+"""``asset.generator`` in the ``meta.json`` of every SOG that splat-export writes."""
 
 
 class OutputNotWritable(DataError):
@@ -119,6 +126,53 @@ def _ply_is_ours(path: Path) -> bool:
     return head.startswith(b"ply") and PLY_COMMENT.encode() in header.splitlines()
 
 
+def _spz_is_ours(path: Path) -> bool:
+    """Whether the file starts with a gzip header whose only optional field is :data:`SPZ_COMMENT`."""
+    if not _is_regular(path):
+        return False
+    try:
+        with open(path, "rb") as f:
+            head = f.read(10 + len(SPZ_COMMENT) + 1)
+    except OSError:
+        return False
+    return head[:4] == b"\x1f\x8b\x08\x10" and head[10:] == SPZ_COMMENT.encode() + b"\x00"
+
+
+def _sog_is_ours(path: Path) -> bool:
+    """Whether the file is a zip whose ``meta.json`` (at most 1 MiB) names :data:`SOG_GENERATOR`."""
+    import zipfile
+
+    if not _is_regular(path):
+        return False
+    try:
+        with zipfile.ZipFile(path) as z:
+            info = z.getinfo("meta.json")
+            if info.file_size > 1 << 20:
+                return False
+            meta = json.loads(z.read(info))
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+        return False
+    return isinstance(meta, dict) and isinstance(meta.get("asset"), dict) and meta["asset"].get("generator") == SOG_GENERATOR
+
+
+def _is_splat_file(path: Path) -> bool:
+    """Whether the file is a ``.splat``: whole 32-byte records, and in the first 4096 finite positions
+    and finite, positive scales (the format has no header that a mark could go in)."""
+    import numpy as np
+
+    if not _is_regular(path):
+        return False
+    size = os.lstat(path).st_size
+    if size == 0 or size % 32:
+        return False
+    try:
+        with open(path, "rb") as f:
+            head = np.frombuffer(f.read(32 * 4096), "<f4").reshape(-1, 8)
+    except OSError:
+        return False
+    return bool(np.isfinite(head[:, :6]).all() and (head[:, 3:6] > 0).all())
+
+
 @dataclass(frozen=True)
 class OutputKind:
     """What a command writes and how an earlier output of it is recognised."""
@@ -154,10 +208,14 @@ def _in_run_folder(path: Path) -> bool:
     return is_run_folder(Path(path).parent)
 
 
+EXPORT_SUFFIXES = {"ply": ".ply", "spz": ".spz", "sog": ".sog", "splat": ".splat", "compressed-ply": ".compressed.ply"}
+"""splat-export's formats -> their file extensions; its default files are RUN/point_cloud + each."""
+
 RUN_FOLDER = OutputKind(
     "run", "run folder", "splat-train", True,
-    entries=("config.json", "metrics.json", "checkpoints", "renders", "*.mp4", "point_cloud.ply",
-             "sweep.json", "sweep-spec.json", "sweep.log", MARKER),
+    entries=("config.json", "metrics.json", "checkpoints", "renders", "*.mp4", "point_cloud", "cameras.json",
+             "train.log", *("point_cloud" + s for s in EXPORT_SUFFIXES.values()), "sweep.json", "sweep-spec.json",
+             "sweep.log", MARKER),
     recognise=is_run_folder,
     exists_hint="use --resume to continue it or --overwrite to replace it",
     ignored=(LOCK_NAME,),
@@ -170,10 +228,26 @@ SCENE_FOLDER = OutputKind(
 )
 PROCESSED_SCENE = OutputKind("processed-scene", "scene folder", "splat-process", True,
                              entries=("images", "sparse", "posing.json"))
-PLY_FILE = OutputKind(
-    "ply", "PLY file", "splat-export", False,
-    recognise=lambda p: _ply_is_ours(p) or (Path(p).name == "point_cloud.ply" and _in_run_folder(p)),
-)
+
+
+def _export_kind(key: str, name: str, ours: Callable[[Path], bool]) -> OutputKind:
+    """The file of splat-export's format ``key``: ``ours`` recognises it, and so does its default name
+    (``point_cloud`` + its extension) in a run folder."""
+    default = "point_cloud" + EXPORT_SUFFIXES[key]
+    return OutputKind(key, name, "splat-export", False,
+                      recognise=lambda p: ours(p) or (Path(p).name == default and _in_run_folder(p)))
+
+
+PLY_FILE = _export_kind("ply", "PLY file", _ply_is_ours)
+COMPRESSED_PLY_FILE = _export_kind("compressed-ply", "compressed PLY file", _ply_is_ours)
+SPZ_FILE = _export_kind("spz", "SPZ file", _spz_is_ours)
+SOG_FILE = _export_kind("sog", "SOG file", _sog_is_ours)
+DOT_SPLAT_FILE = _export_kind("splat", ".splat file", _is_splat_file)
+EXPORT_FILES: dict[str, OutputKind] = {
+    "ply": PLY_FILE, "spz": SPZ_FILE, "sog": SOG_FILE, "splat": DOT_SPLAT_FILE, "compressed-ply": COMPRESSED_PLY_FILE,
+}
+"""splat-export's formats -> the output kind of each (extensions: :data:`EXPORT_SUFFIXES`)."""
+
 RENDER_FOLDER = OutputKind(
     "renders", "render folder", "splat-render", True,
     entries=("*_render.png", "*_depth.png"),  # the trainer's *_gt.png, *_grid.png of a run's renders/ stay
@@ -256,7 +330,7 @@ def data_inputs(spec: str | Path) -> list[Path]:
 
 RUN_LAYOUT: dict[str, tuple[str, ...]] = {
     **{name: () for name in (*RUN_FOLDER.entries, *RUN_FOLDER.ignored) if not any(c in name for c in "*?[")},
-    "point_cloud.ply": (PLY_FILE.key,),  # splat-export's default PLY
+    **{"point_cloud" + EXPORT_SUFFIXES[k]: (kind.key,) for k, kind in EXPORT_FILES.items()},  # splat-export's defaults
     "renders": (RENDER_FOLDER.key,),  # splat-render's default folder
 }
 """The named entries of a run folder's layout -> the keys of the outputs of other commands that may be

@@ -17,7 +17,7 @@ and after: type, size, mode, content hash of regular files, symlink target).
 For example::
 
     from splat_framework.testing import run_cli
-    run_cli("export", run, "--ply", target, code=2, match="exists", watch=[tmp_path])
+    run_cli("export", run, "--out", target, code=2, match="exists", watch=[tmp_path])
 
 :func:`stop_training` runs ``splat-train`` and stops it with SIGTERM once it has written a checkpoint.
 """

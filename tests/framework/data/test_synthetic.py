@@ -427,7 +427,7 @@ def test_default_forward_generation_time(tmp_path):
     assert cpu < 20  # generous: a few seconds expected
 
 
-@pytest.mark.bad_input("`splat-scene --out FILE`, `splat-export --ply DIR`, `--data some/dir/..`", "exit 2 with one line; run folders never leave `outputs/`")
+@pytest.mark.bad_input("`splat-scene --out FILE`, `splat-export --out DIR`, `--data some/dir/..`", "exit 2 with one line; run folders never leave `outputs/`")
 def test_cli(tmp_path):
     from splat_framework.cli.scene import SceneArgs, main
 
