@@ -257,12 +257,30 @@ def starting(*, compiler: bool = False) -> Iterator[None]:
     """The start of a command that loads or trains a model, as a phase of its own: importing PyTorch
     takes 3-6 s on a 2-core CPU (and its compiler, which every optimiser's first use imports, 2 s
     more), which would otherwise be a silence at launch. The caller does its own heavy imports inside."""
-    with phase("starting", info="loading PyTorch"):
+    with phase("starting", info="loading PyTorch"), _interrupts_held():
         import torch  # noqa: F401
 
         if compiler:
             import torch._dynamo  # noqa: F401
         yield
+
+
+@contextmanager
+def _interrupts_held() -> Iterator[None]:
+    """Ctrl-C and SIGTERM held back (the main thread's signal mask) for the block, delivered as it
+    ends: a stop landing inside PyTorch's import left a half-initialised module whose errors
+    replaced the command's one-line stop message with a traceback. Elsewhere a no-op."""
+    import signal
+
+    held = {signal.SIGINT, signal.SIGTERM}
+    if not hasattr(signal, "pthread_sigmask") or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)
 
 
 def track(items: Sequence, name: str, unit: str = "") -> Iterator:

@@ -86,6 +86,13 @@ def test_degree_zero_has_no_f_rest(tmp_path):
     assert load_ply(path)["shN"].shape == (3, 0, 3)
 
 
+def test_a_model_with_no_gaussians_writes_an_empty_ply(tmp_path):
+    # a run whose pruning removed every Gaussian still writes its point_cloud.ply (0 vertices, the full layout)
+    path = write_ply(tmp_path / "g.ply", random_gaussians(n=0, k1=15))
+    assert "element vertex 0" in read_header(path)[0]
+    assert load_ply(path)["shN"].shape == (0, 15, 3)
+
+
 class _RayModel:
     """Stand-in for a ray-based model: true positions differ from params['means'], extra keys present."""
 

@@ -40,13 +40,13 @@ def main(args: EvalArgs) -> dict:
     if args.test_pose_steps is not None and args.test_pose_steps < 0:
         print(f"error: --test-pose-steps must be >= 0, got {args.test_pose_steps}", file=sys.stderr)
         sys.exit(2)
-    with owned(args.run_dir):
-        try:
+    try:
+        with owned(args.run_dir):
             return evaluate_run(args)
-        except KeyboardInterrupt:  # metrics.json is replaced at the end, atomically: still the previous one
-            raise EvaluationInterrupted(
-                f"interrupted during the evaluation: {args.run_dir / 'metrics.json'} is unchanged (renders/ may hold "
-                f"some views of this evaluation); run it again: {shlex.join(['splat-eval', *sys.argv[1:]])}") from None
+    except KeyboardInterrupt:  # metrics.json is replaced at the end, atomically: still the previous one
+        raise EvaluationInterrupted(
+            f"interrupted during the evaluation: {args.run_dir / 'metrics.json'} is unchanged (renders/ may hold "
+            f"some views of this evaluation); run it again: {shlex.join(['splat-eval', *sys.argv[1:]])}") from None
 
 
 def evaluate_run(args: EvalArgs) -> dict:

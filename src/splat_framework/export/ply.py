@@ -67,7 +67,7 @@ def write_ply(path: Path, gaussians: dict[str, Tensor]) -> Path:
     """Write ``gaussians`` (keys as returned by :func:`gaussians_for_export`) as a 3DGS PLY, atomically."""
     g = {k: torch.as_tensor(v).detach().float().cpu().numpy() for k, v in gaussians.items()}
     n = g["means"].shape[0]
-    shN = g["shN"].reshape(n, -1, 3)
+    shN = g["shN"].reshape(n, *(g["shN"].shape[1:] if g["shN"].ndim == 3 else (-1, 3)))  # [N, K-1, 3], N may be 0
     k1 = shN.shape[1]
     names = ply_property_names(k1)
     columns = np.concatenate(

@@ -66,14 +66,23 @@ def _compiler() -> str:
 
 
 def _build_dir(cache_dir: Path | None) -> Path | None:
-    """``cache_dir/native/kernels-KEY``: KEY over the sources, the flags, torch, the CPU and the compiler."""
+    """``cache_dir/native/kernels-KEY-COMPILER``: KEY over the sources, the flags, torch and the CPU,
+    COMPILER over the compiler (:func:`_compiler`)."""
     if cache_dir is None:
         return None
     key = hashlib.sha256(
         b"".join((_FOLDER / name).read_bytes() for name in _SOURCES) + " ".join(_flags()).encode() + torch.__version__.encode()
-        + torch.backends.cpu.get_cpu_capability().encode() + platform.machine().encode() + _compiler().encode()
+        + torch.backends.cpu.get_cpu_capability().encode() + platform.machine().encode()
     ).hexdigest()[:16]
-    return Path(cache_dir) / "native" / f"kernels-{key}"
+    return Path(cache_dir) / "native" / f"kernels-{key}-{hashlib.sha256(_compiler().encode()).hexdigest()[:8]}"
+
+
+def _built_by_any_compiler(build: Path) -> Path:
+    """Where no compiler can be run (nothing could be built), the newest folder built from the same
+    sources, flags, torch and CPU by whichever compiler built it; ``build`` when there is none."""
+    key = build.name.rsplit("-", 1)[0]
+    built = sorted(build.parent.glob(f"{key}-*/{_NAME}.so"), key=lambda p: p.stat().st_mtime_ns)
+    return built[-1].parent if built else build
 
 
 def _staged_sources(build: Path | None) -> Path:
@@ -173,6 +182,8 @@ def native_kernels(cache_dir: Path | None = None):
 
     _ninja_on_path()
     build = _build_dir(cache_dir)
+    if build is not None and not _compiler():
+        build = _built_by_any_compiler(build)
     guard, doing = None, "build"
     try:
         if build is not None:

@@ -359,6 +359,10 @@ def test_build_folder_is_keyed_by_source_flags_and_cpu(tmp_path, monkeypatch):
     assert a.parent == tmp_path / "native"
     monkeypatch.setattr(torch.backends.cpu, "get_cpu_capability", lambda: "SOMETHING-ELSE")
     assert _native._build_dir(tmp_path) != a  # a cache shared with another CPU never loads this build
+    monkeypatch.undo()
+    monkeypatch.setattr(_native, "_compiler", lambda: "/usr/bin/g++-99 g++ 99")
+    other = _native._build_dir(tmp_path)
+    assert other != a and other.name.rsplit("-", 1)[0] == a.name.rsplit("-", 1)[0]  # another compiler builds its own
     assert _native._build_dir(None) is None
 
 
