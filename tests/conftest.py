@@ -25,11 +25,10 @@ def _tiny_scenes(tmp_path_factory):
     print its "generating the built-in scene" phase line before the one-line error a test expects):
     generated once per machine into :func:`tiers.machine_cache`, keyed by the generator's sources,
     and copied from there (a test may change its copy; the machine's stays as generated)."""
-    from tiers import SRC, machine_cache, sources_digest
-
     from splat_framework.data.synthetic import ensure_scene
     from splat_framework.runtime.trusted import private_folder
     from splat_framework.testing import TINY_SCENES
+    from tiers import SRC, machine_cache, sources_digest
 
     kept = machine_cache() / f"scenes-{sources_digest(SRC / 'splat_framework' / 'data' / 'synthetic')}"
     private_folder(kept)

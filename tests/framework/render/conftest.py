@@ -23,9 +23,8 @@ HAVE_TOOLCHAIN = bool((shutil.which("c++") or shutil.which("g++")) and shutil.wh
 def native_module():
     """The loaded extension (render/native/*.cpp), from this machine's test cache: built there when
     its sources, flags, torch or compiler changed, else loaded (the product's cache rules)."""
-    from tiers import machine_cache, note
-
     from splat_framework.render import _native
+    from tiers import machine_cache, note
 
     if not HAVE_TOOLCHAIN:
         pytest.skip("no C++ compiler or ninja on this machine: the native kernels cannot be built here")
