@@ -2,6 +2,8 @@
 
 import os
 import shutil
+import time
+import warnings
 from pathlib import Path
 
 import pytest
@@ -37,6 +39,45 @@ def _tiny_scenes(tmp_path_factory):
         folder = ensure_scene(name, kept)
         if not (session / folder.name).exists():
             shutil.copytree(folder, session / folder.name)
+
+
+HAVE_TOOLCHAIN = bool((shutil.which("c++") or shutil.which("g++")) and shutil.which("ninja"))
+
+
+@pytest.fixture(scope="session")
+def native_module():
+    """The loaded extension (render/native/*.cpp), from this machine's test cache: built there when
+    its sources, flags, torch or compiler changed (about 25 s on 2 idle cores: docs/figures.toml),
+    else loaded (the product's cache rules), by every later session and worker."""
+    from splat_framework.render import _native
+    from tiers import machine_cache, note
+
+    if not HAVE_TOOLCHAIN:
+        pytest.skip("no C++ compiler or ninja on this machine: the native kernels cannot be built here")
+    t0 = time.time()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        module = _native.native_kernels(machine_cache())
+    assert module is not None, [str(w.message) for w in caught]  # with a toolchain the build must work
+    library = Path(module.__file__)
+    built = library.stat().st_mtime >= t0
+    note(f"native kernels: {'built' if built else 'loaded'} ({time.time() - t0:.1f} s), {library.parent}")
+    return module
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _native_kernels_loaded(request, tmp_path_factory):
+    """The machine's native kernels loaded in every worker before any test, and their build folder
+    copied into this session's cache (signed by this user: the product loads it as its own): a run
+    that takes them, in-process or a command the test starts, loads them as a user's second run
+    does, instead of building them into the session's empty cache (25-95 s a worker). Where they
+    cannot be built, nothing: the tests that need them skip saying why."""
+    if not HAVE_TOOLCHAIN:
+        return
+    built = Path(request.getfixturevalue("native_module").__file__).parent
+    session = tmp_path_factory.getbasetemp() / "splatcache" / "native" / built.name
+    if not session.exists():
+        shutil.copytree(built, session, ignore=shutil.ignore_patterns("*.o", ".ninja*", "build.ninja"))
 
 
 @pytest.fixture(autouse=True)

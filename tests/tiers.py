@@ -54,7 +54,7 @@ SLOW_USES: dict[str, str] = {
 """``"module:name"`` of what makes a test slow -> why. A test using it (directly, through a fixture, or
 through a helper function of ``tests/``) is marked ``slow``."""
 
-ONCE_PER_MACHINE = frozenset({"native_module", "_tiny_scenes"})
+ONCE_PER_MACHINE = frozenset({"native_module", "_native_kernels_loaded", "_tiny_scenes"})
 """Fixtures whose work is kept between sessions (:func:`machine_cache`): not followed for slow uses."""
 
 _WHY = pytest.StashKey[dict]()

@@ -267,20 +267,24 @@ def starting(*, compiler: bool = False) -> Iterator[None]:
 
 @contextmanager
 def _interrupts_held() -> Iterator[None]:
-    """Ctrl-C and SIGTERM held back (the main thread's signal mask) for the block, delivered as it
-    ends: a stop landing inside PyTorch's import left a half-initialised module whose errors
-    replaced the command's one-line stop message with a traceback. Elsewhere a no-op."""
+    """Ctrl-C and SIGTERM noted, not acted on, during the block, and acted on as it ends (the handlers
+    that were in place, called then): a stop landing inside PyTorch's import left a half-initialised
+    module whose errors replaced the command's one-line stop message with a traceback. Only the main
+    thread may set handlers; elsewhere a no-op."""
     import signal
 
-    held = {signal.SIGINT, signal.SIGTERM}
-    if not hasattr(signal, "pthread_sigmask") or threading.current_thread() is not threading.main_thread():
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
-    before = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    noted: list[int] = []
+    before = {sig: signal.signal(sig, lambda signum, frame: noted.append(signum)) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, before)
+        for sig, handler in before.items():
+            signal.signal(sig, signal.SIG_DFL if handler is None else handler)  # None: a handler not set from Python
+        for signum in noted[:1]:  # one stop: the first, handled as it would have been
+            signal.raise_signal(signum)
 
 
 def track(items: Sequence, name: str, unit: str = "") -> Iterator:

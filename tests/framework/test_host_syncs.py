@@ -41,7 +41,7 @@ def scg_trainer(tmp_path_factory):
         mp.setenv("SPLAT_COMPILE", "0")
         mp.setenv("SPLAT_RASTERIZER", "torch")
         cfg = apply_overrides(get_method("scgaussian").default_config(), {
-            "data": "synthetic/forward-tiny", "output": str(tmp_path_factory.mktemp("syncs") / "run"), "steps": 40,
+            "data": "synthetic/forward-tiny", "output": str(tmp_path_factory.mktemp("syncs") / "run"), "steps": 16,
             "progress": False})
         trainer = Trainer(cfg)
         for step in range(6):  # the first steps choose and keep each view's partners (a read each, once)
@@ -53,7 +53,7 @@ def test_a_scgaussian_step_reads_the_device_once_outside_the_render(scg_trainer)
     """Densification statistics, L_rg, the multi-view term, the coarse-to-full switch, the loss log:
     none of them reads a device value; the step's one read is its finiteness verdict."""
     trainer = scg_trainer
-    steps = range(6, 26)  # the coarse steps end at 20; densification statistics every step
+    steps = range(6, 12)  # the coarse steps and the multi-view term end at 8; densification statistics every step
     assert all(trainer.model.densify_now(s) for s in steps)
     with count_host_syncs() as syncs:
         outs = [trainer.train_step(s) for s in steps]
