@@ -22,6 +22,7 @@ from __future__ import annotations
 import hashlib
 import importlib
 import os
+import sys
 import types
 from pathlib import Path
 from typing import Any, Iterator
@@ -43,6 +44,9 @@ SLOW_USES: dict[str, str] = {
     "splat_framework.render._native:native_kernels": "builds the native kernels",
     "splat_framework.render._kernels:set_compile": "compiles with torch.compile",
     "splat_framework.sweep:run_sweep": "runs a sweep of training runs",
+    "splat_framework.cli.sweep:main": "runs a sweep of training runs",
+    "splat_framework.sfm.reconstruct:estimate_scene": "poses photos",
+    "splat_framework.sfm.training_poses:estimate_training_poses": "poses photos",
     "splat_framework.sfm.own_photos:own_photos_scene": "poses photos",
     "splat_framework.sfm.reconstruct:reconstruct": "poses photos (COLMAP's mapper)",
     "support:DATA": "reads the real scenes",
@@ -99,6 +103,23 @@ def _in_tests(obj: Any) -> bool:
     return code is not None and Path(code.co_filename).resolve().is_relative_to(TESTS)
 
 
+def _imported_here(name: str) -> types.ModuleType | None:
+    """The module a function's own ``import a.b`` / ``from a.b import c`` names (its code lists the
+    dotted name): one already imported, or one of the project's or of ``tests/``; None otherwise."""
+    if name in sys.modules:
+        return sys.modules[name]
+    top = name.partition(".")[0]
+    if top not in _PROJECT_PACKAGES and not (TESTS / f"{top}.py").is_file():
+        return None
+    try:
+        return importlib.import_module(name)
+    except Exception:  # not a module (an attribute named like one), or an optional part not installed
+        return None
+
+
+_PROJECT_PACKAGES = frozenset({"splat_framework", "scg_plugin", "anchor_gs"})
+
+
 def _referenced(fn: Any, seen: set[int]) -> Iterator[Any]:
     """Every global object ``fn``'s code names (``module.attr`` too), and those of the ``tests/``
     functions and classes it names, recursively."""
@@ -113,12 +134,17 @@ def _referenced(fn: Any, seen: set[int]) -> Iterator[Any]:
         for name in names:
             obj = scope.get(name)
             if obj is None:
+                obj = _imported_here(name)
+            if obj is None:
                 continue
             yield obj
             if isinstance(obj, types.ModuleType):  # module.attr: the attribute, when the module holds it
                 for attr in names:
-                    if attr in vars(obj):
-                        yield vars(obj)[attr]
+                    value = vars(obj).get(attr)
+                    if value is not None:
+                        yield value
+                    if isinstance(value, types.ModuleType):  # from package import module; module.attr
+                        yield from (vars(value)[a] for a in names if a in vars(value))
             elif isinstance(obj, types.FunctionType) and _in_tests(obj):
                 yield from _referenced(obj, seen)
             elif isinstance(obj, type) and obj.__module__ in scope.get("__name__", ""):

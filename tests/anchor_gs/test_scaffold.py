@@ -68,6 +68,7 @@ def test_decoding_shapes_and_the_opacity_filter(dm):
     assert out.rgb.shape == (camera.height, camera.width, 3) and out.meta["means2d"].shape[0] == m
 
 
+@pytest.mark.slow  # trains an octree of anchors for many steps
 @pytest.mark.parametrize("method", sorted(METHODS))
 def test_anchor_growing_and_pruning_keep_every_parameter_and_its_adam_state_aligned(dm, method):
     cfg, model = build(dm, {"strategy": {"start_stat": 0, "update_from": 0, "update_interval": 2,
@@ -114,6 +115,7 @@ def test_registry_lists_the_plugin_methods_from_its_entry_points():
         assert methods[name].model.startswith("anchor_gs.")
 
 
+@pytest.mark.slow  # matches the views
 @pytest.mark.parametrize("method", sorted(METHODS))
 def test_triangulated_anchors_start_from_the_matching_prior(dm, method):
     cfg, model = build(dm, triang=True, method=method)

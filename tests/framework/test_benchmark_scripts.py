@@ -243,6 +243,7 @@ def test_the_gpu_check_reports_torchs_own_sync_count_where_it_has_one(tmp_path):
     assert cuda.syncs_row({"step": "x"}, tmp_path / "missing.json") == {"step": "x"}  # a step that failed
 
 
+@pytest.mark.slow  # trains a run
 def test_host_syncs_counts_a_tiny_run_by_place(tmp_path):
     record = load_script("host_syncs").main(["--warmup", "4", "--steps", "3", "--output", str(tmp_path / "run"),
                                              "--json", str(tmp_path / "syncs.json")])

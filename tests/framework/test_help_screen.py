@@ -42,6 +42,7 @@ def flags(text: str) -> set[str]:
 METHODS = sorted({"3dgs", "scgaussian", "scaffold-gs", "octree-gs"} & set(discover_methods()))
 
 
+@pytest.mark.slow  # builds every help screen of every method
 @pytest.mark.parametrize("method", METHODS)
 def test_the_main_screen_fits_150_lines_and_every_flag_is_on_its_groups_screen(method):
     main = help_of(method, "--help")

@@ -613,6 +613,7 @@ def test_auto_adds_the_learned_matcher_where_dense_flow_is_thin(plane_scene, mon
     assert ms.meta["pair_matchers"] == {"0-1": M.AUTO_LEARNED} and ms.count(0, 1) >= 200
 
 
+@pytest.mark.slow  # runs the learned matchers on a CPU
 @needs_packaged
 @pytest.mark.parametrize("name", ["aliked-lightglue", "disk-lightglue"])
 def test_learned_matcher_verified_matches_on_two_views(name, plane_scene):

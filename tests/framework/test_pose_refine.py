@@ -5,6 +5,8 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import cv2  # at collection: its first import takes seconds on a busy machine, not a test's time
+import numpy as np
 import pytest
 import torch
 from torch import nn
@@ -44,6 +46,7 @@ class CloudModel(nn.Module):
                          sh_degree=0, background=background)
 
 
+@pytest.mark.slow  # fits a pose over hundreds of renders
 def test_a_perturbed_test_camera_is_fitted_back_to_its_photo():
     model = CloudModel()
     w2c = look_at(torch.tensor([0.0, 0.0, 0.0]), torch.tensor([0.0, 0.0, 4.5]), torch.tensor([0.0, -1.0, 0.0])).float()
@@ -77,6 +80,7 @@ def test_a_perturbed_test_camera_is_fitted_back_to_its_photo():
     assert math.isclose(pose_change(w2c, w2c)[0], 0.0, abs_tol=1e-3)
 
 
+@pytest.mark.slow  # trains a run
 def test_a_perturbed_training_camera_is_refined_back_while_training():
     """CameraRefiner as the trainer drives it (apply, backward of the render loss, step with the
     decaying rate): a training view's 1.3 degree error shrinks; the first view never moves."""
@@ -122,13 +126,10 @@ def test_training_poses_count_as_estimated_for_a_pose_file_or_a_folder_of_photos
 
     photos = tmp_path / "photos"
     photos.mkdir()
-    import cv2
-    import numpy as np
-
     for i in range(3):
         cv2.imwrite(str(photos / f"p{i}.png"), np.full((8, 8, 3), 40 * i, np.uint8))
-    base = get_method("3dgs").default_config()
-    assert not poses_estimated(base)  # synthetic/forward: a dataset's poses
+    base = get_method("3dgs").default_config().model_copy(update={"data": "synthetic/forward-tiny"})
+    assert not poses_estimated(base)  # a built-in scene: a dataset's poses
     assert poses_estimated(base.model_copy(update={"train_poses": tmp_path / "poses.json"}))
     assert poses_estimated(base.model_copy(update={"data": str(photos)}))
     on = base.model_copy(update={"camera_refine": base.camera_refine.model_copy(update={"mode": "on"})})

