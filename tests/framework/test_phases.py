@@ -111,15 +111,19 @@ def test_a_commands_start_is_a_phase_and_the_cli_harness_reads_errors_past_it(mo
 
 def test_a_stop_while_pytorch_is_imported_is_acted_on_once_the_imports_end():
     # a SIGTERM landing inside torch's import left a half-initialised module, and a traceback instead of the stop's line
-    handlers = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
-    reached = []
-    with pytest.raises(KeyboardInterrupt):
-        with console_mod.starting():
-            signal.raise_signal(signal.SIGINT)
-            signal.raise_signal(signal.SIGINT)
-            reached.append("the rest of the imports")
-    assert reached == ["the rest of the imports"]
-    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == handlers  # as they were
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)  # a command's (an xdist worker ignores SIGINT)
+    try:
+        handlers = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+        reached = []
+        with pytest.raises(KeyboardInterrupt):
+            with console_mod.starting():
+                signal.raise_signal(signal.SIGINT)
+                signal.raise_signal(signal.SIGINT)
+                reached.append("the rest of the imports")
+        assert reached == ["the rest of the imports"]
+        assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == handlers  # as they were
+    finally:
+        signal.signal(signal.SIGINT, before)
 
 
 def test_the_training_clock_starts_at_the_first_step_and_no_eta_before_10_steps(terminal):

@@ -97,7 +97,8 @@ class RunLog:
 
     The lines wait in memory until the run writes its ``config.json`` (a new run after its set-up, a
     resumed one once its checkpoint is checked), so that a start that fails or is refused leaves the
-    folder as it was. Then lines are appended whole and flushed one by one; a line that a killed
+    folder as it was. Then lines are appended whole, the file opened for each and closed again (no
+    handle is held: a run built in-process and never closed leaves no open file); a line that a killed
     process left unfinished is ended first."""
 
     def __init__(self, run_dir: Path, command: Sequence[str] | None, resume: bool):
@@ -105,27 +106,25 @@ class RunLog:
         self._config = Path(run_dir) / "config.json"
         self._config_before = _identity(self._config)
         self._lock = threading.Lock()
-        self._file = None
         self._closed = False
         args = shlex.join(["splat-train", *command]) if command is not None else "(in-process)"
-        self._waiting = [f"{'resumed' if resume else 'started'} {datetime.now():%Y-%m-%d %H:%M:%S}: {args}"]
+        self._waiting: list[str] | None = [f"{'resumed' if resume else 'started'} {datetime.now():%Y-%m-%d %H:%M:%S}: {args}"]
         add_log(self.write)
 
     def write(self, line: str) -> None:
-        """Append one line (a newline added) and flush it; kept in memory until the run writes its config."""
+        """Append one line (a newline added); kept in memory until the run writes its config."""
         with self._lock:
             if self._closed:
                 return
-            if self._file is None:
+            if self._waiting is not None:
                 self._waiting.append(line)
                 if _identity(self._config) == self._config_before:
                     return
-                self._file = open(self.path, "a", encoding="utf-8")
-                if self._file.tell() and not _ends_with_newline(self.path):
-                    self._file.write("\n")
-                line, self._waiting = "\n".join(self._waiting), []
-            self._file.write(line + "\n")
-            self._file.flush()
+                line, self._waiting = "\n".join(self._waiting), None
+                if self.path.is_file() and self.path.stat().st_size and not _ends_with_newline(self.path):
+                    line = "\n" + line
+            with open(self.path, "a", encoding="utf-8") as f:
+                f.write(line + "\n")
 
     def close(self) -> None:
         """Stop logging. Called while an exception propagates (a ``finally``), it logs the line the
@@ -138,8 +137,6 @@ class RunLog:
             self.write(_final_line(error))
         with self._lock:
             self._closed = True
-            if self._file is not None:
-                self._file.close()
 
 
 def _identity(path: Path) -> tuple[int, int, int] | None:
