@@ -66,21 +66,16 @@ def native_module():
 
 
 @pytest.fixture(autouse=True, scope="session")
-def _native_kernels_loaded(request, tmp_path_factory):
-    """The machine's native kernels loaded in every worker before any test, and their build folder
-    copied into this session's cache (signed by this user: the product loads it as its own): a run
-    that takes them, in-process or a command the test starts, loads them as a user's second run
-    does, instead of building them into the session's empty cache (25-95 s a worker). Where they
-    cannot be built, nothing: the tests that need them skip saying why."""
-    if not HAVE_TOOLCHAIN:
-        return
-    try:
-        built = Path(request.getfixturevalue("native_module").__file__).parent
-    except AssertionError:  # a failed build fails the tests that need the kernels (native_module), not all
-        return
-    session = tmp_path_factory.getbasetemp() / "splatcache" / "native" / built.name
-    if not session.exists():
-        shutil.copytree(built, session, ignore=shutil.ignore_patterns("*.o", ".ninja*", "build.ninja"))
+def _native_kernels_loaded(request):
+    """The machine's native kernels loaded in every worker before any test: a run that compiles its
+    kernels in-process takes them as a user's second run does, instead of building them into the
+    session's empty cache (25-95 s a worker). Where they cannot be built, nothing: the tests that
+    need them (``native_module``) skip or fail saying why."""
+    if HAVE_TOOLCHAIN:
+        try:
+            request.getfixturevalue("native_module")
+        except AssertionError:  # a failed build fails the tests that need the kernels, not all
+            pass
 
 
 @pytest.fixture(autouse=True)

@@ -103,6 +103,9 @@ def _in_tests(obj: Any) -> bool:
     return code is not None and Path(code.co_filename).resolve().is_relative_to(TESTS)
 
 
+_PROJECT_PACKAGES = frozenset({"splat_framework", "scg_plugin", "anchor_gs"})
+
+
 def _imported_here(name: str) -> types.ModuleType | None:
     """The module a function's own ``import a.b`` / ``from a.b import c`` names (its code lists the
     dotted name): one already imported, or one of the project's or of ``tests/``; None otherwise."""
@@ -116,8 +119,6 @@ def _imported_here(name: str) -> types.ModuleType | None:
     except Exception:  # not a module (an attribute named like one), or an optional part not installed
         return None
 
-
-_PROJECT_PACKAGES = frozenset({"splat_framework", "scg_plugin", "anchor_gs"})
 
 
 def _referenced(fn: Any, seen: set[int]) -> Iterator[Any]:

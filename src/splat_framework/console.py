@@ -283,8 +283,8 @@ def _interrupts_held() -> Iterator[None]:
     finally:
         for sig, handler in before.items():
             signal.signal(sig, signal.SIG_DFL if handler is None else handler)  # None: a handler not set from Python
-        for signum in noted[:1]:  # one stop: the first, handled as it would have been
-            signal.raise_signal(signum)
+        if noted:  # one stop: the first, handled as it would have been
+            signal.raise_signal(noted[0])
 
 
 def track(items: Sequence, name: str, unit: str = "") -> Iterator:
