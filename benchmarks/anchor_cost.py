@@ -58,8 +58,10 @@ def measure(run: str, as_3dgs: bool, steps: int, warmup: int, threads: int | Non
     Gaussians as a 3DGS model; seconds per step, decode forward seconds, Gaussians drawn, peak RSS."""
     import torch
 
-    from splat_framework.engine.run import background_for, load_run
+    from splat_framework.config import RunFacts
+    from splat_framework.engine.run import load_run
     from splat_framework.model.gaussians import GaussianModel
+    from splat_framework.pipeline.scene import background_for
     from splat_framework.registry import get_method
 
     if threads:
@@ -72,7 +74,7 @@ def measure(run: str, as_3dgs: bool, steps: int, warmup: int, threads: int | Non
         g = model.export_gaussians(camera)
         k = (base.model.sh_degree + 1) ** 2
         g["shN"] = g["sh0"].new_zeros(g["sh0"].shape[0], k - 1, 3)
-        model = GaussianModel.from_checkpoint(base, model.scene_scale, {"params": {k: v.detach() for k, v in g.items()}})
+        model = GaussianModel.from_checkpoint(base.model, RunFacts.of(base), model.scene_scale, {"params": {k: v.detach() for k, v in g.items()}})
         method = "3dgs"
     optimizers = model.make_optimizers()
     background = background_for(dm.scene, config.device)

@@ -76,7 +76,8 @@ def split_scores(render: Tensor, photo: Tensor, covered: Tensor, mask: Tensor | 
 
 def run_scores(run: Path, tolerance: float) -> dict:
     """The test views' :func:`split_scores` of one run folder, and their mean."""
-    from splat_framework.engine.run import background_for, load_run
+    from splat_framework.engine.run import load_run
+    from splat_framework.pipeline.scene import background_for
 
     config, datamanager, model = load_run(run)
     background = background_for(datamanager.scene, config.device)

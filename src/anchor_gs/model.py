@@ -60,20 +60,20 @@ class ScaffoldModel(GaussianModel):
 
     FIXED = ("anchors",)
 
-    def __init__(self, config, scene_scale: float, points: Tensor | None, colors: Tensor | None,
+    def __init__(self, config, run, scene_scale: float, points: Tensor | None, colors: Tensor | None,
                  camera_centers: Tensor | None = None, *, rows=None):
-        cfg = config.model
+        cfg = config
         # a model rebuilt from ``rows`` gets its voxel size back with its extra state
         self.voxel_size = float(cfg.voxel_size) or (float(knn_scale(points).median()) if rows is None else 0.0)
-        super().__init__(config, scene_scale, points, colors, rows=rows)
+        super().__init__(config, run, scene_scale, points, colors, rows=rows)
 
     @classmethod
-    def from_data(cls, config, datamanager, generator):
-        """Anchors voxelised from the start ``config.model.init`` describes (as every method's)."""
-        start = initial_points(config.model.init, datamanager, generator)
+    def from_data(cls, config, run, datamanager, generator):
+        """Anchors voxelised from the init ``config.init`` describes (as every method's)."""
+        start = initial_points(config.init, datamanager, generator)
         points, colors = start.points, start.colors
         centers = torch.stack([c.center.detach().float() for c in datamanager.train_cameras]).to(points.device)
-        model = cls(config, datamanager.scene.scene_radius, points, colors, centers)
+        model = cls(config, run, datamanager.scene.scene_radius, points, colors, centers)
         model.reference_center = centers[0].cpu()
         model.keep_training_views(datamanager)
         model.init_timing = start.timing
@@ -87,7 +87,7 @@ class ScaffoldModel(GaussianModel):
     def anchor_params(self, anchors: Tensor) -> dict[str, nn.Parameter]:
         """Fresh per-row parameters of anchors at ``anchors`` [A, 3]: zero offsets and features, scaling
         the mean distance to the 3 nearest anchors."""
-        cfg = self.config.model
+        cfg = self.config
         a, dev = anchors.shape[0], anchors.device
         scaling = torch.log(knn_scale(anchors))[:, None].repeat(1, 6)
         return {
@@ -98,7 +98,7 @@ class ScaffoldModel(GaussianModel):
         }
 
     def build_networks(self) -> nn.ModuleDict:
-        cfg = self.config.model
+        cfg = self.config
         k, f = cfg.n_offsets, cfg.feat_dim
         nets = nn.ModuleDict({
             "mlp_opacity": _mlp(f, k, nn.Tanh()),
@@ -115,18 +115,18 @@ class ScaffoldModel(GaussianModel):
     @property
     def num_gaussians(self) -> int:
         """Neural Gaussians the anchors can decode into (A x k; those with opacity <= 0 are not drawn)."""
-        return self.num_anchors * self.config.model.n_offsets
+        return self.num_anchors * self.config.n_offsets
 
     # ------------------------------------------------------------- optimise
     def learning_rates(self, step: int) -> dict[str, float]:
         """The public code's rates at ``step``; offsets and the opacity and colour MLPs decay
         exponentially over the run (its ``get_expon_lr_func``)."""
-        cfg = self.config.optim
+        cfg = self.run.optim
         start = {"offsets": cfg.offset_lr * self.scene_scale, "anchor_feat": cfg.feature_lr, "scaling": cfg.scaling_lr,
                  "mlp_opacity": cfg.mlp_opacity_lr, "mlp_cov": cfg.mlp_cov_lr, "mlp_color": cfg.mlp_color_lr}
         finals = {"offsets": cfg.offset_lr_final * self.scene_scale, "mlp_opacity": cfg.mlp_opacity_lr * 0.01,
                   "mlp_color": cfg.mlp_color_lr * 0.00625}
-        t = run_fraction(step, self.config.total_steps)
+        t = run_fraction(step, self.run.total_steps)
         return start | {k: log_lerp(start[k], final, t) for k, final in finals.items()}
 
     def make_optimizers(self) -> dict[str, torch.optim.Optimizer]:
@@ -153,7 +153,7 @@ class ScaffoldModel(GaussianModel):
         """The neural Gaussians of the ``visible`` anchors seen from the camera centre ``center`` [3]: ``means`` [M, 3],
         ``quats`` [M, 4], ``scales`` [M, 3], ``opacities`` [M], ``colors`` [M, 3] (M: those with opacity
         > 0), ``neural_opacity`` [A_vis, k] and ``kept`` [A_vis * k] bool."""
-        p, k = self.params, self.config.model.n_offsets
+        p, k = self.params, self.config.n_offsets
         anchors, feat = p["anchors"][visible], p["anchor_feat"][visible]
         offsets, scaling = p["offsets"][visible], torch.exp(p["scaling"][visible])
         view = anchors - center.to(anchors)
@@ -188,7 +188,7 @@ class ScaffoldModel(GaussianModel):
         g = self.decode(camera.center, visible)
         out = rasterize(g["means"], g["quats"], g["scales"], self.drop_opacities(g["opacities"], step), g["colors"],
                         camera.world_to_cam.float(), camera.K.float(), camera.width, camera.height,
-                        background=background, near_plane=0.01, depth_mode=self.config.model.depth_mode)
+                        background=background, near_plane=0.01, depth_mode=self.config.depth_mode)
         out.meta.update(anchor_visible=visible, neural_opacity=g["neural_opacity"].detach(), neural_kept=g["kept"],
                         neural_scales=g["scales"], **self.render_meta())
         return out
@@ -196,7 +196,7 @@ class ScaffoldModel(GaussianModel):
     def get_loss_dict(self, outputs: RenderOutput, batch: dict, camera: Camera, step: int) -> dict[str, Tensor]:
         """L1 + D-SSIM, the opt-in regularisers' terms (``model.reg``), and the volume regulariser on
         the rendered neural Gaussians' scales."""
-        cfg = self.config.model
+        cfg = self.config
         target, terms = self.regulariser_terms(outputs, batch, camera, step)
         losses = {"photometric": photometric_loss(outputs.rgb, target, lambda_dssim=cfg.lambda_dssim)} | terms
         scales = outputs.meta["neural_scales"]

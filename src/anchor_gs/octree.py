@@ -118,17 +118,17 @@ class OctreeModel(ScaffoldModel):
 
     FIXED = ("anchors", "level", "extra_level")
 
-    def __init__(self, config, scene_scale: float, points: Tensor | None, colors: Tensor | None,
+    def __init__(self, config, run, scene_scale: float, points: Tensor | None, colors: Tensor | None,
                  camera_centers: Tensor | None = None, *, rows=None):
         if camera_centers is None and rows is None:
             raise ValueError("OctreeModel needs the training camera centres")
         self._camera_centers = camera_centers
         self.step = None  # a model rebuilt from a checkpoint opens every level (its octree comes with its extra state)
-        super().__init__(config, scene_scale, points, colors, camera_centers, rows=rows)
+        super().__init__(config, run, scene_scale, points, colors, camera_centers, rows=rows)
 
     def init_params(self, points: Tensor, colors: Tensor) -> dict[str, nn.Parameter]:
         points = points.float()
-        self.octree = tree = build_octree(self.config.model, points, self._camera_centers.float(), self.voxel_size)
+        self.octree = tree = build_octree(self.config, points, self._camera_centers.float(), self.voxel_size)
         positions, levels = [], []
         for level in range(tree.levels):
             cells = torch.unique(tree.cells(points, level), dim=0)
@@ -144,8 +144,8 @@ class OctreeModel(ScaffoldModel):
         return params
 
     @classmethod
-    def from_data(cls, config, datamanager, generator):
-        model = super().from_data(config, datamanager, generator)
+    def from_data(cls, config, run, datamanager, generator):
+        model = super().from_data(config, run, datamanager, generator)
         model.init_stats = dict(model.init_stats) | {"levels": model.octree.levels, "init_level": model.octree.init_level}
         return model
 
@@ -157,7 +157,7 @@ class OctreeModel(ScaffoldModel):
     def max_level(self) -> int:
         """The finest level open now: all of them unless training progressively (a model rebuilt from a
         checkpoint, not training, opens all)."""
-        cfg, tree = self.config.model, self.octree
+        cfg, tree = self.config, self.octree
         if not cfg.progressive or self.step is None:
             return tree.levels - 1
         opened = bisect.bisect_left(coarse_intervals(tree.levels, tree.init_level, cfg.coarse_iter, cfg.coarse_factor),

@@ -56,4 +56,5 @@ spec_scgaussian = MethodSpec(
     description="SCGaussian: hybrid ray-based Gaussians from a matching prior (NeurIPS 2024)",
     config_factory=config_scgaussian,
     model="scg_plugin.model:SCGaussianModel",
+    pipeline="scg_plugin.pipeline:SCGaussianPipeline",
 )

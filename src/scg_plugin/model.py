@@ -10,8 +10,6 @@ rows are ordinary Gaussians (the strategy's ``child_values``).
 
 from __future__ import annotations
 
-import warnings
-
 import torch
 from torch import Tensor, nn
 
@@ -19,7 +17,7 @@ from splat_framework.plugin import Camera, GaussianModel, log_lerp, ops, run_fra
 
 from .losses import rendering_geometry_loss
 from .ray_gaussians import MatchCache, RayBundle, gaussian_position_loss, pixel_errors, warmup_step_size
-from .startup import BaselineSchedule, baseline_schedule, ordinary_points, ray_prior, thin_prior, warm_up_prior
+from .startup import ordinary_points, ray_prior, thin_prior, warm_up_prior
 
 RAY_KEYS = ("z", "ray_o", "ray_d", "is_ray", "is_match")
 
@@ -30,7 +28,7 @@ class SCGaussianModel(GaussianModel):
     FIXED = ("ray_o", "ray_d", "is_ray", "is_match")
 
     def __init__(
-        self, config, scene_scale, points, colors, bundle: RayBundle | None = None, cameras: list[Camera] = (),
+        self, config, run, scene_scale, points, colors, bundle: RayBundle | None = None, cameras: list[Camera] = (),
         images: list[Tensor] = (), *, rows=None,
     ):
         """``bundle``: the rays of the matches; ``cameras``, ``images``: the training views (the
@@ -40,33 +38,29 @@ class SCGaussianModel(GaussianModel):
         self.train_images = list(images)
         self.cache: MatchCache | None = None
         self._groups: tuple[RayBundle, dict] | None = None  # _match_groups' bundle and its groups
-        self.baseline: BaselineSchedule | None = None
-        """The 3dgs baseline's schedules this model trains with instead of its config's (a thin prior)."""
-        super().__init__(config, scene_scale, points, colors, rows=rows)
-        cfg = config.model
-        if self.bundle is not None and config.model.schedule == "single-stage" and cfg.cache_filter and cfg.cache_until > 0:
+        self.thin_prior = False
+        """Whether its init found the matching prior missing or sparse (``from_data``): the pipeline
+        then trains it on the 3dgs baseline's schedule (:class:`~scg_plugin.pipeline.SCGaussianPipeline`)."""
+        super().__init__(config, run, scene_scale, points, colors, rows=rows)
+        if self.bundle is not None and config.schedule == "single-stage" and config.cache_filter and config.cache_until > 0:
             self.cache = MatchCache(self.bundle)
 
     # ------------------------------------------------------------------ build
     @classmethod
-    def from_data(cls, config, datamanager, generator):
-        """The start-up steps of :mod:`scg_plugin.startup` (prior, warm-up, ordinary Gaussians, the
-        baseline's schedule for a thin prior), then the model (with the run's ``config``)."""
+    def from_data(cls, config, run, datamanager, generator):
+        """The init steps of :mod:`scg_plugin.startup` (prior, warm-up, ordinary Gaussians; whether
+        the prior is thin), then the model."""
         views = datamanager.train_views()
         cameras = [c for c, _ in views]
         images = [b["image"] for _, b in views]
         timing, stats = {}, {}
         bundle, n_matches = ray_prior(config, datamanager, generator, timing, stats)
-        bundle = warm_up_prior(bundle, [c.to("cpu") for c in cameras], config.model, timing, stats)
-        pts, cols = ordinary_points(config.model, datamanager, bundle, n_matches, generator)
-        baseline = config.model.thin_prior_baseline and thin_prior(config.model, bundle, n_matches)
-        model = cls(config, datamanager.scene.scene_radius, pts, cols, bundle, cameras, images)
-        model.baseline = baseline_schedule(config) if baseline else None
-        if model.baseline is not None:
-            warnings.warn(model.baseline.message(), stacklevel=2)
+        bundle = warm_up_prior(bundle, [c.to("cpu") for c in cameras], config, timing, stats)
+        pts, cols = ordinary_points(config, datamanager, bundle, n_matches, generator)
+        model = cls(config, run, datamanager.scene.scene_radius, pts, cols, bundle, cameras, images)
+        model.thin_prior = thin_prior(config, bundle, n_matches)
         model.init_timing = timing
-        model.init_stats = stats | {"num_matches": len(bundle) // 2 if bundle is not None else 0,
-                                    "baseline_schedule": baseline}
+        model.init_stats = stats | {"num_matches": len(bundle) // 2 if bundle is not None else 0}
         return model
 
     def init_params(self, points: Tensor, colors: Tensor) -> dict[str, nn.Parameter]:
@@ -91,7 +85,7 @@ class SCGaussianModel(GaussianModel):
         d = torch.zeros(n, 3, device=dev)
         if g:
             z[:g], o[:g], d[:g] = b.z, b.origins, b.dirs
-        ray_bound = flag if self.config.model.ray_binding else torch.zeros_like(flag)
+        ray_bound = flag if self.config.ray_binding else torch.zeros_like(flag)
         params.update(
             z=nn.Parameter(z),
             ray_o=nn.Parameter(o, requires_grad=False),
@@ -122,7 +116,7 @@ class SCGaussianModel(GaussianModel):
         every ``warmup_lr_halve_every`` steps; else ``z_lr`` decaying to ``z_lr_final`` over the run
         as the position rate decays (without ``z_lr_final``, following the position rate's decay)."""
         lrs = super().learning_rates(step)
-        cfg = self.config.model
+        cfg = self.config
         if self.bundle is None:
             lrs["z"] = cfg.z_lr * self.scene_scale
         elif cfg.schedule == "single-stage" and step < max(cfg.cache_until, 1):
@@ -130,20 +124,11 @@ class SCGaussianModel(GaussianModel):
             lr = warmup_step_size(cfg.warmup_lr, cfg.warmup_lr_unit, self.bundle)
             lrs["z"] = lr * 0.5 ** (step // max(cfg.warmup_lr_halve_every, 1))
         elif cfg.z_lr_final is not None:
-            lrs["z"] = log_lerp(cfg.z_lr, cfg.z_lr_final, run_fraction(step, self.config.total_steps)) * self.scene_scale
+            lrs["z"] = log_lerp(cfg.z_lr, cfg.z_lr_final, run_fraction(step, self.run.total_steps)) * self.scene_scale
         else:
-            ratio = lrs["means"] / max(self.config.optim.means_lr * self.scene_scale, 1e-30)
+            ratio = lrs["means"] / max(self.run.optim.means_lr * self.scene_scale, 1e-30)
             lrs["z"] = cfg.z_lr * self.scene_scale * ratio
         return lrs
-
-    def strategy_config(self):
-        """The run's strategy, or the baseline's schedule of it after a thin prior."""
-        return self.config.strategy if self.baseline is None else self.baseline.strategy
-
-    def on_step_start(self, step: int) -> None:
-        super().on_step_start(step)
-        if self.baseline is not None:  # the baseline's SH schedule
-            self.active_sh_degree = min(step // max(self.baseline.sh_degree_interval, 1), self.config.model.sh_degree)
 
     def prepare_for_strategy(self) -> None:
         if self.bundle is not None:  # one select, not a masked write (a nonzero and a scatter a step)
@@ -161,7 +146,7 @@ class SCGaussianModel(GaussianModel):
         losses = super().get_loss_dict(outputs, batch, camera, step)
         if self.bundle is None:
             return losses
-        cfg = self.config.model
+        cfg = self.config
         g = len(self.bundle)
         if cfg.lambda_gp > 0:
             pos = self.positions()[:g]
@@ -207,7 +192,7 @@ class SCGaussianModel(GaussianModel):
     def after_optimizer_step(self, step: int, losses, optimizers) -> ops.RowChange | None:
         """Cache-and-filter: each match's z and reprojection error recorded until ``cache_until``,
         then applied at its last step (:meth:`_apply_cache`; the rows it drops are the change)."""
-        cfg = self.config.model
+        cfg = self.config
         if self.cache is None or self.bundle is None:
             return None
         g = len(self.bundle)
@@ -222,7 +207,7 @@ class SCGaussianModel(GaussianModel):
     def _apply_cache(self, optimizers) -> ops.RowChange | None:
         """Move every match to its best cached z and drop matches above eta (single-stage); the
         rows dropped, as a change (None when every match stays)."""
-        cfg = self.config.model
+        cfg = self.config
         g = len(self.bundle)
         dev = self.params["z"].device
         self.params["z"].data[:g] = self.cache.best_z.to(dev)

@@ -1,4 +1,4 @@
-"""SCGaussian's start-up, one named step each, in the order :meth:`SCGaussianModel.from_data` runs them.
+"""SCGaussian's init, one named step each, in the order :meth:`SCGaussianModel.from_data` runs them.
 
 1. :func:`ray_prior`: match every pair of training views
    (:func:`splat_framework.plugin.compute_match_set`, cached on disk) and bind two ray-based Gaussians to each verified match
@@ -11,9 +11,10 @@
    ``init.num_points`` random ones, or at least ``FALLBACK_POINTS`` when the
    prior is missing or sparse (one warning); a start with points of its own
    (``--model.init.kind ply``) gives them all, whatever the prior.
-4. :func:`baseline_schedule`: with a missing or sparse prior, the run trains with
-   the 3dgs baseline's densification and SH schedules (``thin_prior_baseline``), which the
-   model keeps beside the run's one config.
+4. :func:`thin_prior`: whether the prior is missing or sparse; the pipeline
+   (:class:`~scg_plugin.pipeline.SCGaussianPipeline`) then trains the run with the 3dgs baseline's
+   densification and SH schedules (:func:`baseline_schedule`, ``thin_prior_baseline``), the run's
+   one config unchanged.
 
 Each step returns what the next needs and records its own wall time.
 """
@@ -44,12 +45,12 @@ from splat_framework.plugin import (
 from .ray_gaussians import MatchCache, RayBundle, build_ray_bundle, warm_up, warmup_step_size
 
 
-def ray_prior(config, datamanager, generator: torch.Generator, timing: dict, stats: dict) -> tuple[RayBundle | None, int]:
-    """Step 1: (the ray bundle of the verified matches or None, the number of matches found).
+def ray_prior(cfg, datamanager, generator: torch.Generator, timing: dict, stats: dict) -> tuple[RayBundle | None, int]:
+    """Step 1: (the ray bundle of the verified matches or None, the number of matches found);
+    ``cfg``: the model's config.
 
     ``timing["matching_s"]`` and ``stats["matches_digest"]`` (``MatchSet.digest``: which matches the
     run trained on) are set."""
-    cfg = config.model
     views = datamanager.train_views()
     ids = [int(b["index"]) for _, b in views]
     t0 = time.perf_counter()

@@ -10,6 +10,7 @@ import torch
 
 from anchor_gs.method import config_octree_gs
 from anchor_gs.octree import OctreeModel, build_octree, coarse_intervals
+from splat_framework.plugin import RunFacts
 from splat_framework.testing import apply_overrides
 
 
@@ -21,6 +22,12 @@ def line_of_points(near: float = 1.0, far: float = 16.0, n: int = 61) -> torch.T
 
 def config(**model):
     return apply_overrides(config_octree_gs(), {"data": "synthetic/forward-tiny", "model": {"dist_ratio": 1.0} | model})
+
+
+def model_args(**model):
+    """(model config, run facts) of :func:`config`: what an Octree-GS model is built with."""
+    cfg = config(**model)
+    return cfg.model, RunFacts.of(cfg)
 
 
 def test_levels_follow_the_ratio_of_far_to_near_distances():
@@ -39,7 +46,7 @@ def test_levels_follow_the_ratio_of_far_to_near_distances():
 def test_each_view_draws_fine_levels_near_the_camera_and_coarse_ones_far_away():
     near_cam, far_cam = torch.tensor([[0.0, 0.0, 0.0]]), torch.tensor([[0.0, 0.0, 40.0]])
     cams = torch.cat([near_cam, far_cam])
-    model = OctreeModel(config(voxel_size=0.25), 1.0, line_of_points(), torch.rand(61, 3), cams)
+    model = OctreeModel(*model_args(voxel_size=0.25), 1.0, line_of_points(), torch.rand(61, 3), cams)
     level, z = model.params["level"], model.params["anchors"][:, 2]
     assert set(level.tolist()) == set(map(float, range(model.octree.levels)))
     seen_near = model.lod_mask(near_cam[0])
@@ -75,7 +82,7 @@ def test_progressive_training_opens_one_level_after_another():
     assert all(math.isclose(g1 / g0, 1 / 1.5) for g0, g1 in zip(gaps, gaps[1:]))  # each shorter by coarse_factor
     assert coarse_intervals(levels=3, init_level=2, coarse_iter=250, coarse_factor=1.5) == []
 
-    model = OctreeModel(config(voxel_size=0.25), 1.0, line_of_points(), torch.rand(61, 3), torch.zeros(1, 3))
+    model = OctreeModel(*model_args(voxel_size=0.25), 1.0, line_of_points(), torch.rand(61, 3), torch.zeros(1, 3))
     tree, last = model.octree, model.octree.levels - 1
     assert model.max_level() == last  # not training: every level
     model.on_step_start(1)

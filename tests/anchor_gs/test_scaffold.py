@@ -10,7 +10,7 @@ import torch
 from anchor_gs.method import config_octree_gs, config_scaffold_gs
 from anchor_gs.model import ScaffoldModel, voxelize
 from anchor_gs.octree import OctreeModel
-from splat_framework.plugin import compute_match_set
+from splat_framework.plugin import RunFacts, compute_match_set
 from splat_framework.testing import (
     Trainer,
     apply_overrides,
@@ -37,7 +37,7 @@ def build(dm, overrides: dict | None = None, triang: bool = False, method: str =
     init = {"kind": "triangulated"} if triang else {"num_points": 500}  # as the -triang variants
     cfg = apply_overrides(make(), {"data": "synthetic/forward-tiny", "model": {"init": init}} | (overrides or {}))
     torch.manual_seed(0)
-    return cfg, model_class.from_data(cfg, dm, torch.Generator().manual_seed(0))
+    return cfg, model_class.from_data(cfg.model, RunFacts.of(cfg), dm, torch.Generator().manual_seed(0))
 
 
 def test_voxelize_keeps_one_centre_per_occupied_cell():

@@ -78,7 +78,7 @@ def test_coverage_counts_a_training_view_as_seen_wherever_it_rendered_something(
     blurred copy is softer."""
     import torch
 
-    from splat_framework.config import apply_overrides
+    from splat_framework.config import RunFacts, apply_overrides
     from splat_framework.data import DataManager, load_scene
     from splat_framework.data.synthetic import generate_scene
     from splat_framework.model.gaussians import GaussianModel
@@ -88,7 +88,7 @@ def test_coverage_counts_a_training_view_as_seen_wherever_it_rendered_something(
     root = generate_scene("forward", tmp_path / "scene", width=48, height=36, n_views=4, seed=2)
     dm = DataManager(load_scene(root, views=3), device="cpu", seed=0)
     config = apply_overrides(get_method("3dgs").default_config(), {"steps": 10, "model": {"init": {"num_points": 2000}}})
-    model = GaussianModel.from_data(config, dm, torch.Generator().manual_seed(0))
+    model = GaussianModel.from_data(config.model, RunFacts.of(config), dm, torch.Generator().manual_seed(0))
     background = torch.zeros(3)
     with torch.no_grad():
         training = [(cam, model.get_outputs(cam, background).depth[..., 0]) for cam, _ in dm.train_views()]

@@ -370,7 +370,7 @@ def test_the_memory_plan_counts_what_an_anchor_costs(monkeypatch, tmp_path):
     """Counts at their bounds reach the memory plan, which counts each anchor's neural Gaussians and feature:
     scaffold-gs with n_offsets 256 and feat_dim 1024 is refused before any allocation on a 16 GiB machine,
     where its defaults (and 3dgs with as many points) fit."""
-    import splat_framework.engine.memory_plan as plan
+    import splat_framework.pipeline.memory_plan as plan
     from splat_framework.data import load_scene
     from splat_framework.data.synthetic import ensure_scene
 

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from cli_harness import message_lines
+from splat_framework.config import RunFacts
 from splat_framework.errors import DataError
 from splat_framework.evaluation.held_out import evaluate
 from splat_framework.evaluation.metrics import DEPTH_KEYS, avg_metric, depth_metrics
@@ -97,14 +98,15 @@ class _NoDepth:
 
 @pytest.mark.slow
 def test_depth_mode_does_not_change_the_metrics_and_no_gt_gives_none(run_dir):
-    from splat_framework.engine.run import background_for, load_run
+    from splat_framework.engine.run import load_run
+    from splat_framework.pipeline.scene import background_for
 
     config, dm, model = load_run(run_dir)
     bg = background_for(dm.scene, "cpu")
     assert "depth" in dm.eval_views()[0][1]
     res = {}
     for mode in ("expected", "accumulated"):
-        model.config = config.model_copy(update={"model": config.model.model_copy(update={"depth_mode": mode})})
+        model.config = config.model.model_copy(update={"depth_mode": mode})
         res[mode] = evaluate(model, dm, bg)["mean"]
     for k in DEPTH_KEYS:
         assert res["expected"][k] == pytest.approx(res["accumulated"][k], rel=1e-4), k
@@ -174,7 +176,7 @@ def test_scgaussian_report_measures_distance_to_surface():
     bundle.z = (pts.float().repeat_interleave(2, 0) - bundle.origins).norm(dim=-1)
     config = get_method("scgaussian-ray-bound").default_config()  # bound: z alone moves them (below)
     empty = torch.zeros(0, 3)
-    model = SCGaussianModel(config, dm.scene.scene_radius, empty, empty, bundle, cams, images)
+    model = SCGaussianModel(config.model, RunFacts.of(config), dm.scene.scene_radius, empty, empty, bundle, cams, images)
 
     exact = model.report(dm)
     assert exact["num_match_gaussians"] == 2 * len(pts)

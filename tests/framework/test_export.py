@@ -131,7 +131,8 @@ def test_bad_files_raise_data_error(tmp_path):
 
 def test_round_trip_renders_identically(run_dir, tmp_path, monkeypatch):
     from splat_framework.cli.export import entrypoint
-    from splat_framework.engine.run import background_for, load_run
+    from splat_framework.engine.run import load_run
+    from splat_framework.pipeline.scene import background_for
 
     out = tmp_path / "out.ply"
     monkeypatch.setattr(sys, "argv", ["splat-export", str(run_dir), "--out", str(out)])

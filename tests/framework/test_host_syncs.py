@@ -54,7 +54,7 @@ def test_a_scgaussian_step_reads_the_device_once_outside_the_render(scg_trainer)
     none of them reads a device value; the step's one read is its finiteness verdict."""
     trainer = scg_trainer
     steps = range(6, 12)  # the coarse steps and the multi-view term end at 8; densification statistics every step
-    assert all(trainer.model.densify_now(s) for s in steps)
+    assert trainer.densifies
     with count_host_syncs() as syncs:
         outs = [trainer.train_step(s) for s in steps]
     assert all(out is not None and {"rg", "photometric"} <= set(out[0]) for out in outs)

@@ -24,7 +24,7 @@ import pytest
 import torch
 
 from config_walk import overrides_in_every
-from splat_framework.config import MatchConfig, apply_overrides, deep_merge
+from splat_framework.config import MatchConfig, RunFacts, apply_overrides, deep_merge
 from splat_framework.data import DataManager, load_scene
 from splat_framework.data.synthetic import ensure_scene
 from splat_framework.registry import get_method
@@ -63,7 +63,7 @@ def test_initial_model_is_the_one_from_before(method):
     overrides = deep_merge(overrides, RULES_OF_BEFORE.get(method, {}))
     cfg = apply_overrides(spec.default_config(), overrides)
     torch.manual_seed(0)
-    model = spec.model_class().from_data(cfg, dm, torch.Generator().manual_seed(0))
+    model = spec.model_class().from_data(cfg.model, RunFacts.of(cfg), dm, torch.Generator().manual_seed(0))
     rows, sums = BEFORE[method]
     assert model.num_gaussians == rows
     got = {k: float(p.detach().double().abs().sum()) for k, p in model.params.items()}

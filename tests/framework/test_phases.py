@@ -181,13 +181,14 @@ def test_building_a_model_from_start_points_is_a_phase_and_loading_one_is_not(te
     SCGaussian's 680k rows) is a phase of its own; rebuilding a trained model from its rows is not."""
     import torch
 
+    from splat_framework.config import RunFacts
     from splat_framework.model.gaussians import GaussianModel
     from splat_framework.registry import get_method
 
     cfg = get_method("3dgs").default_config()
-    model = GaussianModel(cfg, 1.0, torch.rand(50, 3), torch.rand(50, 3))
+    model = GaussianModel(cfg.model, RunFacts.of(cfg), 1.0, torch.rand(50, 3), torch.rand(50, 3))
     assert terminal.getvalue().count("building the model: done") == 1
-    GaussianModel(cfg, 1.0, None, None, rows={k: v.detach() for k, v in model.params.items()})
+    GaussianModel(cfg.model, RunFacts.of(cfg), 1.0, None, None, rows={k: v.detach() for k, v in model.params.items()})
     assert terminal.getvalue().count("building the model: done") == 1
 
 

@@ -84,7 +84,7 @@ def test_a_perturbed_test_camera_is_fitted_back_to_its_photo():
 def test_a_perturbed_training_camera_is_refined_back_while_training():
     """CameraRefiner as the trainer drives it (apply, backward of the render loss, step with the
     decaying rate): a training view's 1.3 degree error shrinks; the first view never moves."""
-    from splat_framework.engine.camera_refine import CameraRefiner
+    from splat_framework.pipeline.camera_refine import CameraRefiner
 
     model = CloudModel()
     for p in model.parameters():
@@ -121,7 +121,7 @@ def test_a_perturbed_training_camera_is_refined_back_while_training():
 
 
 def test_training_poses_count_as_estimated_for_a_pose_file_or_a_folder_of_photos(tmp_path):
-    from splat_framework.engine.camera_refine import poses_estimated, refine_enabled
+    from splat_framework.pipeline.camera_refine import poses_estimated, refine_enabled
     from splat_framework.registry import get_method
 
     photos = tmp_path / "photos"
@@ -147,7 +147,7 @@ def test_a_focal_factor_scales_fx_and_fy_only_and_passes_gradients():
 
 
 def test_a_refiner_without_focal_refinement_trains_and_saves_no_focal_factor():
-    from splat_framework.engine.camera_refine import CameraRefiner
+    from splat_framework.pipeline.camera_refine import CameraRefiner
 
     plain = CameraRefiner(3, 1e-3, 1e-3, 100)
     assert set(plain.tensors()) == {"camera_refine.rotation", "camera_refine.translation"}

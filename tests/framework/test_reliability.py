@@ -552,7 +552,7 @@ def test_refined_training_cameras_resume_exactly_and_are_the_poses_a_reloaded_ru
 
 
 def load_run_scene_camera(config, index: int):
-    from splat_framework.engine.run_scene import load_config_scene
+    from splat_framework.pipeline.scene import load_config_scene
 
     return load_config_scene(config).cameras[index].world_to_cam
 

@@ -64,7 +64,8 @@ def test_auto_path_is_spiral_for_forward_scenes(run_dir, monkeypatch):
 def test_spiral_cameras_look_at_the_scene(run_dir):
     from splat_framework.cameras import Camera
     from splat_framework.cli.render import camera_path
-    from splat_framework.engine.run import background_for, load_run
+    from splat_framework.engine.run import load_run
+    from splat_framework.pipeline.scene import background_for
 
     config, dm, model = load_run(run_dir)
     kind, cams = camera_path("spiral", dm, 8)

@@ -16,7 +16,7 @@ from splat_framework.registry import get_method
 
 
 def test_a_finished_run_folder_holds_the_references_files(run_dir):
-    from splat_framework.engine.run_scene import load_config_scene
+    from splat_framework.pipeline.scene import load_config_scene
 
     metrics = json.loads((run_dir / "metrics.json").read_text())
     steps = metrics["steps"]

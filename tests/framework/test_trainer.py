@@ -10,13 +10,14 @@ from pathlib import Path
 import pytest
 import torch
 
-from splat_framework.config import SCHEMA_VERSION, apply_overrides, read_config_json, save_config
+from splat_framework.config import SCHEMA_VERSION, RunFacts, apply_overrides, read_config_json, save_config
 from splat_framework.data import DataError, load_scene
 from splat_framework.data.datamanager import view_bytes
-from splat_framework.engine.memory_plan import parse_bytes
 from splat_framework.engine.run_folder import default_run_dir, prepare_run_dir
 from splat_framework.engine.trainer import Trainer
 from splat_framework.evaluation.held_out import evaluate
+from splat_framework.pipeline import Pipeline
+from splat_framework.pipeline.memory_plan import parse_bytes
 from splat_framework.registry import get_method
 from splat_framework.runtime.io import read_json
 from splat_framework.sfm import resolve_data_path
@@ -178,7 +179,7 @@ def test_a_model_loads_by_construction_then_restore(tmp_path, monkeypatch):
 
     monkeypatch.setattr(GaussianModel, "__init__", spy)
     monkeypatch.setattr(GaussianModel, "init_params", lambda *a: pytest.fail("a checkpoint is not initialised"))
-    model = GaussianModel.from_checkpoint(trainer.config, trainer.model.scene_scale, payload)
+    model = GaussianModel.from_checkpoint(trainer.config.model, RunFacts.of(trainer.config), trainer.model.scene_scale, payload)
     assert built == [True]  # normal construction, from the checkpoint's rows
     assert model.active_sh_degree == trainer.config.model.sh_degree
     for k, p in trainer.model.params.items():
@@ -194,7 +195,7 @@ def test_learning_rates_are_a_pure_function_of_the_step(tmp_path):
             g["lr"] = 123.0
     assert model.learning_rates(7) == at_7
     assert model.learning_rates(0)["means"] > at_7["means"] > model.learning_rates(20)["means"]
-    assert model.learning_rates(20)["means"] == pytest.approx(model.config.optim.means_lr_final * model.scene_scale)
+    assert model.learning_rates(20)["means"] == pytest.approx(model.run.optim.means_lr_final * model.scene_scale)
     trainer._set_learning_rates(7)
     assert {k: o.param_groups[0]["lr"] for k, o in trainer.optimizers.items()} == at_7
 
@@ -220,7 +221,7 @@ def test_memory_budget_from_environment(tmp_path, monkeypatch):
 
 
 def test_impossible_memory_is_reported_before_training(tmp_path, monkeypatch, capsys):
-    import splat_framework.engine.memory_plan as tr
+    import splat_framework.pipeline.memory_plan as tr
 
     monkeypatch.setattr(tr, "physical_memory_bytes", lambda: 8 * 2**20)  # 8 MiB machine
     with pytest.raises(DataError, match="needs about .* of memory"):
@@ -438,8 +439,8 @@ def test_the_model_declares_its_batch_fields(tmp_path, monkeypatch):
     makes is refused in one line naming it."""
     from splat_framework.model.gaussians import GaussianModel
 
-    assert GaussianModel.batch_fields(tiny_config(tmp_path / "a")) == frozenset()
-    assert GaussianModel.batch_fields(tiny_config(tmp_path / "b", model={"reg": {"backdrop_weight": 0.5}})) == {"backdrop"}
+    assert GaussianModel.batch_fields(tiny_config(tmp_path / "a").model) == frozenset()
+    assert GaussianModel.batch_fields(tiny_config(tmp_path / "b", model={"reg": {"backdrop_weight": 0.5}}).model) == {"backdrop"}
     monkeypatch.setattr(GaussianModel, "batch_fields", classmethod(lambda cls, config: frozenset({"normals"})))
     with pytest.raises(ValueError, match=r"DataManager makes no batch field \['normals'\]"):
         Trainer(tiny_config(tmp_path / "run", steps=2, progress=False))
@@ -463,9 +464,9 @@ def test_backdrop_loss_makes_the_backdrop_empty_and_black(tmp_path):
     losses["backdrop"].backward()
     assert float(model.params["opacities"].grad.sum()) > 0  # gradient descent lowers opacity
 
-    off = model.config.model.reg.model_copy(update={"backdrop_weight": 0.0})
+    off = model.config.reg.model_copy(update={"backdrop_weight": 0.0})
     assert type(off)().backdrop_weight == 0.0  # the default
-    model.config = model.config.model_copy(update={"model": model.config.model.model_copy(update={"reg": off})})
+    model.config = model.config.model_copy(update={"reg": off})
     assert set(model.get_loss_dict(out, batch | {"backdrop": back}, cam, 0)) == {"photometric"}
 
 
@@ -532,23 +533,39 @@ def test_coarse_steps_train_on_area_averaged_images_with_cameras_scaled_to_match
     assert dm.coarse_view(full, batch, 0.5)[1]["image"] is small["image"]  # made once, then kept
 
 
-def test_methods_run_through_the_default_pipeline_and_a_foreign_class_is_refused(tmp_path):
-    """3dgs and SCGaussian name no pipeline of their own: the trainer drives the framework's
-    Pipeline, which holds the same data manager and model; a spec naming a class that is not a
-    Pipeline stops the run with its name."""
+class HundredPointsPipeline(Pipeline):
+    """A pipeline that builds its model differently: from 100 init points, whatever the config says."""
+
+    def build_model(self, generator):
+        init = self.config.model.init.model_copy(update={"num_points": 100})
+        return self.model_class.from_data(self.config.model.model_copy(update={"init": init}), self.run_facts,
+                                          self.datamanager, generator)
+
+
+def test_methods_run_through_their_pipeline_which_builds_the_data_and_model_and_a_foreign_class_is_refused(tmp_path):
+    """3dgs names no pipeline of its own: the trainer drives the framework's Pipeline, which built the
+    data manager and the model; SCGaussian's subclasses it (the baseline schedule); a subclass that
+    builds its model differently trains; a spec naming a class that is not a Pipeline stops the run
+    with its name."""
     import dataclasses
 
-    from splat_framework.pipeline import Pipeline
+    from scg_plugin.pipeline import SCGaussianPipeline
 
-    for method in ("3dgs", "scgaussian"):
-        assert get_method(method).pipeline_class() is Pipeline
+    assert get_method("3dgs").pipeline_class() is Pipeline
+    assert get_method("scgaussian").pipeline_class() is SCGaussianPipeline
     spec = get_method("3dgs")
     cfg = spec.default_config().model_copy(update=dict(data="synthetic/forward-tiny", steps=2, output=tmp_path / "a",
                                                        progress=False, save_renders=False))
     trainer = Trainer(cfg, spec=spec)
-    assert type(trainer.pipeline) is Pipeline
+    assert type(trainer.pipeline) is Pipeline and trainer.config is trainer.pipeline.config
     assert trainer.pipeline.model is trainer.model and trainer.pipeline.datamanager is trainer.datamanager
+    assert trainer.model.init_stats["num_points"] == cfg.model.init.num_points != 100
     trainer.release()
+    own = dataclasses.replace(spec, pipeline=f"{__name__}:HundredPointsPipeline")
+    trainer = Trainer(cfg.model_copy(update={"output": tmp_path / "c"}), spec=own)
+    metrics = trainer.train()
+    assert metrics["init_stats"]["num_points"] == 100 and trainer.model.config.init.num_points == 100
+    assert cfg.model.init.num_points == trainer.config.model.init.num_points  # config.json keeps the run's config
     wrong = dataclasses.replace(spec, pipeline="splat_framework.model.gaussians:GaussianModel")
     with pytest.raises(TypeError, match="pipeline 'splat_framework.model.gaussians:GaussianModel' is not a Pipeline"):
         Trainer(cfg.model_copy(update={"output": tmp_path / "b"}), spec=wrong)

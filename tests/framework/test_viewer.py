@@ -75,7 +75,8 @@ def test_every_browser_starts_at_the_first_training_camera(viewer, run_dir):
 
 
 def test_render_button_shows_splats_own_render(viewer, run_dir):
-    from splat_framework.engine.run import background_for, load_run
+    from splat_framework.engine.run import load_run
+    from splat_framework.pipeline.scene import background_for
     from splat_framework.viewer.scene_viewer import PANEL_PIXELS
 
     _, dm, model = load_run(run_dir)

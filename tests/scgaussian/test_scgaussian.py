@@ -10,6 +10,7 @@ import torch
 from scg_plugin.losses import rendering_geometry_loss
 from scg_plugin.method import config_scgaussian
 from scg_plugin.model import SCGaussianModel
+from scg_plugin.pipeline import SCGaussianPipeline
 from scg_plugin.ray_gaussians import (
     MatchCache,
     _position_error_grad,
@@ -21,7 +22,7 @@ from scg_plugin.ray_gaussians import (
     warm_up,
     warmup_step_size,
 )
-from splat_framework.plugin import GaussianModel, config_3dgs, resolve_steps
+from splat_framework.plugin import GaussianModel, RunFacts, config_3dgs, resolve_steps
 from splat_framework.testing import (
     MatchSet,
     Trainer,
@@ -217,7 +218,7 @@ def _hybrid_model(dm, overrides=None, bound=True):
     uv_a = torch.tensor([[10.5, 10.5], [40.5, 30.5], [70.5, 60.5], [100.5, 80.5]])
     bundle = build_ray_bundle([(0, 1, uv_a, uv_a + 2.0)], cams, torch.Generator().manual_seed(0))
     free = torch.rand(6, 3) + torch.tensor([0.0, 0.0, 4.0])
-    model = SCGaussianModel(cfg, 1.0, free, torch.rand(6, 3), bundle, cams, imgs)
+    model = SCGaussianModel(cfg.model, RunFacts.of(cfg), 1.0, free, torch.rand(6, 3), bundle, cams, imgs)
     return cfg, model
 
 
@@ -322,21 +323,33 @@ def test_too_few_matches_warn_and_fall_back_to_ordinary_gaussians(scene, monkeyp
     assert metrics["init_stats"]["matches_digest"] == empty.digest()
 
 
+def pipeline_on(cfg, dm):
+    """SCGaussian's pipeline of ``cfg`` on the fixture's data manager ``dm``: a subclass that
+    builds its data differently (it takes ``dm``), then builds the model as every run does."""
+
+    class OnFixture(SCGaussianPipeline):
+        def build_datamanager(self):
+            return dm
+
+    return OnFixture(cfg, SCGaussianModel, torch.device("cpu"), torch.Generator().manual_seed(0))
+
+
 def assert_baseline_schedule(trainer):
     """The trainer's strategy and the model's SH schedule are 3dgs's at the run's budget, the
     strategy still SCGaussian's kind (ray-based Gaussians kept)."""
     from scg_plugin.config import RayStrategyConfig
 
     base = resolve_steps(config_3dgs().model_copy(update={"steps": trainer.config.total_steps}))
-    used = trainer.model.strategy_config()
+    used = trainer.pipeline.strategy_config()
     assert isinstance(used, RayStrategyConfig)
     assert trainer.strategy.config == used
     assert used.model_dump(exclude={"kind"}) == base.strategy.model_dump(exclude={"kind"})
-    assert trainer.model.baseline.sh_degree_interval == base.model.sh_degree_interval
+    assert trainer.pipeline.baseline.sh_degree_interval == base.model.sh_degree_interval
     trainer.model.on_step_start(base.model.sh_degree_interval)
     assert trainer.model.active_sh_degree == 1  # the baseline's SH schedule, not the run config's
-    assert trainer.model.config is trainer.config  # one config: the run's (config.json, --resume), unchanged
-    assert trainer.config.strategy != used
+    # one config: the run's (config.json, --resume), unchanged; the pipeline applied the schedule
+    assert trainer.pipeline.config is trainer.config and trainer.config.strategy != used
+    assert trainer.config.model.sh_degree_interval != base.model.sh_degree_interval
 
 
 def test_thin_prior_baseline_keeps_the_flags_the_user_set(scene, monkeypatch):
@@ -350,10 +363,10 @@ def test_thin_prior_baseline_keeps_the_flags_the_user_set(scene, monkeypatch):
     cfg = apply_overrides(config_scgaussian(), {"strategy": {"grow_grad2d": 0.001}, "model": {"sh_degree_interval": 7}})
     with pytest.warns(UserWarning, match=r"thin prior: .*refine_stop_iter .* kept as you set: "
                                           r"--model\.sh-degree-interval, --strategy\.grow-grad2d$"):
-        model = SCGaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
-    used = model.strategy_config()
-    assert used.grow_grad2d == 0.001 and model.baseline.sh_degree_interval == 7
-    assert "grow_grad2d" not in model.baseline.changed
+        pipeline = pipeline_on(cfg, dm)
+    used = pipeline.strategy_config()
+    assert used.grow_grad2d == 0.001 and pipeline.baseline.sh_degree_interval == 7
+    assert "grow_grad2d" not in pipeline.baseline.changed
     base = resolve_steps(config_3dgs().model_copy(update={"steps": cfg.total_steps}))
     assert used.refine_stop_iter == base.strategy.refine_stop_iter != cfg.strategy.refine_stop_iter
 
@@ -371,25 +384,27 @@ def test_sparse_prior_warns_and_adds_random_ordinary_gaussians(scene, monkeypatc
     )
     cfg = apply_overrides(config_scgaussian(), {"model": {"warmup_steps": 50}})
     with pytest.warns(UserWarning, match="only 100 verified matches .* adding 10000 random ordinary Gaussians"):
-        model = SCGaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
+        pipeline = pipeline_on(cfg, dm)
+    model = pipeline.model
     assert model.num_match_gaussians == 200 - model.init_stats.get("filtered_matches", 0) * 2
     assert model.num_gaussians == model.num_match_gaussians + 10000
     assert model.init_stats["baseline_schedule"] is True
-    assert model.strategy_config().grow_grad2d == 0.0002 != cfg.strategy.grow_grad2d  # 3dgs's threshold
+    assert pipeline.strategy_config().grow_grad2d == 0.0002 != cfg.strategy.grow_grad2d  # 3dgs's threshold
     no_baseline = apply_overrides(cfg, {"model": {"thin_prior_baseline": False}})
     with pytest.warns(UserWarning, match="only 100 verified matches"):
-        model = SCGaussianModel.from_data(no_baseline, dm, torch.Generator().manual_seed(0))
-    assert model.strategy_config() == no_baseline.strategy and not model.init_stats["baseline_schedule"]
+        pipeline = pipeline_on(no_baseline, dm)
+    assert pipeline.strategy_config() == no_baseline.strategy and not pipeline.model.init_stats["baseline_schedule"]
     # without the warning, the default still starts with init.num_points (10,000) random ordinary Gaussians
     cfg = apply_overrides(cfg, {"model": {"sparse_matches": 0}})
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        model = SCGaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
+        pipeline = pipeline_on(cfg, dm)
+    model = pipeline.model
     assert model.num_gaussians == model.num_match_gaussians + 10000
-    assert model.strategy_config() == cfg.strategy and not model.init_stats["baseline_schedule"]
+    assert pipeline.strategy_config() == cfg.strategy and not model.init_stats["baseline_schedule"]
     # sparse_matches = 0 and init.num_points = 0: ray-based Gaussians only (the only-ray variant)
     cfg = apply_overrides(cfg, {"model": {"sparse_matches": 0, "init": {"num_points": 0}}})
-    model = SCGaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
+    model = SCGaussianModel.from_data(cfg.model, RunFacts.of(cfg), dm, torch.Generator().manual_seed(0))
     assert model.num_gaussians == model.num_match_gaussians
 
 
@@ -399,7 +414,8 @@ def test_a_ply_start_gives_the_ordinary_gaussians_beside_the_ray_based_ones(scen
     import scg_plugin.startup as startup
 
     sc, dm, depths = scene
-    source = GaussianModel.from_data(get_method("3dgs-frustum").default_config(), dm, torch.Generator().manual_seed(0))
+    frustum = get_method("3dgs-frustum").default_config()
+    source = GaussianModel.from_data(frustum.model, RunFacts.of(frustum), dm, torch.Generator().manual_seed(0))
     ply = load_ply(export_ply(source, tmp_path / "start.ply"))
     uv_a, uv_b, _ = true_correspondences(dm, depths, 0, 1, n=100)
     ids = [int(i) for i in sc.train_indices]
@@ -411,7 +427,7 @@ def test_a_ply_start_gives_the_ordinary_gaussians_beside_the_ray_based_ones(scen
                                                           "init": {"kind": "ply", "path": str(tmp_path / "start.ply")}}})
     with warnings.catch_warnings(record=True) as said:
         warnings.simplefilter("always")
-        model = SCGaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
+        model = pipeline_on(cfg, dm).model
     # a sparse prior: nothing random added, so the one line is the switch to the baseline's schedule
     assert [str(w.message).split(":")[0] for w in said] == ["thin prior"]
     rays = model.num_match_gaussians
@@ -444,7 +460,8 @@ def test_rendering_geometry_loss_reads_a_coarse_render_at_its_own_pixel_size(sce
     bundle = build_ray_bundle([(0, 1, uv_a, uv_b)], cams, torch.Generator().manual_seed(0))
     imgs = [b["image"] for _, b in dm.train_views()]
     free = torch.rand(6, 3) + torch.tensor([0.0, 0.0, 4.0])
-    model = SCGaussianModel(config_scgaussian(), 1.0, free, torch.rand(6, 3), bundle, cams, imgs)
+    cfg = config_scgaussian()
+    model = SCGaussianModel(cfg.model, RunFacts.of(cfg), 1.0, free, torch.rand(6, 3), bundle, cams, imgs)
     full_cam, batch = dm.train_view(0)
     coarse_cam, _ = dm.coarse_view(full_cam, batch, 0.5)
     depth = torch.tensor(depths[0], dtype=torch.float32)[..., None]

@@ -53,8 +53,9 @@ def evaluate_run(args: EvalArgs) -> dict:
     from ..console import print_summary, starting
 
     with starting():
-        from ..engine.run import background_for, load_run
+        from ..engine.run import load_run
         from ..evaluation.held_out import evaluate
+        from ..pipeline.scene import background_for
         from ..runtime.io import atomic_write_json, read_json
 
     config, dm, model = load_run(args.run_dir, args.device, args.trust_edited_config)

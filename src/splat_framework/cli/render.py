@@ -78,10 +78,11 @@ def render_run(args: RenderArgs, replace: bool, check_video, inputs) -> Path:
     with starting():
         import torch
 
-        from ..engine.run import background_for, load_run
+        from ..engine.run import load_run
         from ..evaluation.held_out import scored_views, view_name
         from ..evaluation.pictures import colorize_depth, to_uint8, write_png
         from ..files.output_paths import RENDER_FOLDER, claim_output
+        from ..pipeline.scene import background_for
 
     config, dm, model = load_run(args.run_dir, args.device, args.trust_edited_config)
     bg = background_for(dm.scene, config.device)

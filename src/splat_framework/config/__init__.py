@@ -9,6 +9,7 @@ flag's help). Every name is importable from here; the modules say what each is:
 - :mod:`.strategy`: the densification strategies' configs,
 - :mod:`.model`: what every model reads (:class:`ModelConfig`), the opt-in regularisers
   (``model.reg``), the 3DGS model and its learning rates,
+- :mod:`.run_facts`: :class:`RunFacts`, what a model reads of its run besides ``config.model``,
 - :mod:`.train`: :class:`TrainConfig`, the command-line contract, and the experiment's fields,
 - :mod:`.schedule`: ``--steps`` rescaling the schedule (:data:`Steps` and :data:`StepFactor` fields),
 - :mod:`.merge`: overrides of variants and sweeps (:func:`apply_overrides`),
@@ -70,6 +71,7 @@ from .matching import (
 from .merge import apply_overrides, deep_merge
 from .model import GaussianModelConfig, ModelConfig, OptimConfig, RegularisersConfig
 from .persist import SavedConfig, config_payload, read_config_json, save_config
+from .run_facts import RunFacts
 from .schedule import follows_schedule, resolve_steps, scale_schedule
 from .strategy import DensifyConfig, RegisteredStrategies, StrategyConfig, strategy_field, strategy_kinds
 from .train import TrainConfig, experiment_fields, run_options
@@ -80,7 +82,7 @@ __all__ = [
     "PER_STEP_MARKER", "RUN_OPTION", "SCHEMA_VERSION", "SHORTEN_ONLY", "STEPS_MARKER",
     "DensifyConfig", "Device", "Finite", "Fraction", "GaussianModelConfig", "InitConfig", "InitKinds", "Interval",
     "InvalidArguments", "Kind", "KindConfig", "LearningRate", "Marker", "MatchConfig", "ModelConfig", "NonNegative", "OptimConfig", "OptionalPeriod",
-    "Period", "Positive", "RampPeriod", "RandomInitConfig", "RegisteredStrategies", "RegularisersConfig",
+    "Period", "Positive", "RampPeriod", "RandomInitConfig", "RegisteredStrategies", "RegularisersConfig", "RunFacts",
     "SavedConfig", "SplatConfig", "StartSteps", "StepFactor", "Steps", "StrategyConfig", "TrainConfig", "UPGRADES",
     "apply_overrides", "cli_parsing", "config_payload", "deep_merge", "experiment_fields", "init_field", "init_kinds", "read_config_json",
     "run_options", "flag_name", "follows_schedule", "resolve_steps", "save_config", "scale_schedule", "strategy_field", "strategy_kinds",

@@ -3,7 +3,7 @@ folder self-contained (``TrainConfig.resolved_data``, written into ``config.json
 
 A run settles its views when it starts (:func:`resolve_views`: the format's default where
 ``--views`` is not given), and records the absolute dataset folder and its split by image name
-(:func:`record_data`); reopening it (:func:`splat_framework.engine.run_scene.load_config_scene`)
+(:func:`record_data`); reopening it (:func:`splat_framework.pipeline.scene.load_config_scene`)
 reads that folder with that split (:func:`with_split`) from any shell. A run folder written
 before the record existed resolves ``data`` as it did then (``$SPLAT_DATA``, the split rules).
 """

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import torch
 
-from ..config import read_config_json, upgrade_saved_config
+from ..config import RunFacts, read_config_json, upgrade_saved_config
 from ..data.cache_dir import user_cache_dir
 from ..devices import resolve_config_devices
 from ..errors import CheckpointError, DataError
@@ -50,7 +50,7 @@ def _load_checkpointed(run_dir: Path, device: str | None, scene_scale: float, tr
     def rebuild(path: Path, ck: dict):
         check_structure(path, ck, max_step=config.total_steps)
         try:
-            model = spec.model_class().from_checkpoint(config, scene_scale, ck)
+            model = spec.model_class().from_checkpoint(config.model, RunFacts.of(config), scene_scale, ck)
             _renders(model)
         except (KeyError, ValueError, TypeError, IndexError, RuntimeError) as e:  # e.g. wrong per-row shapes
             first = (str(e).splitlines() or [""])[0]
@@ -82,8 +82,8 @@ def load_run(run_dir: Path, device: str | None = None, trust_edits: bool = False
     """(config, datamanager, model) of ``run_dir``, the model holding the newest good checkpoint."""
     from ..console import phase
     from ..data import DataManager
-    from .camera_refine import refined_cameras
-    from .run_scene import load_config_scene
+    from ..pipeline.camera_refine import refined_cameras
+    from ..pipeline.scene import load_config_scene
 
     with phase(f"loading {run_dir}: its newest checkpoint"):
         config, model, camera_refine = _load_checkpointed(run_dir, device, 1.0, trust_edits)
@@ -93,7 +93,3 @@ def load_run(run_dir: Path, device: str | None = None, trust_edits: bool = False
         datamanager = DataManager(scene, device=config.device, seed=config.seed)
         datamanager.cameras = refined_cameras(datamanager.cameras, datamanager.train_indices, camera_refine)
     return config, datamanager, model
-
-
-def background_for(scene, device) -> torch.Tensor:
-    return torch.full((3,), 1.0 if scene.white_background else 0.0, device=device)

@@ -188,3 +188,14 @@ def remove_if_unused(run_dir: Path, default_location: bool) -> bool:
             except OSError:  # not empty (other runs), or gone: leave it
                 break
     return True
+
+
+def starts_fresh(output: Path | None) -> bool:
+    """Whether a run writing to ``output`` (None: a new timestamped folder) starts in a folder that
+    holds nothing of a run yet: one that a failed start then removes again."""
+    return output is None or not Path(output).exists() or (Path(output).is_dir() and RUN_FOLDER.is_empty(Path(output)))
+
+
+def release_run_dir(run_dir: Path) -> None:
+    """Give up this process's lock on ``run_dir`` (:mod:`splat_framework.files.run_lock`)."""
+    run_lock.release(run_dir)

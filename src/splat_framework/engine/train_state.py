@@ -14,11 +14,19 @@ from typing import Any
 
 import torch
 
+from ..config import config_payload, save_config
 from ..console import say
 from ..model.strategy import unplain_state
 from ..runtime.rng import restore_rng_state, rng_state
-from .checkpoint import CheckpointError, check_structure, list_checkpoints, load_checkpoint, load_latest
-from .resume_check import check_checkpoint_record, experiment_record
+from .checkpoint import (
+    CheckpointError,
+    check_structure,
+    list_checkpoints,
+    load_checkpoint,
+    load_latest,
+    save_checkpoint,
+)
+from .resume_check import check_checkpoint_record, check_saved_config, experiment_record
 
 
 class TrainState:
@@ -57,9 +65,35 @@ class TrainState:
     _train_t0: float | None
     """perf_counter at the start of this process's training, None outside the loop."""
 
+    saving: bool
+    """A checkpoint is being written (a second stop signal waits for it)."""
+
     @property
     def checkpoint_dir(self) -> Path:
         return self.run_dir / "checkpoints"
+
+    def config_payload(self) -> dict:
+        return config_payload(self.config)
+
+    def write_config(self) -> None:
+        """``config.json``: the resolved config with its schema version and a checksum (atomic)."""
+        save_config(self.config, self.run_dir / "config.json")
+
+    def check_saved_config(self) -> bool:
+        """Before ``--resume`` loads anything: the run's config.json agrees with this run's config
+        (:func:`~splat_framework.engine.resume_check.check_saved_config`); whether it vouches for the
+        checkpoints."""
+        return check_saved_config(self.config, self.spec, self.run_dir)
+
+    def save(self, step: int) -> Path:
+        """Write the checkpoint of ``step`` (CheckpointError, one line, on failure).
+
+        A stop signal that arrives meanwhile waits for the write to finish."""
+        self.saving = True
+        try:
+            return save_checkpoint(self.checkpoint_dir, step, self.state_payload(step))
+        finally:
+            self.saving = False
 
     def _train_seconds(self) -> float:
         extra = time.perf_counter() - self._train_t0 if self._train_t0 is not None else 0.0

@@ -53,39 +53,26 @@ from __future__ import annotations
 
 import math
 import time
-from pathlib import Path
 from typing import Callable, Sequence
 
 import torch
 from torch import Tensor
 
-from ..config import TrainConfig, config_payload, resolve_steps, save_config
+from ..config import TrainConfig
 from ..console import phase, print_summary, say, show_progress
-from ..data import DataManager, describe_split, record_data, resolve_views
 from ..data.cache_dir import user_cache_dir
 from ..devices import resolve_config_devices
-from ..evaluation.metrics import psnr_tensor
-from ..files import run_lock
-from ..files.output_paths import RUN_FOLDER
 from ..model.strategy import Strategy
-from ..pipeline import Pipeline
+from ..pipeline import Pipeline, resolve_run_config
 from ..registry import MethodSpec, get_method
 from ..render import prepare_kernels, set_compile, set_rasterizer
-from ..runtime.allocator import keep_freed_memory
+from ..runtime.process import prepare_training_process
 from ..runtime.profiling import section
 from ..runtime.rng import seed_everything
-from ..runtime.threads import apply_process_threads
-from .camera_refine import CameraRefiner, refined_cameras
-from .checkpoint import save_checkpoint
-from .memory_plan import image_memory_budget, plan_memory
 from .numerics import first_nonfinite as _first_nonfinite
 from .numerics import optimized_tensors, trainable_tensors
-from .resume_check import check_saved_config
-from .run import background_for
-from .run_folder import continue_command, prepare_run_dir, remove_if_unused
-from .run_metrics import run_metrics
-from .run_outputs import RunLog, write_run_outputs
-from .run_scene import load_config_scene
+from .run_folder import continue_command, prepare_run_dir, release_run_dir, remove_if_unused, starts_fresh
+from .run_outputs import RunLog, run_metrics, write_run_outputs
 from .stop_signals import abandoned_message, evaluation_stopped_message, stop_signals
 from .train_state import TrainState
 
@@ -182,17 +169,16 @@ class Trainer(TrainState):
         self.command = None if command is None else list(command)
         defaults = self.spec.default_config() if defaults is None else defaults
         # views first: more may lengthen the schedule
-        self.config = resolve_steps(resolve_views(config, strict=False), defaults)
+        self.config = resolve_run_config(config, defaults)
         self.callbacks = list(callbacks)
         self.device = resolve_config_devices(self.config)["device"]  # every device field, before anything is written
-        out = self.config.output
-        fresh = out is None or not Path(out).exists() or (Path(out).is_dir() and RUN_FOLDER.is_empty(Path(out)))
+        fresh = starts_fresh(self.config.output)
         self.run_dir = prepare_run_dir(self.config)  # owned by this process from here on (run_lock)
         show_progress(self.config.progress)
         try:
             self.run_log = RunLog(self.run_dir, self.command, self.config.resume)  # train.log from here on
             # before any data or model work; whether config.json vouches for the checkpoints
-            self._config_verified = check_saved_config(self.config, self.spec, self.run_dir) if self.config.resume else True
+            self._config_verified = self.check_saved_config() if self.config.resume else True
             try:
                 self._setup()
             except KeyboardInterrupt:
@@ -204,7 +190,8 @@ class Trainer(TrainState):
             raise
 
     def _setup(self) -> None:
-        """Data, model (SCGaussian: matching, warm-up), optimizers and strategy."""
+        """The kernels, then the method's pipeline (data, model: SCGaussian's matching and warm-up),
+        then the optimizers and the strategy."""
         set_compile(self.config.compile, user_cache_dir())
         set_rasterizer(self.config.rasterizer)
         # built, loaded or compiled now, a phase of its own, not inside the first training step; a
@@ -214,42 +201,23 @@ class Trainer(TrainState):
         # the kernels' build or load is a row of its own, and total_s counts it
         self.timing: dict[str, float] = {"kernels_s": time.perf_counter() - t_kernels}
         self.generator = seed_everything(self.config.seed)
-        t0 = time.perf_counter()
-        with phase("loading data"):
-            scene = load_config_scene(self.config)
-            apply_process_threads()
-            keep_freed_memory()
-            budget = plan_memory(scene, self.config, image_memory_budget())
-            self.datamanager = DataManager(
-                scene, device=self.device, seed=self.config.seed, memory_budget_bytes=budget,
-                fields=self.spec.model_class().batch_fields(self.config),
-            )
-        self.config = record_data(self.config, scene)  # config.json names the folder and split: eval from any shell
-        split = describe_split(scene, self.config.views, self.config.test_every)
-        if split:
-            say(split)
-        self.timing["data_s"] = time.perf_counter() - t0
-        self.background = background_for(scene, self.device)
-        t0 = time.perf_counter()
-        self.model = self.spec.model_class().from_data(self.config, self.datamanager, self.generator).to(self.device)
-        self.timing.update(self.model.init_timing)
-        self.timing["init_s"] = time.perf_counter() - t0 - sum(self.model.init_timing.values())
+        prepare_training_process()
+        pipeline_class = self.spec.pipeline_class()
+        if not (isinstance(pipeline_class, type) and issubclass(pipeline_class, Pipeline)):
+            raise TypeError(f"method {self.spec.name!r}: pipeline {self.spec.pipeline!r} is not a Pipeline subclass")
+        self.pipeline = pipeline_class(self.config, self.spec.model_class(), self.device, self.generator)
+        self.config = self.pipeline.config  # with the data's folder and split recorded
+        self.timing.update(self.pipeline.timing)
         self.optimizers = self.model.make_optimizers()
-        strategy_config = self.model.strategy_config()
+        strategy_config = self.pipeline.strategy_config()
         self.strategy = strategy_config.setup()
         if not isinstance(self.strategy, Strategy):
             raise TypeError(
                 f"{type(strategy_config).__name__}.setup() returned {type(self.strategy).__name__}, not a Strategy"
             )
+        self.densifies = strategy_config.enabled
         self.strategy.check_sanity(self.model.params, self.optimizers)  # a model breaking the ops conventions fails here
         self.strategy_state = self.strategy.initialize_state(scene_scale=self.model.scene_scale)
-        self.camera_refiner = CameraRefiner.for_run(self.config, len(self.datamanager.train_indices),
-                                                    self.model.scene_scale, self.device)
-        # the data and the model, one step's batch and loss, the evaluation: the method's pipeline
-        pipeline_class = self.spec.pipeline_class()
-        if not (isinstance(pipeline_class, type) and issubclass(pipeline_class, Pipeline)):
-            raise TypeError(f"method {self.spec.name!r}: pipeline {self.spec.pipeline!r} is not a Pipeline subclass")
-        self.pipeline = pipeline_class(self.config, self.datamanager, self.model, self.background, self.camera_refiner)
         self.start_step = 0
         self.nonfinite_streak = 0
         self.skipped_steps = 0
@@ -268,6 +236,26 @@ class Trainer(TrainState):
         if not self.config.resume:  # a resumed run's is written once its checkpoint's record is checked
             self.write_config()
 
+    @property
+    def datamanager(self):
+        """The pipeline's data manager."""
+        return self.pipeline.datamanager
+
+    @property
+    def model(self):
+        """The pipeline's model."""
+        return self.pipeline.model
+
+    @property
+    def background(self) -> Tensor:
+        """[3] the background colour the pipeline's renders composite over."""
+        return self.pipeline.background
+
+    @property
+    def camera_refiner(self):
+        """The pipeline's camera refiner (None unless ``--camera-refine.mode`` refines poses)."""
+        return self.pipeline.camera_refiner
+
     def _setup_interrupted(self, fresh: bool) -> str:
         """The one-line message of a stop during setup; a run folder this run created (still empty) is removed."""
         what = "interrupted during setup (data, matching, warm-up), before any training step"
@@ -282,30 +270,12 @@ class Trainer(TrainState):
             return "continue with --resume"
         return f"continue with: {continue_command(self.command, self.run_dir)}"
 
-    # ------------------------------------------------------------- config
-    def config_payload(self) -> dict:
-        return config_payload(self.config)
-
-    def write_config(self) -> None:
-        """``config.json``: the resolved config with its schema version and a checksum (atomic)."""
-        save_config(self.config, self.run_dir / "config.json")
-
     def release(self) -> None:
         """Give up the run folder: its log closed (:class:`~splat_framework.engine.run_outputs.RunLog`),
         then its lock (:mod:`splat_framework.files.run_lock`): done writing."""
         if getattr(self, "run_log", None) is not None:  # None: released before the log opened
             self.run_log.close()
-        run_lock.release(self.run_dir)
-
-    def save(self, step: int) -> Path:
-        """Write the checkpoint of ``step`` (CheckpointError, one line, on failure).
-
-        A stop signal that arrives meanwhile waits for the write to finish."""
-        self.saving = True
-        try:
-            return save_checkpoint(self.checkpoint_dir, step, self.state_payload(step))
-        finally:
-            self.saving = False
+        release_run_dir(self.run_dir)
 
     def request_stop(self, reason: str = "stop requested") -> None:
         """Stop after the current step, writing a checkpoint (what SIGINT/SIGTERM do)."""
@@ -341,7 +311,7 @@ class Trainer(TrainState):
                                  "which the model's loss already has")
             losses |= extra
             loss = sum(losses.values())
-        densify = model.densify_now(step)
+        densify = self.densifies
         if densify:
             self.strategy.step_pre_backward(model.params, self.optimizers, self.strategy_state, step, outputs.meta)
         with section("backward"):
@@ -382,7 +352,7 @@ class Trainer(TrainState):
             for k, v in (counts or {}).items():
                 self.densified[k] = self.densified.get(k, 0) + int(v)
         with section("metrics"), torch.no_grad():  # kept on the device: read when shown (_step_info)
-            train_psnr = psnr_tensor(outputs.rgb.detach().clamp(0, 1), batch["image"])
+            train_psnr = self.pipeline.train_psnr(outputs, batch)
             return {k: v.detach() for k, v in losses.items()} | {"loss": loss.detach()}, train_psnr
 
     def _checked_tensors(self, loss: Tensor) -> dict[str, Tensor | None]:
@@ -482,9 +452,7 @@ class Trainer(TrainState):
             self._train_t0 = None
             self.timing["train_s"] = self._train_prior_s
             self.save(step)  # == total, unless resumed past a shortened --steps
-        if self.camera_refiner is not None:  # training views are scored at the poses they trained at
-            self.datamanager.cameras = refined_cameras(self.datamanager.cameras, self.datamanager.train_indices,
-                                                       self.camera_refiner.state_dict())
+        self.pipeline.use_trained_poses()  # training views are scored at the poses they trained at
         write_run_outputs(self.run_dir, self.datamanager, self.model, step)  # the reference's point_cloud/, cameras.json
         t0 = time.perf_counter()
         try:

@@ -30,7 +30,7 @@ import torch
 from torch import Tensor, nn
 
 from ..cameras import Camera
-from ..config import TrainConfig
+from ..config import GaussianModelConfig, RunFacts
 from ..console import phase
 from ..losses import photometric_loss
 from ..matching.geometry import view_angle
@@ -75,24 +75,27 @@ def log_lerp(start: float, final: float, t: float) -> float:
 class GaussianModel(nn.Module):
     """Vanilla 3D Gaussian Splatting, and the lifecycle every method's model follows.
 
-    The hooks, in the order :class:`splat_framework.engine.trainer.Trainer` calls them:
+    Every hook the framework calls, in the order it calls them (the pipeline,
+    :class:`splat_framework.pipeline.Pipeline`, builds the model and asks for each step's render and
+    loss; the trainer, :class:`splat_framework.engine.trainer.Trainer`, runs the rest):
 
     ==========================================================  =====================================
     hook (receives)                                             returns / does
     ==========================================================  =====================================
-    **set-up**
+    **set-up** (the pipeline)
     ``batch_fields(config)`` (classmethod, before the data)     the optional batch fields its loss
                                                                 reads (``backdrop``), so the data
                                                                 manager makes them
-    ``from_data(config, datamanager, generator)``               the model; builds it with ``__init__``,
+    ``from_data(config, run, datamanager, generator)``          the model; builds it with ``__init__``,
     (classmethod)                                               which calls ``init_params(points,
-                                                                colors)`` (rows) and ``build_networks()``;
-                                                                then ``keep_training_views(datamanager)``
+                                                                colors)`` (Gaussians) and
+                                                                ``build_networks()``; then
+                                                                ``keep_training_views(datamanager)``
                                                                 (the multi-view regulariser's partners)
     ``init_timing``, ``init_stats`` (attributes)                seconds and numbers for metrics.json
+    **set-up** (the trainer)
     ``make_optimizers()``                                       {name: Optimizer}
-    ``strategy_config()``                                       the StrategyConfig it trains with
-    ``restore(checkpoint, device)`` (``--resume``, a restore    loads rows, ``networks``, then
+    ``restore(checkpoint, device)`` (``--resume``, a restore    loads Gaussians, ``networks``, then
     after faults)                                               ``load_extra_state(state)``; the
                                                                 trainer then calls ``make_optimizers()``
     **each step**
@@ -103,35 +106,35 @@ class GaussianModel(nn.Module):
     ``get_loss_dict(outputs, batch, camera, step)``             {term: scalar Tensor}, summed; ``batch``
                                                                 carries ``image``, ``index``,
                                                                 ``train_position`` and the masks
-    ``gaussian_log_scales(outputs)`` (from ``get_loss_dict``    [N, 3] log-scales the scale regularisers
-    when ``model.reg.anisotropy_weight`` > 0)                   of ``model.reg`` act on
-                                                                (:meth:`regulariser_terms` hands
-                                                                them and a re-render to them)
-    ``densify_now(step)``                                       bool: the strategy runs this step
     ``trainable_keys(step)``                                    optimizer names to step (None: all)
     ``after_optimizer_step(step, losses, optimizers)``          a ``ops.RowChange`` when it resized
-                                                                the rows (``ops.remove``, ``append``
-                                                                with an empty state), else None
-    ``prepare_for_strategy()`` (when densifying)                None (``params["means"]`` true)
+                                                                the Gaussians (``ops.remove``,
+                                                                ``append`` with an empty state), else None
+    ``prepare_for_strategy()`` (when the strategy runs)         None (``params["means"]`` true)
     **checkpoint**
-    ``extra_state()``                                           dict of state beyond rows and networks
+    ``extra_state()``                                           dict of state beyond Gaussians and networks
     **end of training**
     ``get_outputs(camera, background)`` (evaluation)            RenderOutput of a test view
     ``report(datamanager)``                                     dict for metrics.json, or None
     **loading a run** (splat-eval, -render, -export, -view)
-    ``from_checkpoint(config, scene_scale, checkpoint)``        the model: ``__init__`` with ``rows``,
+    ``from_checkpoint(config, run, scene_scale, checkpoint)``   the model: ``__init__`` with ``rows``,
     (classmethod)                                               then ``restore(checkpoint)``, then
                                                                 ``on_loaded()`` (every SH degree)
     ``export_gaussians()`` (PLY export, viewer)                 standard 3DGS Gaussians
     ==========================================================  =====================================
 
+    The model receives its own config and the run's facts, never the run config: which strategy
+    densifies it is the pipeline's choice (:meth:`Pipeline.strategy_config`).
+
     Args:
-        config: the run config (``config.model`` is a GaussianModelConfig).
+        config: the model's config (the run's ``config.model``, a GaussianModelConfig).
+        run: what it reads of the run besides (:class:`~splat_framework.config.RunFacts`: total
+            steps, seed, coarse steps, learning rates).
         scene_scale: spatial scale of the scene (position lr and size thresholds).
         points: [M, 3] initial positions (None with ``rows``).
         colors: [M, 3] initial colours in [0, 1] (None with ``rows``).
-        rows: the per-row tensors of a trained model (a checkpoint's ``params``), taken as they are
-            instead of initialising from ``points``; :meth:`restore` then loads the rest.
+        rows: the per-Gaussian tensors of a trained model (a checkpoint's ``params``), taken as they
+            are instead of initialising from ``points``; :meth:`restore` then loads the rest.
     """
 
     init_timing: Mapping[str, float] = MappingProxyType({})
@@ -149,11 +152,12 @@ class GaussianModel(nn.Module):
     """Per-row tensors that are not optimised (a model rebuilt from a checkpoint keeps them so)."""
 
     def __init__(
-        self, config: TrainConfig, scene_scale: float, points: Tensor | None, colors: Tensor | None,
-        *, rows: Mapping[str, Tensor] | None = None,
+        self, config: GaussianModelConfig, run: RunFacts, scene_scale: float, points: Tensor | None,
+        colors: Tensor | None, *, rows: Mapping[str, Tensor] | None = None,
     ):
         super().__init__()
         self.config = config
+        self.run = run
         self._partner_orders: dict[tuple[int, int, float], list[int]] = {}
         """training_partners' choices, (view, k, max_angle) -> indices into train_cameras."""
         self.scene_scale = float(scene_scale)
@@ -179,18 +183,19 @@ class GaussianModel(nn.Module):
 
     # ------------------------------------------------------------------ build
     @classmethod
-    def batch_fields(cls, config: TrainConfig) -> frozenset[str]:
+    def batch_fields(cls, config: GaussianModelConfig) -> frozenset[str]:
         """The optional fields this model's training batches must carry, so the data manager makes
         them (``image``, ``index``, ``train_position`` and a scene's masks and depths are always
-        there): ``backdrop`` when ``model.reg.backdrop_weight`` > 0. Called before the data is loaded."""
-        return frozenset({"backdrop"} if config.model.reg.backdrop_weight > 0 else ())
+        there): ``backdrop`` when ``reg.backdrop_weight`` > 0. Called before the data is loaded."""
+        return frozenset({"backdrop"} if config.reg.backdrop_weight > 0 else ())
 
     @classmethod
-    def from_data(cls, config: TrainConfig, datamanager, generator: torch.Generator) -> "GaussianModel":
-        """Build the model for a dataset, from the start ``config.model.init`` describes
+    def from_data(cls, config: GaussianModelConfig, run: RunFacts, datamanager,
+                  generator: torch.Generator) -> "GaussianModel":
+        """Build the model for a dataset, from the init ``config.init`` describes
         (:func:`~splat_framework.model.init.initial_points`)."""
-        start = initial_points(config.model.init, datamanager, generator)
-        model = cls(config, datamanager.scene.scene_radius, start.points, start.colors)
+        start = initial_points(config.init, datamanager, generator)
+        model = cls(config, run, datamanager.scene.scene_radius, start.points, start.colors)
         model.keep_training_views(datamanager)
         model.init_timing = start.timing
         model.init_stats = {"num_points": int(start.points.shape[0])} | start.stats
@@ -209,7 +214,7 @@ class GaussianModel(nn.Module):
         return nn.ModuleDict()
 
     def init_params(self, points: Tensor, colors: Tensor) -> dict[str, nn.Parameter]:
-        cfg = self.config.model
+        cfg = self.config
         n = points.shape[0]
         dev = points.device
         scales = torch.log(knn_scale(points) * cfg.init_scale)[:, None].repeat(1, 3)
@@ -237,8 +242,8 @@ class GaussianModel(nn.Module):
         """The learning rate of every optimizer at ``step``, a pure function of the step (a resumed
         run gets the same rates): 3DGS's base rates, the position rate decaying exponentially
         from ``means_lr`` to ``means_lr_final`` over the run. A subclass adds its own keys."""
-        o = self.config.optim
-        t = run_fraction(step, self.config.total_steps)
+        o = self.run.optim
+        t = run_fraction(step, self.run.total_steps)
         return {
             "means": log_lerp(o.means_lr, o.means_lr_final, t) * self.scene_scale,
             "quats": o.quats_lr,
@@ -261,19 +266,8 @@ class GaussianModel(nn.Module):
         """Parameter keys to update at ``step`` (None = all)."""
         return None
 
-    def strategy_config(self):
-        """The densification this model trains with (a ``StrategyConfig``): the run's
-        ``config.strategy``, or another a model chose in ``from_data`` after seeing its data
-        (SCGaussian with a thin prior trains as its 3DGS baseline)."""
-        return self.config.strategy
-
-    def densify_now(self, step: int) -> bool:
-        """Whether the densification strategy runs at ``step``."""
-        return self.strategy_config().enabled
-
     def on_step_start(self, step: int) -> None:
-        interval = max(self.config.model.sh_degree_interval, 1)
-        self.active_sh_degree = min(step // interval, self.config.model.sh_degree)
+        self.active_sh_degree = min(step // max(self.config.sh_degree_interval, 1), self.config.sh_degree)
 
     def drop_opacities(self, opacities: Tensor, step: int | None) -> Tensor:
         """[N] activated opacities as step ``step``'s training render draws them: DropGaussian
@@ -282,13 +276,13 @@ class GaussianModel(nn.Module):
         each row multiplied by (1 + opacity_noise * a standard normal draw), floored at 0. The draws
         are a pure function of (seed, step), so a resumed run repeats them. With ``step`` None (not
         a training render) or both off, ``opacities`` unchanged."""
-        reg = self.config.model.reg
+        reg = self.config.reg
         if step is None:
             return opacities
-        rate = reg.drop_rate * min(step / max(self.config.total_steps, 1), 1.0)
+        rate = reg.drop_rate * min(step / max(self.run.total_steps, 1), 1.0)
         if rate <= 0 and reg.opacity_noise <= 0:
             return opacities
-        draws = keyed_generator(self.config.seed, step)
+        draws = keyed_generator(self.run.seed, step)
         if rate > 0:
             keep = torch.rand(opacities.shape[0], generator=draws) >= rate
             opacities = opacities * (keep.to(opacities) / (1.0 - rate))
@@ -352,7 +346,7 @@ class GaussianModel(nn.Module):
             sh_degree=d,
             background=background,
             near_plane=0.01,
-            depth_mode=self.config.model.depth_mode,
+            depth_mode=self.config.depth_mode,
         )
 
     def get_loss_dict(
@@ -363,7 +357,7 @@ class GaussianModel(nn.Module):
         ``model.reg`` switches on (:func:`~splat_framework.model.regularisers.regulariser_terms`)."""
         target, terms = self.regulariser_terms(outputs, batch, camera, step)
         with section("photometric"):
-            return {"photometric": photometric_loss(outputs.rgb, target, lambda_dssim=self.config.model.lambda_dssim)} | terms
+            return {"photometric": photometric_loss(outputs.rgb, target, lambda_dssim=self.config.lambda_dssim)} | terms
 
     def regulariser_terms(self, outputs: RenderOutput, batch: dict, camera: Camera, step: int) -> tuple[Tensor, dict[str, Tensor]]:
         """(photometric target, {term: scalar}) of the opt-in regularisers ``model.reg`` switches on
@@ -371,8 +365,8 @@ class GaussianModel(nn.Module):
         this model: the run's seed and length, :meth:`gaussian_log_scales`, a training re-render
         of another camera (the stereo term's partner view), :meth:`training_partners` and :meth:`training_view`."""
         return regulariser_terms(
-            self.config.model.reg, outputs, batch, camera, step, seed=self.config.seed,
-            total_steps=self.config.total_steps, log_scales=lambda: self.gaussian_log_scales(outputs),
+            self.config.reg, outputs, batch, camera, step, seed=self.run.seed,
+            total_steps=self.run.total_steps, log_scales=lambda: self.gaussian_log_scales(outputs),
             render=lambda view: self.get_outputs(view, outputs.meta.get("background"), step=step),
             partners=lambda k, angle: self.training_partners(batch.get("train_position"), k, angle),
             own=lambda: self.training_view(batch.get("train_position")),
@@ -404,17 +398,18 @@ class GaussianModel(nn.Module):
 
     # ---------------------------------------------------------------- load
     @classmethod
-    def from_checkpoint(cls, config: TrainConfig, scene_scale: float, checkpoint: dict) -> "GaussianModel":
+    def from_checkpoint(cls, config: GaussianModelConfig, run: RunFacts, scene_scale: float,
+                        checkpoint: dict) -> "GaussianModel":
         """A trained model from a checkpoint payload: normal construction from its rows (no
         initialisation work), then :meth:`restore`; it renders with every SH degree."""
-        model = cls(config, scene_scale, None, None, rows=checkpoint["params"])
+        model = cls(config, run, scene_scale, None, None, rows=checkpoint["params"])
         model.restore(checkpoint)
         model.on_loaded()
         return model
 
     def on_loaded(self) -> None:
         """After :meth:`from_checkpoint`'s restore: render with every SH degree."""
-        self.active_sh_degree = self.config.model.sh_degree
+        self.active_sh_degree = self.config.sh_degree
 
     def as_params(self, rows: Mapping[str, Tensor], like: Mapping[str, Tensor] | None = None) -> dict[str, nn.Parameter]:
         """``rows`` as parameters, each trainable as the same key of ``like`` is, else when it holds

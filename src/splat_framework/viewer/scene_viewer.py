@@ -399,7 +399,8 @@ class Viewer:
 def view_run(run_dir: Path, port: int = 8080, host: str = LOOPBACK, device: str | None = None,
              trust_edits: bool = False) -> Viewer:
     """A :class:`Viewer` of a trained run: its newest checkpoint, training and test cameras."""
-    from ..engine.run import background_for, load_run
+    from ..engine.run import load_run
+    from ..pipeline.scene import background_for
 
     config, dm, model = load_run(run_dir, device, trust_edits)
     viewer = Viewer(port=port, host=host)

@@ -20,7 +20,7 @@ from splat_framework.config import TrainConfig, save_config
 from splat_framework.data import DataError, describe_split, load_scene, resolve_views
 from splat_framework.data.parsers import detect_format
 from splat_framework.data.splits import default_views
-from splat_framework.engine.run_scene import load_config_scene
+from splat_framework.pipeline.scene import load_config_scene
 from splat_framework.runtime.io import read_json
 from support import make_blender, make_colmap, make_dtu, make_llff
 

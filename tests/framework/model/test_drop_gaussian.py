@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from splat_framework.config import apply_overrides
+from splat_framework.config import RunFacts, apply_overrides
 from splat_framework.data import DataManager, load_scene
 from splat_framework.data.synthetic import generate_scene
 from splat_framework.model.gaussians import GaussianModel
@@ -25,7 +25,8 @@ def _config(method: str, rate: float, seed: int = 0, noise: float = 0.0):
 
 
 def _model(dm, rate: float, seed: int = 0, noise: float = 0.0) -> GaussianModel:
-    return GaussianModel.from_data(_config("3dgs", rate, seed, noise), dm, torch.Generator().manual_seed(0))
+    cfg = _config("3dgs", rate, seed, noise)
+    return GaussianModel.from_data(cfg.model, RunFacts.of(cfg), dm, torch.Generator().manual_seed(0))
 
 
 def test_drop_rate_ramps_with_the_run_and_is_a_function_of_seed_and_step(dm):
@@ -80,7 +81,8 @@ def test_opacity_noise_is_multiplicative_per_step_and_off_in_evaluation(dm):
 def test_anchor_models_drop_their_decoded_gaussians(dm):
     from anchor_gs.model import ScaffoldModel
 
-    model = ScaffoldModel.from_data(_config("scaffold-gs", 0.6), dm, torch.Generator().manual_seed(0))
+    cfg = _config("scaffold-gs", 0.6)
+    model = ScaffoldModel.from_data(cfg.model, RunFacts.of(cfg), dm, torch.Generator().manual_seed(0))
     cam, _ = next(iter(dm.train_views()))
     with torch.no_grad():
         full = model.get_outputs(cam)

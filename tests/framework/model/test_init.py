@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from splat_framework.cameras import Camera
-from splat_framework.config import apply_overrides
+from splat_framework.config import RunFacts, apply_overrides
 from splat_framework.config.init import RandomInitConfig
 from splat_framework.data import DataManager, load_scene
 from splat_framework.data.synthetic import generate_scene
@@ -63,7 +63,7 @@ def test_3dgs_starts_from_the_reference_random_init_and_frustum_is_a_variant(for
     cams, imgs = zip(*[(c, b["image"]) for c, b in forward_dm.train_views()])
     cfg = get_method("3dgs").default_config()
     assert cfg.model.init.kind == "random"
-    model = GaussianModel.from_data(cfg, forward_dm, torch.Generator().manual_seed(0))
+    model = GaussianModel.from_data(cfg.model, RunFacts.of(cfg), forward_dm, torch.Generator().manual_seed(0))
     box = frustum_box(list(cams))
     means = model.params["means"].detach()
     assert (means >= box[0] - 1e-5).all() and (means <= box[1] + 1e-5).all()
@@ -73,7 +73,7 @@ def test_3dgs_starts_from_the_reference_random_init_and_frustum_is_a_variant(for
     frustum = get_method("3dgs-frustum").default_config()
     assert frustum.model.init.kind == "frustum"
     assert apply_overrides(cfg, {"model": {"init": {"kind": "frustum"}}}).model.init == frustum.model.init
-    model = GaussianModel.from_data(frustum, forward_dm, torch.Generator().manual_seed(0))
+    model = GaussianModel.from_data(frustum.model, RunFacts.of(frustum), forward_dm, torch.Generator().manual_seed(0))
     expected, _ = sample_frustum_points(list(cams), list(imgs), frustum.model.init.num_points, torch.Generator().manual_seed(0))
     assert torch.allclose(model.params["means"].detach(), expected)
     assert model.params["sh0"].detach().std(0).max() > 0.1  # pixel colours, not one grey
@@ -119,18 +119,18 @@ def test_ply_kind_starts_3dgs_from_an_exported_model(tmp_path, forward_dm):
     from splat_framework.export.ply import export_ply, load_ply
 
     cfg = get_method("3dgs-frustum").default_config()
-    source = GaussianModel.from_data(cfg, forward_dm, torch.Generator().manual_seed(0))
+    source = GaussianModel.from_data(cfg.model, RunFacts.of(cfg), forward_dm, torch.Generator().manual_seed(0))
     path = export_ply(source, tmp_path / "start.ply")
     ply = load_ply(path)
     cfg = apply_overrides(get_method("3dgs").default_config(), {"model": {"init": {"kind": "ply", "path": str(path)}}})
-    model = GaussianModel.from_data(cfg, forward_dm, torch.Generator().manual_seed(1))
+    model = GaussianModel.from_data(cfg.model, RunFacts.of(cfg), forward_dm, torch.Generator().manual_seed(1))
     assert torch.equal(model.params["means"].detach(), ply["means"])
     assert torch.allclose(model.params["sh0"].detach(), ply["sh0"], atol=1e-5)
     assert model.init_stats == {"num_points": ply["means"].shape[0]}
     with pytest.raises(DataError, match="missing.ply"):
-        GaussianModel.from_data(cfg.model_copy(update={"model": cfg.model.model_copy(
-            update={"init": cfg.model.init.model_copy(update={"path": tmp_path / "missing.ply"})})}),
-            forward_dm, torch.Generator())
+        GaussianModel.from_data(cfg.model.model_copy(
+            update={"init": cfg.model.init.model_copy(update={"path": tmp_path / "missing.ply"})}),
+            RunFacts.of(cfg), forward_dm, torch.Generator())
 
 
 @pytest.mark.bad_input("`--model.init.kind` naming a kind the method does not take", "exit 2, one line naming the kinds it takes")
@@ -171,7 +171,8 @@ def test_triangulation_without_matches_falls_back_to_the_reference_random_init(f
         lambda matching, dm: MatchSet(view_ids=[int(i) for i in dm.scene.train_indices], matches={}),
     )
     with pytest.warns(UserWarning, match="too few triangulated matches"):
-        model = GaussianModel.from_data(get_method("3dgs-triang").default_config(), dm, torch.Generator().manual_seed(0))
+        cfg = get_method("3dgs-triang").default_config()
+        model = GaussianModel.from_data(cfg.model, RunFacts.of(cfg), dm, torch.Generator().manual_seed(0))
     assert model.num_gaussians == FALLBACK_POINTS
     box = frustum_box(dm.train_cameras)
     means = model.params["means"].detach()

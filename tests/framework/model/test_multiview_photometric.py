@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from splat_framework.cameras import Camera, intrinsics
-from splat_framework.config import apply_overrides
+from splat_framework.config import RunFacts, apply_overrides
 from splat_framework.losses import multiview_photometric
 from splat_framework.model.gaussians import GaussianModel
 from splat_framework.registry import get_method
@@ -94,7 +94,7 @@ def test_edge_ratio_skips_the_pixels_across_an_occluding_edge_and_nothing_on_a_s
 def test_the_multiview_term_compares_each_view_with_its_nearest_until_its_stop_and_reaches_the_gaussians(dm):
     cfg = apply_overrides(get_method("3dgs").default_config(), {
         "steps": 20, "model": {"reg": {"multiview_weight": 1.0, "multiview_partners": 1, "multiview_until": 0.5}, "init": {"num_points": 2000}}})
-    model = GaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
+    model = GaussianModel.from_data(cfg.model, RunFacts.of(cfg), dm, torch.Generator().manual_seed(0))
     assert len(model.train_cameras) == len(model.train_images) == 3
     centres = torch.stack([c.center for c in model.train_cameras]).float()
     for k, (cam, batch) in enumerate(dm.train_views()):
@@ -110,7 +110,7 @@ def test_the_multiview_term_compares_each_view_with_its_nearest_until_its_stop_a
     term.backward()
     assert model.params["means"].grad.abs().sum() > 0
     off = apply_overrides(cfg, {"model": {"reg": {"multiview_weight": 0.0}}})
-    plain = GaussianModel.from_data(off, dm, torch.Generator().manual_seed(0))
+    plain = GaussianModel.from_data(off.model, RunFacts.of(off), dm, torch.Generator().manual_seed(0))
     assert "multiview" not in plain.get_loss_dict(plain.get_outputs(cam, step=5), batch, cam, 5)
 
 
@@ -118,7 +118,7 @@ def test_partners_beyond_the_angle_are_left_out_and_the_term_with_them(dm):
     """The training views' optical axes here differ by 3.4 (0-1), 5.8 (0-2) and 8.2 (1-2) degrees."""
     cfg = apply_overrides(get_method("3dgs").default_config(), {
         "steps": 20, "model": {"reg": {"multiview_weight": 1.0, "multiview_max_angle": 4.0}, "init": {"num_points": 2000}}})
-    model = GaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
+    model = GaussianModel.from_data(cfg.model, RunFacts.of(cfg), dm, torch.Generator().manual_seed(0))
     cams = model.train_cameras
     assert [c for c, _ in model.training_partners(0, 2, 4.0)] == [cams[1]]
     assert [c for c, _ in model.training_partners(1, 2, 4.0)] == [cams[0]]
@@ -140,7 +140,7 @@ def test_the_partners_are_chosen_once_per_view_not_every_step(dm, monkeypatch):
     monkeypatch.setattr(gaussians, "_nearest_within", lambda *a: calls.append(a[1:]) or real(*a))
     cfg = apply_overrides(get_method("3dgs").default_config(), {
         "steps": 20, "model": {"reg": {"multiview_weight": 1.0}, "init": {"num_points": 2000}}})
-    model = GaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
+    model = GaussianModel.from_data(cfg.model, RunFacts.of(cfg), dm, torch.Generator().manual_seed(0))
     cam, batch = next(iter(dm.train_views()))
     for step in range(3):
         assert "multiview" in model.get_loss_dict(model.get_outputs(cam, step=step), batch, cam, step)
@@ -211,7 +211,7 @@ def test_a_render_between_two_photos_agrees_with_them_only_with_the_scenes_depth
 def test_the_pseudo_view_term_draws_its_view_per_seed_and_step_stops_and_reaches_the_gaussians(dm):
     cfg = apply_overrides(get_method("3dgs").default_config(), {
         "steps": 20, "model": {"reg": {"pseudo_view_weight": 1.0, "pseudo_view_until": 0.5}, "init": {"num_points": 2000}}})
-    model = GaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
+    model = GaussianModel.from_data(cfg.model, RunFacts.of(cfg), dm, torch.Generator().manual_seed(0))
     cam, batch = next(iter(dm.train_views()))
     assert model.training_view(0)[0] is model.train_cameras[0] and model.training_view(None) is None
 
@@ -223,7 +223,7 @@ def test_the_pseudo_view_term_draws_its_view_per_seed_and_step_stops_and_reaches
     first.backward()
     assert model.params["means"].grad.abs().sum() > 0 and model.params["sh0"].grad.abs().sum() > 0
     narrow = apply_overrides(cfg, {"model": {"reg": {"multiview_max_angle": 4.0}}})  # view 2's nearest is 5.8 degrees away
-    narrow_model = GaussianModel.from_data(narrow, dm, torch.Generator().manual_seed(0))
+    narrow_model = GaussianModel.from_data(narrow.model, RunFacts.of(narrow), dm, torch.Generator().manual_seed(0))
     for k, (view, b) in enumerate(dm.train_views()):
         terms = narrow_model.get_loss_dict(narrow_model.get_outputs(view, step=1), b, view, 1)
         assert ("pseudo_view" in terms) == (k != 2)
@@ -254,7 +254,7 @@ def test_the_multiview_comparison_is_chosen_by_its_flag(dm):
     cam, batch = next(iter(dm.train_views()))
     terms = {}
     for compare in ("colour", "ncc"):
-        model = GaussianModel.from_data(apply_overrides(cfg, {"model": {"reg": {"multiview_compare": compare}}}), dm,
-                                        torch.Generator().manual_seed(0))
+        variant = apply_overrides(cfg, {"model": {"reg": {"multiview_compare": compare}}})
+        model = GaussianModel.from_data(variant.model, RunFacts.of(variant), dm, torch.Generator().manual_seed(0))
         terms[compare] = model.get_loss_dict(model.get_outputs(cam, step=1), batch, cam, 1)["multiview"].item()
     assert terms["colour"] > 0 and terms["ncc"] > 0 and terms["colour"] != pytest.approx(terms["ncc"])

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from splat_framework.cameras import Camera, intrinsics
-from splat_framework.config import apply_overrides
+from splat_framework.config import RunFacts, apply_overrides
 from splat_framework.losses import stereo_consistency
 from splat_framework.model.gaussians import GaussianModel
 from splat_framework.registry import get_method
@@ -58,7 +58,7 @@ def test_stereo_consistency_is_zero_at_the_true_depth_and_ignores_uncovered_pixe
 def test_the_stereo_term_joins_the_loss_after_its_start_and_reaches_the_gaussians(dm):
     cfg = apply_overrides(get_method("3dgs").default_config(), {
         "steps": 90, "model": {"reg": {"stereo_weight": 1.0, "stereo_start": 0.5}, "init": {"num_points": 2000}}})
-    model = GaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
+    model = GaussianModel.from_data(cfg.model, RunFacts.of(cfg), dm, torch.Generator().manual_seed(0))
     cam, batch = next(iter(dm.train_views()))
 
     def losses(step):
@@ -82,7 +82,7 @@ def test_the_regularisers_get_what_they_need_not_the_model(dm):
     from splat_framework.model.regularisers import regulariser_terms
 
     cfg = apply_overrides(get_method("3dgs").default_config(), {"model": {"init": {"num_points": 2000}}})
-    model = GaussianModel.from_data(cfg, dm, torch.Generator().manual_seed(0))
+    model = GaussianModel.from_data(cfg.model, RunFacts.of(cfg), dm, torch.Generator().manual_seed(0))
     cam, batch = next(iter(dm.train_views()))
     out = model.get_outputs(cam, step=10)
     calls = []

@@ -6,6 +6,9 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
+import torch
+
+from ..config import resolve_steps
 from ..data.parsers import load_scene
 from ..data.pose_file import apply_pose_file
 from ..data.run_data import every_kth_split, held_out_views, resolve_views, with_split
@@ -37,3 +40,17 @@ def load_config_scene(config) -> SceneData:
         scene = held_out_views(every_kth_split(scene, config.test_every, config.views), config.eval_split)
     poses = record.train_poses if record is not None else config.train_poses
     return apply_pose_file(scene, poses) if poses is not None else scene
+
+
+def background_for(scene: SceneData, device) -> torch.Tensor:
+    """[3] the colour renders of ``scene`` composite over: white for a white backdrop, else black."""
+    return torch.full((3,), 1.0 if scene.white_background else 0.0, device=device)
+
+
+def resolve_run_config(config, defaults):
+    """``config`` as a run trains it: its unset ``views`` settled from its data
+    (:func:`~splat_framework.data.run_data.resolve_views`; left unset when the data cannot be
+    recognised yet: loading it says why), then its schedule rescaled to ``--steps`` and the views
+    (:func:`~splat_framework.config.resolve_steps`; the iteration counts that differ from
+    ``defaults`` are the user's and keep their numbers). Views first: more may lengthen the schedule."""
+    return resolve_steps(resolve_views(config, strict=False), defaults)
