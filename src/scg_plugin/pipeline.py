@@ -4,15 +4,13 @@ from __future__ import annotations
 
 import warnings
 
-from splat_framework.plugin import Pipeline
-
-from .startup import BaselineSchedule, baseline_schedule
+from splat_framework.plugin import BaselineSchedule, Pipeline, baseline_schedule
 
 
 class SCGaussianPipeline(Pipeline):
     """When the model's init found the matching prior missing or sparse (``model.thin_prior``) and
     ``model.thin_prior_baseline`` is on, the run trains with the 3dgs baseline's densification and
-    SH schedules (:func:`~scg_plugin.startup.baseline_schedule`): the strategy config this pipeline
+    SH schedules (:func:`~splat_framework.methods.baseline.baseline_schedule`): the strategy config this pipeline
     names, and the model's SH interval. config.json keeps the run's one config."""
 
     baseline: BaselineSchedule | None = None
@@ -23,7 +21,7 @@ class SCGaussianPipeline(Pipeline):
         use = bool(self.config.model.thin_prior_baseline and model.thin_prior)
         if use:
             self.baseline = baseline_schedule(self.config)
-            warnings.warn(self.baseline.message(), stacklevel=2)
+            warnings.warn(self.baseline.message("thin prior"), stacklevel=2)
             model.config = model.config.model_copy(update={"sh_degree_interval": self.baseline.sh_degree_interval})
         model.init_stats = dict(model.init_stats) | {"baseline_schedule": use}
         return model

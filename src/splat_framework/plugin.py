@@ -1,4 +1,4 @@
-"""The public face for plugin authors: every framework name a method plugin needs, from one module.
+"""The public API for plugin authors: every framework name a method plugin needs, from one module.
 
     from splat_framework.plugin import GaussianModel, MethodSpec, TrainConfig, rasterize
 
@@ -10,25 +10,21 @@ the in-repo plugins (``scg_plugin``, ``anchor_gs``) and ``examples/`` import the
 only from here (``tests/framework/test_plugin_imports.py``), and their tests also from
 :mod:`splat_framework.testing`.
 
-Besides the contract (configs and their field markers, the model, strategies, the renderer),
-the face holds what a method's own parts build on:
+**The contract** (:data:`CONTRACT`): registration and configs (``MethodSpec``, ``TrainConfig`` and
+the model, strategy, init and optimiser configs with their field markers; ``RunFacts``, what a model
+reads of its run), the model (``GaussianModel``, ``ops``, ``adam``, ``knn_scale``, the inits it
+builds from: ``initial_points``, ``StartPoints``, ``scene_box``), strategies (``Strategy``,
+``DefaultStrategy``, ``check_rows``), losses (``photometric_loss``, ``regulariser_terms``),
+schedules (``run_fraction``, ``log_lerp``; ``baseline_schedule``, the 3dgs baseline's schedules
+for a run), the renderer (``rasterize``, ``RenderOutput``, ``rgb_to_sh``, ``quat_to_rotmat``),
+the camera (``Camera``), the pipeline (``Pipeline``), the terminal and the profile (``phase``,
+``section``).
 
-- starts: ``RandomInitConfig``, ``FrustumInitConfig`` and ``PlyInitConfig`` (kinds a model may
-  narrow or extend),
-  ``initial_points`` (the start its ``model.init`` describes, as every model's ``from_data``
-  builds it), ``FALLBACK_POINTS`` (random points when a prior is missing or sparse);
-- the matching prior: ``MatchKinds`` (a config's ``matching`` field: any matcher's config, by its
-  ``kind``; ``AutoMatchConfig`` the default, ``MatchConfig`` their base), ``compute_match_set``
-  (the verified matches of the training views, cached) and ``match_pairs`` (them, pair by pair);
-- losses: ``photometric_loss`` (L1 + D-SSIM) and ``regulariser_terms`` (the opt-in ``model.reg``
-  terms, given what they need; a ``GaussianModel`` subclass calls ``self.regulariser_terms``);
-- schedules: ``run_fraction`` and ``log_lerp`` (a learning rate decaying over the run),
-  ``resolve_steps`` (a config's schedule rescaled to its ``--steps``; the user's own iteration
-  counts kept), ``flag_name`` (a config field's command-line flag), ``config_3dgs`` (the
-  ``3dgs`` baseline's config, e.g. its densification schedule);
-- geometry: ``knn_scale`` (each point's distance to its nearest neighbours, 3DGS's start scale);
-- the terminal and the profile: ``phase`` (a named phase with progress, as the framework's own
-  set-up steps show), ``section`` (time a named part of a step in ``--profile``).
+**Optional services** (:data:`SERVICES`), for a method that builds on them: the matching prior:
+its configs (``MatchKinds``: a config's ``matching`` field, any matcher by its ``kind``;
+``AutoMatchConfig`` the default, ``MatchConfig`` their base), ``compute_match_set`` (the verified
+matches of the training views, cached), ``match_pairs`` (them, pair by pair) and
+``FALLBACK_POINTS`` (the random points a missing or sparse prior is filled with).
 """
 
 from __future__ import annotations
@@ -36,10 +32,9 @@ from __future__ import annotations
 from importlib import import_module
 from typing import TYPE_CHECKING, Any
 
-_EXPORTS: dict[str, str] = {
+CONTRACT: dict[str, str] = {
     # method registration and configs (torch-free)
     "MethodSpec": "splat_framework.registry",
-    "registered_defaults": "splat_framework.registry",
     "SplatConfig": "splat_framework.config",
     "TrainConfig": "splat_framework.config",
     "RunFacts": "splat_framework.config",
@@ -55,14 +50,9 @@ _EXPORTS: dict[str, str] = {
     "RandomInitConfig": "splat_framework.config",
     "FrustumInitConfig": "splat_framework.config.init",
     "PlyInitConfig": "splat_framework.config.init",
-    "FALLBACK_POINTS": "splat_framework.config.init",
-    "MatchConfig": "splat_framework.config",
-    "MatchKinds": "splat_framework.config",
-    "AutoMatchConfig": "splat_framework.config",
-    "resolve_steps": "splat_framework.config",
-    "flag_name": "splat_framework.config",
-    "config_3dgs": "splat_framework.methods.gaussian_splatting",
     "Kind": "splat_framework.config",
+    "BaselineSchedule": "splat_framework.methods.baseline",
+    "baseline_schedule": "splat_framework.methods.baseline",
     # field markers of configs
     "Steps": "splat_framework.config",
     "StartSteps": "splat_framework.config",
@@ -96,14 +86,24 @@ _EXPORTS: dict[str, str] = {
     "log_lerp": "splat_framework.model.gaussians",
     "regulariser_terms": "splat_framework.model.regularisers",
     "photometric_loss": "splat_framework.losses",
-    "compute_match_set": "splat_framework.matching.prior",
-    "match_pairs": "splat_framework.matching.prior",
     "Camera": "splat_framework.cameras",
     "RenderOutput": "splat_framework.render",
     "rasterize": "splat_framework.render",
     "rgb_to_sh": "splat_framework.render",
     "quat_to_rotmat": "splat_framework.render",
 }
+"""The contract: name -> the module it lives in."""
+SERVICES: dict[str, str] = {
+    # the matching prior
+    "MatchConfig": "splat_framework.config",
+    "MatchKinds": "splat_framework.config",
+    "AutoMatchConfig": "splat_framework.config",
+    "compute_match_set": "splat_framework.matching.prior",
+    "match_pairs": "splat_framework.matching.prior",
+    "FALLBACK_POINTS": "splat_framework.config.init",
+}
+"""The optional services: name -> the module it lives in."""
+_EXPORTS: dict[str, str] = CONTRACT | SERVICES
 _MODULES: dict[str, str] = {"ops": "splat_framework.model.ops"}
 """Whole modules re-exported (``plugin.ops.remove``: the row-editing ops of strategies and hooks)."""
 
@@ -141,16 +141,14 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
         Steps,
         StrategyConfig,
         TrainConfig,
-        flag_name,
         init_field,
-        resolve_steps,
         strategy_field,
     )
     from .config.init import FALLBACK_POINTS, FrustumInitConfig, PlyInitConfig
     from .console import phase
     from .losses import photometric_loss
     from .matching.prior import compute_match_set, match_pairs
-    from .methods.gaussian_splatting import config_3dgs
+    from .methods.baseline import BaselineSchedule, baseline_schedule
     from .model import ops
     from .model.gaussians import GaussianModel, knn_scale, log_lerp, run_fraction
     from .model.init import StartPoints, initial_points, scene_box
@@ -158,7 +156,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .model.regularisers import regulariser_terms
     from .model.strategy import DefaultStrategy, Strategy, check_rows
     from .pipeline import Pipeline
-    from .registry import MethodSpec, registered_defaults
+    from .registry import MethodSpec
     from .render import RenderOutput, quat_to_rotmat, rasterize, rgb_to_sh
     from .runtime.profiling import section
 

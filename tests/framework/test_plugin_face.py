@@ -37,3 +37,16 @@ def test_the_face_names_the_model_contract():
     assert callable(plugin.ops.remove) and callable(plugin.rasterize)
     with pytest.raises(AttributeError, match="no attribute 'box_points'"):
         plugin.box_points  # internal names are not part of the face
+
+
+def test_the_public_api_lists_the_contract_then_the_optional_services():
+    """Two documented sections, every public name in one of them; the matching prior is a service;
+    no helper that served one plugin's internals (the 3dgs baseline's config, the registered
+    defaults, flag names, the schedule resolution) is public: ``baseline_schedule`` is the one call."""
+    assert set(plugin.CONTRACT).isdisjoint(plugin.SERVICES)
+    assert sorted(plugin.CONTRACT | plugin.SERVICES | plugin._MODULES) == plugin.__all__
+    assert {"compute_match_set", "match_pairs", "MatchKinds"} <= set(plugin.SERVICES)
+    assert {"GaussianModel", "Pipeline", "Strategy", "RunFacts", "rasterize", "baseline_schedule"} <= set(plugin.CONTRACT)
+    assert not {"config_3dgs", "registered_defaults", "flag_name", "resolve_steps"} & set(plugin.__all__)
+    for section in ("**The contract**", "**Optional services**"):
+        assert section in plugin.__doc__

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from splat_framework.config import DensifyConfig, TrainConfig
+from splat_framework.config import DensifyConfig, RunFacts, TrainConfig
 from splat_framework.engine.train_state import TrainState
 from splat_framework.model.gaussians import GaussianModel
 from splat_framework.model.strategy import DefaultStrategy, unplain_state
@@ -44,8 +44,8 @@ def test_a_models_init_takes_rows():
     """``from_checkpoint`` builds every model with ``rows=``: an ``__init__`` without it is refused
     when the class is defined."""
     class Fine(GaussianModel):
-        def __init__(self, config, scene_scale, points, colors, *, rows=None):
-            super().__init__(config, scene_scale, points, colors, rows=rows)
+        def __init__(self, config, run, scene_scale, points, colors, *, rows=None):
+            super().__init__(config, run, scene_scale, points, colors, rows=rows)
 
     with pytest.raises(TypeError, match=r"NoRows\.__init__ takes no rows="):
         class NoRows(GaussianModel):
@@ -55,8 +55,8 @@ def test_a_models_init_takes_rows():
 
 def test_what_init_params_reads_is_set_before_super_init():
     class Late(GaussianModel):
-        def __init__(self, config, scene_scale, points, colors, *, rows=None):
-            super().__init__(config, scene_scale, points, colors, rows=rows)
+        def __init__(self, config, run, scene_scale, points, colors, *, rows=None):
+            super().__init__(config, run, scene_scale, points, colors, rows=rows)
             self.opacity = 0.5  # too late: init_params has run
 
         def init_params(self, points, colors):
@@ -64,7 +64,8 @@ def test_what_init_params_reads_is_set_before_super_init():
 
     with pytest.raises(AttributeError, match=r"'opacity'.*set every attribute init_params and build_networks read "
                                              r"before calling super\(\).__init__\(\)"):
-        Late(TrainConfig(method="3dgs"), 1.0, torch.rand(8, 3), torch.rand(8, 3))
+        config = TrainConfig(method="3dgs")
+        Late(config.model, RunFacts.of(config), 1.0, torch.rand(8, 3), torch.rand(8, 3))
 
 
 @pytest.mark.parametrize("value,named", [

@@ -12,8 +12,13 @@ import tomllib
 
 import pytest
 
-from splat_framework.plugin import resolve_steps
-from splat_framework.testing import Trainer, discover_methods, parse_train_args, skip_without_matcher_weights
+from splat_framework.testing import (
+    Trainer,
+    discover_methods,
+    parse_train_args,
+    resolve_steps,
+    skip_without_matcher_weights,
+)
 from support import REPO
 
 OFFICIAL = {

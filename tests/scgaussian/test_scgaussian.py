@@ -22,19 +22,21 @@ from scg_plugin.ray_gaussians import (
     warm_up,
     warmup_step_size,
 )
-from splat_framework.plugin import GaussianModel, RunFacts, config_3dgs, resolve_steps
+from splat_framework.plugin import GaussianModel, RunFacts
 from splat_framework.testing import (
     MatchSet,
     Trainer,
     apply_overrides,
     area_resized,
     compute_matches,
+    config_3dgs,
     export_ply,
     generate_scene,
     get_method,
     load_ply,
     load_trained_model,
     match_config,
+    resolve_steps,
     scene_and_data,
     triangulate,
 )

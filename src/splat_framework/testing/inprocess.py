@@ -47,6 +47,8 @@ def skip_without_matcher_weights() -> None:
 EXPORTS: dict[str, str] = {
     # configs and methods
     "apply_overrides": "splat_framework.config",
+    "resolve_steps": "splat_framework.config",
+    "config_3dgs": "splat_framework.methods.gaussian_splatting",
     "match_config": "splat_framework.config",
     "get_method": "splat_framework.registry",
     "discover_methods": "splat_framework.registry",
