@@ -40,7 +40,7 @@ import stat
 import sys
 import tomllib
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -63,6 +63,11 @@ class MethodSpec:
             ``base`` chain); "" for a method.
         pipeline: "module:Class" of the method's :class:`~splat_framework.pipeline.Pipeline`
             (what a step feeds the model, the evaluation): the framework's own, or a subclass.
+        source: who registered it (``package my-plugin (my_plugin:spec)``), set by the registry;
+            messages about its parts name it.
+
+    ``model`` and ``pipeline`` are :class:`~splat_framework.entry_points.Ref` strings, checked with
+    the run's other parts by :func:`resolve_parts` before any data loads.
     """
 
     name: str
@@ -72,6 +77,7 @@ class MethodSpec:
     overrides: dict = field(default_factory=dict)
     pipeline: str = "splat_framework.pipeline:Pipeline"
     base: str = ""
+    source: str = field(default="", compare=False)
 
     def default_config(self):
         from .config import apply_overrides
@@ -82,16 +88,80 @@ class MethodSpec:
         return cfg.model_copy(update={"method": self.name})
 
     def model_class(self) -> type:
-        from .entry_points import load_object
-
-        return load_object(self.model)
+        """The :class:`~splat_framework.model.gaussians.GaussianModel` subclass ``model`` names
+        (a one-line PluginError when it is not one)."""
+        return self.ref("model").load()
 
     def pipeline_class(self) -> type:
-        """The class ``pipeline`` names (imported when training starts; the trainer checks it is a
-        :class:`~splat_framework.pipeline.Pipeline`)."""
-        from .entry_points import load_object
+        """The :class:`~splat_framework.pipeline.Pipeline` subclass ``pipeline`` names (a one-line
+        PluginError when it is not one)."""
+        return self.ref("pipeline").load()
 
-        return load_object(self.pipeline)
+    def ref(self, entry: str):
+        """The :class:`~splat_framework.entry_points.Ref` of field ``entry`` (``model`` or ``pipeline``)."""
+        from .entry_points import MODEL_BASE, PIPELINE_BASE, Ref
+
+        base = {"model": MODEL_BASE, "pipeline": PIPELINE_BASE}[entry]
+        return Ref(getattr(self, entry), base, f"method '{self.name}': {entry}", self.source)
+
+
+@dataclass(frozen=True)
+class RunParts:
+    """The plugin parts a run uses, imported and checked by :func:`resolve_parts`."""
+
+    model: type
+    """The model class (a GaussianModel subclass)."""
+    pipeline: type
+    """The pipeline class (a Pipeline subclass)."""
+    by_field: dict[str, Any]
+    """Config field (``strategy``, ``model.init``, ``model.init.fallback``) -> the strategy class or
+    points function its config names."""
+
+
+def resolve_parts(spec: MethodSpec, config) -> RunParts:
+    """Import and check every ``"module:Name"`` the run of ``config`` (a ``spec`` method's) will use:
+    its model and pipeline, and the ``strategy_class`` or ``points_fn`` of every strategy and init
+    config in ``config`` (:class:`~splat_framework.entry_points.Ref`). The first that does not import or
+    is not of its kind is a one-line PluginError naming who declared it (the kind's entry point, else
+    the method's), the entry and the problem. Cheap once imported: the CLI calls it before any data
+    loads, the Trainer again for a run started in-process."""
+    from .config.init import InitConfig
+    from .config.strategy import StrategyConfig
+    from .entry_points import INIT_ENTRY_POINT_GROUP, STRATEGY_BASE, STRATEGY_ENTRY_POINT_GROUP, Ref
+
+    model, pipeline = spec.model_class(), spec.pipeline_class()
+    # a kind config family: its entry-point group, the field naming its part, the part's base ("" a function)
+    families = ((StrategyConfig, STRATEGY_ENTRY_POINT_GROUP, "strategy_class", STRATEGY_BASE),
+                (InitConfig, INIT_ENTRY_POINT_GROUP, "points_fn", ""))
+    by_field = {}
+    for where, part in _configs_in(config, tuple(f[0] for f in families)):
+        _, group, name, base = next(f for f in families if isinstance(part, f[0]))
+        ref = Ref(str(getattr(part, name, "")), base, f"method '{spec.name}': {where}.{name} of {type(part).__name__}",
+                  spec.source)
+        obj, problem = ref.resolve()
+        if problem:  # named by the plugin that registered the kind, when one did
+            raise replace(ref, source=_declared_by(group, type(part)) or ref.source).error(problem)
+        by_field[where] = obj
+    return RunParts(model, pipeline, by_field)
+
+
+def _configs_in(config, kinds: tuple[type, ...], where: str = ""):
+    """(field path, config) of every config of ``kinds`` in ``config``'s tree, outside in."""
+    from pydantic import BaseModel
+
+    for name in type(config).model_fields:
+        value = getattr(config, name)
+        path = f"{where}.{name}" if where else name
+        if isinstance(value, kinds):
+            yield path, value
+        if isinstance(value, BaseModel):
+            yield from _configs_in(value, kinds, path)
+
+
+def _declared_by(group: str, cls: type) -> str | None:
+    """Who declared ``cls`` as a kind in entry-point ``group`` (``package my-plugin (my_plugin:Config)``), or None."""
+    path = f"{cls.__module__}:{cls.__qualname__}"
+    return next((str(e) for e in registered(group) if e.value == path), None)
 
 
 def default_config_dirs() -> list[Path]:
@@ -122,7 +192,9 @@ def _load_methods() -> Parts[MethodSpec]:
             return f"not a MethodSpec (a {type(spec).__name__})"
         return None if spec.name == name else f"its name is {spec.name!r}, not its entry-point name '{name}'"
 
-    return Parts("method").load(ENTRY_POINT_GROUP, check)
+    methods = Parts("method").load(ENTRY_POINT_GROUP, check)
+    methods.parts = {name: replace(spec, source=methods.sources[name]) for name, spec in methods.parts.items()}
+    return methods
 
 
 VARIANT_KEYS = ("base", "description", "overrides")
@@ -186,6 +258,7 @@ def _load_variants(methods: Parts[MethodSpec], dirs: list[Path]) -> dict[str, Me
                 overrides=deep_merge(p.overrides, doc.get("overrides", {})),
                 pipeline=p.pipeline,
                 base=p.base or parent,
+                source=p.source,
             )
             del pending[name]
             problem = _invalid_config(spec)

@@ -68,8 +68,7 @@ from ..evaluation.metrics import psnr_tensor
 from ..files import run_lock
 from ..files.output_paths import RUN_FOLDER
 from ..model.strategy import Strategy
-from ..pipeline import Pipeline
-from ..registry import MethodSpec, get_method
+from ..registry import MethodSpec, get_method, resolve_parts
 from ..render import prepare_kernels, set_compile, set_rasterizer
 from ..runtime.allocator import keep_freed_memory
 from ..runtime.profiling import section
@@ -205,6 +204,7 @@ class Trainer(TrainState):
 
     def _setup(self) -> None:
         """Data, model (SCGaussian: matching, warm-up), optimizers and strategy."""
+        self.parts = resolve_parts(self.spec, self.config)  # a plugin's broken part: one line, before anything loads
         set_compile(self.config.compile, user_cache_dir())
         set_rasterizer(self.config.rasterizer)
         # built, loaded or compiled now, a phase of its own, not inside the first training step; a
@@ -222,7 +222,7 @@ class Trainer(TrainState):
             budget = plan_memory(scene, self.config, image_memory_budget())
             self.datamanager = DataManager(
                 scene, device=self.device, seed=self.config.seed, memory_budget_bytes=budget,
-                fields=self.spec.model_class().batch_fields(self.config),
+                fields=self.parts.model.batch_fields(self.config),
             )
         self.config = record_data(self.config, scene)  # config.json names the folder and split: eval from any shell
         split = describe_split(scene, self.config.views, self.config.test_every)
@@ -231,7 +231,7 @@ class Trainer(TrainState):
         self.timing["data_s"] = time.perf_counter() - t0
         self.background = background_for(scene, self.device)
         t0 = time.perf_counter()
-        self.model = self.spec.model_class().from_data(self.config, self.datamanager, self.generator).to(self.device)
+        self.model = self.parts.model.from_data(self.config, self.datamanager, self.generator).to(self.device)
         self.timing.update(self.model.init_timing)
         self.timing["init_s"] = time.perf_counter() - t0 - sum(self.model.init_timing.values())
         self.optimizers = self.model.make_optimizers()
@@ -246,10 +246,7 @@ class Trainer(TrainState):
         self.camera_refiner = CameraRefiner.for_run(self.config, len(self.datamanager.train_indices),
                                                     self.model.scene_scale, self.device)
         # the data and the model, one step's batch and loss, the evaluation: the method's pipeline
-        pipeline_class = self.spec.pipeline_class()
-        if not (isinstance(pipeline_class, type) and issubclass(pipeline_class, Pipeline)):
-            raise TypeError(f"method {self.spec.name!r}: pipeline {self.spec.pipeline!r} is not a Pipeline subclass")
-        self.pipeline = pipeline_class(self.config, self.datamanager, self.model, self.background, self.camera_refiner)
+        self.pipeline = self.parts.pipeline(self.config, self.datamanager, self.model, self.background, self.camera_refiner)
         self.start_step = 0
         self.nonfinite_streak = 0
         self.skipped_steps = 0
