@@ -11,6 +11,9 @@ Every kind follows one rule (:class:`Parts`): names follow :data:`PART_NAME`, an
 keeps its first registration (the framework's own first, then installed packages, then
 ``$SPLAT_PLUGINS``): a second is left out with one warning naming both sources.
 
+A part that is named as ``"module:Name"`` (a method's model and pipeline, a strategy's class, a start's
+points function) is a :class:`Ref`: a string until :meth:`Ref.load` imports it and checks its kind.
+
 A leaf module (imports nothing of the framework but its errors and environment, never torch): the method registry, the
 strategy configs (``StrategyConfig.strategy_class``) and the kinds of strategies and starts load through it.
 """

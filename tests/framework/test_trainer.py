@@ -538,6 +538,7 @@ def test_methods_run_through_the_default_pipeline_and_a_foreign_class_is_refused
     Pipeline stops the run with its name."""
     import dataclasses
 
+    from splat_framework.errors import PluginError
     from splat_framework.pipeline import Pipeline
 
     for method in ("3dgs", "scgaussian"):
@@ -550,5 +551,5 @@ def test_methods_run_through_the_default_pipeline_and_a_foreign_class_is_refused
     assert trainer.pipeline.model is trainer.model and trainer.pipeline.datamanager is trainer.datamanager
     trainer.release()
     wrong = dataclasses.replace(spec, pipeline="splat_framework.model.gaussians:GaussianModel")
-    with pytest.raises(TypeError, match="pipeline 'splat_framework.model.gaussians:GaussianModel' is not a Pipeline"):
+    with pytest.raises(PluginError, match="pipeline 'splat_framework.model.gaussians:GaussianModel' is not a Pipeline"):
         Trainer(cfg.model_copy(update={"output": tmp_path / "b"}), spec=wrong)
