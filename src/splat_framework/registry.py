@@ -67,7 +67,7 @@ class MethodSpec:
             messages about its parts name it.
 
     ``model`` and ``pipeline`` are :class:`~splat_framework.entry_points.Ref` strings, checked with
-    the run's other parts by :func:`resolve_parts` before any data loads.
+    the run's other parts by :func:`splat_framework.engine.parts.resolve_parts` before any data loads.
     """
 
     name: str
@@ -103,65 +103,6 @@ class MethodSpec:
 
         base = {"model": MODEL_BASE, "pipeline": PIPELINE_BASE}[entry]
         return Ref(getattr(self, entry), base, f"method '{self.name}': {entry}", self.source)
-
-
-@dataclass(frozen=True)
-class RunParts:
-    """The plugin parts a run uses, imported and checked by :func:`resolve_parts`."""
-
-    model: type
-    """The model class (a GaussianModel subclass)."""
-    pipeline: type
-    """The pipeline class (a Pipeline subclass)."""
-    by_field: dict[str, Any]
-    """Config field (``strategy``, ``model.init``, ``model.init.fallback``) -> the strategy class or
-    points function its config names."""
-
-
-def resolve_parts(spec: MethodSpec, config) -> RunParts:
-    """Import and check every ``"module:Name"`` the run of ``config`` (a ``spec`` method's) will use:
-    its model and pipeline, and the ``strategy_class`` or ``points_fn`` of every strategy and init
-    config in ``config`` (:class:`~splat_framework.entry_points.Ref`). The first that does not import or
-    is not of its kind is a one-line PluginError naming who declared it (the kind's entry point, else
-    the method's), the entry and the problem. Cheap once imported: the CLI calls it before any data
-    loads, the Trainer again for a run started in-process."""
-    from .config.init import InitConfig
-    from .config.strategy import StrategyConfig
-    from .entry_points import INIT_ENTRY_POINT_GROUP, STRATEGY_BASE, STRATEGY_ENTRY_POINT_GROUP, Ref
-
-    model, pipeline = spec.model_class(), spec.pipeline_class()
-    # a kind config family: its entry-point group, the field naming its part, the part's base ("" a function)
-    families = ((StrategyConfig, STRATEGY_ENTRY_POINT_GROUP, "strategy_class", STRATEGY_BASE),
-                (InitConfig, INIT_ENTRY_POINT_GROUP, "points_fn", ""))
-    by_field = {}
-    for where, part in _configs_in(config, tuple(f[0] for f in families)):
-        _, group, name, base = next(f for f in families if isinstance(part, f[0]))
-        ref = Ref(str(getattr(part, name, "")), base, f"method '{spec.name}': {where}.{name} of {type(part).__name__}",
-                  spec.source)
-        obj, problem = ref.resolve()
-        if problem:  # named by the plugin that registered the kind, when one did
-            raise replace(ref, source=_declared_by(group, type(part)) or ref.source).error(problem)
-        by_field[where] = obj
-    return RunParts(model, pipeline, by_field)
-
-
-def _configs_in(config, kinds: tuple[type, ...], where: str = ""):
-    """(field path, config) of every config of ``kinds`` in ``config``'s tree, outside in."""
-    from pydantic import BaseModel
-
-    for name in type(config).model_fields:
-        value = getattr(config, name)
-        path = f"{where}.{name}" if where else name
-        if isinstance(value, kinds):
-            yield path, value
-        if isinstance(value, BaseModel):
-            yield from _configs_in(value, kinds, path)
-
-
-def _declared_by(group: str, cls: type) -> str | None:
-    """Who declared ``cls`` as a kind in entry-point ``group`` (``package my-plugin (my_plugin:Config)``), or None."""
-    path = f"{cls.__module__}:{cls.__qualname__}"
-    return next((str(e) for e in registered(group) if e.value == path), None)
 
 
 def default_config_dirs() -> list[Path]:

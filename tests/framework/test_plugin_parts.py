@@ -113,7 +113,9 @@ def bad_parts(tmp_path, monkeypatch):
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.setenv("SPLAT_PLUGINS", "bad_parts")
     monkeypatch.delitem(sys.modules, "bad_parts", raising=False)
-    import splat_framework.engine.trainer  # noqa: F401  (PyTorch loaded in the set-up, as `starting` does)
+    import torch._dynamo  # noqa: F401  (PyTorch and its compiler loaded in the set-up: `starting`'s 3-6 s)
+
+    import splat_framework.engine.trainer  # noqa: F401
 
     yield
     sys.modules.pop("bad_parts", None)
@@ -161,18 +163,19 @@ def test_a_kind_registered_by_a_plugin_is_named_by_that_plugin(monkeypatch):
     import re
 
     from splat_framework import registry
+    from splat_framework.engine import parts as run_parts
     from splat_framework.entry_points import STRATEGY_ENTRY_POINT_GROUP, Entry
 
     spec = registry.get_method("3dgs")
     config = spec.default_config()
     config = config.model_copy(update={"strategy": BrokenConfig()})
     declared = Entry("broken", f"{__name__}:BrokenConfig", STRATEGY_ENTRY_POINT_GROUP, "package broken-kinds")
-    monkeypatch.setattr(registry, "registered", lambda group: [declared] if group == STRATEGY_ENTRY_POINT_GROUP else [])
+    monkeypatch.setattr(run_parts, "registered", lambda group: [declared] if group == STRATEGY_ENTRY_POINT_GROUP else [])
     with pytest.raises(PluginError, match=rf"^package broken-kinds \({re.escape(__name__)}:BrokenConfig\): method '3dgs': "
                        r"strategy\.strategy_class of BrokenConfig 'splat_framework\.model\.strategy:NoSuchStrategy' "
                        r"does not import \(AttributeError: "):
-        registry.resolve_parts(spec, config)
-    parts = registry.resolve_parts(spec, spec.default_config())  # the method's own parts, loaded
+        run_parts.resolve_parts(spec, config)
+    parts = run_parts.resolve_parts(spec, spec.default_config())  # the method's own parts, loaded
     assert parts.model.__name__ == "GaussianModel" and parts.pipeline.__name__ == "Pipeline"
     assert parts.by_field["strategy"].__name__ == "DefaultStrategy" and parts.by_field["model.init"].__name__ == "box_points"
 

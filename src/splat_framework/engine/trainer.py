@@ -68,7 +68,7 @@ from ..evaluation.metrics import psnr_tensor
 from ..files import run_lock
 from ..files.output_paths import RUN_FOLDER
 from ..model.strategy import Strategy
-from ..registry import MethodSpec, get_method, resolve_parts
+from ..registry import MethodSpec, get_method
 from ..render import prepare_kernels, set_compile, set_rasterizer
 from ..runtime.allocator import keep_freed_memory
 from ..runtime.profiling import section
@@ -79,6 +79,7 @@ from .checkpoint import save_checkpoint
 from .memory_plan import image_memory_budget, plan_memory
 from .numerics import first_nonfinite as _first_nonfinite
 from .numerics import optimized_tensors, trainable_tensors
+from .parts import resolve_parts
 from .resume_check import check_saved_config
 from .run import background_for
 from .run_folder import continue_command, prepare_run_dir, remove_if_unused
