@@ -79,7 +79,7 @@ not_a_model = method("not-a-model", model="bad_parts:TypoModelConfig")
 
 ENTRY_POINTS = {"splat_framework.methods": {
     spec.name: f"bad_parts:{attr}" for attr, spec in dict(globals()).items() if isinstance(spec, MethodSpec)
-}}
+}, "splat_framework.photo_matchers": {"typo-matcher": "bad_parts:no_such_match"}}
 '''
 
 class BrokenConfig(DensifyConfig):
@@ -90,6 +90,8 @@ class BrokenConfig(DensifyConfig):
     strategy_class: ClassVar[str] = "splat_framework.model.strategy:NoSuchStrategy"
 
 
+PHOTO_MATCHER = ("photo matcher 'typo-matcher' of SPLAT_PLUGINS module 'bad_parts' (bad_parts:no_such_match) cannot be "
+                 "imported (AttributeError: module 'bad_parts' has no attribute 'no_such_match')")
 CASES = {  # method -> (the entry, the problem)
     "typo-model": ("method 'typo-model': model 'nosuch:M'",
                    "does not import (ModuleNotFoundError: No module named 'nosuch')"),
@@ -140,6 +142,27 @@ def test_a_broken_plugin_part_is_one_line_before_the_data_loads(method, bad_part
     assert PluginError.cli_exit_code == 2  # cli.common.run_cli prints "error: " and the line, and exits 2
     assert "loading data" not in "".join(capsys.readouterr())
     assert seconds < 5
+
+
+@pytest.mark.bad_input("`--photos.matcher` naming a plugin's photo matcher that does not import (`--data` a folder of photos)",
+                       "exit 2, one line naming the matcher and its plugin, before the photos are posed")
+def test_a_broken_photo_matcher_is_one_line_before_the_photos_are_posed(bad_parts, tmp_path, capsys):
+    """``--data`` a folder of photos posed with a plugin's matcher (``--photos.matcher``) that does not
+    import: one line naming it and its plugin, before the photos are posed."""
+    import numpy as np
+    from PIL import Image
+
+    from splat_framework.cli.train import main
+    from splat_framework.errors import DataError
+
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for i in range(2):
+        Image.fromarray(np.full((16, 16, 3), 40 * i, np.uint8)).save(photos / f"{i}.png")
+    with pytest.raises(DataError) as e:
+        main(["3dgs", "--data", str(photos), "--photos.matcher", "typo-matcher", "--no-progress"])
+    assert str(e.value) == PHOTO_MATCHER
+    assert "poses" not in "".join(capsys.readouterr())  # neither estimated nor read from the cache
 
 
 def test_a_part_is_checked_for_its_kind():
