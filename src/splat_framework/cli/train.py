@@ -211,7 +211,7 @@ def main(args: list[str] | None = None) -> dict:
         from ..engine.parts import resolve_parts
 
         # every plugin part imported and checked: one line before any data loads, and before the
-        # compiler's import (every run builds an Adam, whose first use imports it: 2 s more)
+        # compiler, which every run's Adam needs and a refusal does not (docs/decisions.md)
         resolve_parts(spec, config)
         import torch._dynamo  # noqa: F401
 
