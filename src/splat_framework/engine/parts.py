@@ -31,8 +31,8 @@ class RunParts:
     """Config field (``strategy``, ``model.init``, ``model.init.fallback``) -> the strategy class or
     points function its config names."""
     photo_matcher: Callable | None
-    """The function matching the photos ``--data`` names, when they are posed with a registered
-    matcher (None: not photos, or COLMAP's SIFT)."""
+    """The function of the photo matcher ``--photos.matcher`` names, when ``--data`` is photos or a
+    video (None: not photos, or the framework's choice, ``auto`` or ``sift``)."""
 
 
 def resolve_parts(spec: MethodSpec, config) -> RunParts:
@@ -76,16 +76,19 @@ def _declared_by(group: str, cls: type) -> str | None:
 
 
 def _photo_matcher(config) -> Callable | None:
-    """The registered photo matcher that poses ``config.data`` when it is photos or a video
-    (``config.photos.matcher``; "auto" resolved), loaded and checked; None for none or SIFT."""
+    """The photo matcher ``config.photos.matcher`` names, loaded and checked, when ``config.data`` is
+    photos or a video; None otherwise, and for ``auto`` and ``sift``: the framework's own, which only
+    a run that finds no poses in the cache loads."""
     from ..data.builtin_scenes import builtin_scene_name
     from ..data.photos import photo_source
     from ..data.resolve import locate_data
-    from ..sfm.photo_matchers import choose_matcher, load_matcher, photo_matchers
+    from ..sfm.photo_matchers import AUTO_MATCHER, choose_matcher, load_matcher, photo_matchers
 
+    if config.photos.matcher in (AUTO_MATCHER, "sift") or config.data is None:
+        return None
     # a built-in scene is rendered, never posed: not located here (that would render it)
-    if config.data is None or builtin_scene_name(config.data) is not None or photo_source(locate_data(config.data)) is None:
+    if builtin_scene_name(config.data) is not None or photo_source(locate_data(config.data)) is None:
         return None
     plugins = photo_matchers()
     name = choose_matcher(config.photos.matcher, plugins)
-    return None if name == "sift" else load_matcher(name, plugins[name])
+    return load_matcher(name, plugins[name])
