@@ -11,6 +11,9 @@ Every kind follows one rule (:class:`Parts`): names follow :data:`PART_NAME`, an
 keeps its first registration (the framework's own first, then installed packages, then
 ``$SPLAT_PLUGINS``): a second is left out with one warning naming both sources.
 
+A part that is named as ``"module:Name"`` (a method's model and pipeline, a strategy's class, a start's
+points function) is a :class:`Ref`: a string until :meth:`Ref.load` imports it and checks its kind.
+
 A leaf module (imports nothing of the framework but its errors and environment, never torch): the method registry, the
 strategy configs (``StrategyConfig.strategy_class``) and the kinds of strategies and starts load through it.
 """
@@ -175,11 +178,63 @@ def _entry_problem(group: str, name: str, value: str) -> str | None:
 
 
 def load_object(path: str) -> Any:
-    """The object a ``"module:Name"`` path names (``"pkg.mod:Class"``), importing its module."""
+    """The object a ``"module:Name"`` path names (``"pkg.mod:Class"``), importing its module (unchecked:
+    a plugin's part loads through :class:`Ref`)."""
     module, sep, name = path.partition(":")
     if not sep or not module or not name:
         raise ValueError(f"{path!r} is not a 'module:Name' path")
     return getattr(importlib.import_module(module), name)
+
+
+MODEL_BASE = "splat_framework.model.gaussians:GaussianModel"
+PIPELINE_BASE = "splat_framework.pipeline:Pipeline"
+STRATEGY_BASE = "splat_framework.model.strategy:Strategy"
+
+
+@dataclass(frozen=True)
+class Ref:
+    """A plugin part named as ``"module:Name"``: ``MethodSpec.model`` (a :data:`MODEL_BASE` subclass),
+    ``MethodSpec.pipeline`` (a :data:`PIPELINE_BASE` subclass), ``StrategyConfig.strategy_class`` (a
+    :data:`STRATEGY_BASE` subclass), ``InitConfig.points_fn`` (a function). A string (torch-free, read
+    for ``--help``) until :meth:`load` imports it and checks its kind.
+
+    ``base``: ``"module:Class"`` of the class it must subclass, "" for a function (any callable);
+    ``entry``: the field that holds it, in messages (``method 'my-3dgs': model``); ``source``: who
+    declared it (:attr:`Entry.source`: ``package my-plugin``, ``SPLAT_PLUGINS module 'my_plugin'``)."""
+
+    path: str
+    base: str
+    entry: str
+    source: str = ""
+
+    def resolve(self) -> tuple[Any, str | None]:
+        """(the object, None), or (None, a phrase saying why it is unusable: does not import, not the kind)."""
+        try:
+            obj = load_object(self.path)
+        except IMPORT_FAILURES as e:  # the plugin's module: whatever it raises is one line
+            return None, f"does not import ({raised(e)})"
+        if not self.base:
+            return (obj, None) if callable(obj) else (None, f"is not a function (it is a {type(obj).__name__})")
+        base = load_object(self.base)
+        if isinstance(obj, type) and issubclass(obj, base):
+            return obj, None
+        what = f"the class {obj.__name__}" if isinstance(obj, type) else f"a {type(obj).__name__}"
+        return None, f"is not a {base.__name__} subclass (it is {what})"
+
+    def load(self) -> Any:
+        """The object ``path`` names, of its kind; a :class:`~splat_framework.errors.PluginError`
+        (one line naming the source, the entry and the problem) when it is not."""
+        obj, problem = self.resolve()
+        if problem:
+            raise self.error(problem)
+        return obj
+
+    def error(self, problem: str):
+        """The one-line PluginError saying ``problem`` of this reference."""
+        from .errors import PluginError
+
+        where = f"{self.source}: " if self.source else ""
+        return PluginError(printable(f"{where}{self.entry} {self.path!r} {problem}"))
 
 
 def printable(text: str) -> str:

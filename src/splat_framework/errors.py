@@ -8,6 +8,14 @@ class DataError(ValueError):
     """
 
 
+class PluginError(DataError):
+    """A plugin's part cannot be used: a ``"module:Name"`` it declares does not import or is not what
+    its entry must name (:class:`~splat_framework.entry_points.Ref`). The message is one line naming
+    the plugin, the entry and the problem; the CLIs exit with code 2."""
+
+    cli_exit_code = 2
+
+
 class CheckpointError(RuntimeError):
     """A checkpoint file is missing, truncated or corrupt (one-line message)."""
 

@@ -40,7 +40,7 @@ import stat
 import sys
 import tomllib
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -63,6 +63,11 @@ class MethodSpec:
             ``base`` chain); "" for a method.
         pipeline: "module:Class" of the method's :class:`~splat_framework.pipeline.Pipeline`
             (what a step feeds the model, the evaluation): the framework's own, or a subclass.
+        source: who registered it (``package my-plugin (my_plugin:spec)``), set by the registry;
+            messages about its parts name it.
+
+    ``model`` and ``pipeline`` are :class:`~splat_framework.entry_points.Ref` strings, checked with
+    the run's other parts by :func:`splat_framework.engine.parts.resolve_parts` before any data loads.
     """
 
     name: str
@@ -72,6 +77,7 @@ class MethodSpec:
     overrides: dict = field(default_factory=dict)
     pipeline: str = "splat_framework.pipeline:Pipeline"
     base: str = ""
+    source: str = field(default="", compare=False)
 
     def default_config(self):
         from .config import apply_overrides
@@ -82,16 +88,21 @@ class MethodSpec:
         return cfg.model_copy(update={"method": self.name})
 
     def model_class(self) -> type:
-        from .entry_points import load_object
-
-        return load_object(self.model)
+        """The :class:`~splat_framework.model.gaussians.GaussianModel` subclass ``model`` names
+        (a one-line PluginError when it is not one)."""
+        return self.ref("model").load()
 
     def pipeline_class(self) -> type:
-        """The class ``pipeline`` names (imported when training starts; the trainer checks it is a
-        :class:`~splat_framework.pipeline.Pipeline`)."""
-        from .entry_points import load_object
+        """The :class:`~splat_framework.pipeline.Pipeline` subclass ``pipeline`` names (a one-line
+        PluginError when it is not one)."""
+        return self.ref("pipeline").load()
 
-        return load_object(self.pipeline)
+    def ref(self, entry: str):
+        """The :class:`~splat_framework.entry_points.Ref` of field ``entry`` (``model`` or ``pipeline``)."""
+        from .entry_points import MODEL_BASE, PIPELINE_BASE, Ref
+
+        base = {"model": MODEL_BASE, "pipeline": PIPELINE_BASE}[entry]
+        return Ref(getattr(self, entry), base, f"method '{self.name}': {entry}", self.source)
 
 
 def default_config_dirs() -> list[Path]:
@@ -122,7 +133,9 @@ def _load_methods() -> Parts[MethodSpec]:
             return f"not a MethodSpec (a {type(spec).__name__})"
         return None if spec.name == name else f"its name is {spec.name!r}, not its entry-point name '{name}'"
 
-    return Parts("method").load(ENTRY_POINT_GROUP, check)
+    methods = Parts("method").load(ENTRY_POINT_GROUP, check)
+    methods.parts = {name: replace(spec, source=methods.sources[name]) for name, spec in methods.parts.items()}
+    return methods
 
 
 VARIANT_KEYS = ("base", "description", "overrides")
@@ -186,6 +199,7 @@ def _load_variants(methods: Parts[MethodSpec], dirs: list[Path]) -> dict[str, Me
                 overrides=deep_merge(p.overrides, doc.get("overrides", {})),
                 pipeline=p.pipeline,
                 base=p.base or parent,
+                source=p.source,
             )
             del pending[name]
             problem = _invalid_config(spec)

@@ -550,6 +550,7 @@ def test_methods_run_through_their_pipeline_which_builds_the_data_and_model_and_
     import dataclasses
 
     from scg_plugin.pipeline import SCGaussianPipeline
+    from splat_framework.errors import PluginError
 
     assert get_method("3dgs").pipeline_class() is Pipeline
     assert get_method("scgaussian").pipeline_class() is SCGaussianPipeline
@@ -567,5 +568,5 @@ def test_methods_run_through_their_pipeline_which_builds_the_data_and_model_and_
     assert metrics["init_stats"]["num_points"] == 100 and trainer.model.config.init.num_points == 100
     assert cfg.model.init.num_points == trainer.config.model.init.num_points  # config.json keeps the run's config
     wrong = dataclasses.replace(spec, pipeline="splat_framework.model.gaussians:GaussianModel")
-    with pytest.raises(TypeError, match="pipeline 'splat_framework.model.gaussians:GaussianModel' is not a Pipeline"):
+    with pytest.raises(PluginError, match="pipeline 'splat_framework.model.gaussians:GaussianModel' is not a Pipeline"):
         Trainer(cfg.model_copy(update={"output": tmp_path / "b"}), spec=wrong)

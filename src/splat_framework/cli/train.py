@@ -206,13 +206,20 @@ def main(args: list[str] | None = None) -> dict:
 
     check_data_before_loading(config.data)
     show_progress(config.progress)
-    with starting(compiler=True):  # every run builds an Adam, whose first use imports torch's compiler
+    spec = methods[config.method]  # the one lookup of the run, handed down
+    with starting():
+        from ..engine.parts import resolve_parts
+
+        # every plugin part imported and checked: one line before any data loads, and before the
+        # compiler, which every run's Adam needs and a refusal does not (docs/decisions.md)
+        resolve_parts(spec, config)
+        import torch._dynamo  # noqa: F401
+
         from ..engine.run_folder import resume_unfinished
         from ..engine.trainer import train
 
     if config.resume and config.output is None and not config.overwrite:  # the run this command started
         config = resume_unfinished(config)
-    spec = methods[config.method]  # the one lookup of the run, handed down
     if not config.viewer:
         return train(config, spec=spec, command=given, defaults=loaded)
     from ..viewer.scene_viewer import ViewerCallback

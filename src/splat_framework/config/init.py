@@ -35,7 +35,8 @@ class InitConfig(KindConfig):
     (declared as ``kind: Kind[Literal["TAG"]] = "TAG"``, see :class:`~.base.KindConfig`)."""
 
     points_fn: ClassVar[str]
-    """``module:function`` building this kind's points (see the module docstring)."""
+    """``module:function`` building this kind's points (see the module docstring; a
+    :class:`~splat_framework.entry_points.Ref`, checked before any data loads)."""
 
     @classmethod
     def registered_kinds(cls) -> dict[str, type["InitConfig"]]:

@@ -37,7 +37,8 @@ class StrategyConfig(KindConfig):
     accepts fewer kinds lists them with :func:`strategy_field`."""
 
     strategy_class: ClassVar[str] = ""
-    """``"module:Class"`` of the :class:`~splat_framework.model.strategy.Strategy` built from this config."""
+    """``"module:Class"`` of the :class:`~splat_framework.model.strategy.Strategy` built from this config
+    (a :class:`~splat_framework.entry_points.Ref`, checked before any data loads)."""
     enabled: bool = True
     """Run densification at all (False keeps the initial Gaussians only)."""
 
@@ -51,9 +52,9 @@ class StrategyConfig(KindConfig):
         """The :class:`~splat_framework.model.strategy.Strategy` this config describes: ``strategy_class(self)``."""
         if not self.strategy_class:
             raise NotImplementedError(f"{type(self).__name__}.strategy_class is not set")
-        from ..entry_points import load_object
+        from ..entry_points import STRATEGY_BASE, Ref
 
-        return load_object(self.strategy_class)(self)
+        return Ref(self.strategy_class, STRATEGY_BASE, f"{type(self).__name__}.strategy_class").load()(self)
 
 
 def strategy_field(*configs: type[StrategyConfig]):

@@ -62,8 +62,7 @@ from ..config import TrainConfig
 from ..console import phase, print_summary, say, show_progress
 from ..data.cache_dir import user_cache_dir
 from ..devices import resolve_config_devices
-from ..model.strategy import Strategy
-from ..pipeline import Pipeline, resolve_run_config
+from ..pipeline import resolve_run_config
 from ..registry import MethodSpec, get_method
 from ..render import prepare_kernels, set_compile, set_rasterizer
 from ..runtime.process import prepare_training_process
@@ -71,6 +70,7 @@ from ..runtime.profiling import section
 from ..runtime.rng import seed_everything
 from .numerics import first_nonfinite as _first_nonfinite
 from .numerics import optimized_tensors, trainable_tensors
+from .parts import build_strategy, resolve_parts
 from .run_folder import continue_command, prepare_run_dir, release_run_dir, remove_if_unused, starts_fresh
 from .run_outputs import RunLog, run_metrics, write_run_outputs
 from .stop_signals import abandoned_message, evaluation_stopped_message, stop_signals
@@ -190,8 +190,9 @@ class Trainer(TrainState):
             raise
 
     def _setup(self) -> None:
-        """The kernels, then the method's pipeline (data, model: SCGaussian's matching and warm-up),
-        then the optimizers and the strategy."""
+        """The plugin's parts checked, the kernels, then the method's pipeline (data, model:
+        SCGaussian's matching and warm-up), then the optimizers and the strategy."""
+        self.parts = resolve_parts(self.spec, self.config)  # a plugin's broken part: one line, before anything loads
         set_compile(self.config.compile, user_cache_dir())
         set_rasterizer(self.config.rasterizer)
         # built, loaded or compiled now, a phase of its own, not inside the first training step; a
@@ -202,19 +203,12 @@ class Trainer(TrainState):
         self.timing: dict[str, float] = {"kernels_s": time.perf_counter() - t_kernels}
         self.generator = seed_everything(self.config.seed)
         prepare_training_process()
-        pipeline_class = self.spec.pipeline_class()
-        if not (isinstance(pipeline_class, type) and issubclass(pipeline_class, Pipeline)):
-            raise TypeError(f"method {self.spec.name!r}: pipeline {self.spec.pipeline!r} is not a Pipeline subclass")
-        self.pipeline = pipeline_class(self.config, self.spec.model_class(), self.device, self.generator)
+        self.pipeline = self.parts.pipeline(self.config, self.parts.model, self.device, self.generator)
         self.config = self.pipeline.config  # with the data's folder and split recorded
         self.timing.update(self.pipeline.timing)
         self.optimizers = self.model.make_optimizers()
         strategy_config = self.pipeline.strategy_config()
-        self.strategy = strategy_config.setup()
-        if not isinstance(self.strategy, Strategy):
-            raise TypeError(
-                f"{type(strategy_config).__name__}.setup() returned {type(self.strategy).__name__}, not a Strategy"
-            )
+        self.strategy = build_strategy(strategy_config)
         self.densifies = strategy_config.enabled
         self.strategy.check_sanity(self.model.params, self.optimizers)  # a model breaking the ops conventions fails here
         self.strategy_state = self.strategy.initialize_state(scene_scale=self.model.scene_scale)
