@@ -277,7 +277,7 @@ class DefaultStrategy(Strategy):
             elif state[key].shape[0] != n:
                 raise RuntimeError(
                     f"strategy state has {state[key].shape[0]} rows but params have {n}: "
-                    "rows were added/removed outside the strategy; call initialize_state() again"
+                    "Gaussians were added or removed outside the strategy; call initialize_state() again"
                 )
         # dense over every row (masked), not gathered at the visible ones: a gather's size is a host read
         visible = radii > 0  # [C, N]
