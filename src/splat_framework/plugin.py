@@ -1,4 +1,4 @@
-"""The public face for plugin authors: every framework name a method plugin needs, from one module.
+"""The public API for plugin authors: every framework name a method plugin needs, from one module.
 
     from splat_framework.plugin import GaussianModel, MethodSpec, TrainConfig, rasterize
 
@@ -11,11 +11,11 @@ only from here (``tests/framework/test_plugin_imports.py``), and their tests als
 :mod:`splat_framework.testing`.
 
 Besides the contract (configs and their field markers, the model, strategies, the renderer),
-the face holds what a method's own parts build on:
+the public API holds what a method's own parts build on:
 
-- starts: ``RandomInitConfig``, ``FrustumInitConfig`` and ``PlyInitConfig`` (kinds a model may
+- inits: ``RandomInitConfig``, ``FrustumInitConfig`` and ``PlyInitConfig`` (kinds a model may
   narrow or extend),
-  ``initial_points`` (the start its ``model.init`` describes, as every model's ``from_data``
+  ``initial_points`` (the init its ``model.init`` describes, as every model's ``from_data``
   builds it), ``FALLBACK_POINTS`` (random points when a prior is missing or sparse);
 - the matching prior: ``MatchKinds`` (a config's ``matching`` field: any matcher's config, by its
   ``kind``; ``AutoMatchConfig`` the default, ``MatchConfig`` their base), ``compute_match_set``
@@ -26,7 +26,7 @@ the face holds what a method's own parts build on:
   ``resolve_steps`` (a config's schedule rescaled to its ``--steps``; the user's own iteration
   counts kept), ``flag_name`` (a config field's command-line flag), ``config_3dgs`` (the
   ``3dgs`` baseline's config, e.g. its densification schedule);
-- geometry: ``knn_scale`` (each point's distance to its nearest neighbours, 3DGS's start scale);
+- geometry: ``knn_scale`` (each point's distance to its nearest neighbours, 3DGS's init scale);
 - the terminal and the profile: ``phase`` (a named phase with progress, as the framework's own
   set-up steps show), ``section`` (time a named part of a step in ``--profile``).
 """

@@ -88,10 +88,10 @@ class Strategy:
     tensor), its own ``state`` (checkpointed by the trainer and loaded with ``weights_only=True``:
     tensors and plain values only, see :func:`unplain_state`; only the strategy edits it) and
     ``info`` (the rasterizer's meta dict). The trainer calls, each step: :meth:`loss` (added to
-    the model's loss); on the steps the model densifies, :meth:`step_pre_backward` and, after
-    the optimizers stepped, :meth:`step_post_backward`, which returns counts of what it
+    the model's loss); unless its config is disabled (``enabled=False``), :meth:`step_pre_backward`
+    and, after the optimizers stepped, :meth:`step_post_backward`, which returns counts of what it
     changed (summed in metrics.json's ``densified``); and :meth:`rows_changed` instead, at any
-    step where a model hook resized the rows. Every method has a do-nothing
+    step where a model hook resized the Gaussians. Every method has a do-nothing
     default (``rows_changed``: resize the per-row tensors), so a
     subclass overrides only what it needs; this base used as is never densifies.
 
