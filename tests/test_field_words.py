@@ -22,6 +22,8 @@ GAUSSIAN_ROWS = re.compile(r"\bper-row\b|\brow operations?\b|\bthe rows\b|\brows
 """How "rows" was said of Gaussians, refused in every text outside a table's context (any "rows" is
 refused in the pages and help that speak of the model: :data:`MODEL_PAGES` and :data:`HELP`)."""
 MODEL_PAGES = ("extending.md", "architecture.md")
+MAY_REFUSE = re.compile("|".join([*EVERYWHERE, GAUSSIAN_ROWS.pattern]), re.I)
+"""Any refused word outside the pages and help: a module without one has no message to read."""
 HELP = [ROOT / "src" / "splat_framework" / "config", ROOT / "src" / "scg_plugin" / "config.py",
         ROOT / "src" / "anchor_gs" / "config.py", ROOT / "examples" / "splat-example-plugin" / "src" / "splat_example_plugin" / "__init__.py",
         ROOT / "examples" / "minimal_plugin" / "my_plugin" / "__init__.py"]
@@ -79,7 +81,7 @@ def _sources():
     helps = [(p, i, t, True) for base in HELP for p in ([base] if base.is_file() else sorted(base.rglob("*.py")))
              for i, t in help_texts(p)]
     said = [(p, i, t, False) for base in ("src", "examples") for p in sorted((ROOT / base).rglob("*.py"))
-            for i, t in messages(p)]
+            if MAY_REFUSE.search(p.read_text()) for i, t in messages(p)]  # parsed only where a word may be
     return docs + helps + said
 
 
