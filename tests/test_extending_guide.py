@@ -92,3 +92,17 @@ def test_the_row_operations_are_ops_own_signatures():
 @pytest.mark.parametrize("name", ["duplicate", "split", "append", "rewrite", "remove"])
 def test_every_row_operation_is_in_the_guide(name):
     assert f"| `{name}(" in GUIDE.read_text()
+
+
+def test_the_guide_is_short_and_opens_with_the_whole_minimal_plugin():
+    """Issue 105: at most 350 lines, opening with examples/minimal_plugin: every file of it, shown
+    whole (nothing elided), in at most 40 lines of code."""
+    text = GUIDE.read_text()
+    assert len(text.splitlines()) <= 350
+    plugin = sorted((ROOT / "examples" / "minimal_plugin" / "my_plugin").glob("*.py"))
+    opening = snippets(text)[: len(plugin)]
+    assert [m.removeprefix("from: ") for m, *_ in opening] == [str(p.relative_to(ROOT)) for p in plugin]
+    for (_, _, body, _), path in zip(opening, plugin):
+        assert "..." not in _code_lines(body)
+        assert _code_lines(body) == [ln for ln in _code_lines(path.read_text()) if not ln.startswith('"""')]
+    assert sum(len([ln for ln in body.splitlines() if ln.strip()]) for _, _, body, _ in opening) <= 40

@@ -4,9 +4,7 @@ Defaults are the public code's (city-super/Scaffold-GS and city-super/Octree-GS,
 ``arguments/__init__.py``; Octree-GS's level options as its ``single_train.sh``),
 their 30,000- and 40,000-iteration schedules compressed to this project's budget by
 one rule: 1000 iterations for up to 4 training views, growing in proportion beyond
-(``schedule_views``; ``scgaussian`` counts from 3 views since 2026-12-05; counting these from 3
-views was measured on 2026-12-06 and gained nothing worth its time, docs/decisions.md), and every
-iteration count of the
+(``schedule_views = 4``; why not 3: docs/decisions.md), and every iteration count of the
 schedule (statistics start, anchor-growing window, progressive levels, learning-rate
 decays over the whole run) scaled by the same factor 1000 / 30000 (Scaffold-GS) or
 1000 / 40000 (Octree-GS), except the growing interval (100, like 3DGS's

@@ -71,7 +71,7 @@ class AnchorStrategy(Strategy):
                          offset_grad=torch.zeros(a, k, device=dev), offset_denom=torch.zeros(a, k, device=dev))
         elif state["opacity_accum"].shape[0] != a:
             raise RuntimeError(f"strategy state has {state['opacity_accum'].shape[0]} rows but params have {a}: "
-                               "rows were added/removed outside the strategy")
+                               "anchors were added or removed outside the strategy")
 
     @torch.no_grad()
     def _accumulate(self, params, state, info) -> None:

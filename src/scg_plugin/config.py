@@ -29,21 +29,21 @@ from splat_framework.plugin import (
 
 
 class OrdinaryRandomInit(RandomInitConfig):
-    """Random start of the ordinary Gaussians (the 3DGS reference's): uniform in the scene box, grey."""
+    """Random init of the ordinary Gaussians (the 3DGS reference's): uniform in the scene box, grey."""
 
     num_points: int = Field(10_000, ge=0, le=MAX_GAUSSIANS)
     """Random ordinary Gaussians beside the ray-based ones (0 = none)."""
 
 
 class OrdinaryFrustumInit(FrustumInitConfig):
-    """Frustum start of the ordinary Gaussians: random points inside the training frusta, coloured by their pixels."""
+    """Frustum init of the ordinary Gaussians: random points inside the training frusta, coloured by their pixels."""
 
     num_points: int = Field(10_000, ge=0, le=MAX_GAUSSIANS)
     """Random ordinary Gaussians beside the ray-based ones (0 = none)."""
 
 
 OrdinaryKinds = init_field(OrdinaryRandomInit, OrdinaryFrustumInit, PlyInitConfig)
-"""SCGaussian's starts for its ordinary Gaussians: the random kinds, which may be empty, or a PLY's
+"""SCGaussian's inits for its ordinary Gaussians: the random kinds, which may be empty, or a PLY's
 points (every method starts from a PLY: its Gaussians' centres become the ordinary Gaussians)."""
 
 
@@ -51,7 +51,7 @@ class SCGModelConfig(GaussianModelConfig):
     """SCGaussian: hybrid ray-based + ordinary Gaussians with matching-prior losses."""
 
     init: OrdinaryKinds = Field(default_factory=OrdinaryRandomInit)
-    """The ordinary Gaussians' start (the ray-based ones start on the matches)."""
+    """The ordinary Gaussians' init (the ray-based ones are initialised on the matches)."""
     matching: MatchKinds = Field(default_factory=AutoMatchConfig)
     """Matching prior (--model.matching.kind K picks the matcher)."""
     ray_binding: bool = True

@@ -22,7 +22,7 @@ class RayGaussianStrategy(DefaultStrategy):
         super().check_sanity(params, optimizers)
         for key in FLAG_KEYS:
             if key not in params:
-                raise ValueError(f"params is missing SCGaussian's per-row flag {key!r}")
+                raise ValueError(f"params is missing SCGaussian's per-Gaussian flag {key!r}")
 
     def protected_rows(self, params: Mapping[str, Tensor]) -> Tensor:
         flag = params["is_match"].detach()

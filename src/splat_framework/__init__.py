@@ -1,2 +1,2 @@
-"""splat: a modular Gaussian-splatting framework (the public face for plugins is
+"""splat: a modular Gaussian-splatting framework (the public API for plugins is
 :mod:`splat_framework.plugin`)."""

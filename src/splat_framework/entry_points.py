@@ -1,6 +1,6 @@
 """Registration: what plugins declare, by entry-point group, and loading what they name.
 
-One path for every kind of part (methods, strategies, start kinds, photo matchers, config
+One path for every kind of part (methods, strategies, init kinds, photo matchers, config
 variants), :data:`GROUPS`: an installed package declares its parts as entry points of these
 groups (``[project.entry-points."splat_framework.methods"]`` in its pyproject.toml); a module
 used without installing declares the same table as a dict ``ENTRY_POINTS = {group: {name:
@@ -41,7 +41,7 @@ CONFIG_ENTRY_POINT_GROUP = "splat_framework.configs"
 GROUPS: dict[str, str] = {
     METHOD_ENTRY_POINT_GROUP: "a method: NAME = \"module:spec\", a MethodSpec (torch-free module)",
     STRATEGY_ENTRY_POINT_GROUP: "a strategy kind: KIND = \"module:ConfigClass\", a StrategyConfig subclass",
-    INIT_ENTRY_POINT_GROUP: "a start kind: KIND = \"module:ConfigClass\", an InitConfig subclass",
+    INIT_ENTRY_POINT_GROUP: "an init kind: KIND = \"module:ConfigClass\", an InitConfig subclass",
     PHOTO_MATCHER_ENTRY_POINT_GROUP: "a photo matcher: NAME = \"module:function\", images -> matches by pair",
     CONFIG_ENTRY_POINT_GROUP: "config variants: NAME = \"package\", a package holding TOML variants",
 }

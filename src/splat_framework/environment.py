@@ -33,7 +33,7 @@ VARIABLES: dict[str, str] = {
     "SPLAT_CONFIG_PATH": "`:`-separated folders of TOML config variants, registered after the installed "
                          "packages' variants (a name already taken is refused with one warning naming both files).",
     "SPLAT_PLUGINS": "Plugins used without installing a package: comma-separated module names (importable, "
-                     "on `PYTHONPATH`), each declaring its parts (methods, strategies, start kinds, photo matchers, "
+                     "on `PYTHONPATH`), each declaring its parts (methods, strategies, init kinds, photo matchers, "
                      "config variants) in a dict `ENTRY_POINTS = {group: {name: \"module:object\"}}`, the table an "
                      "installed package's entry points hold (`SPLAT_PLUGINS=my_plugin splat-train my-method --data ...`).",
     "SPLAT_INSTALLED_PLUGINS": "`on` (the default) or `off`: with `off`, the parts of installed packages other than "

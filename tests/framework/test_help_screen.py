@@ -80,14 +80,14 @@ def test_an_unknown_group_is_one_line_naming_the_groups():
 
 
 class GridTestInit(RandomInitConfig):
-    """A plugin's start kind (registered below through a fake entry point)."""
+    """A plugin's init kind (registered below through a fake entry point)."""
 
     kind: Kind[Literal["grid-test"]] = "grid-test"
     """The start."""
 
 
 def test_the_kind_flags_list_the_registered_strategies_and_start_kinds(monkeypatch):
-    """A strategy and a start kind that plugins register show in ``--help``'s kind flags of every
+    """A strategy and an init kind that plugins register show in ``--help``'s kind flags of every
     method that takes them; a method that narrows its kinds lists its own."""
     from splat_framework import entry_points as plugins
     from splat_framework.config.init import init_kinds
@@ -103,9 +103,9 @@ def test_the_kind_flags_list_the_registered_strategies_and_start_kinds(monkeypat
     try:
         text = " ".join(help_of("3dgs", "--help").split())  # the help's lines joined: a list may wrap
         assert "The strategy's tag: default, ray-gaussian (each with its own flags)" in text
-        assert "The start's kind: random, frustum, triangulated, sfm, ply, grid-test (each with its own flags)" in text
+        assert "The init's kind: random, frustum, triangulated, sfm, ply, grid-test (each with its own flags)" in text
         scg = " ".join(help_of("scgaussian", "--help").split())
-        assert "The start's kind: random, frustum, ply (each" in scg and "The strategy's tag: ray-gaussian. (default" in scg
+        assert "The init's kind: random, frustum, ply (each" in scg and "The strategy's tag: ray-gaussian. (default" in scg
     finally:
         strategy_kinds.cache_clear()
         init_kinds.cache_clear()

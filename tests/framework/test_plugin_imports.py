@@ -1,4 +1,4 @@
-"""The face is the contract: the in-repo plugins and the example plugin import the framework only
+"""The public API is the contract: the in-repo plugins and the example plugins import the framework only
 through ``splat_framework.plugin`` (their tests also through ``splat_framework.testing``), read
 with ``ast``: every import statement (top-level, in a function, under ``if TYPE_CHECKING:``) and
 every ``importlib.import_module("...")`` / ``__import__("...")`` of a constant name."""
@@ -15,6 +15,7 @@ PLUGINS = {
     "scg_plugin": REPO / "src" / "scg_plugin",
     "anchor_gs": REPO / "src" / "anchor_gs",
     "splat-example-plugin": REPO / "examples" / "splat-example-plugin",
+    "minimal_plugin": REPO / "examples" / "minimal_plugin",
 }
 FACE = "splat_framework.plugin"
 TESTING = "splat_framework.testing"
@@ -41,7 +42,7 @@ def imported_modules(source: str) -> list[tuple[int, str]]:
 
 
 def outside_the_face(source: str, tests: bool) -> list[tuple[int, str]]:
-    """(line, module) of the framework modules ``source`` imports other than the face (and, in a
+    """(line, module) of the framework modules ``source`` imports other than the public API (and, in a
     plugin's tests, :mod:`splat_framework.testing`)."""
     allowed = (FACE, TESTING) if tests else (FACE,)
     framework = [(n, m) for n, m in imported_modules(source) if m == "splat_framework" or m.startswith("splat_framework.")]
@@ -63,8 +64,8 @@ def test_a_plugin_imports_the_framework_only_through_the_face(plugin):
         is_test = "tests" in path.relative_to(root).parts
         found += [f"{path.relative_to(REPO)}:{n}: {m}" for n, m in outside_the_face(source, is_test)]
         through_face += sum(m == FACE for _, m in imported_modules(source))
-    assert found == [], "import these from splat_framework.plugin (add what is missing to its face):\n" + "\n".join(found)
-    assert through_face > 0  # the plugin is read: it takes the framework from the face
+    assert found == [], "import these from splat_framework.plugin (add what is missing to its public API):\n" + "\n".join(found)
+    assert through_face > 0  # the plugin is read: it takes the framework from the public API
 
 
 def test_every_kind_of_import_is_seen():
@@ -89,7 +90,7 @@ from splat_framework.testing import run_cli
     assert "splat_framework.testing" not in [m for _, m in outside_the_face(source, tests=True)]
 
 
-PLUGIN_PACKAGES = ("scg_plugin", "anchor_gs", "splat_example_plugin")
+PLUGIN_PACKAGES = ("scg_plugin", "anchor_gs", "splat_example_plugin", "my_plugin")
 """The top-level packages of the plugins above: the framework must not import them."""
 OBJECT_PATH = r"^[A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*:[A-Za-z_]\w*$"
 
@@ -104,7 +105,7 @@ def object_paths(source: str) -> list[tuple[int, str]]:
 
 
 def internal_object_paths(source: str) -> list[tuple[int, str]]:
-    """The ``"module:Name"`` strings of a plugin's ``source`` naming a framework module other than the face."""
+    """The ``"module:Name"`` strings of a plugin's ``source`` naming a framework module other than the public API."""
     return [(n, p) for n, p in object_paths(source)
             if p.partition(":")[0].split(".")[0] == "splat_framework" and p.partition(":")[0] != FACE]
 
@@ -125,7 +126,7 @@ def test_the_framework_never_imports_a_plugin():
 
 @pytest.mark.parametrize("plugin", sorted(PLUGINS))
 def test_a_plugins_object_paths_name_only_the_face_or_its_own_modules(plugin, monkeypatch):
-    """Every ``"module:Name"`` string a plugin holds names the face or the plugin's own modules, and
+    """Every ``"module:Name"`` string a plugin holds names the public API or the plugin's own modules, and
     names an object that is there (tools and readers follow it)."""
     from splat_framework.entry_points import load_object
 
@@ -137,12 +138,14 @@ def test_a_plugins_object_paths_name_only_the_face_or_its_own_modules(plugin, mo
     assert found == [], "name the object through splat_framework.plugin:\n" + "\n".join(found)
     if plugin == "splat-example-plugin":  # read from its source folder, not installed
         monkeypatch.syspath_prepend(str(PLUGINS[plugin] / "src"))
+    if plugin == "minimal_plugin":  # a module on the path, never installed
+        monkeypatch.syspath_prepend(str(PLUGINS[plugin]))
     assert paths and all(load_object(p) is not None for p in paths)
 
 
 def test_the_checks_fail_on_planted_violations():
     """Planted: the framework importing SCGaussian's model (three ways) and naming it by path, and a
-    plugin naming a framework internal by ``"module:Class"``: each is found; the face is not."""
+    plugin naming a framework internal by ``"module:Class"``: each is found; the public API is not."""
     framework = '''
 import scg_plugin.model
 from anchor_gs import method

@@ -21,7 +21,7 @@ from splat_framework.model.strategy import DefaultStrategy, unplain_state
     'Kind[Literal["x"]] = "y"', 'Kind[Literal["x", "y"]] = "x"', 'Kind[Literal["Big_Tag"]] = "Big_Tag"',
 ])
 def test_a_kind_tag_is_declared_one_way(declaration):
-    """Every kind-tagged config (start kinds, strategies) declares ``kind: Kind[Literal["tag"]] = "tag"``,
+    """Every kind-tagged config (init kinds, strategies) declares ``kind: Kind[Literal["tag"]] = "tag"``,
     a lower-case hyphenated tag; any other way is a TypeError naming the class when it is defined."""
     from typing import Annotated, Literal
 

@@ -419,7 +419,7 @@ def test_a_model_hook_must_say_how_the_rows_changed(tmp_path, monkeypatch):
     monkeypatch.setattr(GaussianModel, "after_optimizer_step", silent)
     trainer = Trainer(tiny_config(tmp_path / "run", steps=4, progress=False))
     n = trainer.model.num_gaussians
-    with pytest.raises(ValueError, match=rf"GaussianModel.after_optimizer_step changed the rows \({n} -> {n - 1}\) "
+    with pytest.raises(ValueError, match=rf"GaussianModel.after_optimizer_step changed the Gaussians \({n} -> {n - 1}\) "
                                          "but returned None"):
         trainer.train_step(0)
 
@@ -428,7 +428,7 @@ def test_a_model_hook_must_say_how_the_rows_changed(tmp_path, monkeypatch):
         return ops.RowChange(change.kept, added=1)
 
     monkeypatch.setattr(GaussianModel, "after_optimizer_step", wrong)
-    with pytest.raises(ValueError, match=rf"returned a RowChange of {n - 1} -> {n - 1} rows, but the rows went "
+    with pytest.raises(ValueError, match=rf"returned a RowChange of {n - 1} -> {n - 1}, but the Gaussians went "
                                          rf"{n - 1} -> {n - 2}"):
         trainer.train_step(1)
 

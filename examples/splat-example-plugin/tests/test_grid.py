@@ -1,4 +1,4 @@
-"""The plugin's start kind ``grid``: any method that takes registered starts starts from its lattice."""
+"""The plugin's init kind ``grid``: any method that takes registered init kinds is initialised from its lattice."""
 
 import json
 

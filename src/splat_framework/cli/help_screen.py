@@ -6,7 +6,7 @@ regularisers, the strategy, the learning rates, ...) only its ``kind``: the choi
 then differ. A flag marked :data:`~splat_framework.config.FOLDED` (a rarely used run option) is
 left off too. The screen's description counts what it leaves off by group; ``--help GROUP`` shows
 one group in full (``--help options``: every top-level flag), ``--help all`` every flag. Every
-``kind`` flag lists the kinds its field accepts (the registered strategies and start kinds).
+``kind`` flag lists the kinds its field accepts (the registered strategies and init kinds).
 
 The screen is tyro's own help of the method's config with the fields it leaves off suppressed:
 :func:`help_view` builds that config, used only to print the help (nothing is parsed from it).

@@ -190,7 +190,7 @@ def derived_views() -> ContextManager[None]:
 
 
 class KindConfig(SplatConfig):
-    """Base of a family of configs tagged by ``kind`` (the start kinds, the strategies): a member of a
+    """Base of a family of configs tagged by ``kind`` (the init kinds, the strategies): a member of a
     discriminated union, picked by its tag in a saved config, a TOML variant or ``--PATH.kind``.
 
     A subclass that tags a kind declares it as ``kind: Kind[Literal["TAG"]] = "TAG"`` with a

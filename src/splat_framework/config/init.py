@@ -46,15 +46,15 @@ class InitConfig(KindConfig):
 
     @property
     def planned_points(self) -> int:
-        """Points this start is expected to give, for the memory plan before any data is read (0: unknown)."""
+        """Points this init is expected to give, for the memory plan before any data is read (0: unknown)."""
         return 0
 
 
 class RandomInitConfig(InitConfig):
-    """Random start (the 3DGS reference's): points uniform in the scene's content box (else the box of the training frusta), grey."""
+    """Random init (the 3DGS reference's): points uniform in the scene's content box (else the box of the training frusta), grey."""
 
     kind: Kind[Literal["random"]] = "random"
-    """The start's kind."""
+    """The init's kind."""
     num_points: int = Field(10_000, ge=1, le=MAX_GAUSSIANS)
     """Number of random initial points."""
     points_fn = "splat_framework.model.init:box_points"
@@ -65,10 +65,10 @@ class RandomInitConfig(InitConfig):
 
 
 class FrustumInitConfig(RandomInitConfig):
-    """Frustum start: random points inside the training frusta (uniform in inverse depth), coloured by their pixels."""
+    """Frustum init: random points inside the training frusta (uniform in inverse depth), coloured by their pixels."""
 
     kind: Kind[Literal["frustum"]] = "frustum"
-    """The start's kind."""
+    """The init's kind."""
     points_fn = "splat_framework.model.init:frustum_points"
 
 
@@ -82,20 +82,20 @@ def init_field(*configs: type[InitConfig]):
 
 
 RandomKinds = init_field(RandomInitConfig, FrustumInitConfig)
-"""The random starts, which need nothing but the training views."""
+"""The random inits, which need nothing but the training views."""
 
 
 class TriangulatedInitConfig(InitConfig):
-    """Triangulated start (the paper's "Triang. init" rows): the training views' matches triangulated with the known poses."""
+    """Triangulated init (the paper's "Triang. init" rows): the training views' matches triangulated with the known poses."""
 
     kind: Kind[Literal["triangulated"]] = "triangulated"
-    """The start's kind."""
+    """The init's kind."""
     matching: MatchKinds = Field(default_factory=AutoMatchConfig)
     """Matching prior of the triangulation (--model.init.matching.kind K)."""
     max_reprojection_px: Positive = 2.0
     """Drop triangulated points whose reprojection error exceeds this (px)."""
     fallback: RandomKinds = Field(default_factory=RandomInitConfig)
-    """The random start used when fewer than 50 matches triangulate."""
+    """The random init used when fewer than 50 matches triangulate."""
     points_fn = "splat_framework.model.init:triangulated_points"
 
     @property
@@ -104,20 +104,20 @@ class TriangulatedInitConfig(InitConfig):
 
 
 class SfMInitConfig(InitConfig):
-    """SfM start: a COLMAP dataset's points3D with their colours (computed from all its photos, test views included)."""
+    """SfM init: a COLMAP dataset's points3D with their colours (computed from all its photos, test views included)."""
 
     kind: Kind[Literal["sfm"]] = "sfm"
-    """The start's kind."""
+    """The init's kind."""
     points_fn = "splat_framework.model.init:sfm_points"
 
 
 class PlyInitConfig(InitConfig):
-    """PLY start: the centres and base colours of a 3DGS-layout PLY's Gaussians (splat-export's, the 3DGS reference's)."""
+    """PLY init: the centres and base colours of a 3DGS-layout PLY's Gaussians (splat-export's, the 3DGS reference's)."""
 
     kind: Kind[Literal["ply"]] = "ply"
-    """The start's kind."""
+    """The init's kind."""
     path: Path
-    """PLY file to start from."""
+    """PLY file to initialise from."""
     points_fn = "splat_framework.model.init:ply_points"
 
 

@@ -4,7 +4,7 @@
 :class:`MatchConfig` holds what every matcher's matches go through (verification, the balanced
 cap, the cache); each matcher's config adds its own options, so that the command line shows only
 the chosen matcher's flags (``--model.matching.kind sift --help``), as ``--model.init.kind`` does
-for the start kinds. A field takes any of them as :data:`MatchKinds`; :func:`match_config` builds
+for the init kinds. A field takes any of them as :data:`MatchKinds`; :func:`match_config` builds
 one by its kind. Why each default is what it is: docs/decisions.md.
 """
 

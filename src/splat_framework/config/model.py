@@ -61,7 +61,7 @@ class RegularisersConfig(SplatConfig):
 
 
 class ModelConfig(SplatConfig):
-    """What every model reads: its start, its photometric loss, its depth, the opt-in regularisers."""
+    """What every model reads: its init, its photometric loss, its depth, the opt-in regularisers."""
 
     init: InitKinds = Field(default_factory=RandomInitConfig)
     """Where the initial points come from (--model.init.kind K)."""

@@ -127,11 +127,11 @@ def check_row_change(model, n_before: int, change) -> None:
     name = f"{type(model).__name__}.after_optimizer_step"
     if change is None:
         if n != n_before:
-            raise ValueError(f"{name} changed the rows ({n_before} -> {n}) but returned None: return the "
+            raise ValueError(f"{name} changed the Gaussians ({n_before} -> {n}) but returned None: return the "
                              "RowChange that ops.remove / ops.append gave, so the strategy resizes its state")
     elif (change.old_rows, change.new_rows) != (n_before, n):
-        raise ValueError(f"{name} returned a RowChange of {change.old_rows} -> {change.new_rows} rows, but the "
-                         f"rows went {n_before} -> {n}")
+        raise ValueError(f"{name} returned a RowChange of {change.old_rows} -> {change.new_rows}, but the "
+                         f"Gaussians went {n_before} -> {n}")
 
 
 class _Restart(Exception):

@@ -88,10 +88,10 @@ class Strategy:
     tensor), its own ``state`` (checkpointed by the trainer and loaded with ``weights_only=True``:
     tensors and plain values only, see :func:`unplain_state`; only the strategy edits it) and
     ``info`` (the rasterizer's meta dict). The trainer calls, each step: :meth:`loss` (added to
-    the model's loss); on the steps the model densifies, :meth:`step_pre_backward` and, after
-    the optimizers stepped, :meth:`step_post_backward`, which returns counts of what it
+    the model's loss); unless its config is disabled (``enabled=False``), :meth:`step_pre_backward`
+    and, after the optimizers stepped, :meth:`step_post_backward`, which returns counts of what it
     changed (summed in metrics.json's ``densified``); and :meth:`rows_changed` instead, at any
-    step where a model hook resized the rows. Every method has a do-nothing
+    step where a model hook resized the Gaussians. Every method has a do-nothing
     default (``rows_changed``: resize the per-row tensors), so a
     subclass overrides only what it needs; this base used as is never densifies.
 
@@ -277,7 +277,7 @@ class DefaultStrategy(Strategy):
             elif state[key].shape[0] != n:
                 raise RuntimeError(
                     f"strategy state has {state[key].shape[0]} rows but params have {n}: "
-                    "rows were added/removed outside the strategy; call initialize_state() again"
+                    "Gaussians were added or removed outside the strategy; call initialize_state() again"
                 )
         # dense over every row (masked), not gathered at the visible ones: a gather's size is a host read
         visible = radii > 0  # [C, N]

@@ -1,10 +1,10 @@
 """A minimal splat plugin: 3DGS with view-independent (SH degree 0) colour and a prune-only densification
 strategy, plus an MCMC-style strategy that every method accepting registered strategies can train with,
-and a lattice start that every model accepting registered initialisations can start from.
+and a lattice init that every model accepting registered init kinds can be initialised from.
 
 A plugin declares its parts in one table, :data:`ENTRY_POINTS`: a ``MethodSpec`` in the group
 ``splat_framework.methods``, a strategy config in ``splat_framework.strategies``
-(``splat-train 3dgs --strategy.kind mcmc``) and a start config in ``splat_framework.inits``
+(``splat-train 3dgs --strategy.kind mcmc``) and an init config in ``splat_framework.inits``
 (``splat-train 3dgs --model.init.kind grid``). Installed, pyproject.toml's entry points hold the
 same table; not installed, ``SPLAT_PLUGINS=splat_example_plugin`` (with ``src/`` on
 ``PYTHONPATH``) reads it from here. Configs must stay torch-free (they are
@@ -44,10 +44,10 @@ ENTRY_POINTS = {
 
 
 class GridInitConfig(InitConfig):
-    """Lattice start: points on a regular grid filling the scene's box, grey."""
+    """Lattice init: points on a regular grid filling the scene's box, grey."""
 
     kind: Kind[Literal["grid"]] = "grid"
-    """The start's kind."""
+    """The init's kind."""
     per_axis: int = Field(20, ge=2, le=200)
     """Points along each axis of the box (per_axis ** 3 in all)."""
     points_fn: ClassVar[str] = "splat_example_plugin.grid:grid_points"

@@ -1,4 +1,4 @@
-"""A start kind from outside the framework: points on a regular lattice filling the scene's box,
+"""An init kind from outside the framework: points on a regular lattice filling the scene's box,
 grey (``splat-train 3dgs --model.init.kind grid --model.init.per-axis 20``)."""
 
 import torch
