@@ -26,6 +26,9 @@ the face holds what a method's own parts build on:
   ``resolve_steps`` (a config's schedule rescaled to its ``--steps``; the user's own iteration
   counts kept), ``flag_name`` (a config field's command-line flag), ``config_3dgs`` (the
   ``3dgs`` baseline's config, e.g. its densification schedule);
+- dataset formats: ``DataparserSpec`` (a dataparser: how it recognises a folder, its loader), and
+  for the loader ``SceneData``, ``build_scene`` (the scene with its extent from the training
+  cameras), ``read_image_size``, ``DataError`` (the one-line error of bad input);
 - geometry: ``knn_scale`` (each point's distance to its nearest neighbours, 3DGS's start scale);
 - the terminal and the profile: ``phase`` (a named phase with progress, as the framework's own
   set-up steps show), ``section`` (time a named part of a step in ``--profile``).
@@ -62,6 +65,12 @@ _EXPORTS: dict[str, str] = {
     "flag_name": "splat_framework.config",
     "config_3dgs": "splat_framework.methods.gaussian_splatting",
     "Kind": "splat_framework.config",
+    # dataset formats: a dataparser's spec (torch-free) and what its loader builds the scene with
+    "DataparserSpec": "splat_framework.data.dataparsers",
+    "DataError": "splat_framework.errors",
+    "SceneData": "splat_framework.data.scene",
+    "build_scene": "splat_framework.data.parsers.common",
+    "read_image_size": "splat_framework.data.images",
     # field markers of configs
     "Steps": "splat_framework.config",
     "StartSteps": "splat_framework.config",
@@ -146,6 +155,11 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     )
     from .config.init import FALLBACK_POINTS, FrustumInitConfig, PlyInitConfig
     from .console import phase
+    from .data.dataparsers import DataparserSpec
+    from .data.images import read_image_size
+    from .data.parsers.common import build_scene
+    from .data.scene import SceneData
+    from .errors import DataError
     from .losses import photometric_loss
     from .matching.prior import compute_match_set, match_pairs
     from .methods.gaussian_splatting import config_3dgs
