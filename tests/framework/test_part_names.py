@@ -52,7 +52,7 @@ def match(images, pairs=None):
     raise SystemExit("the plugin's matcher ran")
 
 
-parser = DataparserSpec("not LLFF", "poses_bounds.npy", lambda folder: True, "taker:nothing")
+parser = DataparserSpec("poses_bounds.npy", lambda folder: True, "taker:nothing")
 '''
 
 

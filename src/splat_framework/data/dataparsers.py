@@ -10,7 +10,7 @@ first that recognises the folder: the built-ins in the order llff, blender, dtu,
 colmap (a folder with both ``transforms.json`` and ``sparse/0/``, as nerfstudio's ns-process-data
 writes, is read as transforms.json), then a plugin's.
 
-Torch-free: detecting a folder's format imports no parser.
+A torch-free module: the built-ins recognise a folder without importing their parser modules.
 """
 
 from __future__ import annotations
@@ -30,7 +30,6 @@ class DataparserSpec:
     (``NAME = "module:spec"``; the entry point's name is the format's, e.g. ``--format llff``).
 
     Attributes:
-        description: one line naming the format.
         marker: what a folder of the format holds, as the message for an unrecognised folder lists
             it (``poses_bounds.npy``).
         recognises: ``folder -> bool``: whether a folder is of this format (cheap and torch-free: it
@@ -41,7 +40,6 @@ class DataparserSpec:
             after them unless it says otherwise).
     """
 
-    description: str
     marker: str
     recognises: Callable[[Path], bool]
     load: str
@@ -69,16 +67,18 @@ def _holds(name: str) -> Callable[[Path], bool]:
 
 
 PARSERS = "splat_framework.data.parsers"
-llff = DataparserSpec("LLFF (forward-facing)", "poses_bounds.npy", _holds("poses_bounds.npy"),
-                      f"{PARSERS}.llff:load_llff", order=10)
-blender = DataparserSpec("Blender (NeRF synthetic)", "transforms_train.json", _holds("transforms_train.json"),
-                         f"{PARSERS}.blender:load_blender", order=20)
-dtu = DataparserSpec("DTU (IDR's cameras_sphere.npz)", "cameras_sphere.npz", _holds("cameras_sphere.npz"),
-                     f"{PARSERS}.dtu:load_dtu", order=30)
-transforms = DataparserSpec("nerfstudio or instant-ngp transforms.json", TRANSFORMS, _holds(TRANSFORMS),
-                            f"{PARSERS}.transforms:load_transforms", order=40)
-colmap = DataparserSpec("COLMAP", "sparse/0/cameras.bin|txt", lambda folder: find_sparse_dir(Path(folder)) is not None,
+llff = DataparserSpec("poses_bounds.npy", _holds("poses_bounds.npy"), f"{PARSERS}.llff:load_llff", order=10)
+"""LLFF's forward-facing scenes (:mod:`splat_framework.data.parsers.llff`)."""
+blender = DataparserSpec("transforms_train.json", _holds("transforms_train.json"), f"{PARSERS}.blender:load_blender",
+                         order=20)
+"""The NeRF synthetic (Blender) scenes (:mod:`splat_framework.data.parsers.blender`)."""
+dtu = DataparserSpec("cameras_sphere.npz", _holds("cameras_sphere.npz"), f"{PARSERS}.dtu:load_dtu", order=30)
+"""DTU in the IDR / NeuS layout (:mod:`splat_framework.data.parsers.dtu`)."""
+transforms = DataparserSpec(TRANSFORMS, _holds(TRANSFORMS), f"{PARSERS}.transforms:load_transforms", order=40)
+"""nerfstudio and instant-ngp scenes (:mod:`splat_framework.data.parsers.transforms`)."""
+colmap = DataparserSpec("sparse/0/cameras.bin|txt", lambda folder: find_sparse_dir(Path(folder)) is not None,
                         f"{PARSERS}.colmap:load_colmap", order=BUILTIN_ORDER)
+"""COLMAP models, one's own photos posed (:mod:`splat_framework.data.parsers.colmap`)."""
 
 
 def _check(name: str, spec: object) -> str | None:

@@ -29,8 +29,8 @@ def load(root, *, views="all", downscale=None):
     raise DataError(f"{root}: read by the plugin's frames dataparser (views={views}, downscale={downscale})")
 
 
-frames = DataparserSpec("frames.txt", "frames.txt", lambda folder: (Path(folder) / "frames.txt").is_file(), "framer:load")
-first = DataparserSpec("tried before llff", "first.txt", lambda folder: (Path(folder) / "first.txt").is_file(),
+frames = DataparserSpec("frames.txt", lambda folder: (Path(folder) / "frames.txt").is_file(), "framer:load")
+first = DataparserSpec("first.txt", lambda folder: (Path(folder) / "first.txt").is_file(),
                        "framer:load", order=5)
 not_a_spec = "frames"
 '''

@@ -66,7 +66,6 @@ def load_scene_json(root: Path, *, views="all", downscale: float | None = None):
 
 
 dataparser = DataparserSpec(
-    description="the example plugin's scene.json: images with their K and world-to-camera matrices",
     marker=SCENE,
     recognises=recognises,
     load="splat_example_plugin.scene_json:load_scene_json",
