@@ -22,7 +22,13 @@ from pathlib import Path
 from splat_framework.plugin import DataError, DataparserSpec
 
 ENTRY_POINTS = {"splat_framework.dataparsers": {"frames": "framer:frames", "first": "framer:first",
-                                                "broken": "framer:not_a_spec"}}
+                                                "broken": "framer:not_a_spec", "crash": "framer:crash"}}
+
+
+def crashes(folder):
+    if (Path(folder) / "crash.txt").is_file():
+        raise RuntimeError("the plugin's check broke")
+    return False
 
 
 def load(root, *, views="all", downscale=None):
@@ -33,6 +39,7 @@ frames = DataparserSpec("frames.txt", lambda folder: (Path(folder) / "frames.txt
 first = DataparserSpec("first.txt", lambda folder: (Path(folder) / "first.txt").is_file(),
                        "framer:load", order=5)
 not_a_spec = "frames"
+crash = DataparserSpec("crash.txt", crashes, "framer:load")
 '''
 
 
@@ -71,7 +78,8 @@ def test_a_plugins_dataparser_recognises_and_loads_its_folders(framer, tmp_path)
     folder = tmp_path / "mine"
     folder.mkdir()
     (folder / "frames.txt").write_text("")
-    assert detect_format(folder) == "frames" and list(dataparsers())[-1] == "frames"  # after every installed one
+    names = list(dataparsers())
+    assert detect_format(folder) == "frames" and names.index("frames") > names.index("colmap")  # after the built-ins
     with pytest.raises(DataError, match="read by the plugin's frames dataparser .views=3, downscale=2"):
         load_scene(folder, views=3, downscale=2)
     with pytest.raises(DataError, match="read by the plugin's frames dataparser"):
@@ -91,6 +99,15 @@ def test_an_entry_that_is_not_a_dataparser_is_left_out_with_one_line(framer):
             "ignored"] == [line for line in framer if "broken" in line]
 
 
+def test_a_dataparser_whose_check_raises_is_one_line_naming_it(framer, tmp_path):
+    (tmp_path / "c").mkdir()
+    (tmp_path / "c" / "crash.txt").write_text("")
+    with pytest.raises(DataError) as e:
+        load_scene(tmp_path / "c")
+    assert str(e.value) == (f"{tmp_path / 'c'}: dataparser 'crash' failed while recognising it "
+                            "(RuntimeError: the plugin's check broke)")
+
+
 def test_an_unrecognised_folder_names_every_formats_marker(framer, tmp_path):
     folder = tmp_path / "x"
     folder.mkdir()
@@ -100,7 +117,7 @@ def test_an_unrecognised_folder_names_every_formats_marker(framer, tmp_path):
     message = str(e.value)
     assert "neither a dataset (first.txt, poses_bounds.npy, transforms_train.json, cameras_sphere.npz, " \
            "transforms.json, sparse/0/cameras.bin|txt" in message
-    assert message.endswith("frames.txt) nor a folder of photos; splat-process turns your own photos or video into "
+    assert message.endswith("frames.txt or crash.txt) nor a folder of photos; splat-process turns your own photos or video into "
                             "a scene folder") and "\n" not in message
     with pytest.raises(DataError, match=r"unknown dataset format 'nerf' \(choose auto, first, llff, blender, dtu, "):
         load_scene(folder, format="nerf")

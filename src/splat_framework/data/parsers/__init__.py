@@ -21,7 +21,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Callable, Literal
 
-from ...entry_points import load_object
+from ...entry_points import IMPORT_FAILURES, load_object, raised
 from ..dataparsers import dataparsers, listed
 from ..scene import DataError, SceneData
 from ..splits import check_views
@@ -36,9 +36,18 @@ def _loader(fmt: str) -> Callable[..., SceneData]:
 
 
 def marked_format(path: Path) -> str | None:
-    """The dataset format that recognises folder ``path`` (the first, in detection order), or None."""
+    """The dataset format that recognises folder ``path`` (the first, in detection order), or None; a
+    DataError naming the dataparser whose check raises (an OSError passes: the folder's trouble)."""
     path = Path(path)
-    return next((name for name, spec in dataparsers().items() if spec.recognises(path)), None)
+    for name, spec in dataparsers().items():
+        try:
+            if spec.recognises(path):
+                return name
+        except OSError:
+            raise
+        except IMPORT_FAILURES as e:  # a plugin's check: one line naming it, never a traceback
+            raise DataError(f"{path}: dataparser '{name}' failed while recognising it ({raised(e)})") from None
+    return None
 
 
 def detect_format(path: Path) -> str:
