@@ -212,3 +212,11 @@ def pose_differences(a_w2c: np.ndarray, b_w2c: np.ndarray) -> tuple[np.ndarray, 
     rel = b_w2c[:, :3, :3] @ np.transpose(a_w2c[:, :3, :3], (0, 2, 1))
     cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
     return np.degrees(np.arccos(cos)), np.linalg.norm(camera_centers(a_w2c) - camera_centers(b_w2c), axis=1)
+
+
+def view_angle(cam_a: Camera, cam_b: Camera) -> float:
+    """Angle in degrees between the optical axes of two cameras."""
+    za = cam_a.world_to_cam[2, :3].detach().cpu().double().numpy()
+    zb = cam_b.world_to_cam[2, :3].detach().cpu().double().numpy()
+    cos = float(za @ zb / max(np.linalg.norm(za) * np.linalg.norm(zb), 1e-12))
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))

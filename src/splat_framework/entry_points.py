@@ -1,7 +1,7 @@
 """Registration: what plugins declare, by entry-point group, and loading what they name.
 
 One path for every kind of part (methods, strategies, init kinds, photo matchers, config
-variants), :data:`GROUPS`: an installed package declares its parts as entry points of these
+variants, dataparsers), :data:`GROUPS`: an installed package declares its parts as entry points of these
 groups (``[project.entry-points."splat_framework.methods"]`` in its pyproject.toml); a module
 used without installing declares the same table as a dict ``ENTRY_POINTS = {group: {name:
 "module:object"}}`` and is named in ``$SPLAT_PLUGINS`` (comma-separated module names, on
@@ -37,6 +37,7 @@ INIT_ENTRY_POINT_GROUP = "splat_framework.inits"
 METHOD_ENTRY_POINT_GROUP = "splat_framework.methods"
 PHOTO_MATCHER_ENTRY_POINT_GROUP = "splat_framework.photo_matchers"
 CONFIG_ENTRY_POINT_GROUP = "splat_framework.configs"
+DATAPARSER_ENTRY_POINT_GROUP = "splat_framework.dataparsers"
 
 GROUPS: dict[str, str] = {
     METHOD_ENTRY_POINT_GROUP: "a method: NAME = \"module:spec\", a MethodSpec (torch-free module)",
@@ -44,6 +45,7 @@ GROUPS: dict[str, str] = {
     INIT_ENTRY_POINT_GROUP: "an init kind: KIND = \"module:ConfigClass\", an InitConfig subclass",
     PHOTO_MATCHER_ENTRY_POINT_GROUP: "a photo matcher: NAME = \"module:function\", images -> matches by pair",
     CONFIG_ENTRY_POINT_GROUP: "config variants: NAME = \"package\", a package holding TOML variants",
+    DATAPARSER_ENTRY_POINT_GROUP: "a dataset format: NAME = \"module:spec\", a DataparserSpec (torch-free module)",
 }
 """Every entry-point group a plugin may declare parts in -> what one entry names."""
 PLUGINS_VARIABLE = "SPLAT_PLUGINS"

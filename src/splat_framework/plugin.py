@@ -17,8 +17,9 @@ builds from: ``initial_points``, ``StartPoints``, ``scene_box``), strategies (``
 ``DefaultStrategy``, ``check_rows``), losses (``photometric_loss``, ``regulariser_terms``),
 schedules (``run_fraction``, ``log_lerp``; ``baseline_schedule``, the 3dgs baseline's schedules
 for a run), the renderer (``rasterize``, ``RenderOutput``, ``rgb_to_sh``, ``quat_to_rotmat``),
-the camera (``Camera``), the pipeline (``Pipeline``), the terminal and the profile (``phase``,
-``section``).
+the camera (``Camera``), the pipeline (``Pipeline``), dataset formats (``DataparserSpec``: how a
+dataparser recognises a folder and its loader; for the loader ``SceneData``, ``build_scene``,
+``read_image_size``, ``DataError``), the terminal and the profile (``phase``, ``section``).
 
 **Optional services** (:data:`SERVICES`), for a method that builds on them: the matching prior:
 its configs (``MatchKinds``: a config's ``matching`` field, any matcher by its ``kind``;
@@ -53,6 +54,12 @@ CONTRACT: dict[str, str] = {
     "Kind": "splat_framework.config",
     "BaselineSchedule": "splat_framework.methods.baseline",
     "baseline_schedule": "splat_framework.methods.baseline",
+    # dataset formats: a dataparser's spec (torch-free) and what its loader builds the scene with
+    "DataparserSpec": "splat_framework.data.dataparsers",
+    "DataError": "splat_framework.errors",
+    "SceneData": "splat_framework.data.scene",
+    "build_scene": "splat_framework.data.parsers.common",
+    "read_image_size": "splat_framework.data.images",
     # field markers of configs
     "Steps": "splat_framework.config",
     "StartSteps": "splat_framework.config",
@@ -146,6 +153,11 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     )
     from .config.init import FALLBACK_POINTS, FrustumInitConfig, PlyInitConfig
     from .console import phase
+    from .data.dataparsers import DataparserSpec
+    from .data.images import read_image_size
+    from .data.parsers.common import build_scene
+    from .data.scene import SceneData
+    from .errors import DataError
     from .losses import photometric_loss
     from .matching.prior import compute_match_set, match_pairs
     from .methods.baseline import BaselineSchedule, baseline_schedule

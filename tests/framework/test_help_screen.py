@@ -103,7 +103,7 @@ def test_the_kind_flags_list_the_registered_strategies_and_start_kinds(monkeypat
     try:
         text = " ".join(help_of("3dgs", "--help").split())  # the help's lines joined: a list may wrap
         assert "The strategy's tag: default, ray-gaussian (each with its own flags)" in text
-        assert "The init's kind: random, frustum, triangulated, sfm, ply, grid-test (each with its own flags)" in text
+        assert "The init's kind: random, frustum, ply, sfm, triangulated, grid-test (each with its own flags)" in text
         scg = " ".join(help_of("scgaussian", "--help").split())
         assert "The init's kind: random, frustum, ply (each" in scg and "The strategy's tag: ray-gaussian. (default" in scg
     finally:

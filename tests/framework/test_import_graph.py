@@ -106,8 +106,8 @@ def test_the_graph_is_read():
     assert "splat_framework.render.sh" in graph["splat_framework.render"]  # from .sh import ...
     assert "splat_framework.config.matcher_names" in graph["splat_framework.config.matching"]
     assert graph["splat_framework.config.matcher_names"] == set()  # a matcher name validates with nothing else
-    # ``from ..matching.prior import ...`` runs matching/__init__.py first
-    assert {"splat_framework.matching", "splat_framework.matching.prior"} <= graph["splat_framework.model.init"]
+    # ``from ..model.init import ...`` runs model/__init__.py first
+    assert {"splat_framework.model", "splat_framework.model.init"} <= graph["splat_framework.matching.prior"]
     assert len(graph) > 100
 
 
@@ -161,11 +161,13 @@ LAYERS: list[tuple[str, ...]] = [
     ("files",),
     # data: datasets, and the file formats a start is read from or a run is exported to
     ("data", "export"),
-    # poses from one's own photos
-    ("sfm",),
-    ("matching",),
     ("render", "losses"),
+    # the model imports nothing of matching or sfm: their init kinds register as entry points
     ("model",),
+    # poses from one's own photos, and the SfM init
+    ("sfm",),
+    # the matching prior, and the triangulated init
+    ("matching",),
     ("evaluation",),
     # the data and the model of a run: one step's batch and loss, the evaluation
     ("pipeline",),
@@ -206,6 +208,16 @@ def test_the_layer_rule_sees_an_upward_import():
     assert layer_of("splat_framework.matching.config") == layer_of("splat_framework.matching.pipeline")
     assert layer_of("splat_framework.config") < layer_of("splat_framework.data.photos") < layer_of("splat_framework.sfm.photos")
     assert layer_of("splat_framework.export.ply") < layer_of("splat_framework.model.init")
+    assert layer_of("splat_framework.model.gaussians") < layer_of("splat_framework.sfm.points") < layer_of("splat_framework.matching.prior")
+
+
+def test_the_model_imports_nothing_of_matching_or_sfm():
+    """The model layer sits below matching and sfm: their init kinds (triangulated, sfm) register
+    through the ``splat_framework.inits`` entry points, so no module of ``model/`` imports theirs."""
+    graph, _ = import_graph()
+    found = sorted(f"{a} -> {b}" for a, targets in graph.items() if a.startswith("splat_framework.model")
+                   for b in targets if b.startswith(("splat_framework.matching", "splat_framework.sfm")))
+    assert found == []
 
 
 def test_every_module_imports_first_in_a_fresh_process():

@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from splat_framework import matching as M
-from splat_framework.cameras import Camera, intrinsics, look_at
+from splat_framework.cameras import Camera, intrinsics, look_at, view_angle
 from splat_framework.config import MatchConfig, match_config, match_kinds
 from splat_framework.matching import (
     MATCHERS,
@@ -471,8 +471,8 @@ def test_auto_picks_the_matcher_by_view_angle(plane_scene, monkeypatch):
     """auto with more views than auto_guided_flow_max_views: dense flow on narrow pairs, the learned matcher
     alone on pairs wider than auto_flow_max_angle; with at most that many, guided flow on every pair."""
     imgs, cams, ids = _plane_pair(plane_scene)  # optical axes 7 degrees apart
-    assert 6.0 < M.view_angle(*cams) < 8.0
-    assert M.view_angle(cams[0], cams[0]) == pytest.approx(0.0, abs=1e-4)
+    assert 6.0 < view_angle(*cams) < 8.0
+    assert view_angle(cams[0], cams[0]) == pytest.approx(0.0, abs=1e-4)
     calls = []
 
     class FakeLearned:
@@ -517,7 +517,7 @@ def test_auto_guides_dense_flow_with_the_learned_matches_on_a_wide_pair(wide_pla
     """A wide pair: flow between view A and view B warped onto A by the homography of a few sparse
     matches (1.5 px noise: flow must follow what the homography leaves) gives thousands of exact matches."""
     imgs, cams, H_ab = wide_plane_pair
-    assert 25.0 < M.view_angle(*cams) < 40.0
+    assert 25.0 < view_angle(*cams) < 40.0
     rng = np.random.default_rng(0)
 
     class SparseStub:  # 60 noisy correspondences, like a learned matcher's few verified ones

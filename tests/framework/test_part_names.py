@@ -1,4 +1,4 @@
-"""The one rule of every kind of registered part (methods, variants, strategies, inits, photo matchers):
+"""The one rule of every kind of registered part (methods, variants, strategies, inits, photo matchers, dataparsers):
 names are names, a taken name keeps its first registration (the framework's own first), and a
 variant shapes the experiment, never the run (``splat_framework.entry_points.Parts``,
 ``splat_framework.registry``)."""
@@ -18,7 +18,7 @@ from splat_framework.config.base import RUN_OPTION
 PLUGIN = '''
 from typing import Literal
 
-from splat_framework.plugin import InitConfig, Kind, MethodSpec, StrategyConfig, TrainConfig
+from splat_framework.plugin import DataparserSpec, InitConfig, Kind, MethodSpec, StrategyConfig, TrainConfig
 
 ENTRY_POINTS = {
     "splat_framework.methods": {"3dgs": "taker:spec"},
@@ -26,6 +26,7 @@ ENTRY_POINTS = {
     "splat_framework.inits": {"random": "taker:TakerInit"},
     "splat_framework.photo_matchers": {"aliked-lightglue": "taker:match"},
     "splat_framework.configs": {"taker": "taker_configs"},
+    "splat_framework.dataparsers": {"llff": "taker:parser"},
 }
 
 
@@ -49,6 +50,9 @@ class TakerInit(InitConfig):
 
 def match(images, pairs=None):
     raise SystemExit("the plugin's matcher ran")
+
+
+parser = DataparserSpec("poses_bounds.npy", lambda folder: True, "taker:nothing")
 '''
 
 
@@ -90,6 +94,16 @@ def _builtin_photo_matcher():
     return photo_matchers()["aliked-lightglue"].value == "splat_framework.matching.photos:aliked_lightglue"
 
 
+def _builtin_dataparser():
+    from splat_framework.data.dataparsers import dataparsers, llff
+
+    dataparsers.cache_clear()
+    try:
+        return dataparsers()["llff"] is llff
+    finally:
+        dataparsers.cache_clear()  # the plugin's module leaves with the test
+
+
 KINDS = {
     "method": (lambda: registry.discover_methods()["3dgs"].description != "not the framework's 3dgs",
                "method '3dgs' of SPLAT_PLUGINS module 'taker' (taker:spec) is already registered by package "
@@ -104,11 +118,13 @@ KINDS = {
     "photo matcher": (_builtin_photo_matcher, "photo matcher 'aliked-lightglue' of SPLAT_PLUGINS module 'taker' "
                       "(taker:match) is already registered by package splat-framework "
                       "(splat_framework.matching.photos:aliked_lightglue)"),
+    "dataparser": (_builtin_dataparser, "dataparser 'llff' of SPLAT_PLUGINS module 'taker' (taker:parser) is already "
+                   "registered by package splat-framework (splat_framework.data.dataparsers:llff)"),
 }
 
 
 @pytest.mark.parametrize("kind", sorted(KINDS))
-@pytest.mark.bad_input("a plugin's method, variant, strategy, init or photo matcher named like a built-in one",
+@pytest.mark.bad_input("a plugin's method, variant, strategy, init, photo matcher or dataparser named like a built-in one",
                        "one warning line naming both sources; the built-in keeps the name")
 def test_a_plugins_part_named_like_a_builtin_leaves_the_builtin_in_place(taker, tmp_path, kind):
     """For every kind of part, a plugin's entry under a built-in's name is left out with one warning naming

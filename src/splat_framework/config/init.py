@@ -8,7 +8,8 @@ ordinary Gaussians). A function takes ``(config, datamanager, generator)`` and r
 :class:`~splat_framework.model.init.StartPoints` (points [N, 3], colours [N, 3] in [0, 1], and seconds
 per named set-up phase).
 
-Every model accepts the built-in kinds and those a plugin registers in the entry-point group
+Every model accepts the built-in kinds (random, frustum, ply; triangulated and sfm are declared
+in the framework's own entry points, as a plugin's kinds are) and those a plugin registers in the entry-point group
 ``splat_framework.inits`` (:data:`InitKinds`; the entry point's name is the kind's tag, declared as
 ``kind: Kind[Literal["TAG"]] = "TAG"``); a model that accepts fewer lists them with :func:`init_field`.
 On the command line ``--model.init.kind K`` picks one and shows its flags (``splat-train 3dgs
@@ -96,7 +97,7 @@ class TriangulatedInitConfig(InitConfig):
     """Drop triangulated points whose reprojection error exceeds this (px)."""
     fallback: RandomKinds = Field(default_factory=RandomInitConfig)
     """The random init used when fewer than 50 matches triangulate."""
-    points_fn = "splat_framework.model.init:triangulated_points"
+    points_fn = "splat_framework.matching.prior:triangulated_init"
 
     @property
     def planned_points(self) -> int:
@@ -108,7 +109,7 @@ class SfMInitConfig(InitConfig):
 
     kind: Kind[Literal["sfm"]] = "sfm"
     """The init's kind."""
-    points_fn = "splat_framework.model.init:sfm_points"
+    points_fn = "splat_framework.sfm.points:sfm_points"
 
 
 class PlyInitConfig(InitConfig):
@@ -122,10 +123,11 @@ class PlyInitConfig(InitConfig):
 
 
 BUILTIN_INITS: dict[str, type[InitConfig]] = {
-    c.model_fields["kind"].default: c
-    for c in (RandomInitConfig, FrustumInitConfig, TriangulatedInitConfig, SfMInitConfig, PlyInitConfig)
+    c.model_fields["kind"].default: c for c in (RandomInitConfig, FrustumInitConfig, PlyInitConfig)
 }
-"""The initialisation kinds of the framework itself."""
+"""The initialisation kinds of the model layer itself, which need nothing but the training views or a file. The
+triangulated and SfM kinds, whose points come from the matching and sfm layers above the model, register
+through the ``splat_framework.inits`` entry points (the framework's pyproject.toml), as a plugin's kinds do."""
 
 
 @cache

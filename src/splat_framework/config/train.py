@@ -41,8 +41,8 @@ class TrainConfig(SplatConfig):
     """Method name (set by the subcommand)."""
     data: str = "synthetic/forward"
     """Dataset folder, or a folder of photos or a video; else under $SPLAT_DATA."""
-    format: Literal["auto", "llff", "blender", "dtu", "transforms", "colmap"] = "auto"
-    """Dataset format; auto detects it from the folder's contents."""
+    format: str = "auto"
+    """Dataset format: auto (detected from the folder's contents) or a dataparser (llff, blender, dtu, transforms, colmap, a plugin's)."""
     views: Annotated[int, Field(ge=1, le=MAX_VIEWS)] | Literal["all"] | None = None
     """Training views, or all (default: 3 on LLFF, Blender, DTU; else all)."""
     downscale: Positive | None = None

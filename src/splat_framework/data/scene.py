@@ -16,7 +16,7 @@ class SceneData:
 
     Attributes:
         root: the dataset folder.
-        format: parser name ("llff", "blender", "dtu", "transforms", "colmap").
+        format: the dataparser's name ("llff", "blender", "dtu", "transforms", "colmap", a plugin's).
         cameras: one Camera per image, already matching the size at which the
             images will be decoded (after ``image_scale`` and ``undistort``).
         image_paths: one image file per camera.

@@ -59,7 +59,7 @@ triangulated points), ``drawing``.
 from .base import Matcher, Pts, no_matches, texture, to_gray_u8, to_hwc, to_uint8_rgb
 from .classical import DenseFlowMatcher, SiftMatcher, mutual_ratio_match
 from .drawing import draw_matches
-from .geometry import epipolar_distance, fundamental_from_cameras, magsac_inliers, verify_pair, view_angle
+from .geometry import epipolar_distance, fundamental_from_cameras, magsac_inliers, verify_pair
 from .guided import GuidedFlowMatcher
 from .learned import (
     MAX_UPSCALE,
@@ -128,5 +128,4 @@ __all__ = [
     "to_hwc",
     "to_uint8_rgb",
     "verify_pair",
-    "view_angle",
 ]

@@ -115,11 +115,3 @@ def verify_pair(
         warn = f"only {len(pa)} verified matches (< {MIN_PAIR_MATCHES}): pair left empty"
         pa, pb = no_matches()
     return pa, pb, counts, warn
-
-
-def view_angle(cam_a: "Camera", cam_b: "Camera") -> float:
-    """Angle in degrees between the optical axes of two cameras."""
-    za = as_numpy(cam_a.world_to_cam)[2, :3].astype(np.float64)
-    zb = as_numpy(cam_b.world_to_cam)[2, :3].astype(np.float64)
-    cos = float(za @ zb / max(np.linalg.norm(za) * np.linalg.norm(zb), 1e-12))
-    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))

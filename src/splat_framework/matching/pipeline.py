@@ -11,13 +11,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..cameras import view_angle
 from ..config.base import MAX_MATCHES
 from ..config.matching import MatchConfig, match_config
 from ..console import Phase, phase, say
 from ..runtime.threads import machine_thread_count, machine_threads
 from . import registry
 from .base import KnownMatches, Matcher, Pts, inside_mask, to_hwc
-from .geometry import as_numpy, fundamental_from_cameras, verify_pair, view_angle
+from .geometry import as_numpy, fundamental_from_cameras, verify_pair
 from .guided import GuidedFlowMatcher
 from .learned import WEIGHTS_INSTALL
 from .matchset import CACHE_VERSION, MatchSet, Pair

@@ -2,7 +2,8 @@
 
 Every method can start from it: SCGaussian binds Gaussians to the matched rays,
 ``3dgs-triang`` (and any plugin's ``-triang`` variant) starts ordinary Gaussians at
-the matches triangulated with the known poses (:func:`triangulated_points`).
+the matches triangulated with the known poses (:func:`triangulated_points`; the init kind
+"triangulated" is :func:`triangulated_init`).
 """
 
 from __future__ import annotations
@@ -20,8 +21,12 @@ from ..cameras import Camera
 from ..config.matching import MatchConfig
 from ..console import say
 from ..data.cache_dir import user_cache_dir
+from ..model.init import StartPoints, initial_points
 from .matchset import MatchSet
 from .report import view_names, warn_empty
+
+MIN_TRIANGULATED = 50
+"""Fewer triangulated points than this: the run warns and starts from the kind's fallback instead."""
 
 
 def compute_match_set(matching: MatchConfig, datamanager) -> MatchSet:
@@ -147,4 +152,19 @@ def triangulated_points(matching: MatchConfig, max_reprojection_px: float, datam
     return torch.cat(pts).to(dev), torch.cat(cols).to(dev), timing, match_set.digest()
 
 
-__all__ = ["compute_match_set", "match_pairs", "triangulate", "triangulated_points"]
+def triangulated_init(init, datamanager, generator: torch.Generator) -> StartPoints:
+    """Init kind "triangulated" (``init``: a :class:`~splat_framework.config.init.TriangulatedInitConfig`):
+    the training views' matches (``init.matching``) triangulated with their poses, points whose
+    reprojection error exceeds ``init.max_reprojection_px`` dropped; with fewer than
+    ``MIN_TRIANGULATED`` of them (texture-less views), the ``init.fallback`` start (one warning).
+    Timing: ``matching_s``; stats: ``matches_digest``."""
+    points, colors, timing, digest = triangulated_points(init.matching, init.max_reprojection_px, datamanager)
+    if points.shape[0] < MIN_TRIANGULATED:
+        warnings.warn("too few triangulated matches: falling back to random initialisation", stacklevel=3)
+        fallback = initial_points(init.fallback, datamanager, generator)
+        points, colors = fallback.points, fallback.colors
+    return StartPoints(points, colors, timing, {"matches_digest": digest})
+
+
+__all__ = ["MIN_TRIANGULATED", "compute_match_set", "match_pairs", "triangulate", "triangulated_init",
+           "triangulated_points"]

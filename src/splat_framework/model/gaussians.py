@@ -29,11 +29,10 @@ from typing import Any, Mapping, Sequence
 import torch
 from torch import Tensor, nn
 
-from ..cameras import Camera
+from ..cameras import Camera, view_angle
 from ..config import GaussianModelConfig, RunFacts
 from ..console import phase
 from ..losses import photometric_loss
-from ..matching.geometry import view_angle
 from ..render import RenderOutput, rasterize, rgb_to_sh
 from ..runtime.profiling import section
 from ..runtime.rng import keyed_generator

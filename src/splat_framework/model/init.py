@@ -1,5 +1,8 @@
 """The initial points of every method, one function per kind of ``model.init``
-(:mod:`splat_framework.config.init`), called through :func:`initial_points`.
+(:mod:`splat_framework.config.init`), called through :func:`initial_points`: here the kinds that
+need nothing but the training views or a file (random, frustum, ply); the triangulated start is
+:func:`splat_framework.matching.prior.triangulated_init`, the SfM start
+:func:`splat_framework.sfm.points.sfm_points`, registered as a plugin's kinds are.
 
 Each function takes ``(config, datamanager, generator)`` and returns a :class:`StartPoints`,
 which :func:`initial_points` puts on the training images' device. The generator is the run's
@@ -9,7 +12,6 @@ which :func:`initial_points` puts on the training images' device. The generator 
 from __future__ import annotations
 
 import importlib
-import warnings
 from dataclasses import dataclass, field, replace
 
 import torch
@@ -19,11 +21,7 @@ from ..cameras import Camera
 from ..data.scene import SceneData
 from ..errors import DataError
 from ..export.ply import load_ply
-from ..matching import prior
 from ..render import sh_to_rgb
-
-MIN_TRIANGULATED = 50
-"""Fewer triangulated points than this: the run warns and starts from the kind's fallback instead."""
 
 
 @dataclass
@@ -130,37 +128,7 @@ def sample_box_points(box: Tensor, n: int, generator: torch.Generator) -> tuple[
     return points, torch.full((n, 3), 0.5)
 
 
-# ------------------------------------------------------------- from data
-def triangulated_points(init, datamanager, generator: torch.Generator) -> StartPoints:
-    """Kind "triangulated": the training views' matches (``init.matching``) triangulated with their
-    poses, points whose reprojection error exceeds ``init.max_reprojection_px`` dropped; with fewer
-    than ``MIN_TRIANGULATED`` of them (texture-less views), the ``init.fallback`` start (one warning).
-    Timing: ``matching_s``; stats: ``matches_digest``."""
-    points, colors, timing, digest = prior.triangulated_points(init.matching, init.max_reprojection_px, datamanager)
-    if points.shape[0] < MIN_TRIANGULATED:
-        warnings.warn("too few triangulated matches: falling back to random initialisation", stacklevel=3)
-        fallback = initial_points(init.fallback, datamanager, generator)
-        points, colors = fallback.points, fallback.colors
-    return StartPoints(points, colors, timing, {"matches_digest": digest})
-
-
-def sfm_points(init, datamanager, generator: torch.Generator) -> StartPoints:
-    """Kind "sfm": the dataset's structure-from-motion points and colours (a COLMAP dataset's
-    points3D, kept by its parser in ``scene.extras``); DataError when it has none."""
-    scene: SceneData = datamanager.scene
-    xyz = scene.extras.get("points3d")
-    if xyz is None or len(xyz) == 0:
-        raise DataError(
-            f"{scene.root}: no structure-from-motion points to start from (model.init.kind sfm needs a COLMAP "
-            "dataset with sparse/0/points3D); choose another --model.init.kind"
-        )
-    _, images = _train_views(datamanager)
-    device = images[0].device
-    points = torch.as_tensor(xyz, dtype=torch.float32)
-    colors = torch.as_tensor(scene.extras["points3d_rgb"], dtype=torch.float32) / 255.0
-    return StartPoints(points.to(device), colors.to(device))
-
-
+# ------------------------------------------------------------- from a file
 def ply_points(init, datamanager, generator: torch.Generator) -> StartPoints:
     """Kind "ply": the means and degree-0 colours of the Gaussians of ``init.path`` (a 3DGS-layout
     PLY, :func:`splat_framework.export.ply.load_ply`); DataError for a file without a Gaussian or with

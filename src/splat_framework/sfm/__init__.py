@@ -8,7 +8,8 @@
 - :mod:`.video`: frames of a video, spread along it and sharp;
 - :mod:`.alignment`: the Sim(3) alignment of estimated cameras to true ones, and pose errors;
 - :mod:`.training_poses`: the benchmarks' estimated-poses protocol (a dataset's training views
-  posed from their own photos alone).
+  posed from their own photos alone);
+- :mod:`.points`: the init kind "sfm", a model started from a dataset's structure-from-motion points.
 
 pycolmap (PyPI; it ships COLMAP, runs on the CPU, downloads nothing) is an optional
 dependency: ``pip install "splat-framework[process]"``.

@@ -152,7 +152,7 @@ def test_any_method_starts_from_a_ply_on_the_command_line(tmp_path):
     argv = ["3dgs-triang", "--model.init.kind=triangulated", "--model.init.max-reprojection-px", "3"]
     config = tyro.cli(build_parser_type(methods, argv, "3dgs-triang"), args=argv)
     assert config.model.init.max_reprojection_px == 3 and config.model.init.matching == methods["3dgs-triang"].default_config().model.init.matching
-    with pytest.raises(ArgumentsError, match="'sphere' is not one of random, frustum, triangulated, sfm, ply"):
+    with pytest.raises(ArgumentsError, match="'sphere' is not one of random, frustum, ply, sfm, triangulated"):
         build_parser_type(methods, ["3dgs", "--model.init.kind", "sphere"], "3dgs")
     with pytest.raises(ArgumentsError, match="'sfm' is not one of random, frustum, ply"):
         build_parser_type(methods, ["scgaussian", "--model.init.kind", "sfm"], "scgaussian")

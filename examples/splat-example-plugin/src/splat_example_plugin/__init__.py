@@ -4,9 +4,10 @@ and a lattice init that every model accepting registered init kinds can be initi
 
 A plugin declares its parts in one table, :data:`ENTRY_POINTS`: a ``MethodSpec`` in the group
 ``splat_framework.methods``, a strategy config in ``splat_framework.strategies``
-(``splat-train 3dgs --strategy.kind mcmc``) and an init config in ``splat_framework.inits``
-(``splat-train 3dgs --model.init.kind grid``). Installed, pyproject.toml's entry points hold the
-same table; not installed, ``SPLAT_PLUGINS=splat_example_plugin`` (with ``src/`` on
+(``splat-train 3dgs --strategy.kind mcmc``), an init config in ``splat_framework.inits``
+(``splat-train 3dgs --model.init.kind grid``) and a dataset format in ``splat_framework.dataparsers``
+(``splat-train 3dgs --data FOLDER``, a folder holding ``scene.json``). Installed, pyproject.toml's
+entry points hold the same table; not installed, ``SPLAT_PLUGINS=splat_example_plugin`` (with ``src/`` on
 ``PYTHONPATH``) reads it from here. Configs must stay torch-free (they are
 read to build ``splat-train --help``); the model and the strategies are imported
 only when training starts (a strategy config names its class as ``module:Class``).
@@ -39,6 +40,7 @@ ENTRY_POINTS = {
     "splat_framework.inits": {"grid": "splat_example_plugin:GridInitConfig"},
     "splat_framework.photo_matchers": {"orb": "splat_example_plugin.matching:match_photos"},
     "splat_framework.configs": {"splat_example_plugin": "splat_example_plugin.configs"},
+    "splat_framework.dataparsers": {"scene-json": "splat_example_plugin.scene_json:dataparser"},
 }
 """Every part of this plugin, by entry-point group (pyproject.toml's entry points say the same)."""
 

@@ -1,12 +1,15 @@
 """Dataset parsers: folder -> :class:`SceneData` (cameras, image paths, split).
 
-``load_scene`` detects the format from the folder contents:
+Every dataset format is a dataparser registered in the entry-point group
+``splat_framework.dataparsers`` (:mod:`splat_framework.data.dataparsers`), the built-ins too;
+``load_scene`` detects the format from the folder contents, trying them in order:
 
 - ``poses_bounds.npy``                     -> llff
 - ``transforms_train.json``                -> blender
 - ``cameras_sphere.npz``                   -> dtu
 - ``transforms.json`` (nerfstudio, instant-ngp) -> transforms
 - ``sparse/0/``, ``sparse/`` or ``colmap/sparse/0/`` with ``cameras.bin|txt`` -> colmap
+- then a plugin's formats.
 
 (nerfstudio's ns-process-data writes both of the last two: its ``transforms.json`` is read.)
 
@@ -18,53 +21,32 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Callable, Literal
 
+from ...entry_points import IMPORT_FAILURES, load_object, raised
+from ..dataparsers import dataparsers, listed
 from ..scene import DataError, SceneData
 from ..splits import check_views
 
-FORMATS = ("llff", "blender", "dtu", "transforms", "colmap")
-
 
 def _loader(fmt: str) -> Callable[..., SceneData]:
-    if fmt == "llff":
-        from .llff import load_llff
-
-        return load_llff
-    if fmt == "blender":
-        from .blender import load_blender
-
-        return load_blender
-    if fmt == "dtu":
-        from .dtu import load_dtu
-
-        return load_dtu
-    if fmt == "transforms":
-        from .transforms import load_transforms
-
-        return load_transforms
-    if fmt == "colmap":
-        from .colmap import load_colmap
-
-        return load_colmap
-    raise DataError(f"unknown dataset format {fmt!r} (choose auto, {', '.join(FORMATS)})")
+    """The load function of the dataparser named ``fmt`` (a DataError naming the registered ones)."""
+    parsers = dataparsers()
+    if fmt not in parsers:
+        raise DataError(f"unknown dataset format {fmt!r} (choose auto, {', '.join(parsers)})")
+    return load_object(parsers[fmt].load)
 
 
 def marked_format(path: Path) -> str | None:
-    """The dataset format whose marker file folder ``path`` holds, or None."""
+    """The dataset format that recognises folder ``path`` (the first, in detection order), or None; a
+    DataError naming the dataparser whose check raises (an OSError passes: the folder's trouble)."""
     path = Path(path)
-    if (path / "poses_bounds.npy").is_file():
-        return "llff"
-    if (path / "transforms_train.json").is_file():
-        return "blender"
-    if (path / "cameras_sphere.npz").is_file():
-        return "dtu"
-    from .transforms import TRANSFORMS
-
-    if (path / TRANSFORMS).is_file():
-        return "transforms"
-    from .colmap import find_sparse_dir
-
-    if find_sparse_dir(path) is not None:
-        return "colmap"
+    for name, spec in dataparsers().items():
+        try:
+            if spec.recognises(path):
+                return name
+        except OSError:
+            raise
+        except IMPORT_FAILURES as e:  # a plugin's check: one line naming it, never a traceback
+            raise DataError(f"{path}: dataparser '{name}' failed while recognising it ({raised(e)})") from None
     return None
 
 
@@ -84,9 +66,10 @@ def detect_format(path: Path) -> str:
         raise DataError(f"{path}: cannot list folder ({e.strerror or e})") from None
     if empty:
         raise DataError(f"{path}: empty folder, no dataset found")
+    markers = listed([spec.marker for spec in dataparsers().values()])
     raise DataError(
-        f"{path}: neither a dataset (poses_bounds.npy, transforms_train.json, cameras_sphere.npz, transforms.json or "
-        "sparse/0/cameras.bin|txt) nor a folder of photos; splat-process turns your own photos or video into a scene folder"
+        f"{path}: neither a dataset ({markers}) nor a folder of photos; "
+        "splat-process turns your own photos or video into a scene folder"
     )
 
 
@@ -101,7 +84,8 @@ def load_scene(
 
     Args:
         path: dataset folder.
-        format: "auto" (detect) or one of :data:`FORMATS`.
+        format: "auto" (detect) or a registered dataparser's name
+            (:func:`~splat_framework.data.dataparsers.dataparsers`).
         views: number of training views under the dataset's few-shot
             protocol (see :mod:`splat_framework.data.splits`), or "all".
         downscale: image downscale factor relative to full resolution.
@@ -126,4 +110,4 @@ def load_scene(
         raise DataError(f"{name}: {e.strerror or e}") from None
 
 
-__all__ = ["FORMATS", "detect_format", "load_scene", "marked_format"]
+__all__ = ["detect_format", "load_scene", "marked_format"]

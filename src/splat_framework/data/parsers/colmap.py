@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..dataparsers import find_sparse_dir
 from ..images import check_image_file, natural_key
 from ..scene import DataError, SceneData
 from ..splits import Views, own_scene_split
@@ -97,19 +98,6 @@ class ColmapImage:
     camera_id: int
     name: str
     point3d_ids: np.ndarray  # observed point ids (>= 0 only)
-
-
-SPARSE_DIRS = ("sparse/0", "sparse", "colmap/sparse/0")
-"""Where a scene folder's COLMAP model may be, in order: COLMAP's own layout, a single model, and
-nerfstudio's ns-process-data layout (``images/`` beside ``colmap/``)."""
-
-
-def find_sparse_dir(root: Path) -> Path | None:
-    """The first of :data:`SPARSE_DIRS` under ``root`` holding ``cameras.bin`` or ``cameras.txt``, or None."""
-    for d in (root / sub for sub in SPARSE_DIRS):
-        if any((d / f"cameras{ext}").is_file() for ext in (".bin", ".txt")):
-            return d
-    return None
 
 
 # ------------------------------------------------------------------ binary

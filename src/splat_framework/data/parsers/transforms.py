@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..dataparsers import TRANSFORMS
 from ..images import natural_key
 from ..scene import DataError, SceneData
 from ..splits import Views, own_scene_split
@@ -45,7 +46,6 @@ from .common import (
     pixel_ratios,
 )
 
-TRANSFORMS = "transforms.json"
 PERSPECTIVE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
 """nerfstudio's ``camera_model`` values of perspective lenses (OpenCV's model: k1, k2, k3, p1, p2)."""
 FISHEYE_MODEL = "OPENCV_FISHEYE"
