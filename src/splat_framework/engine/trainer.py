@@ -62,7 +62,6 @@ from torch import Tensor
 from ..config import TrainConfig, config_payload, resolve_steps, save_config
 from ..console import phase, print_summary, say, show_progress
 from ..data import DataManager, describe_split, record_data, resolve_views
-from ..data.cache_dir import user_cache_dir
 from ..devices import resolve_config_devices
 from ..evaluation.metrics import psnr_tensor
 from ..files import run_lock
@@ -70,7 +69,7 @@ from ..files.output_paths import RUN_FOLDER
 from ..model.strategy import Strategy
 from ..pipeline import Pipeline
 from ..registry import MethodSpec, get_method
-from ..render import prepare_kernels, set_compile, set_rasterizer
+from ..render import RenderSettings, backend_name, prepare_kernels
 from ..runtime.allocator import keep_freed_memory
 from ..runtime.profiling import section
 from ..runtime.rng import seed_everything
@@ -205,12 +204,11 @@ class Trainer(TrainState):
 
     def _setup(self) -> None:
         """Data, model (SCGaussian: matching, warm-up), optimizers and strategy."""
-        set_compile(self.config.compile, user_cache_dir())
-        set_rasterizer(self.config.rasterizer)
         # built, loaded or compiled now, a phase of its own, not inside the first training step; a
         # rasterizer named that cannot run here is one line (DataError) before anything is loaded
         t_kernels = time.perf_counter()
-        self.rasterizer = prepare_kernels(self.device)
+        self.render_settings = prepare_kernels(self.device, RenderSettings.from_config(self.config))
+        self.rasterizer = backend_name(self.device, self.render_settings)
         # the kernels' build or load is a row of its own, and total_s counts it
         self.timing: dict[str, float] = {"kernels_s": time.perf_counter() - t_kernels}
         self.generator = seed_everything(self.config.seed)
@@ -232,6 +230,7 @@ class Trainer(TrainState):
         self.background = background_for(scene, self.device)
         t0 = time.perf_counter()
         self.model = self.spec.model_class().from_data(self.config, self.datamanager, self.generator).to(self.device)
+        self.model.render_settings = self.render_settings
         self.timing.update(self.model.init_timing)
         self.timing["init_s"] = time.perf_counter() - t0 - sum(self.model.init_timing.values())
         self.optimizers = self.model.make_optimizers()
@@ -241,6 +240,7 @@ class Trainer(TrainState):
             raise TypeError(
                 f"{type(strategy_config).__name__}.setup() returned {type(self.strategy).__name__}, not a Strategy"
             )
+        self.model.absgrad = self.strategy.absgrad
         self.strategy.check_sanity(self.model.params, self.optimizers)  # a model breaking the ops conventions fails here
         self.strategy_state = self.strategy.initialize_state(scene_scale=self.model.scene_scale)
         self.camera_refiner = CameraRefiner.for_run(self.config, len(self.datamanager.train_indices),
