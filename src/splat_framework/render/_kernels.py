@@ -300,18 +300,23 @@ def _compiled(name: str, fn, static, which: str, folder: Path | None):
     return Precompiled(name, fn, static, Path(folder) / "precompiled", traced, which)
 
 
+def use_inductor_cache(settings: RenderSettings) -> None:
+    """Inductor's generated code under ``settings.cache_dir/inductor`` while kernels are compiled
+    (``TORCHINDUCTOR_CACHE_DIR``, left alone when the user set it)."""
+    if settings.compile and settings.cache_dir is not None:
+        os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", str(Path(settings.cache_dir) / "inductor"))
+
+
 def get_kernels(settings: RenderSettings):
     """(fwd_round, bwd_round): compiled with ``settings.compile``, else eager. The compiled ones
     keep their graphs under ``settings.cache_dir/precompiled`` and inductor's generated code under
-    ``settings.cache_dir/inductor`` (``TORCHINDUCTOR_CACHE_DIR``, left alone when the user set it),
-    so a later run loads them in seconds instead of tracing and compiling again."""
+    ``settings.cache_dir/inductor`` (:func:`use_inductor_cache`), so a later run loads them in seconds instead of tracing and compiling again."""
     eager = (gathering_fwd(fwd_round), gathering_bwd(bwd_round))
     if not settings.compile:
         return eager
     folder = settings.cache_dir
     if folder not in _KERNELS:
-        if folder is not None:
-            os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", str(Path(folder) / "inductor"))
+        use_inductor_cache(settings)
         try:
             _KERNELS[folder] = (
                 _with_fallback(_compiled("fwd", gathering_fwd(fwd_round_fused), _fwd_static, "forward", folder),

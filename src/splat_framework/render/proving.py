@@ -46,19 +46,17 @@ def _version_key(backend: str, device: torch.device) -> str:
         h.update(triton.__version__.encode())
     except ImportError:
         pass
-    h.update(_device_words(device).encode())
+    h.update(_device_words(device, backend).encode())
     return h.hexdigest()[:16]
 
 
-def _device_words(device: torch.device) -> str:
+def _device_words(device: torch.device, backend: str) -> str:
     if device.type == "cuda":
         index = device.index if device.index is not None else torch.cuda.current_device()
         major, minor = torch.cuda.get_device_capability(index)
         return f"cuda {torch.cuda.get_device_name(index)} sm_{major}{minor}"
-    from ._triton import interpreting
-
-    interpret = " (Triton interpreted)" if interpreting() else ""
-    return f"{device.type} {platform.machine()} {torch.backends.cpu.get_cpu_capability()}{interpret}"
+    words = f"{device.type} {platform.machine()} {torch.backends.cpu.get_cpu_capability()}"
+    return f"{words} (Triton interpreted)" if backend == "triton" else words
 
 
 def _scene(device: torch.device) -> dict:
@@ -127,7 +125,7 @@ def proven(device: torch.device, settings: RenderSettings) -> RenderSettings:
     if not found:
         return settings
     warnings.warn(f"rasterizer {kernels.name}: refused, it disagrees with the torch reference on "
-                  f"{_device_words(device)} ({found}); rendering with the torch kernels", stacklevel=2)
+                  f"{_device_words(device, kernels.name)} ({found}); rendering with the torch kernels", stacklevel=2)
     return settings.replace(rasterizer="torch")
 
 
@@ -144,7 +142,7 @@ def _kept(cache_dir: Path | None, backend: str, key: str, device: torch.device, 
         found = differences(device, settings)
     if path is not None:
         try:
-            atomic_write_json(path, {"backend": backend, "device": _device_words(device), "differences": found},
+            atomic_write_json(path, {"backend": backend, "device": _device_words(device, backend), "differences": found},
                               checksum=False)
         except OSError:
             pass  # a read-only cache: proved again by the next process

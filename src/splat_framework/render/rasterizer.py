@@ -23,14 +23,15 @@ from torch import Tensor
 from ..runtime.profiling import section
 from ..runtime.threads import follow_load
 from ._composite import TileGrid, composite, pixel_basis, tile_footprints
-from ._kernels import get_kernels
+from ._kernels import get_kernels, use_inductor_cache
 from ._project import ProjectFn, footprint, project, reference_radii
 from .backend import choose, kernels_for, native_for
 from .settings import RenderSettings
 
 __all__ = ["RenderOutput", "prepare_kernels", "rasterize"]
 
-_EAGER = RenderSettings()
+_DEFAULT_SETTINGS = RenderSettings()
+"""What a render without ``settings`` takes: the eager torch kernels."""
 
 
 @dataclass
@@ -199,7 +200,7 @@ def rasterize(
         means, quats, scales, opacities, colors, viewmat, K, width, height,
         sh_degree=sh_degree, background=background, near_plane=near_plane,
         far_plane=far_plane, depth_mode=depth_mode, eps2d=eps2d, tile_size=tile_size,
-        block=block, chunk_pairs=chunk_pairs, settings=_EAGER if settings is None else settings, absgrad=absgrad,
+        block=block, chunk_pairs=chunk_pairs, settings=_DEFAULT_SETTINGS if settings is None else settings, absgrad=absgrad,
     )
 
 
@@ -309,8 +310,7 @@ def prepare_kernels(device: torch.device, settings: RenderSettings) -> RenderSet
     from .proving import proven
 
     chosen = choose(device, settings)
-    if settings.compile:
-        get_kernels(settings)  # points inductor at the cache folder before anything compiles
+    use_inductor_cache(settings)  # before anything compiles
     if chosen == "native":
         native_for(device, settings)
     elif chosen == "triton":
