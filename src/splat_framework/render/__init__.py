@@ -3,7 +3,8 @@
 from ._kernels import compiled_or_eager
 from ._project import quat_to_rotmat
 from .backend import backend_name, native_for
-from .rasterizer import RenderOutput, prepare_kernels, rasterize
+from .proving import prepare_kernels
+from .rasterizer import RenderOutput, rasterize
 from .settings import RASTERIZERS, RenderSettings
 from .sh import eval_sh, rgb_to_sh, sh_to_color, sh_to_rgb
 

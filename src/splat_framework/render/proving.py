@@ -1,4 +1,5 @@
-"""A backend proves itself once per machine and version before a run uses it.
+"""The kernels made ready before a run renders (:func:`prepare_kernels`), and a backend proving
+itself once per machine and version before a run uses it.
 
 The native and Triton kernels are tested against the torch reference, but a machine the tests never
 ran on (a new GPU, compiler or CPU) could still make them disagree. Before a run renders with them,
@@ -20,7 +21,9 @@ import torch
 
 from ..console import phase
 from ..runtime.io import atomic_write_json
-from .backend import kernels_for
+from ._kernels import use_inductor_cache
+from .backend import choose, kernels_for, native_for
+from .rasterizer import rasterize
 from .settings import RenderSettings
 
 TOLERANCE = 1e-3
@@ -81,8 +84,6 @@ def _scene(device: torch.device) -> dict:
 
 def _render(scene: dict, settings: RenderSettings) -> dict[str, torch.Tensor]:
     """The image, depth and alpha of the scene and the gradients of a fixed loss of them."""
-    from .rasterizer import rasterize
-
     inputs = {k: scene[k].clone().requires_grad_(True) for k in ("means", "quats", "scales", "opacities", "colors")}
     out = rasterize(inputs["means"], inputs["quats"], inputs["scales"], inputs["opacities"], inputs["colors"],
                     torch.eye(4, device=scene["K"].device), scene["K"], 24, 20, settings=settings)
@@ -149,4 +150,32 @@ def _kept(cache_dir: Path | None, backend: str, key: str, device: torch.device, 
     return found
 
 
-__all__ = ["TOLERANCE", "differences", "proven"]
+def prepare_kernels(device: torch.device, settings: RenderSettings) -> RenderSettings:
+    """Build or load the native kernels, or compile the Triton ones (one tiny render, a phase line;
+    Triton keeps what it compiled in its cache), so that no training step pays for it; then prove
+    them against the torch reference once per machine (:func:`proven`). Returns the
+    settings renders take: ``settings``, or the torch kernels where the chosen ones were refused.
+    Raises DataError where a rasterizer asked for by name cannot run."""
+    chosen = choose(device, settings)
+    use_inductor_cache(settings)  # before anything compiles
+    if chosen == "native":
+        native_for(device, settings)
+    elif chosen == "triton":
+        with phase("compiling the Triton rasterizer kernels (cached after the first run)"):
+            _warm_up(device, settings)
+    return proven(device, settings)
+
+
+def _warm_up(device: torch.device, settings: RenderSettings) -> None:
+    """One 16x16 render of two Gaussians, forward and backward, in float32 on ``device``."""
+    means = torch.tensor([[0.0, 0.0, 3.0], [0.2, 0.1, 4.0]], device=device, requires_grad=True)
+    quats = torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 2, device=device)
+    scales = torch.full((2, 3), 0.3, device=device)
+    viewmat = torch.eye(4, device=device)
+    K = torch.tensor([[16.0, 0.0, 8.0], [0.0, 16.0, 8.0], [0.0, 0.0, 1.0]], device=device)
+    out = rasterize(means, quats, scales, torch.full((2,), 0.8, device=device), torch.ones(2, 3, device=device),
+                    viewmat, K, 16, 16, settings=settings)
+    (out.rgb.sum() + out.depth.sum()).backward()
+
+
+__all__ = ["TOLERANCE", "differences", "prepare_kernels", "proven"]

@@ -23,12 +23,12 @@ from torch import Tensor
 from ..runtime.profiling import section
 from ..runtime.threads import follow_load
 from ._composite import TileGrid, composite, pixel_basis, tile_footprints
-from ._kernels import get_kernels, use_inductor_cache
+from ._kernels import get_kernels
 from ._project import ProjectFn, footprint, project, reference_radii
-from .backend import choose, kernels_for, native_for
+from .backend import kernels_for
 from .settings import RenderSettings
 
-__all__ = ["RenderOutput", "prepare_kernels", "rasterize"]
+__all__ = ["RenderOutput", "rasterize"]
 
 _DEFAULT_SETTINGS = RenderSettings()
 """What a render without ``settings`` takes: the eager torch kernels."""
@@ -299,35 +299,3 @@ def _rasterize(
         "background": background,
     }
     return RenderOutput(rgb=rgb, depth=depth, alpha=alpha, meta=meta, depth_mode=depth_mode)
-
-
-def prepare_kernels(device: torch.device, settings: RenderSettings) -> RenderSettings:
-    """Build or load the native kernels, or compile the Triton ones (one tiny render, a phase line;
-    Triton keeps what it compiled in its cache), so that no training step pays for it; then prove
-    them against the torch reference once per machine (:func:`.proving.proven`). Returns the
-    settings renders take: ``settings``, or the torch kernels where the chosen ones were refused.
-    Raises DataError where a rasterizer asked for by name cannot run."""
-    from .proving import proven
-
-    chosen = choose(device, settings)
-    use_inductor_cache(settings)  # before anything compiles
-    if chosen == "native":
-        native_for(device, settings)
-    elif chosen == "triton":
-        from ..console import phase
-
-        with phase("compiling the Triton rasterizer kernels (cached after the first run)"):
-            _warm_up(device, settings)
-    return proven(device, settings)
-
-
-def _warm_up(device: torch.device, settings: RenderSettings) -> None:
-    """One 16x16 render of two Gaussians, forward and backward, in float32 on ``device``."""
-    means = torch.tensor([[0.0, 0.0, 3.0], [0.2, 0.1, 4.0]], device=device, requires_grad=True)
-    quats = torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 2, device=device)
-    scales = torch.full((2, 3), 0.3, device=device)
-    viewmat = torch.eye(4, device=device)
-    K = torch.tensor([[16.0, 0.0, 8.0], [0.0, 16.0, 8.0], [0.0, 0.0, 1.0]], device=device)
-    out = rasterize(means, quats, scales, torch.full((2,), 0.8, device=device), torch.ones(2, 3, device=device),
-                    viewmat, K, 16, 16, settings=settings)
-    (out.rgb.sum() + out.depth.sum()).backward()
