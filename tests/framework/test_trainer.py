@@ -302,11 +302,18 @@ def test_the_render_settings_reach_the_model_and_the_environment_wins(tmp_path, 
     trainer = Trainer(tiny_config(tmp_path / "run", steps=20, progress=False))  # the default: compiled
     assert trainer.render_settings.compile and trainer.render_settings.rasterizer == "torch"
     assert trainer.model.render_settings is trainer.render_settings
+    assert not trainer.model.absgrad  # the default strategy densifies on means2d.grad
     assert os.environ["TORCHINDUCTOR_CACHE_DIR"] == str(Path(os.environ["SPLAT_CACHE"]) / "inductor")
     monkeypatch.setenv("SPLAT_COMPILE", "0")  # the environment wins
     assert not Trainer(tiny_config(tmp_path / "run2", steps=20, progress=False)).model.render_settings.compile
     monkeypatch.delenv("SPLAT_COMPILE")
-    assert not Trainer(tiny_config(tmp_path / "run3", steps=20, progress=False, compile=False)).render_settings.compile
+    eager = Trainer(tiny_config(tmp_path / "run3", steps=20, progress=False, compile=False, strategy={"absgrad": True}))
+    assert not eager.render_settings.compile
+    assert eager.model.absgrad  # the strategy asks its training renders for AbsGS's sums
+    eager.train_step(0)
+    outputs = eager.model.get_outputs(eager.datamanager.train_view(0)[0], eager.background, step=1)
+    outputs.rgb.sum().backward()
+    assert outputs.meta["means2d"].absgrad.shape == outputs.meta["means2d"].shape
 
 
 def test_trainer_checks_the_strategy_conventions(tmp_path, monkeypatch):
