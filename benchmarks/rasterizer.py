@@ -99,13 +99,15 @@ def run_one(n: int, device: str, repeats: int, warmup: int, scene: str = "opaque
     import torch
 
     from splat_framework.data.cache_dir import user_cache_dir
-    from splat_framework.render import rasterize, set_compile
+    from splat_framework.render import RenderSettings
+    from splat_framework.render import rasterize as render
 
-    set_compile(kernels != "eager", user_cache_dir())
-    if kernels in ("compiled", "triton", "native"):  # the torch.compile'd rounds, or the named kernels
-        from splat_framework.render import set_rasterizer
+    # the torch.compile'd rounds, or the named kernels
+    settings = RenderSettings(rasterizer={"compiled": "torch", "eager": "auto"}.get(kernels, kernels),
+                              compile=kernels != "eager", cache_dir=user_cache_dir())
 
-        set_rasterizer({"compiled": "torch"}.get(kernels, kernels))
+    def rasterize(*args, **kwargs):
+        return render(*args, settings=settings, **kwargs)
 
     def sync():
         if device == "cuda":

@@ -196,23 +196,13 @@ def measure(method: str, args: argparse.Namespace) -> list[dict]:
     config = method_config(method, args.data, args.views, args.train_steps, out_dir).model_copy(
         update={"progress": False})
     trainer = Trainer(config)
-    try:
-        from splat_framework.render import compile_requested
-    except ImportError:  # older code: the environment variable only
-        compiled = os.environ.get("SPLAT_COMPILE", "0") == "1"
-    else:
-        compiled = compile_requested()
-    try:
+    settings = getattr(trainer, "render_settings", None)
+    if settings is not None:
         from splat_framework.render import backend_name
-    except ImportError:  # older code: native or torch kernels only
-        try:
-            from splat_framework.render._native import native_for
-        except ImportError:  # older code: no native kernels
-            kernels = "compiled" if compiled else "eager"
-        else:
-            kernels = "native" if native_for(trainer.device) is not None else ("compiled" if compiled else "eager")
-    else:
-        kernels = backend_name(trainer.device)
+
+        compiled, kernels = settings.compile, backend_name(trainer.device, settings)
+    else:  # older code: process-wide settings
+        compiled, kernels = _process_kernels(trainer)
     records = []
     for at, path in sorted(snaps.items()):
         load_snapshot(trainer, path)
@@ -318,6 +308,25 @@ def main(argv: list[str] | None = None) -> Path:
             "train_step", prefix="bench")
     return args.json
 
+
+
+def _process_kernels(trainer) -> tuple[bool, str]:
+    """(compiled, kernels) of older code, whose render settings were process-wide."""
+    try:
+        from splat_framework.render import compile_requested
+    except ImportError:  # older code: the environment variable only
+        compiled = os.environ.get("SPLAT_COMPILE", "0") == "1"
+    else:
+        compiled = compile_requested()
+    try:
+        from splat_framework.render import backend_name
+    except ImportError:  # older code: native or torch kernels only
+        try:
+            from splat_framework.render._native import native_for
+        except ImportError:  # older code: no native kernels
+            return compiled, "compiled" if compiled else "eager"
+        return compiled, "native" if native_for(trainer.device) is not None else ("compiled" if compiled else "eager")
+    return compiled, backend_name(trainer.device)
 
 if __name__ == "__main__":
     main()

@@ -42,7 +42,6 @@ SLOW_USES: dict[str, str] = {
     "splat_framework.engine.trainer:Trainer": "trains a run",
     "splat_framework.engine.trainer:train": "trains a run",
     "splat_framework.render._native:native_kernels": "builds the native kernels",
-    "splat_framework.render._kernels:set_compile": "compiles with torch.compile",
     "splat_framework.sweep:run_sweep": "runs a sweep of training runs",
     "splat_framework.cli.sweep:main": "runs a sweep of training runs",
     "splat_framework.sfm.reconstruct:estimate_scene": "poses photos",

@@ -188,7 +188,8 @@ class ScaffoldModel(GaussianModel):
         g = self.decode(camera.center, visible)
         out = rasterize(g["means"], g["quats"], g["scales"], self.drop_opacities(g["opacities"], step), g["colors"],
                         camera.world_to_cam.float(), camera.K.float(), camera.width, camera.height,
-                        background=background, near_plane=0.01, depth_mode=self.config.depth_mode)
+                        background=background, near_plane=0.01, depth_mode=self.config.depth_mode,
+                        settings=self.render_settings, absgrad=self.absgrad and step is not None)
         out.meta.update(anchor_visible=visible, neural_opacity=g["neural_opacity"].detach(), neural_kept=g["kept"],
                         neural_scales=g["scales"], **self.render_meta())
         return out
@@ -198,7 +199,8 @@ class ScaffoldModel(GaussianModel):
         the rendered neural Gaussians' scales."""
         cfg = self.config
         target, terms = self.regulariser_terms(outputs, batch, camera, step)
-        losses = {"photometric": photometric_loss(outputs.rgb, target, lambda_dssim=cfg.lambda_dssim)} | terms
+        losses = {"photometric": photometric_loss(outputs.rgb, target, lambda_dssim=cfg.lambda_dssim,
+                                                   settings=self.render_settings)} | terms
         scales = outputs.meta["neural_scales"]
         if cfg.lambda_scaling > 0 and scales.shape[0] > 0:
             losses["scaling"] = cfg.lambda_scaling * scales.prod(dim=-1).mean()

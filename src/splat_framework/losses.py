@@ -20,10 +20,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from .render import compile_requested
-
 if TYPE_CHECKING:
     from .cameras import Camera
+    from .render.settings import RenderSettings
 
 C1 = 0.01**2
 C2 = 0.03**2
@@ -95,33 +94,34 @@ def l1_loss(pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> Tensor:
     return err.sum() / (m.sum() * pred.shape[-1]).clamp_min(1e-8)
 
 
-def photometric_loss(pred: Tensor, gt: Tensor, lambda_dssim: float = 0.2, mask: Tensor | None = None) -> Tensor:
+def photometric_loss(pred: Tensor, gt: Tensor, lambda_dssim: float = 0.2, mask: Tensor | None = None,
+                     settings: RenderSettings | None = None) -> Tensor:
     """(1 - lambda) * L1 + lambda * (1 - SSIM), the 3DGS training loss.
 
     With ``mask``, both terms are averaged over masked pixels only (the SSIM
     map is still computed on the whole image).
 
-    While kernels are compiled (``splat_framework.render.compile_requested``: training runs), the
+    While kernels are compiled (``settings``, the model's ``render_settings``: training runs), the
     unmasked loss of a prediction on the CPU that needs a gradient runs in the native kernels
     (render/native/loss.cpp): on fern's 504x378 views, forward and backward in a few ms instead of
     27 ms eager (2 threads). Elsewhere (CUDA) it runs eagerly: torch.compile would save 0.9 ms a
     step on an H200 but cost 60 s of compiling in every process (docs/rasterizer.md#on-cuda).
     """
-    if mask is None and pred.requires_grad and compile_requested():
-        native = _native_loss(pred, gt)
+    if mask is None and pred.requires_grad and settings is not None and settings.compile:
+        native = _native_loss(pred, gt, settings)
         if native is not None:
             return _NativePhotometric.apply(pred, gt, float(lambda_dssim), native)
     return _photometric(pred, gt, lambda_dssim, mask)
 
 
-def _native_loss(pred: Tensor, gt: Tensor):
+def _native_loss(pred: Tensor, gt: Tensor, settings: RenderSettings):
     """The native kernels (``photometric_forward`` / ``photometric_backward``, render/native/loss.cpp) for
     one [H, W, C] prediction on a CPU against a constant photo, where they could be built; else None."""
     if pred.dim() != 3 or pred.shape != gt.shape or gt.requires_grad or pred.dtype != gt.dtype:
         return None
     from .render import backend
 
-    native = backend.native_for(pred.device)
+    native = backend.native_for(pred.device, settings)
     return native if native is not None and hasattr(native, "photometric_forward") else None
 
 

@@ -95,6 +95,7 @@ CONTRACT: dict[str, str] = {
     "photometric_loss": "splat_framework.losses",
     "Camera": "splat_framework.cameras",
     "RenderOutput": "splat_framework.render",
+    "RenderSettings": "splat_framework.render",
     "rasterize": "splat_framework.render",
     "rgb_to_sh": "splat_framework.render",
     "quat_to_rotmat": "splat_framework.render",
@@ -169,7 +170,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .model.strategy import DefaultStrategy, Strategy, check_rows
     from .pipeline import Pipeline
     from .registry import MethodSpec
-    from .render import RenderOutput, quat_to_rotmat, rasterize, rgb_to_sh
+    from .render import RenderOutput, RenderSettings, quat_to_rotmat, rasterize, rgb_to_sh
     from .runtime.profiling import section
 
 

@@ -38,11 +38,11 @@ def test_the_counter_sees_each_kind_of_host_read_and_names_its_place():
 def scg_trainer(tmp_path_factory):
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("SPLAT_CACHE", str(tmp_path_factory.getbasetemp() / "splatcache"))
-        mp.setenv("SPLAT_COMPILE", "0")
-        mp.setenv("SPLAT_RASTERIZER", "torch")
+        mp.delenv("SPLAT_COMPILE", raising=False)
+        mp.delenv("SPLAT_RASTERIZER", raising=False)
         cfg = apply_overrides(get_method("scgaussian").default_config(), {
             "data": "synthetic/forward-tiny", "output": str(tmp_path_factory.mktemp("syncs") / "run"), "steps": 16,
-            "progress": False})
+            "progress": False, "compile": False, "rasterizer": "torch"})
         trainer = Trainer(cfg)
         for step in range(6):  # the first steps choose and keep each view's partners (a read each, once)
             trainer.train_step(step)

@@ -253,3 +253,13 @@ for name in sys.argv[1:]:
     out = subprocess.run([sys.executable, "-c", code, *names], capture_output=True, text=True, env=env, timeout=600)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip() == "", out.stdout
+
+
+def test_the_trainer_imports_at_most_15_framework_modules():
+    """The trainer drives the loop; the pipeline builds the data and the model, so the trainer's
+    imports stay few (it imported 28 when it built everything itself)."""
+    modules = _module_files()
+    name = "splat_framework.engine.trainer"
+    imported = {target for target, _ in _imports(name, modules[name], modules)}
+    assert len(imported) <= 15, sorted(imported)
+    assert not {m for m in imported if m.startswith(("splat_framework.data", "splat_framework.model"))}

@@ -362,24 +362,21 @@ def test_where_the_native_loss_cannot_run_the_loss_is_eager_and_nothing_is_trace
     from torch._dynamo.utils import counters
 
     from splat_framework import losses
-    from splat_framework.render import _kernels
+    from splat_framework.render import RenderSettings
 
     a, b = images()
 
-    def loss_and_grad():
+    def loss_and_grad(settings=None):
         pred = a.clone().requires_grad_()
-        loss = photometric_loss(pred, b, 0.2)
+        loss = photometric_loss(pred, b, 0.2, settings=settings)
         loss.backward()
         return loss.detach(), pred.grad
 
     eager = loss_and_grad()
-    monkeypatch.setattr(losses, "_native_loss", lambda pred, gt: None)
-    monkeypatch.delenv("SPLAT_COMPILE")
+    calls = []
+    monkeypatch.setattr(losses, "_native_loss", lambda pred, gt, settings: calls.append(settings))
     frames = counters["stats"]["unique_graphs"]
-    _kernels.set_compile(True)
-    try:
-        for got, want in zip(loss_and_grad(), eager):
-            assert torch.equal(got, want)
-    finally:
-        _kernels.set_compile(False)
+    for got, want in zip(loss_and_grad(RenderSettings(compile=True)), eager):
+        assert torch.equal(got, want)
+    assert calls == [RenderSettings(compile=True)]  # the native loss was asked for
     assert counters["stats"]["unique_graphs"] == frames

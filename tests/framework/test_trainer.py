@@ -293,24 +293,28 @@ def test_first_nonfinite_names_the_tensor():
     assert _first_nonfinite({"a": big, "b": torch.tensor([-float("inf"), float("inf")])}) == "b"
 
 
-def test_compile_setting_reaches_the_kernels_and_the_environment_wins(tmp_path, monkeypatch):
-    from splat_framework.render import _kernels
-
+def test_the_render_settings_reach_the_model_and_the_environment_wins(tmp_path, monkeypatch):
+    """The Trainer makes the render settings once (config, then SPLAT_COMPILE) and the model renders with them."""
     monkeypatch.delenv("SPLAT_COMPILE", raising=False)
     monkeypatch.delenv("TORCHINDUCTOR_CACHE_DIR", raising=False)
+    monkeypatch.setenv("SPLAT_RASTERIZER", "torch")  # compiled, but no kernels to build or prove here
     assert get_method("3dgs").default_config().compile is True
     assert get_method("scgaussian").default_config().compile is True
-    try:
-        Trainer(tiny_config(tmp_path / "run", steps=20, progress=False))  # the default: compiled
-        assert _kernels.compile_requested()
-        assert os.environ["TORCHINDUCTOR_CACHE_DIR"] == str(Path(os.environ["SPLAT_CACHE"]) / "inductor")
-        monkeypatch.setenv("SPLAT_COMPILE", "0")  # the environment wins
-        assert not _kernels.compile_requested()
-        monkeypatch.delenv("SPLAT_COMPILE")
-        Trainer(tiny_config(tmp_path / "run2", steps=20, progress=False, compile=False))
-        assert not _kernels.compile_requested()
-    finally:
-        _kernels.set_compile(False)
+    trainer = Trainer(tiny_config(tmp_path / "run", steps=20, progress=False))  # the default: compiled
+    assert trainer.render_settings.compile and trainer.render_settings.rasterizer == "torch"
+    assert trainer.model.render_settings is trainer.render_settings
+    assert not trainer.model.absgrad  # the default strategy densifies on means2d.grad
+    assert os.environ["TORCHINDUCTOR_CACHE_DIR"] == str(Path(os.environ["SPLAT_CACHE"]) / "inductor")
+    monkeypatch.setenv("SPLAT_COMPILE", "0")  # the environment wins
+    assert not Trainer(tiny_config(tmp_path / "run2", steps=20, progress=False)).model.render_settings.compile
+    monkeypatch.delenv("SPLAT_COMPILE")
+    eager = Trainer(tiny_config(tmp_path / "run3", steps=20, progress=False, compile=False, strategy={"absgrad": True}))
+    assert not eager.render_settings.compile
+    assert eager.model.absgrad  # the strategy asks its training renders for AbsGS's sums
+    eager.train_step(0)
+    outputs = eager.model.get_outputs(eager.datamanager.train_view(0)[0], eager.background, step=1)
+    outputs.rgb.sum().backward()
+    assert outputs.meta["means2d"].absgrad.shape == outputs.meta["means2d"].shape
 
 
 def test_trainer_checks_the_strategy_conventions(tmp_path, monkeypatch):

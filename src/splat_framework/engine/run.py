@@ -7,11 +7,10 @@ from pathlib import Path
 import torch
 
 from ..config import RunFacts, read_config_json, upgrade_saved_config
-from ..data.cache_dir import user_cache_dir
 from ..devices import resolve_config_devices
 from ..errors import CheckpointError, DataError
 from ..registry import get_method
-from ..render import set_compile
+from ..render import RenderSettings, prepare_kernels
 from .checkpoint import check_structure, load_latest
 
 
@@ -61,8 +60,9 @@ def _load_checkpointed(run_dir: Path, device: str | None, scene_scale: float, tr
     if found is None:
         raise CheckpointError(f"{run_dir / 'checkpoints'}: no valid checkpoint")
     model, camera_refine = found[1]
-    set_compile(config.compile, user_cache_dir())
-    return config, model.to(config.device), camera_refine
+    model = model.to(config.device)
+    model.render_settings = prepare_kernels(torch.device(config.device), RenderSettings.from_config(config))
+    return config, model, camera_refine
 
 
 def _renders(model) -> None:

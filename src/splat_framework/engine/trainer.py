@@ -60,11 +60,10 @@ from torch import Tensor
 
 from ..config import TrainConfig
 from ..console import phase, print_summary, say, show_progress
-from ..data.cache_dir import user_cache_dir
 from ..devices import resolve_config_devices
 from ..pipeline import resolve_run_config
 from ..registry import MethodSpec, get_method
-from ..render import prepare_kernels, set_compile, set_rasterizer
+from ..render import RenderSettings, backend_name, prepare_kernels
 from ..runtime.process import prepare_training_process
 from ..runtime.profiling import section
 from ..runtime.rng import seed_everything
@@ -193,12 +192,11 @@ class Trainer(TrainState):
         """The plugin's parts checked, the kernels, then the method's pipeline (data, model:
         SCGaussian's matching and warm-up), then the optimizers and the strategy."""
         self.parts = resolve_parts(self.spec, self.config)  # a plugin's broken part: one line, before anything loads
-        set_compile(self.config.compile, user_cache_dir())
-        set_rasterizer(self.config.rasterizer)
         # built, loaded or compiled now, a phase of its own, not inside the first training step; a
         # rasterizer named that cannot run here is one line (DataError) before anything is loaded
         t_kernels = time.perf_counter()
-        self.rasterizer = prepare_kernels(self.device)
+        self.render_settings = prepare_kernels(self.device, RenderSettings.from_config(self.config))
+        self.rasterizer = backend_name(self.device, self.render_settings)
         # the kernels' build or load is a row of its own, and total_s counts it
         self.timing: dict[str, float] = {"kernels_s": time.perf_counter() - t_kernels}
         self.generator = seed_everything(self.config.seed)
@@ -206,10 +204,12 @@ class Trainer(TrainState):
         self.pipeline = self.parts.pipeline(self.config, self.parts.model, self.device, self.generator)
         self.config = self.pipeline.config  # with the data's folder and split recorded
         self.timing.update(self.pipeline.timing)
+        self.model.render_settings = self.render_settings  # the model's renders use the kernels proven here
         self.optimizers = self.model.make_optimizers()
         strategy_config = self.pipeline.strategy_config()
         self.strategy = build_strategy(strategy_config)
         self.densifies = strategy_config.enabled
+        self.model.absgrad = self.strategy.absgrad
         self.strategy.check_sanity(self.model.params, self.optimizers)  # a model breaking the ops conventions fails here
         self.strategy_state = self.strategy.initialize_state(scene_scale=self.model.scene_scale)
         self.start_step = 0

@@ -33,7 +33,7 @@ from ..cameras import Camera, view_angle
 from ..config import GaussianModelConfig, RunFacts
 from ..console import phase
 from ..losses import photometric_loss
-from ..render import RenderOutput, rasterize, rgb_to_sh
+from ..render import RenderOutput, RenderSettings, rasterize, rgb_to_sh
 from ..runtime.profiling import section
 from ..runtime.rng import keyed_generator
 from .init import initial_points
@@ -146,6 +146,13 @@ class GaussianModel(nn.Module):
     """The training views' cameras, and below their photos [H, W, 3], in split order (``from_data``
     sets them; a model rebuilt from a checkpoint has none): the multi-view regulariser's partners."""
     train_images: Sequence[Tensor] = ()
+
+    render_settings: RenderSettings = RenderSettings()
+    """How its renders run (``rasterize(settings=)``), set by whoever builds the model (the trainer,
+    the commands that load a run) from the config and the environment; default: the eager torch kernels."""
+    absgrad: bool = False
+    """Training renders leave ``means2d.absgrad`` (``rasterize(absgrad=)``): set by the trainer when
+    the run's strategy densifies on it (``Strategy.absgrad``)."""
 
     FIXED: tuple[str, ...] = ()
     """Per-row tensors that are not optimised (a model rebuilt from a checkpoint keeps them so)."""
@@ -346,6 +353,8 @@ class GaussianModel(nn.Module):
             background=background,
             near_plane=0.01,
             depth_mode=self.config.depth_mode,
+            settings=self.render_settings,
+            absgrad=self.absgrad and step is not None,
         )
 
     def get_loss_dict(
@@ -356,7 +365,8 @@ class GaussianModel(nn.Module):
         ``model.reg`` switches on (:func:`~splat_framework.model.regularisers.regulariser_terms`)."""
         target, terms = self.regulariser_terms(outputs, batch, camera, step)
         with section("photometric"):
-            return {"photometric": photometric_loss(outputs.rgb, target, lambda_dssim=self.config.lambda_dssim)} | terms
+            return {"photometric": photometric_loss(outputs.rgb, target, lambda_dssim=self.config.lambda_dssim,
+                                                    settings=self.render_settings)} | terms
 
     def regulariser_terms(self, outputs: RenderOutput, batch: dict, camera: Camera, step: int) -> tuple[Tensor, dict[str, Tensor]]:
         """(photometric target, {term: scalar}) of the opt-in regularisers ``model.reg`` switches on

@@ -9,7 +9,7 @@ Typical loop::
     strategy.check_sanity(params, optimizers)
     state = strategy.initialize_state(scene_scale)
     for step in range(max_steps):
-        out = rasterize(...)                       # out.meta is ``info``
+        out = rasterize(..., absgrad=strategy.absgrad)  # out.meta is ``info``
         strategy.step_pre_backward(params, optimizers, state, step, out.meta)
         loss.backward()
         for opt in optimizers.values(): opt.step(); opt.zero_grad(set_to_none=True)  # first, as gsplat
@@ -37,7 +37,6 @@ from torch import Tensor
 
 from splat_framework.config import DensifyConfig
 from splat_framework.model.ops import RowChange, decay_opa, duplicate, remove, reset_opa, split
-from splat_framework.render import request_absgrad
 
 __all__ = ["DefaultStrategy", "DensifyConfig", "Strategy", "check_rows", "unplain_state"]
 
@@ -102,6 +101,12 @@ class Strategy:
     def __init__(self, config: Any = None) -> None:
         self.config = config
         """The :class:`~splat_framework.config.StrategyConfig` this strategy was built from (None: built by hand)."""
+
+    @property
+    def absgrad(self) -> bool:
+        """Whether a training render must leave ``means2d.absgrad`` for this strategy
+        (``rasterize(absgrad=True)``; the trainer tells the model). Default: no."""
+        return False
 
     def initialize_state(self, scene_scale: float = 1.0) -> dict[str, Any]:
         """Fresh running state (saved in every checkpoint)."""
@@ -172,6 +177,11 @@ class DefaultStrategy(Strategy):
     def __init__(self, config: DensifyConfig | None = None) -> None:
         self.config = config if config is not None else DensifyConfig()
 
+    @property
+    def absgrad(self) -> bool:
+        """``config.absgrad``: densify on the sums of absolute per-pixel gradients (AbsGS)."""
+        return bool(self.config.absgrad)
+
     # ----------------------------------------------------------------- setup
     def initialize_state(self, scene_scale: float = 1.0) -> dict[str, Any]:
         """Fresh running state; per-Gaussian tensors are created lazily at the first step."""
@@ -208,13 +218,11 @@ class DefaultStrategy(Strategy):
         step: int,
         info: Mapping[str, Any],
     ) -> None:
-        """Ask autograd to keep the gradient of ``info["means2d"]`` (with ``absgrad``, also its
-        sums of absolute per-pixel gradients: :func:`~splat_framework.render.request_absgrad`)."""
+        """Ask autograd to keep the gradient of ``info["means2d"]`` (with ``absgrad``, the render
+        was asked for its sums of absolute per-pixel gradients: :attr:`absgrad`)."""
         means2d = info["means2d"]
         if means2d.requires_grad:
             means2d.retain_grad()
-            if self.config.absgrad:
-                request_absgrad(means2d)
 
     def step_post_backward(
         self,

@@ -42,10 +42,9 @@ from ..runtime.profiling import section
 from ..runtime.resources import available_cores
 from ._kernels import ALPHA_MAX, T_MIN, gathering_bwd, get_kernels
 from ._kernels import bwd_round as bwd_round_eager
+from .settings import RenderSettings
 
 _DUMMY_LOGIT = -1.0e4  # exp() == 0 in float32 and float64
-ABSGRAD_REQUEST = "absgrad_requested"
-"""The attribute :func:`~splat_framework.render.rasterizer.request_absgrad` sets on a render's means2d."""
 
 
 def _at(x: Tensor, i: Tensor) -> Tensor:
@@ -312,7 +311,8 @@ def _chunk_pairs(fp: Footprints, sel: Tensor, grid: TileGrid, tile_done: Tensor,
 
 class _Composite(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, colors, depths, background, fp, grid, basis, block, chunk_pairs, kernels):  # type: ignore[override]
+    def forward(ctx, means2d, conics, opacities, colors, depths, background, fp, grid, basis, block, chunk_pairs, kernels,
+                round_kernels, absgrad):  # type: ignore[override]
         ctx.set_materialize_grads(False)
         device, dtype = means2d.device, means2d.dtype
         n = means2d.shape[0]
@@ -345,18 +345,20 @@ class _Composite(torch.autograd.Function):
         tile_done = torch.zeros(n_tiles, dtype=torch.bool, device=device)
         keep_rounds = any(ctx.needs_input_grad[:6])  # the backward replays the rounds
         ctx.kernels = kernels
+        ctx.round_kernels = round_kernels
+        ctx.absgrad = absgrad
         if kernels is not None:
             ctx.rounds = _kernel_forward(kernels, table, fp, grid, chunk_pairs, tile_centers, t_state, out,
                                          tile_done, keep_rounds)
         else:
-            ctx.rounds = _round_forward(table, fp, grid, chunk_pairs, tile_centers, basis, t_state, out,
-                                        tile_done, keep_rounds, block)
+            ctx.rounds = _round_forward(round_kernels[0], table, fp, grid, chunk_pairs, tile_centers, basis, t_state,
+                                        out, tile_done, keep_rounds, block)
         img = tiles_to_image(out, grid)  # [H, W, 5]
         alpha = img[..., 4:5]
         bg = background.detach()
         rgb = img[..., 0:3] + (1.0 - alpha) * bg
         ctx.save_for_backward(table, tile_centers, basis, out, opacities.detach(), bg, alpha)
-        ctx.means2d = means2d  # an input: read by the backward for request_absgrad, no reference cycle
+        ctx.means2d = means2d  # an input: the backward leaves absgrad on it, no reference cycle
         ctx.nf = (n, f)
         ctx.grid = grid
         return rgb, img[..., 3:4].contiguous(), alpha.contiguous()
@@ -383,7 +385,7 @@ class _Composite(torch.autograd.Function):
         g_out = image_to_tiles(torch.cat([g_rgb, g_depth, g_a], -1), grid)  # [n_tiles, F, npx]
         total = (out * g_out).sum(1)  # [n_tiles, npx]
         prefix = torch.zeros_like(total)
-        absgrad = getattr(ctx.means2d, ABSGRAD_REQUEST, False)
+        absgrad = ctx.absgrad
         width = 6 + f + (2 if absgrad else 0)  # the table's columns, then |dL/du|, |dL/dv| summed over pixels
         kernels = ctx.kernels
         if kernels is not None:
@@ -398,7 +400,8 @@ class _Composite(torch.autograd.Function):
                                                      n_incl, g_out, total, prefix, slots, grid.tile)
             grads = slots.sum(0)[:n] if n_slots > 1 else slots[0, :n]
         else:
-            grads = _round_backward(ctx.rounds, table, tile_centers, basis, g_out, total, prefix, n, width, absgrad)
+            grads = _round_backward(ctx.round_kernels[1], ctx.rounds, table, tile_centers, basis, g_out, total, prefix,
+                                    n, width, absgrad)
         if absgrad:
             ctx.means2d.absgrad = grads[:, 6 + f:]
         d_opac = torch.where(opac > 0, grads[:, 5] / opac.clamp_min(1e-30), 0.0)
@@ -415,13 +418,15 @@ class _Composite(torch.autograd.Function):
             None,
             None,
             None,
+            None,
+            None,
         )
 
 
-def _round_forward(table, fp, grid, chunk_pairs, tile_centers, basis, t_state, out, tile_done, keep_rounds, block):
-    """The chunks' per-round torch kernels (eager or torch.compile'd), state updated in place; the
-    rounds the backward replays: [(active tiles, Gaussian ids [nA, B], entry transmittance)]."""
-    fwd_round, _ = get_kernels()
+def _round_forward(fwd_round, table, fp, grid, chunk_pairs, tile_centers, basis, t_state, out, tile_done, keep_rounds,
+                   block):
+    """The chunks' per-round torch kernels (``fwd_round``: eager or torch.compile'd), state updated in
+    place; the rounds the backward replays: [(active tiles, Gaussian ids [nA, B], entry transmittance)]."""
     n = table.shape[0] - 1
     ar = torch.arange(block, device=table.device)
     rounds = []
@@ -441,14 +446,14 @@ def _round_forward(table, fp, grid, chunk_pairs, tile_centers, basis, t_state, o
     return rounds
 
 
-def _round_backward(rounds, table, tile_centers, basis, g_out, total, prefix, n, width, absgrad) -> Tensor:
+def _round_backward(bwd_kernel, rounds, table, tile_centers, basis, g_out, total, prefix, n, width, absgrad) -> Tensor:
     """[N, width] gradients of the table rows (width 6 + F), with ``absgrad`` two more columns
     (:func:`._kernels.abs_means_grads`), the rounds replayed front to back. The absolute sums are
     taken by the eager kernel (the compiled one does not compute them)."""
     # [width, N + 1]: Gaussians along the last dim, so adding a round's rows is one strided
     # index_add per column block (5-8 % less compositing backward than [N + 1, width] on CPU)
     grads_t = torch.zeros(width, n + 1, device=table.device, dtype=table.dtype)
-    bwd_round = gathering_bwd(partial(bwd_round_eager, absgrad=True)) if absgrad else get_kernels()[1]
+    bwd_round = gathering_bwd(partial(bwd_round_eager, absgrad=True)) if absgrad else bwd_kernel
     for active, gid, t_carry in rounds:
         g_rows, new_prefix = bwd_round(table, gid, tile_centers, active, basis, t_carry, g_out, total, prefix)
         prefix.index_copy_(0, active, new_prefix)
@@ -488,13 +493,20 @@ def composite(
     block: int,
     chunk_pairs: int,
     kernels=None,
+    round_kernels=None,
+    absgrad: bool = False,
 ) -> tuple[Tensor, Tensor, Tensor]:
     """(rgb [H, W, 3] with background, accumulated depth [H, W, 1], alpha [H, W, 1]).
 
     ``kernels``: the compositing kernels (:func:`.backend.kernels_for`: native for CPU tensors,
-    Triton for CUDA ones), or None for the per-round torch kernels (:func:`._kernels.get_kernels`)."""
+    Triton for CUDA ones), or None for the per-round torch kernels ``round_kernels`` ((forward,
+    backward) of :func:`._kernels.get_kernels`; None: the eager ones). ``absgrad``: the backward
+    also leaves ``means2d.absgrad`` (:func:`.rasterizer.rasterize`)."""
+    if kernels is None and round_kernels is None:
+        round_kernels = get_kernels(RenderSettings())
     return _Composite.apply(
-        means2d, conics, opacities, colors, depths, background, fp, grid, basis, block, chunk_pairs, kernels
+        means2d, conics, opacities, colors, depths, background, fp, grid, basis, block, chunk_pairs, kernels,
+        round_kernels, bool(absgrad),
     )
 
 

@@ -3,8 +3,8 @@
 One *round* is a dense block of ``B`` (tile, Gaussian) pairs for each of ``nA``
 active tiles, evaluated against the tile's ``npx`` pixels. The functions here
 are pure tensor code: eager, or their pixel-major twins compiled with
-``torch.compile`` (what ``set_compile`` chose, the default for training runs;
-``SPLAT_COMPILE=0/1`` wins), which fuse a whole round into one loop. Any failure
+``torch.compile`` (``RenderSettings.compile``, the default for training runs),
+which fuse a whole round into one loop. Any failure
 to compile falls back to eager with a one-line warning.
 
 Shapes:
@@ -25,8 +25,8 @@ import torch
 from torch import Tensor
 
 from ..console import phase
-from ..environment import compile_setting
 from .precompiled import Precompiled
+from .settings import RenderSettings
 
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
@@ -276,33 +276,8 @@ def gathering_bwd(round_fn):
     return run
 
 
-_KERNELS: dict[str, object] = {}
-_SETTING: dict[str, object] = {"compile": False, "cache_dir": None}
-
-
-def set_compile(enabled: bool, cache_dir: Path | None = None) -> None:
-    """Compile the per-round kernels from now on (``SPLAT_COMPILE=0/1`` in the environment still wins).
-
-    ``cache_dir``: where compiled kernels are kept across processes: the traced graphs in
-    ``cache_dir/precompiled`` (:mod:`.precompiled`) and inductor's generated code in
-    ``cache_dir/inductor`` (``TORCHINDUCTOR_CACHE_DIR``, left alone when the user set it), so a
-    later run loads them in seconds instead of tracing and compiling again."""
-    _SETTING["compile"] = bool(enabled)
-    if enabled and cache_dir is not None:
-        if _SETTING["cache_dir"] != Path(cache_dir):
-            _KERNELS.clear()  # kernels made for another cache folder
-        _SETTING["cache_dir"] = Path(cache_dir)
-        os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", str(Path(cache_dir) / "inductor"))
-
-
-def kernel_cache_dir() -> Path | None:
-    """The folder ``set_compile`` was given for compiled kernels (None: none given)."""
-    return _SETTING["cache_dir"]
-
-
-def compile_requested() -> bool:
-    env = compile_setting(os.environ.get("SPLAT_COMPILE"))
-    return bool(_SETTING["compile"]) if env is None else env
+_KERNELS: dict[Path | None, tuple] = {}
+"""The compiled round kernels per cache folder (built once per process)."""
 
 
 def _fwd_static(args: tuple) -> tuple:
@@ -315,32 +290,44 @@ def _bwd_static(args: tuple) -> tuple:
     return args[1].shape[1], args[4].shape[1], args[6].shape[1]
 
 
-def _compiled(name: str, fn, static, which: str):
+def _compiled(name: str, fn, static, which: str, folder: Path | None):
     """``fn`` compiled: loaded from (or saved to) the cache folder when there is one and this torch
     can save compiled graphs, else traced in this process by ``torch.compile`` (torch 2.11, say,
     has no ``aot_compile`` on a compiled function: each process then compiles, without a warning)."""
     traced = torch.compile(fn, dynamic=True)
-    folder = _SETTING["cache_dir"]
     if folder is None or not hasattr(traced, "aot_compile"):
         return traced
     return Precompiled(name, fn, static, Path(folder) / "precompiled", traced, which)
 
 
-def get_kernels():
-    """(fwd_round, bwd_round): compiled when requested (``set_compile`` or SPLAT_COMPILE=1), else eager."""
+def use_inductor_cache(settings: RenderSettings) -> None:
+    """Inductor's generated code under ``settings.cache_dir/inductor`` while kernels are compiled
+    (``TORCHINDUCTOR_CACHE_DIR``, left alone when the user set it)."""
+    if settings.compile and settings.cache_dir is not None:
+        os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", str(Path(settings.cache_dir) / "inductor"))
+
+
+def get_kernels(settings: RenderSettings):
+    """(fwd_round, bwd_round): compiled with ``settings.compile``, else eager. The compiled ones
+    keep their graphs under ``settings.cache_dir/precompiled`` and inductor's generated code under
+    ``settings.cache_dir/inductor`` (:func:`use_inductor_cache`), so a later run loads them in seconds instead of tracing and compiling again."""
     eager = (gathering_fwd(fwd_round), gathering_bwd(bwd_round))
-    if not compile_requested():
+    if not settings.compile:
         return eager
-    if "compiled" not in _KERNELS:
+    folder = settings.cache_dir
+    if folder not in _KERNELS:
+        use_inductor_cache(settings)
         try:
-            _KERNELS["compiled"] = (
-                _with_fallback(_compiled("fwd", gathering_fwd(fwd_round_fused), _fwd_static, "forward"), eager[0], 6, "forward"),
-                _with_fallback(_compiled("bwd", gathering_bwd(bwd_round_fused), _bwd_static, "backward"), eager[1], 3, "backward"),
+            _KERNELS[folder] = (
+                _with_fallback(_compiled("fwd", gathering_fwd(fwd_round_fused), _fwd_static, "forward", folder),
+                               eager[0], 6, "forward"),
+                _with_fallback(_compiled("bwd", gathering_bwd(bwd_round_fused), _bwd_static, "backward", folder),
+                               eager[1], 3, "backward"),
             )
         except Exception as exc:  # pragma: no cover - depends on the toolchain
-            warnings.warn(f"SPLAT_COMPILE: torch.compile unavailable ({exc}); using eager")
-            _KERNELS["compiled"] = eager
-    return _KERNELS["compiled"]
+            warnings.warn(f"compiling the rasterizer kernels: torch.compile unavailable ({exc}); using eager")
+            _KERNELS[folder] = eager
+    return _KERNELS[folder]
 
 
 

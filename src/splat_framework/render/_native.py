@@ -1,6 +1,6 @@
 """The native CPU binning and compositing kernels (``native/*.cpp``), built once per machine.
 
-While kernels are compiled (``compile_requested()``: training and rendering runs), CPU
+While kernels are compiled (``RenderSettings.compile``: training and rendering runs), CPU
 renders bin and composite each depth chunk with these C++ kernels instead of the torch binning
 and the per-round ``torch.compile`` kernels: the same rules and backward, one pass over each
 tile's pairs with the transmittance in registers (`docs/rasterizer.md`). They are built with the C++ compiler that

@@ -1,6 +1,6 @@
 """EWA projection of 3D Gaussians to screen space (differentiable, plain torch autograd).
 
-While kernels are compiled (``compile_requested()``: training and rendering runs), a CPU render
+While kernels are compiled (``RenderSettings.compile``: training and rendering runs), a CPU render
 projects with the native kernels (``native/project.cpp``, built once per machine with the
 compositing kernels): one loop over the Gaussians forward and one backward, for any number of
 Gaussians and any SH degree, with nothing traced or compiled in the process (100k Gaussians at SH
@@ -142,13 +142,14 @@ def project_and_shade(
     return p.means2d, p.conics, p.cov2d, p.depths, p.valid, rgb
 
 
-def native_projection(device: torch.device):
+def native_projection(device: torch.device, settings):
     """The native kernels' projection (``project_forward`` / ``project_backward``, native/project.cpp:
-    no tracing, any number of Gaussians and SH degree, the same result for any thread count) while
-    kernels are compiled on a CPU where they could be built; else None."""
+    no tracing, any number of Gaussians and SH degree, the same result for any thread count) where
+    renders on ``device`` with ``settings`` (:class:`.settings.RenderSettings`) take the native
+    kernels and they could be built; else None."""
     from . import backend
 
-    native = backend.native_for(device)
+    native = backend.native_for(device, settings)
     return native if native is not None and hasattr(native, "project_forward") else None
 
 
@@ -162,9 +163,9 @@ def native_cfg(colors: Tensor, cfg: tuple) -> tuple:
 
 
 def project(means: Tensor, quats: Tensor, scales: Tensor, colors: Tensor, viewmat: Tensor, K: Tensor,
-            cfg: tuple) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor]:
+            cfg: tuple, settings) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor, Tensor]:
     """``project_and_shade(*inputs, *cfg)`` without gradients: by the native kernels where they run."""
-    native = native_projection(means.device)
+    native = native_projection(means.device, settings)
     if native is not None:
         return native.project_forward(means, quats, scales, colors, viewmat, K, *native_cfg(colors, cfg))
     return project_and_shade(means, quats, scales, colors, viewmat, K, *cfg)
@@ -178,11 +179,11 @@ class ProjectFn(torch.autograd.Function):
     ``torch.autograd.grad``."""
 
     @staticmethod
-    def forward(ctx, means, quats, scales, colors, viewmat, K, cfg):  # type: ignore[override]
+    def forward(ctx, means, quats, scales, colors, viewmat, K, cfg, settings):  # type: ignore[override]
         ctx.set_materialize_grads(False)
         inputs = (means, quats, scales, colors, viewmat, K)
         # the native kernels take the camera as a constant: a refined pose or intrinsics use torch
-        ctx.native = None if any(ctx.needs_input_grad[4:6]) else native_projection(means.device)
+        ctx.native = None if any(ctx.needs_input_grad[4:6]) else native_projection(means.device, settings)
         if ctx.native is not None:
             ctx.cfg = native_cfg(colors, cfg)
             ctx.save_for_backward(*inputs)
@@ -210,12 +211,12 @@ class ProjectFn(torch.autograd.Function):
                 shapes = [(n, 2), (n, 3), (n, 3), (n,), None, (n, 3)]  # valid [N] has no gradient
                 grads = [g if g is not None else inputs[0].new_zeros(shape) for g, shape in zip(grads, shapes) if shape]
                 got = ctx.native.project_backward(*inputs, *ctx.cfg, *grads)
-                return (*(g if need else None for g, need in zip(got, ctx.needs_input_grad)), None, None, None)
+                return (*(g if need else None for g, need in zip(got, ctx.needs_input_grad)), None, None, None, None)
             pairs = [
                 (o, g) for o, g in zip(ctx.outs, grads) if g is not None and o.requires_grad
             ]
             wanted = [i for i, leaf in enumerate(ctx.leaves) if leaf.requires_grad]
-            result = [None] * (len(ctx.leaves) + 1)
+            result = [None] * (len(ctx.leaves) + 2)
             if not pairs or not wanted:
                 return tuple(result)
             got = torch.autograd.grad(

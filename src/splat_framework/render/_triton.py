@@ -243,13 +243,11 @@ def _jit(interpret: bool) -> dict:
     return {"forward": made(_forward), "backward": made(_backward)}
 
 
-def _cache_dir() -> None:
-    """Triton's compiled kernels under ``$SPLAT_CACHE/triton`` unless TRITON_CACHE_DIR names a folder."""
+def _cache_dir(root: Path | None) -> None:
+    """Triton's compiled kernels under ``root/triton`` (the render settings' cache folder) unless
+    TRITON_CACHE_DIR names a folder."""
     if os.environ.get("TRITON_CACHE_DIR"):
         return
-    from ._kernels import kernel_cache_dir
-
-    root = kernel_cache_dir()
     if root is not None:
         os.environ["TRITON_CACHE_DIR"] = str(Path(root) / "triton")
 
@@ -267,10 +265,10 @@ class TritonKernels:
 
     name = "triton"
 
-    def __init__(self, interpret: bool | None = None):
+    def __init__(self, cache_dir: Path | None = None, interpret: bool | None = None):
         self.interpret = interpreting() if interpret is None else interpret
         if not self.interpret:
-            _cache_dir()
+            _cache_dir(cache_dir)
         self.fns = jit_functions(self.interpret)
 
     def _check(self, table: Tensor) -> None:

@@ -1,4 +1,5 @@
-"""Which kernels a render runs: ``--rasterizer`` / ``SPLAT_RASTERIZER`` (auto, native, triton, torch).
+"""Which kernels a render runs: ``RenderSettings.rasterizer`` (auto, native, triton, torch), made once
+from ``--rasterizer`` / ``SPLAT_RASTERIZER`` (:mod:`.settings`).
 
 - ``native``: the C++ kernels of ``native/`` (binning, compositing, projection, loss), CPU tensors;
 - ``triton``: the Triton compositing kernels of :mod:`._triton`, CUDA tensors (CPU tensors under
@@ -10,23 +11,19 @@
 
 A backend asked for that cannot run on the render's device says so in one line and the render takes
 what ``auto`` takes there, except ``triton`` asked for by name, which is an error (one line, exit 2
-in the commands). ``--rasterizer`` other than auto wins over the variable.
+in the commands).
 """
 
 from __future__ import annotations
 
-import os
 import warnings
 from dataclasses import dataclass
 
 import torch
 
-from ..environment import rasterizer_setting as parse_setting
 from ..errors import DataError
-from ._kernels import compile_requested, kernel_cache_dir
+from .settings import RASTERIZERS, RenderSettings
 
-RASTERIZERS = ("auto", "native", "triton", "torch")
-_SETTING: dict[str, str] = {"rasterizer": "auto"}
 _WARNED: set[str] = set()
 _TRITON: dict = {}
 
@@ -55,21 +52,6 @@ class Kernels:
     every_tile: bool = False
 
 
-def set_rasterizer(name: str) -> None:
-    """The process's rasterizer choice (``TrainConfig.rasterizer``); "auto" leaves it to ``SPLAT_RASTERIZER``."""
-    if name not in RASTERIZERS:
-        raise DataError(f"--rasterizer {name!r}: expected one of {', '.join(RASTERIZERS)}")
-    _SETTING["rasterizer"] = name
-
-
-def rasterizer_setting() -> str:
-    """What was asked: ``set_rasterizer``'s choice unless "auto", then ``SPLAT_RASTERIZER``, then "auto"."""
-    chosen = _SETTING["rasterizer"]
-    if chosen != "auto":
-        return chosen
-    return parse_setting(os.environ.get("SPLAT_RASTERIZER")) or "auto"
-
-
 def _warn_once(message: str) -> None:
     if message not in _WARNED:
         _WARNED.add(message)
@@ -90,8 +72,8 @@ def triton_unavailable(device: torch.device) -> str | None:
     return f"the Triton kernels run on CUDA tensors (or CPU tensors under TRITON_INTERPRET=1), not on {device.type}"
 
 
-def _auto(device: torch.device) -> str:
-    if not compile_requested():
+def _auto(device: torch.device, settings: RenderSettings) -> str:
+    if not settings.compile:
         return "torch"
     if device.type == "cpu":
         return "native"
@@ -103,10 +85,10 @@ def _auto(device: torch.device) -> str:
     return "torch"
 
 
-def choose(device: torch.device) -> str:
-    """"native", "triton" or "torch": what renders on ``device`` take (see the module's rules).
-    Raises DataError where ``triton`` was asked for by name and cannot run."""
-    asked = rasterizer_setting()
+def choose(device: torch.device, settings: RenderSettings) -> str:
+    """"native", "triton" or "torch": what renders on ``device`` with ``settings`` take (see the
+    module's rules). Raises DataError where ``triton`` was asked for by name and cannot run."""
+    asked = settings.rasterizer
     if asked == "torch":
         return "torch"
     if asked == "triton":
@@ -115,54 +97,55 @@ def choose(device: torch.device) -> str:
             raise DataError(f"rasterizer triton: {why}; use --rasterizer auto or torch")
         return "triton"
     if asked == "native" and device.type != "cpu":
-        chosen = _auto(device)
+        chosen = _auto(device, settings)
         _warn_once(f"rasterizer native: the native kernels run on CPU tensors; rendering on {device.type} "
                    f"with the {chosen} kernels")
         return chosen
     if asked == "native":
         return "native"
-    return _auto(device)
+    return _auto(device, settings)
 
 
-def native_for(device: torch.device):
-    """The loaded native extension where renders on ``device`` take it, else None (also when it
-    cannot be built here: one warning, then the torch kernels)."""
-    if choose(device) != "native":
+def native_for(device: torch.device, settings: RenderSettings):
+    """The loaded native extension where renders on ``device`` with ``settings`` take it, else None
+    (also when it cannot be built here: one warning, then the torch kernels)."""
+    if choose(device, settings) != "native":
         return None
     from ._native import native_kernels
 
-    return native_kernels(kernel_cache_dir())
+    return native_kernels(settings.cache_dir)
 
 
-def kernels_for(device: torch.device) -> Kernels | None:
-    """The compositing kernels of a render on ``device``, None for the per-round torch kernels."""
-    chosen = choose(device)
+def kernels_for(device: torch.device, settings: RenderSettings) -> Kernels | None:
+    """The compositing kernels of a render on ``device`` with ``settings``, None for the per-round
+    torch kernels."""
+    chosen = choose(device, settings)
     if chosen == "triton":
-        return Kernels("triton", _triton_kernels(), None, 1, 1 << 20, every_tile=True)
-    native = native_for(device) if chosen == "native" else None
+        return Kernels("triton", _triton_kernels(settings.cache_dir), None, 1, 1 << 20, every_tile=True)
+    native = native_for(device, settings) if chosen == "native" else None
     if native is None:
         return None
     return Kernels("native", native, native, None, 128)
 
 
-def _triton_kernels():
-    """One :class:`._triton.TritonKernels` per mode (compiled or interpreted) per process."""
+def _triton_kernels(cache_dir):
+    """One :class:`._triton.TritonKernels` per mode (compiled or interpreted) and cache folder per process."""
     from . import _triton
 
-    key = _triton.interpreting()
+    key = (_triton.interpreting(), cache_dir)
     if key not in _TRITON:
-        _TRITON[key] = _triton.TritonKernels()
+        _TRITON[key] = _triton.TritonKernels(cache_dir)
     return _TRITON[key]
 
 
-def backend_name(device: torch.device) -> str:
-    """What renders on ``device`` run, for summaries and metrics.json: "native", "triton",
-    "torch (compiled)" or "torch (eager)"."""
-    kernels = kernels_for(device)
+def backend_name(device: torch.device, settings: RenderSettings) -> str:
+    """What renders on ``device`` with ``settings`` run, for summaries and metrics.json: "native",
+    "triton", "torch (compiled)" or "torch (eager)"."""
+    kernels = kernels_for(device, settings)
     if kernels is not None:
         return kernels.name
-    return "torch (compiled)" if compile_requested() else "torch (eager)"
+    return "torch (compiled)" if settings.compile else "torch (eager)"
 
 
-__all__ = ["RASTERIZERS", "Kernels", "backend_name", "choose", "kernels_for", "native_for", "set_rasterizer",
+__all__ = ["RASTERIZERS", "Kernels", "RenderSettings", "backend_name", "choose", "kernels_for", "native_for",
            "triton_unavailable"]

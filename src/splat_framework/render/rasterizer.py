@@ -4,8 +4,8 @@ See ``rasterize`` for the full contract. Implementation: EWA projection with
 plain autograd (``_project.py``); tile binning with an opacity-aware footprint,
 depth chunks and front-to-back compositing in rounds with a hand-written
 backward (``_composite.py``); the per-round kernels (``_kernels.py``) run eagerly
-by default. While kernels are compiled (training and rendering runs, or
-``SPLAT_COMPILE=1``), the projection is compiled by ``torch.compile``, and the
+by default. While kernels are compiled (``RenderSettings.compile``: training
+and rendering runs), the projection is compiled by ``torch.compile``, and the
 binning and compositing run as native C++ kernels on a CPU (``_native.py``),
 the compositing as Triton kernels on CUDA (``_triton.py``), or as
 ``torch.compile``'d rounds elsewhere (the choice: ``backend.py``).
@@ -22,12 +22,16 @@ from torch import Tensor
 
 from ..runtime.profiling import section
 from ..runtime.threads import follow_load
-from ._composite import ABSGRAD_REQUEST, TileGrid, composite, pixel_basis, tile_footprints
-from ._kernels import compile_requested
+from ._composite import TileGrid, composite, pixel_basis, tile_footprints
+from ._kernels import get_kernels
 from ._project import ProjectFn, footprint, project, reference_radii
-from .backend import backend_name, choose, kernels_for, native_for
+from .backend import kernels_for
+from .settings import RenderSettings
 
-__all__ = ["RenderOutput", "prepare_kernels", "rasterize"]
+__all__ = ["RenderOutput", "rasterize"]
+
+_DEFAULT_SETTINGS = RenderSettings()
+"""What a render without ``settings`` takes: the eager torch kernels."""
 
 
 @dataclass
@@ -81,6 +85,8 @@ def rasterize(
     tile_size: int = 8,
     block: int | None = None,
     chunk_pairs: int | None = None,
+    settings: RenderSettings | None = None,
+    absgrad: bool = False,
 ) -> RenderOutput:
     """Render 3D Gaussians into one pinhole camera (3DGS reference semantics).
 
@@ -148,16 +154,21 @@ def rasterize(
         chunk_pairs: (tile, Gaussian) pairs binned per depth chunk
             (performance only; None: 128 per tile). Tiles finished by nearer
             chunks are skipped by farther ones.
+        settings: which kernels render (:class:`.settings.RenderSettings`;
+            None: the eager torch kernels). With ``compile``: the native C++
+            kernels for CPU tensors (:mod:`._native`), the Triton kernels for
+            CUDA tensors (:mod:`._triton`), torch.compile'd per-round kernels
+            elsewhere or where neither can run (eager fallback on any compile
+            failure); ``rasterizer`` names one (:mod:`.backend`).
+        absgrad: the backward also leaves ``meta["means2d"].absgrad`` [N, 2]:
+            per Gaussian, the sums over the pixels of each pixel's |dL/du| and
+            |dL/dv| (pixel units), the criterion of AbsGS (Ye et al. 2024;
+            gsplat's ``absgrad``): unlike ``means2d.grad``, opposite pixel
+            gradients of a large Gaussian do not cancel. The native kernels
+            and the eager torch kernels compute it (a compiled torch backward
+            runs eager for such a render).
 
     Environment:
-        SPLAT_COMPILE=0/1: eager per-round compositing kernels, or compiled
-            ones: the native C++ kernels for CPU tensors (:mod:`._native`),
-            the Triton kernels for CUDA tensors (:mod:`._triton`),
-            torch.compile'd per-round kernels elsewhere or where neither can
-            run (default: what ``set_compile`` chose, eager until called;
-            eager fallback on any compile failure).
-        SPLAT_RASTERIZER=auto/native/triton/torch: which of those kernels
-            (:mod:`.backend`; ``set_rasterizer`` wins unless "auto").
         SPLAT_THREADS: the process's CPU threads (:mod:`splat_framework.runtime.threads`);
             each CPU call lets the "auto" count follow the machine's load.
 
@@ -172,8 +183,7 @@ def rasterize(
                     enabled, so after backward ``meta["means2d"].grad`` is the
                     screen-space positional gradient (pixel units), summed over
                     all pixels (zero for Gaussians that were not rendered);
-                    :func:`request_absgrad` on it before backward also leaves
-                    ``meta["means2d"].absgrad``.
+                    with ``absgrad`` also ``meta["means2d"].absgrad``.
                 "radii": [N] int32, ceil(3 sqrt(largest eigenvalue of the 2D
                     covariance)) like the 3DGS reference for rendered
                     Gaussians, 0 for culled ones.
@@ -190,18 +200,8 @@ def rasterize(
         means, quats, scales, opacities, colors, viewmat, K, width, height,
         sh_degree=sh_degree, background=background, near_plane=near_plane,
         far_plane=far_plane, depth_mode=depth_mode, eps2d=eps2d, tile_size=tile_size,
-        block=block, chunk_pairs=chunk_pairs,
+        block=block, chunk_pairs=chunk_pairs, settings=_DEFAULT_SETTINGS if settings is None else settings, absgrad=absgrad,
     )
-
-
-def request_absgrad(means2d: Tensor) -> None:
-    """Ask the backward of the render whose ``meta["means2d"]`` this is to also leave
-    ``means2d.absgrad`` [N, 2]: per Gaussian, the sums over the pixels of each pixel's
-    |dL/du| and |dL/dv| (pixel units), the criterion of AbsGS (Ye et al. 2024; gsplat's
-    ``absgrad``): unlike ``means2d.grad``, opposite pixel gradients of a large Gaussian do
-    not cancel. Call it before backward; the native CPU kernels and the eager torch kernels
-    compute it (a compiled torch backward runs eager while it is requested)."""
-    setattr(means2d, ABSGRAD_REQUEST, True)
 
 
 def _rasterize(
@@ -224,6 +224,8 @@ def _rasterize(
     tile_size: int,
     block: int | None,
     chunk_pairs: int | None,
+    settings: RenderSettings,
+    absgrad: bool,
 ) -> RenderOutput:
     if depth_mode not in ("accumulated", "expected"):
         raise ValueError(f"depth_mode must be 'accumulated' or 'expected', got {depth_mode!r}")
@@ -254,11 +256,11 @@ def _rasterize(
     with section("projection"):
         if torch.is_grad_enabled() and any(t.requires_grad for t in proj_inputs):
             # one autograd node, its backward one timed section
-            means2d, conics, cov2d, depths, valid, rgb_g = ProjectFn.apply(*proj_inputs, cfg)
+            means2d, conics, cov2d, depths, valid, rgb_g = ProjectFn.apply(*proj_inputs, cfg, settings)
             if means2d.requires_grad:
                 means2d.retain_grad()
         else:
-            means2d, conics, cov2d, depths, valid, rgb_g = project(*proj_inputs, cfg)
+            means2d, conics, cov2d, depths, valid, rgb_g = project(*proj_inputs, cfg, settings)
         ext_x, ext_y, ok, qmax = footprint(cov2d, opacities, valid)
     grid = TileGrid(
         tile=tile_size,
@@ -267,7 +269,7 @@ def _rasterize(
         width=width,
         height=height,
     )
-    kernels = kernels_for(device)
+    kernels = kernels_for(device, settings)
     with section("binning"):
         fp = tile_footprints(means2d, ext_x, ext_y, ok, depths, cov2d, qmax, grid,
                              kernels.binning if kernels is not None else None)
@@ -277,11 +279,11 @@ def _rasterize(
     if chunk_pairs is None:
         chunk_pairs = (kernels.chunk_pairs_per_tile if kernels is not None else 128) * grid.n_tiles
     if block is None:
-        block = 8 if compile_requested() else 4
+        block = 8 if settings.compile else 4
     with section("compositing"):
         rgb, depth, alpha = composite(
             means2d, conics, opacities, rgb_g.to(dtype), depths, background, fp, grid, basis, block,
-            chunk_pairs, kernels,
+            chunk_pairs, kernels, None if kernels is not None else get_kernels(settings), absgrad,
         )
     if depth_mode == "expected":
         depth = torch.where(alpha > 0, depth / alpha.clamp_min(1e-12), torch.zeros_like(depth))
@@ -297,30 +299,3 @@ def _rasterize(
         "background": background,
     }
     return RenderOutput(rgb=rgb, depth=depth, alpha=alpha, meta=meta, depth_mode=depth_mode)
-
-
-def prepare_kernels(device: torch.device) -> str:
-    """Build or load the native kernels, or compile the Triton ones (one tiny render, a phase line;
-    Triton keeps what it compiled in its cache), so that no training step pays for it; returns
-    :func:`backend_name`. Raises DataError where a rasterizer asked for by name cannot run."""
-    chosen = choose(device)
-    if chosen == "native":
-        native_for(device)
-    elif chosen == "triton":
-        from ..console import phase
-
-        with phase("compiling the Triton rasterizer kernels (cached after the first run)"):
-            _warm_up(device)
-    return backend_name(device)
-
-
-def _warm_up(device: torch.device) -> None:
-    """One 16x16 render of two Gaussians, forward and backward, in float32 on ``device``."""
-    means = torch.tensor([[0.0, 0.0, 3.0], [0.2, 0.1, 4.0]], device=device, requires_grad=True)
-    quats = torch.tensor([[1.0, 0.0, 0.0, 0.0]] * 2, device=device)
-    scales = torch.full((2, 3), 0.3, device=device)
-    viewmat = torch.eye(4, device=device)
-    K = torch.tensor([[16.0, 0.0, 8.0], [0.0, 16.0, 8.0], [0.0, 0.0, 1.0]], device=device)
-    out = rasterize(means, quats, scales, torch.full((2,), 0.8, device=device), torch.ones(2, 3, device=device),
-                    viewmat, K, 16, 16)
-    (out.rgb.sum() + out.depth.sum()).backward()

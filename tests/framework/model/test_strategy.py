@@ -292,7 +292,8 @@ def test_absgrad_grows_a_gaussian_whose_pixel_gradients_cancel():
         strat = DefaultStrategy(cfg(absgrad=absgrad, grow_grad2d=0.0008 if absgrad else 0.0002))
         state = strat.initialize_state(scene_scale=1.0)
         out = rasterize(params["means"], params["quats"], params["scales"].exp(), torch.sigmoid(params["opacities"]),
-                        params["sh0"][:, 0], viewmat, K, 32, 32)
+                        params["sh0"][:, 0], viewmat, K, 32, 32, absgrad=strat.absgrad)
+        assert strat.absgrad == absgrad
         strat.step_pre_backward(params, opts, state, 10, out.meta)
         (out.rgb - 0.2).abs().mean().backward()
         m2d = out.meta["means2d"]

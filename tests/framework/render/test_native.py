@@ -13,14 +13,14 @@ import pytest
 import test_rasterizer as ref
 import torch
 
-from splat_framework.render import _native, backend, rasterizer
+from splat_framework.render import RenderSettings, _native, backend, rasterizer
 
 
 @pytest.fixture
 def native(native_module, monkeypatch):
     """Every rasterize() of the test composites with the native kernels."""
-    monkeypatch.setattr(backend, "native_for", lambda device: native_module if device.type == "cpu" else None)
-    monkeypatch.setattr(backend, "choose", lambda device: "native" if device.type == "cpu" else "torch")
+    monkeypatch.setattr(backend, "native_for", lambda device, settings: native_module if device.type == "cpu" else None)
+    monkeypatch.setattr(backend, "choose", lambda device, settings: "native" if device.type == "cpu" else "torch")
     return native_module
 
 
@@ -91,7 +91,7 @@ def test_native_float32_exp_is_accurate(native):
     params = ref.random_scene(1, 0, dtype=torch.float32, spread=0.0, scale=(0.0, 0.0))
     out = rasterizer._rasterize(*params, viewmat, K, width, height, sh_degree=None, background=None,
                                 near_plane=0.01, far_plane=1e10, depth_mode="accumulated", eps2d=0.3,
-                                tile_size=8, block=None, chunk_pairs=None)
+                                tile_size=8, block=None, chunk_pairs=None, settings=RenderSettings(), absgrad=False)
     p64 = [p.double() for p in params]
     _, _, alpha = ref.reference_render(*p64, viewmat.double(), K.double(), width, height)
     assert alpha.max() > 0.1
@@ -220,13 +220,11 @@ def test_native_binning_on_two_threads_gives_the_same_pairs_call_after_call(nati
 
 def test_native_kernels_are_chosen_for_cpu_renders_while_compiling(native_module, monkeypatch):
     monkeypatch.setattr(_native, "native_kernels", lambda cache_dir=None: native_module)
-    monkeypatch.setenv("SPLAT_COMPILE", "1")
-    monkeypatch.delenv("SPLAT_RASTERIZER", raising=False)
-    assert backend.native_for(torch.device("cpu")) is native_module
-    assert backend.kernels_for(torch.device("cpu")).composite is native_module
-    assert backend.native_for(torch.device("meta")) is None  # another device: the torch kernels
-    monkeypatch.setenv("SPLAT_COMPILE", "0")
-    assert backend.native_for(torch.device("cpu")) is None  # eager: the torch kernels
+    compiled = RenderSettings(compile=True)
+    assert backend.native_for(torch.device("cpu"), compiled) is native_module
+    assert backend.kernels_for(torch.device("cpu"), compiled).composite is native_module
+    assert backend.native_for(torch.device("meta"), compiled) is None  # another device: the torch kernels
+    assert backend.native_for(torch.device("cpu"), RenderSettings()) is None  # eager: the torch kernels
 
 
 def test_a_failed_build_warns_once_and_falls_back(monkeypatch, tmp_path):
@@ -248,9 +246,9 @@ def test_a_failed_build_warns_once_and_falls_back(monkeypatch, tmp_path):
     messages = [str(w.message) for w in caught]
     assert messages == ["could not build the native rasterizer kernels (RuntimeError: Ninja is required to load "
                         "C++ extensions); using the torch ones"]
-    monkeypatch.setenv("SPLAT_COMPILE", "1")
-    assert backend.native_for(torch.device("cpu")) is None  # renders take the torch.compile kernels
-    assert backend.kernels_for(torch.device("cpu")) is None
+    compiled = RenderSettings(compile=True, cache_dir=tmp_path)
+    assert backend.native_for(torch.device("cpu"), compiled) is None  # renders take the torch.compile kernels
+    assert backend.kernels_for(torch.device("cpu"), compiled) is None
 
 
 def _recording_load(monkeypatch, build):

@@ -13,7 +13,7 @@ import test_rasterizer as ref
 import torch
 
 from splat_framework import losses
-from splat_framework.render import _project, rasterize
+from splat_framework.render import RenderSettings, _project, rasterize
 from splat_framework.render._project import ProjectFn, native_cfg, project_and_shade
 
 
@@ -21,12 +21,16 @@ from splat_framework.render._project import ProjectFn, native_cfg, project_and_s
 def native(native_module, monkeypatch):
     """Every render (projection and compositing) and photometric loss of the test runs on the native
     kernels, as in a training run on a CPU."""
-    monkeypatch.setenv("SPLAT_COMPILE", "1")
-    monkeypatch.setattr(_project, "native_projection", lambda device: native_module if device.type == "cpu" else None)
-    monkeypatch.setattr("splat_framework.render.backend.native_for", lambda device: native_module)
-    monkeypatch.setattr("splat_framework.render.backend.choose", lambda device: "native")
-    monkeypatch.setattr(losses, "_native_loss", lambda pred, gt: native_module)
+    monkeypatch.setattr(_project, "native_projection",
+                        lambda device, settings: native_module if device.type == "cpu" else None)
+    monkeypatch.setattr("splat_framework.render.backend.native_for", lambda device, settings: native_module)
+    monkeypatch.setattr("splat_framework.render.backend.choose", lambda device, settings: "native")
+    monkeypatch.setattr(losses, "_native_loss", lambda pred, gt, settings: native_module)
     return native_module
+
+
+NATIVE = RenderSettings(rasterizer="native", compile=True)
+"""What a training run on a CPU renders and takes its loss with."""
 
 
 def _camera(dtype):
@@ -85,7 +89,7 @@ def test_native_projection_gradcheck(native, sh_k, degree):
     cfg = (42, 28, 0.05, 30.0, 0.3, degree)
 
     def f(m, q, s, c):
-        out = ProjectFn.apply(m, q, s, c, viewmat, K, cfg)
+        out = ProjectFn.apply(m, q, s, c, viewmat, K, cfg, NATIVE)
         return tuple(o for o in out if o.dtype != torch.bool)
 
     assert torch.autograd.gradcheck(f, (means, quats, scales, colors), eps=1e-6, atol=1e-6)
@@ -98,7 +102,7 @@ def test_a_render_with_the_native_projection_matches_bruteforce(native, sh_k, de
     viewmat, K = ref.make_camera(width, height, dtype=dtype)
     params = [p.requires_grad_() for p in ref.random_scene(40, 11, dtype=dtype, sh_k=sh_k)]
     wr = torch.randn(height, width, 3, generator=torch.Generator().manual_seed(1), dtype=dtype)
-    out = rasterize(*params, viewmat, K, width, height, sh_degree=degree)
+    out = rasterize(*params, viewmat, K, width, height, sh_degree=degree, settings=NATIVE)
     grads = torch.autograd.grad((out.rgb * wr).sum() + out.depth.sum(), params)
     rgb, depth, alpha = ref.reference_render(*params, viewmat, K, width, height, sh_degree=degree)
     assert alpha.max() > 0.5
@@ -116,7 +120,7 @@ def test_native_photometric_loss_matches_torch(native, dtype):
     gt[:5, :5] = pred.detach()[:5, :5]  # equal pixels: the L1's zero subgradient
     want = losses._photometric(pred, gt, 0.2)
     (want_grad,) = torch.autograd.grad(want, pred)
-    got = losses.photometric_loss(pred, gt, 0.2)
+    got = losses.photometric_loss(pred, gt, 0.2, settings=NATIVE)
     assert got.grad_fn is not None and "Native" in type(got.grad_fn).__name__
     (grad,) = torch.autograd.grad(got * 3.0, pred)
     tol = {} if dtype == torch.float64 else dict(rtol=1e-5, atol=1e-8)
@@ -128,7 +132,7 @@ def test_native_photometric_loss_gradcheck(native):
     g = torch.Generator().manual_seed(1)
     pred = torch.rand(13, 17, 3, generator=g, dtype=torch.float64, requires_grad=True)
     gt = torch.rand(13, 17, 3, generator=g, dtype=torch.float64)
-    assert torch.autograd.gradcheck(lambda p: losses.photometric_loss(p, gt, 0.3), (pred,))
+    assert torch.autograd.gradcheck(lambda p: losses.photometric_loss(p, gt, 0.3, settings=NATIVE), (pred,))
 
 
 def test_native_projection_and_loss_give_the_same_bits_on_one_thread_and_two(native):
@@ -166,7 +170,8 @@ def test_a_training_step_traces_nothing_whatever_the_sh_degree_or_size(native, m
     gt = torch.rand(height, width, 3)
     for n, degree in ((30, 0), (45, 1), (60, 3)):
         means, quats, scales, opacities, colors = (p.requires_grad_() for p in ref.random_scene(n, n, torch.float32, 16))
-        out = rasterize(means, quats, scales, opacities, colors, viewmat, K, width, height, sh_degree=degree)
-        losses.photometric_loss(out.rgb, gt).backward()
+        out = rasterize(means, quats, scales, opacities, colors, viewmat, K, width, height, sh_degree=degree,
+                        settings=NATIVE)
+        losses.photometric_loss(out.rgb, gt, settings=NATIVE).backward()
         assert means.grad.abs().sum() > 0
     assert sum(counters["frames"].values()) == frames_before

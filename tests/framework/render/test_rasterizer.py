@@ -16,7 +16,7 @@ import torch
 from kornia.geometry.conversions import quaternion_to_rotation_matrix
 
 from splat_framework.cameras import intrinsics, look_at
-from splat_framework.render import RenderOutput, eval_sh, rasterize, request_absgrad
+from splat_framework.render import RenderOutput, RenderSettings, eval_sh, rasterize
 
 
 # ----------------------------------------------------------------------------- reference
@@ -378,8 +378,8 @@ def _absgrad_reference(params, viewmat, K, width, height, wr, wd, wa):
 
 
 def check_absgrad(tile_size=8):
-    """``request_absgrad`` leaves means2d.absgrad equal to the reference's per-pixel absolute sums; without
-    the request there is none. Float64, a scene where opposite pixel gradients do cancel."""
+    """``rasterize(absgrad=True)`` leaves means2d.absgrad equal to the reference's per-pixel absolute sums;
+    without it there is none. Float64, a scene where opposite pixel gradients do cancel."""
     dtype = torch.float64
     width, height = 25, 19
     viewmat, K = make_camera(width, height, dtype=dtype)
@@ -392,9 +392,8 @@ def check_absgrad(tile_size=8):
     out = rasterize(*params, viewmat, K, width, height, tile_size=tile_size)
     loss(out).backward()
     assert not hasattr(out.meta["means2d"], "absgrad")
-    out = rasterize(*params, viewmat, K, width, height, tile_size=tile_size)
+    out = rasterize(*params, viewmat, K, width, height, tile_size=tile_size, absgrad=True)
     m2d = out.meta["means2d"]
-    request_absgrad(m2d)
     loss(out).backward()
     ref = _absgrad_reference([p.detach().requires_grad_() for p in params], viewmat, K, width, height, wr, wd, wa)
     assert ref.max() > 0.1, "nothing rendered: the test is vacuous"
@@ -529,48 +528,43 @@ def test_all_culled_and_inference_mode():
     assert out.rgb.shape == (12, 16, 3)
 
 
+@pytest.mark.slow  # compiles with torch.compile
 def test_compiled_kernels_match_eager_in_a_training_step(monkeypatch, tmp_path):
     """torch.compile'd compositing (what training runs use on CUDA, and on a CPU where the native
     kernels cannot be built) gives the eager forward and gradients; any compile failure falls back
     to eager, so this also runs without a compiler."""
     from splat_framework.render import _kernels
-
-    monkeypatch.setenv("SPLAT_RASTERIZER", "torch")  # the torch.compile'd kernels, not the native ones
-    monkeypatch.setattr("splat_framework.render._project.native_projection", lambda device: None)
     from splat_framework.render.precompiled import Precompiled, supported
 
     width, height = 40, 30
     viewmat, K = make_camera(width, height)
     params = [p.requires_grad_() for p in random_scene(120, 17, dtype=torch.float32)]
 
-    def fwd_bwd():
+    def fwd_bwd(settings=None):
         for p in params:
             p.grad = None
-        out = rasterize(*params, viewmat, K, width, height)
+        out = rasterize(*params, viewmat, K, width, height, settings=settings)
         (out.rgb.square().sum() + out.depth.sum() + out.alpha.sum()).backward()
         return [out.rgb.detach(), out.depth.detach()] + [p.grad.clone() for p in params]
 
     eager = fwd_bwd()
-    monkeypatch.delenv("SPLAT_COMPILE")
     monkeypatch.delenv("TORCHINDUCTOR_CACHE_DIR", raising=False)
     # one thread count throughout (the automatic one follows the machine's load, and each count has
     # its own compiled graph: see test_a_saved_kernel_graph_is_keyed_by_what_its_code_is_built_for)
     monkeypatch.setenv("SPLAT_THREADS", str(torch.get_num_threads()))
-    _kernels.set_compile(True, tmp_path)
-    try:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            for _ in range(2):  # the second call runs the cached kernels
-                for a, b in zip(fwd_bwd(), eager):
-                    torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
-            saved = sorted(p.name.split("-")[0] for p in (tmp_path / "precompiled").glob("*.bin"))
-            # a new process: the kernels come from the saved graphs, nothing is traced again
-            _kernels._KERNELS.clear()
-            monkeypatch.setattr(Precompiled, "_compile", lambda self, args: pytest.fail("traced again"))
-            for a, b in zip(fwd_bwd(), eager):
+    # the torch.compile'd kernels, not the native ones
+    compiled = RenderSettings(rasterizer="torch", compile=True, cache_dir=tmp_path)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for _ in range(2):  # the second call runs the cached kernels
+            for a, b in zip(fwd_bwd(compiled), eager):
                 torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
-    finally:
-        _kernels.set_compile(False)
+        saved = sorted(p.name.split("-")[0] for p in (tmp_path / "precompiled").glob("*.bin"))
+        # a new process: the kernels come from the saved graphs, nothing is traced again
+        monkeypatch.setattr(_kernels, "_KERNELS", {})
+        monkeypatch.setattr(Precompiled, "_compile", lambda self, args: pytest.fail("traced again"))
+        for a, b in zip(fwd_bwd(compiled), eager):
+            torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
     fell_back = [str(w.message) for w in caught if "unavailable" in str(w.message) or "could not compile" in str(w.message)]
     if shutil.which("c++") or shutil.which("g++"):  # with a compiler, the compiled kernels really ran
         assert not fell_back, fell_back
@@ -614,10 +608,9 @@ def test_a_torch_that_cannot_save_compiled_graphs_compiles_each_process_without_
         return x
 
     monkeypatch.setattr(_kernels.torch, "compile", lambda fn, **kw: plain)  # a compiled function without aot_compile
-    monkeypatch.setitem(_kernels._SETTING, "cache_dir", tmp_path)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        kernel = _kernels._compiled("fwd", lambda x: x, lambda args: (), "forward")
+        kernel = _kernels._compiled("fwd", lambda x: x, lambda args: (), "forward", tmp_path)
     assert kernel is plain and not isinstance(kernel, Precompiled)
     monkeypatch.setattr(_kernels.torch, "compile", lambda fn, **kw: type("F", (), {"aot_compile": 1, "__call__": plain})())
-    assert isinstance(_kernels._compiled("fwd", lambda x: x, lambda args: (), "forward"), Precompiled)
+    assert isinstance(_kernels._compiled("fwd", lambda x: x, lambda args: (), "forward", tmp_path), Precompiled)

@@ -2,7 +2,7 @@
 (``TRITON_INTERPRET=1``) runs the same kernels on CPU tensors, against the brute-force reference of
 test_rasterizer and the eager torch kernels, forward and every gradient, in float32 and float64;
 and every kernel is compiled ahead of time for Ampere (sm_80) and Hopper (sm_90). Also the
-``SPLAT_RASTERIZER`` switch: what each choice runs where, and how a choice that cannot run fails."""
+``RenderSettings.rasterizer`` switch: what each choice runs where, and how a choice that cannot run fails."""
 
 from __future__ import annotations
 
@@ -10,25 +10,29 @@ import os
 import subprocess
 import sys
 import warnings
+from types import SimpleNamespace
 
 import pytest
 import test_rasterizer as ref
 import torch
 
 from splat_framework.errors import DataError
-from splat_framework.render import _triton, backend, rasterizer
+from splat_framework.render import RenderSettings, _triton, backend, rasterizer
 
 triton = pytest.importorskip("triton", reason="triton is not installed (the test extra pins it)")
 
 
+TRITON = RenderSettings(rasterizer="triton")
+
+
 @pytest.fixture
 def interpreted(monkeypatch):
-    """Every rasterize() of the test composites with the Triton kernels, run by the interpreter
-    (conftest.py turns it on before triton is imported)."""
+    """Every rasterize() of the test without ``settings`` composites with the Triton kernels, run by the
+    interpreter (conftest.py turns it on before triton is imported)."""
     assert _triton.language_interpreted(), "triton was imported before conftest.py set TRITON_INTERPRET=1"
     monkeypatch.setenv("TRITON_INTERPRET", "1")
-    monkeypatch.setenv("SPLAT_RASTERIZER", "triton")
-    assert backend.kernels_for(torch.device("cpu")).name == "triton"
+    monkeypatch.setattr(rasterizer, "_DEFAULT_SETTINGS", TRITON)
+    assert backend.kernels_for(torch.device("cpu"), TRITON).name == "triton"
 
 
 def _render_and_grads(params, viewmat, K, width, height, weights, **kw):
@@ -88,8 +92,8 @@ def test_triton_ties_in_depth_match_the_torch_kernels(interpreted, monkeypatch):
     params = [p.requires_grad_() for p in (means, quats, scales, opac, colors)]
     weights = ref._loss_weights(height, width, 2, torch.float32)
     out_t, g_t = _render_and_grads(params, viewmat, K, width, height, weights, tile_size=8)
-    monkeypatch.setenv("SPLAT_RASTERIZER", "torch")
-    out_e, g_e = _render_and_grads(params, viewmat, K, width, height, weights, tile_size=8)
+    out_e, g_e = _render_and_grads(params, viewmat, K, width, height, weights, tile_size=8,
+                                   settings=RenderSettings(rasterizer="torch"))
     assert out_e.alpha.max() > 0.9 and (out_e.alpha < 0.01).any()  # opaque parts and empty ones
     for a, b in ((out_t.rgb, out_e.rgb), (out_t.depth, out_e.depth), (out_t.alpha, out_e.alpha)):
         assert (a - b).abs().max() <= 1e-4
@@ -146,57 +150,52 @@ def test_compile_for_refuses_in_an_interpreting_process():
 def test_the_switch_on_a_cpu(monkeypatch):
     cpu = torch.device("cpu")
     monkeypatch.delenv("TRITON_INTERPRET", raising=False)
-    monkeypatch.delenv("SPLAT_RASTERIZER", raising=False)
-    monkeypatch.setattr(backend, "compile_requested", lambda: True)
-    assert backend.choose(cpu) == "native"  # auto: unchanged on a CPU
-    monkeypatch.setenv("SPLAT_RASTERIZER", "torch")
-    assert backend.choose(cpu) == "torch" and backend.kernels_for(cpu) is None
-    assert backend.native_for(cpu) is None  # projection and loss in torch too
-    monkeypatch.setenv("SPLAT_RASTERIZER", "triton")
+    assert backend.choose(cpu, RenderSettings(compile=True)) == "native"  # auto: unchanged on a CPU
+    named_torch = RenderSettings(rasterizer="torch", compile=True)
+    assert backend.choose(cpu, named_torch) == "torch" and backend.kernels_for(cpu, named_torch) is None
+    assert backend.native_for(cpu, named_torch) is None  # projection and loss in torch too
     with pytest.raises(DataError, match=r"^rasterizer triton: the Triton kernels run on CUDA tensors"):
-        backend.choose(cpu)
+        backend.choose(cpu, RenderSettings(rasterizer="triton", compile=True))
     monkeypatch.setenv("TRITON_INTERPRET", "1")
-    assert backend.choose(cpu) == "triton"
-    monkeypatch.setattr(backend, "compile_requested", lambda: False)
-    monkeypatch.setenv("SPLAT_RASTERIZER", "native")  # named: runs even where kernels are not compiled
-    assert backend.choose(cpu) == "native"
-    monkeypatch.setenv("SPLAT_RASTERIZER", "auto")
-    assert backend.choose(cpu) == "torch"  # eager torch (tests, --no-compile)
-    monkeypatch.setenv("SPLAT_RASTERIZER", "cuda")
+    assert backend.choose(cpu, RenderSettings(rasterizer="triton", compile=True)) == "triton"
+    # named: runs even where kernels are not compiled
+    assert backend.choose(cpu, RenderSettings(rasterizer="native")) == "native"
+    assert backend.choose(cpu, RenderSettings()) == "torch"  # auto, eager torch (tests, --no-compile)
+
+
+def test_the_settings_are_made_once_from_the_flags_and_the_environment(tmp_path):
+    """--rasterizer other than auto wins over SPLAT_RASTERIZER; SPLAT_COMPILE wins over --compile; a bad
+    name is one line."""
+    def made(rasterizer="auto", compile=True, **env):
+        return RenderSettings.from_config(SimpleNamespace(rasterizer=rasterizer, compile=compile), env=env,
+                                          cache_dir=tmp_path)
+
+    assert made("torch", SPLAT_RASTERIZER="native").rasterizer == "torch"
+    assert made(SPLAT_RASTERIZER="native").rasterizer == "native"
+    assert made().rasterizer == "auto" and made().compile and made().cache_dir == tmp_path
+    assert not made(SPLAT_COMPILE="0").compile
+    assert made(compile=False, SPLAT_COMPILE="1").compile
     with pytest.raises(DataError, match="SPLAT_RASTERIZER='cuda': expected auto, native, triton or torch"):
-        backend.choose(cpu)
-
-
-def test_the_flag_wins_over_the_variable(monkeypatch):
-    monkeypatch.setenv("SPLAT_RASTERIZER", "native")
-    try:
-        backend.set_rasterizer("torch")
-        assert backend.rasterizer_setting() == "torch"
-        backend.set_rasterizer("auto")
-        assert backend.rasterizer_setting() == "native"
-    finally:
-        backend.set_rasterizer("auto")
+        made(SPLAT_RASTERIZER="cuda")
     with pytest.raises(DataError, match="--rasterizer 'gsplat'"):
-        backend.set_rasterizer("gsplat")
+        RenderSettings(rasterizer="gsplat")
 
 
 def test_auto_on_cuda_takes_triton_and_falls_back_in_one_line_without_it(monkeypatch):
     cuda = torch.device("cuda")
-    monkeypatch.delenv("SPLAT_RASTERIZER", raising=False)
-    monkeypatch.setattr(backend, "compile_requested", lambda: True)
-    assert backend.choose(cuda) == "triton"
+    compiled = RenderSettings(compile=True)
+    assert backend.choose(cuda, compiled) == "triton"
     monkeypatch.setattr(_triton, "available", lambda: "triton cannot be imported (ImportError: no module)")
     monkeypatch.setattr(backend, "_WARNED", set())
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        assert backend.choose(cuda) == "torch"
-        assert backend.choose(cuda) == "torch"
+        assert backend.choose(cuda, compiled) == "torch"
+        assert backend.choose(cuda, compiled) == "torch"
     assert [str(w.message) for w in caught] == [
         "triton cannot be imported (ImportError: no module): rendering with the torch kernels"]
-    monkeypatch.setenv("SPLAT_RASTERIZER", "native")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        assert backend.choose(cuda) == "torch"
+        assert backend.choose(cuda, RenderSettings(rasterizer="native", compile=True)) == "torch"
     assert "rasterizer native: the native kernels run on CPU tensors" in str(caught[-1].message)
 
 

@@ -15,5 +15,6 @@ class TwoViewPipeline(Pipeline):
         with section("second view"):
             render = self.model.get_outputs(camera, self.background, step=step)
             weight = self.config.model.two_view_weight
-            losses["second_view"] = weight * photometric_loss(render.rgb, other["image"], self.config.model.lambda_dssim)
+            losses["second_view"] = weight * photometric_loss(render.rgb, other["image"], self.config.model.lambda_dssim,
+                                                                settings=self.model.render_settings)
         return outputs, batch, losses
