@@ -171,7 +171,7 @@ def test_a_part_is_checked_for_its_kind():
 
     assert Ref("splat_framework.model.gaussians:GaussianModel", MODEL_BASE, "model").load() is GaussianModel
     assert Ref("splat_framework.model.init:box_points", "", "points_fn").load().__name__ == "box_points"
-    for path, problem in (("splat_framework.model.init:MIN_TRIANGULATED", "is not a function (it is a int)"),
+    for path, problem in (("splat_framework.matching.prior:MIN_TRIANGULATED", "is not a function (it is a int)"),
                           ("splat_framework.model.init:box_points", "is not a GaussianModel subclass (it is a function)"),
                           ("no-colon", "does not import (ValueError: 'no-colon' is not a 'module:Name' path)")):
         base = "" if "MIN" in path else MODEL_BASE
