@@ -40,7 +40,7 @@ def test_the_example_plugins_own_tests_pass_from_outside_the_repository(plugin_s
     env = _env(plugin_site, tmp_path) | {"PYTHONDONTWRITEBYTECODE": "1"}
     r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", str(EXAMPLE / "tests")],
                        capture_output=True, text=True, env=env, cwd=tmp_path, timeout=900)
-    assert r.returncode == 0 and "3 passed" in r.stdout, r.stdout[-3000:] + r.stderr[-2000:]
+    assert r.returncode == 0 and "5 passed" in r.stdout, r.stdout[-3000:] + r.stderr[-2000:]
 
 
 def test_example_plugin_widens_the_strategy_union(plugin_site, tmp_path):

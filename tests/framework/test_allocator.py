@@ -64,8 +64,9 @@ def test_a_training_run_applies_them(tmp_path, monkeypatch):
     from test_trainer import tiny_config
 
     import splat_framework.engine.trainer as trainer_mod
+    import splat_framework.runtime.process as process
 
     calls = []
-    monkeypatch.setattr(trainer_mod, "keep_freed_memory", lambda: calls.append(1) or True)
+    monkeypatch.setattr(process, "keep_freed_memory", lambda: calls.append(1) or True)
     trainer_mod.Trainer(tiny_config(tmp_path / "run", steps=2, progress=False))
     assert calls == [1]

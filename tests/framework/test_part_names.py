@@ -176,7 +176,9 @@ def test_a_users_variant_named_like_a_method_changes_nothing(tmp_path):
         methods = registry.discover_methods(config_dirs=[user, *registry.default_config_dirs()])
     from splat_framework.methods.gaussian_splatting import spec_3dgs
 
-    assert methods["3dgs"] is spec_3dgs and methods["3dgs-frustum"].model == spec_3dgs.model
+    kept = methods["3dgs"]  # the framework's spec, with who declared it filled in
+    assert kept.config_factory is spec_3dgs.config_factory and kept.source.startswith("package splat-framework")
+    assert methods["3dgs-frustum"].model == spec_3dgs.model
     assert methods["3dgs-frustum"].default_config().strategy.kind == "default"
 
 

@@ -433,14 +433,16 @@ def test_a_second_sigint_during_the_checkpoint_write_waits_for_it(tmp_path, monk
         if step == 3:
             os.kill(os.getpid(), signal.SIGINT)
 
-    real_save = trainer_mod.save_checkpoint
+    import splat_framework.engine.train_state as train_state
+
+    real_save = train_state.save_checkpoint
 
     def save_with_a_second_signal(folder, step, payload, *a, **kw):
         if step == 3:
             os.kill(os.getpid(), signal.SIGINT)  # handled here, in the middle of the save
         return real_save(folder, step, payload, *a, **kw)
 
-    monkeypatch.setattr(trainer_mod, "save_checkpoint", save_with_a_second_signal)
+    monkeypatch.setattr(train_state, "save_checkpoint", save_with_a_second_signal)
     out = tmp_path / "run"
     with pytest.raises(TrainingInterrupted, match="SIGINT at step 3/"):
         Trainer(fixed_config("3dgs", out, default_steps=20, checkpoint_every=0), [send_sigint]).train()

@@ -10,7 +10,9 @@ from typing import Any, Callable
 
 from ..config.init import InitConfig
 from ..config.strategy import StrategyConfig
+from ..data.dataparsers import dataparsers
 from ..entry_points import INIT_ENTRY_POINT_GROUP, STRATEGY_BASE, STRATEGY_ENTRY_POINT_GROUP, Ref, registered
+from ..errors import DataError, did_you_mean
 from ..model.strategy import Strategy
 from ..registry import MethodSpec
 
@@ -44,6 +46,7 @@ def resolve_parts(spec: MethodSpec, config) -> RunParts:
     PluginError (DataError, for a photo matcher) naming who declared it (the kind's entry point, else
     the method's), the entry and the problem. Cheap once imported: the CLI calls it before any data
     loads, the Trainer again for a run started in-process."""
+    _check_format(config.format)
     model, pipeline = spec.model_class(), spec.pipeline_class()
     by_field = {}
     for where, part in _configs_in(config, tuple(f[0] for f in FAMILIES)):
@@ -102,3 +105,11 @@ def build_strategy(config: StrategyConfig) -> Strategy:
     if not isinstance(strategy, Strategy):
         raise TypeError(f"{type(config).__name__}.setup() returned {type(strategy).__name__}, not a Strategy")
     return strategy
+
+
+def _check_format(name: str) -> None:
+    """``--format`` names ``auto`` or a registered dataparser (a one-line DataError, exit 2, with the
+    closest name, before anything loads)."""
+    names = ["auto", *dataparsers()]
+    if name not in names:
+        raise DataError(f"--format: {name!r} is not one of {', '.join(names)}{did_you_mean(name, names)}")

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Callable, Literal
 
 from ...entry_points import IMPORT_FAILURES, load_object, raised
+from ...errors import did_you_mean
 from ..dataparsers import dataparsers, listed
 from ..scene import DataError, SceneData
 from ..splits import check_views
@@ -31,7 +32,8 @@ def _loader(fmt: str) -> Callable[..., SceneData]:
     """The load function of the dataparser named ``fmt`` (a DataError naming the registered ones)."""
     parsers = dataparsers()
     if fmt not in parsers:
-        raise DataError(f"unknown dataset format {fmt!r} (choose auto, {', '.join(parsers)})")
+        raise DataError(f"unknown dataset format {fmt!r} (choose auto, {', '.join(parsers)})"
+                        f"{did_you_mean(fmt, ['auto', *parsers])}")
     return load_object(parsers[fmt].load)
 
 
