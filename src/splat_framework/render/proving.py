@@ -12,7 +12,6 @@ and the run renders with the torch kernels. The verdict is kept in the settings'
 from __future__ import annotations
 
 import hashlib
-import json
 import platform
 import warnings
 from pathlib import Path
@@ -20,7 +19,8 @@ from pathlib import Path
 import torch
 
 from ..console import phase
-from ..runtime.io import atomic_write_json
+from ..runtime.io import atomic_write_json, read_json
+from ..runtime.trusted import manifest_mismatch, private_folder, write_manifest
 from ._kernels import use_inductor_cache
 from .backend import choose, kernels_for, native_for
 from .rasterizer import rasterize
@@ -133,18 +133,19 @@ def proven(device: torch.device, settings: RenderSettings) -> RenderSettings:
 def _kept(cache_dir: Path | None, backend: str, key: str, device: torch.device, settings: RenderSettings) -> str:
     """The verdict kept under ``cache_dir`` for (backend, key), else proved now and kept there."""
     path = None if cache_dir is None else Path(cache_dir) / "proofs" / f"{backend}-{key}.json"
-    if path is not None and path.is_file():
+    # a verdict is loaded only when this user's signed manifest vouches for it, as the kernels are
+    if path is not None and path.is_file() and manifest_mismatch(path.parent, [path.name]) is None:
         try:
-            kept = json.loads(path.read_text(encoding="utf-8"))
-            return str(kept["differences"])
+            return str(read_json(path, require_checksum=True)["differences"])
         except (OSError, ValueError, KeyError, TypeError):
             pass  # unreadable: prove again and write it anew
     with phase(f"proving the {backend} rasterizer kernels against the torch reference (once per machine)"):
         found = differences(device, settings)
     if path is not None:
         try:
-            atomic_write_json(path, {"backend": backend, "device": _device_words(device, backend), "differences": found},
-                              checksum=False)
+            private_folder(path.parent)
+            atomic_write_json(path, {"backend": backend, "device": _device_words(device, backend), "differences": found})
+            write_manifest(path.parent, [path.name])
         except OSError:
             pass  # a read-only cache: proved again by the next process
     return found

@@ -113,3 +113,20 @@ def test_a_verdict_is_keyed_by_backend_version_and_device(monkeypatch):
     monkeypatch.undo()
     monkeypatch.setattr(torch.backends.cpu, "get_cpu_capability", lambda: "SOMETHING-ELSE")
     assert proving._version_key("native", CPU) != key
+
+
+def test_an_edited_verdict_is_not_trusted_and_the_backend_is_proved_again(native_module, tmp_path, monkeypatch):
+    """The kept verdict is loaded only when this user's signed manifest vouches for it: a verdict file
+    edited to say "agrees" (or to refuse) is ignored and the kernels are proved again."""
+    settings = RenderSettings(compile=True, cache_dir=tmp_path)
+    monkeypatch.setattr(proving, "_VERDICTS", {})
+    monkeypatch.setattr(proving, "differences", lambda device, settings: "image: off by up to 1")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert prepare_kernels(CPU, settings).rasterizer == "torch"
+    (kept,) = (tmp_path / "proofs").glob("native-*.json")
+    kept.write_text(json.dumps({"backend": "native", "differences": ""}))  # edited: no checksum, not the manifest's
+    proved = []
+    monkeypatch.setattr(proving, "_VERDICTS", {})
+    monkeypatch.setattr(proving, "differences", lambda device, settings: proved.append(1) or "")
+    assert prepare_kernels(CPU, settings) == settings and proved == [1]
