@@ -66,24 +66,36 @@ def native_module():
 
 
 @pytest.fixture(autouse=True, scope="session")
-def _native_kernels_loaded(request):
-    """The machine's native kernels loaded in every worker before any test: a run that compiles its
-    kernels in-process takes them as a user's second run does, instead of building them into the
-    session's empty cache (25-95 s a worker). Where they cannot be built, nothing: the tests that
-    need them (``native_module``) skip or fail saying why."""
-    if HAVE_TOOLCHAIN:
-        try:
-            request.getfixturevalue("native_module")
-        except AssertionError:  # a failed build fails the tests that need the kernels, not all
-            pass
+def _native_kernels_loaded(request, tmp_path_factory) -> bool:
+    """Whether the machine's native kernels are loaded in this worker, before any test: a run in
+    the test's process renders with them as a user's run on a CPU does, and the session's cache
+    holds a copy, so a command the tests start loads them too (never builds them: 45 s). Where they
+    cannot be built, False: the tests that need them (``native_module``) skip or fail saying why."""
+    from tiers import KERNELS, seed_kernels
+
+    if not HAVE_TOOLCHAIN:
+        return False
+    try:
+        module = request.getfixturevalue("native_module")
+    except AssertionError:  # a failed build fails the tests that need the kernels, not all
+        return False
+    KERNELS["folder"] = Path(module.__file__).parent
+    seed_kernels(tmp_path_factory.getbasetemp() / "splatcache")
+    return True
+
+
+def compile_setting(native_loaded: bool) -> str:
+    """The tests' SPLAT_COMPILE: "1" (the native kernels, a CPU run's default: training tests took
+    2-6x as long on the eager torch kernels) where they are loaded; else "0", the eager kernels,
+    never torch.compile's minutes (the tests that compile ask for it)."""
+    return "1" if native_loaded else "0"
 
 
 @pytest.fixture(autouse=True)
-def _private_cache(tmp_path_factory, monkeypatch):
+def _private_cache(tmp_path_factory, monkeypatch, _native_kernels_loaded):
     """Generated scenes and match caches go to this session's temp folder, never ~/.cache."""
     monkeypatch.setenv("SPLAT_CACHE", str(tmp_path_factory.getbasetemp() / "splatcache"))
-    # eager kernels unless a test asks for torch.compile (a compile costs seconds; see test_compiled_training_step)
-    monkeypatch.setenv("SPLAT_COMPILE", "0")
+    monkeypatch.setenv("SPLAT_COMPILE", compile_setting(_native_kernels_loaded))
 
 
 def _tiny_run(tmp_path_factory) -> Path:
@@ -105,9 +117,9 @@ def _tiny_run(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def run_dir(tmp_path_factory):
+def run_dir(tmp_path_factory, _native_kernels_loaded):
     """Folder of a finished tiny 3dgs run (shared by the export, evaluation and render tests)."""
-    with pytest.MonkeyPatch.context() as mp:
+    with pytest.MonkeyPatch.context() as mp:  # module fixtures run before the autouse one above
         mp.setenv("SPLAT_CACHE", str(tmp_path_factory.getbasetemp() / "splatcache"))
-        mp.setenv("SPLAT_COMPILE", "0")  # module fixtures run before the autouse one above
+        mp.setenv("SPLAT_COMPILE", compile_setting(_native_kernels_loaded))
         yield _tiny_run(tmp_path_factory)

@@ -9,6 +9,7 @@ import pytest
 
 from cli_harness import run_cli
 from support import REPO
+from tiers import seed_kernels
 
 EXAMPLE = REPO / "examples" / "splat-example-plugin"
 
@@ -28,7 +29,7 @@ def plugin_site(tmp_path_factory):
 def _env(site, tmp_path):
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(site), env.get("PYTHONPATH", "")])
-    env["SPLAT_CACHE"] = str(tmp_path / "cache")
+    env["SPLAT_CACHE"] = str(seed_kernels(tmp_path / "cache"))
     env["SPLAT_INSTALLED_PLUGINS"] = "on"  # installed into site: its entry points are what these tests are about
     return env
 

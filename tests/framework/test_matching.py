@@ -605,6 +605,7 @@ def test_auto_keeps_dense_flow_that_fills_a_pair_cap_below_its_minimum(plane_sce
     assert ms.meta["pair_matchers"] == {"0-1": "dense"} and ms.count(0, 1) == 300
 
 
+@pytest.mark.slow  # runs a learned matcher on a CPU (2 s idle, 5 s under the fast tier's load)
 def test_auto_adds_the_learned_matcher_where_dense_flow_is_thin(plane_scene, monkeypatch):
     imgs, cams, ids = _plane_pair(plane_scene)
     monkeypatch.setattr(M.DenseFlowMatcher, "match", lambda self, a, b: M.no_matches())

@@ -86,9 +86,10 @@ def test_a_matcher_without_a_pairs_parameter_has_the_others_dropped():
 
 
 @pytest.mark.slow
-def test_sixteen_photos_pose_on_chosen_pairs_as_on_every_pair(tmp_path, monkeypatch):
+def test_sixteen_photos_pose_on_chosen_pairs_to_the_true_poses(tmp_path, monkeypatch):
     """The built-in forward scene's 16 photos with SIFT: the chosen pairs (fewer than half of the 120)
-    register every photo, as every pair does, with the true poses (after a similarity transform)."""
+    register every photo, with the true poses (after a similarity transform); that they register as
+    many photos as every pair does, the next test shows on real photos."""
     pytest.importorskip("pycolmap", reason='posing needs pycolmap (pip install "splat-framework[process]")')
     from splat_framework.data.parsers.colmap import load_colmap
     from splat_framework.data.parsers.llff import load_llff
@@ -103,9 +104,7 @@ def test_sixteen_photos_pose_on_chosen_pairs_as_on_every_pair(tmp_path, monkeypa
     chosen = estimate_scene(photos, tmp_path / "chosen")
     assert 16 <= len(picked) < len(all_pairs(16)) / 2
     assert sum(n > 0 for n in chosen.pair_matches.values()) <= len(picked)  # COLMAP matched only those
-    every = estimate_scene(photos, tmp_path / "every", pairs="exhaustive")
-    assert sum(n > 0 for n in every.pair_matches.values()) > len(picked)
-    assert len(chosen.registered) == len(every.registered) == 16
+    assert len(chosen.registered) == 16
     est = load_colmap(tmp_path / "chosen")
     true_w2c = np.stack([forward.cameras[i].world_to_cam.double().numpy() for i in idx])
     rot_deg, center_err = sim3_errors(np.stack([c.world_to_cam.double().numpy() for c in est.cameras]), true_w2c)

@@ -20,6 +20,7 @@ from rich.console import Console
 
 from cli_harness import cli_env, message_lines, run_cli
 from splat_framework import console as console_mod
+from tiers import seed_kernels
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 
@@ -322,7 +323,7 @@ def test_a_first_run_says_what_it_does_from_the_start_and_its_table_has_no_place
     not computed is one line each, with the reason), and a missing relative --data says how to set
     $SPLAT_DATA. (The scene's generation is a phase like any other: a line after 2 s; the tiny
     scene takes less.)"""
-    env = cli_env(SPLAT_CACHE=str(tmp_path / "cache"))
+    env = cli_env(SPLAT_CACHE=str(seed_kernels(tmp_path / "cache")))
     env.pop("SPLAT_DATA", None)
     res = run_cli("train", "3dgs", "--data", "synthetic/forward-tiny", "--steps", "12", "--output", tmp_path / "run",
                   code=0, env=env)

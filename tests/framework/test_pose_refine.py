@@ -14,7 +14,9 @@ from torch import nn
 from splat_framework.cameras import Camera, intrinsics, look_at, pose_differences
 from splat_framework.evaluation.metrics import psnr
 from splat_framework.evaluation.pose_refine import refine_pose, rigid_correction
-from splat_framework.render import rasterize
+from splat_framework.render import RenderSettings, rasterize
+
+NATIVE = RenderSettings(rasterizer="native", compile=True)
 
 
 def pose_change(a, b) -> tuple[float, float]:
@@ -43,7 +45,7 @@ class CloudModel(nn.Module):
     def get_outputs(self, camera: Camera, background=None):
         return rasterize(self.means, self.quats, self.scales, self.opacities, self.colors,
                          camera.world_to_cam.float(), camera.K.float(), camera.width, camera.height,
-                         sh_degree=0, background=background)
+                         sh_degree=0, background=background, settings=NATIVE)
 
 
 @pytest.mark.slow  # fits a pose over hundreds of renders

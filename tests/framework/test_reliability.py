@@ -31,13 +31,14 @@ from splat_framework.errors import DataError
 from splat_framework.model.gaussians import GaussianModel
 from splat_framework.registry import get_method
 from splat_framework.runtime.io import CHECKSUM_KEY, atomic_write_json, read_json
+from tiers import seed_kernels
 
 PY = sys.executable
 
 
 @pytest.fixture(autouse=True)
 def private_cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("SPLAT_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("SPLAT_CACHE", str(seed_kernels(tmp_path / "cache")))
     monkeypatch.delenv("SPLAT_IMAGE_MEMORY_BUDGET", raising=False)
     # a fixed rasterizer thread count: "auto" follows the machine's load, and a
     # different reduction order could change the last bits between two runs
@@ -476,7 +477,7 @@ def _cli(args, env, **kw):
 
 
 def _env(tmp_path):
-    env = dict(os.environ, SPLAT_CACHE=str(tmp_path / "cache"), PYTHONUNBUFFERED="1")
+    env = dict(os.environ, SPLAT_CACHE=str(seed_kernels(tmp_path / "cache")), PYTHONUNBUFFERED="1")
     env.pop("SPLAT_IMAGE_MEMORY_BUDGET", None)
     return env
 

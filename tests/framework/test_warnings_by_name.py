@@ -19,6 +19,7 @@ from splat_framework.matching.matchset import MatchSet
 from splat_framework.matching.report import empty_pairs_line, unmatched_views_line
 from splat_framework.sfm.posing_record import posing_record
 from splat_framework.sfm.reconstruct import SfmSummary
+from tiers import seed_kernels
 
 NOISE = 3
 """The view of the scene replaced by noise: image003, the photo IMG_4.jpg."""
@@ -75,7 +76,7 @@ def test_the_pairs_left_empty_and_the_views_without_a_match_are_one_line_each_by
 def test_training_names_the_pairs_left_empty_and_the_view_without_a_match_also_from_the_cache(noisy_scene, tmp_path):
     """The matching prior of a run (3dgs-triang's start) on a scene with a view of noise: one line naming
     the empty pairs, one naming the view; the same two lines when the next run reads the matches cached."""
-    env = cli_env(SPLAT_CACHE=str(tmp_path / "cache"))
+    env = cli_env(SPLAT_CACHE=str(seed_kernels(tmp_path / "cache")))
     expected = ["warning: 3 of 6 pairs left empty (fewer than 8 verified matches): image001-image003, "
                 "image002-image003, image003-image004",
                 "warning: training view image003 has no verified match with any other training view: the matching "
@@ -103,7 +104,7 @@ def test_the_pairs_left_empty_say_whether_the_poses_of_ones_photos_lack_any(tmp_
     names = {0: "IMG_1", 1: "IMG_2", 2: "IMG_3"}
     empty = "1 of 3 pairs left empty (fewer than 8 verified matches): IMG_2-IMG_3"
     photos = ["IMG_1.jpg", "IMG_2.jpg", "IMG_3.jpg", "IMG_4.jpg"]
-    monkeypatch.setenv("SPLAT_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("SPLAT_CACHE", str(seed_kernels(tmp_path / "cache")))
     process, cached = tmp_path / "my_scene", tmp_path / "cache" / "photos" / "0123abcd" / "scene"
     for scene in (process, cached):
         scene.mkdir(parents=True)
@@ -143,7 +144,7 @@ def test_a_run_on_photos_that_all_registered_says_the_poses_are_not_affected(noi
     write_posing_record(scene, [f"IMG_{k + 1}.jpg" for k in range(5)], [], "sift", "incremental")
     res = run_cli("train", "3dgs-triang", "--data", scene, "--views", "all", "--steps", "1", "--output",
                   tmp_path / "run", "--no-progress", "--model.init.matching.kind", "sift", code=0,
-                  env=cli_env(SPLAT_CACHE=str(tmp_path / "cache")))
+                  env=cli_env(SPLAT_CACHE=str(seed_kernels(tmp_path / "cache"))))
     lines = warning_lines(res.stderr)
     assert len(lines) == 1 and lines[0].startswith("warning: training view image003 has no verified match"), res.stderr
     assert ("3 of 6 pairs left empty (fewer than 8 verified matches): image001-image003, image002-image003, "
@@ -190,7 +191,7 @@ def test_training_on_photos_lists_the_photo_left_out_also_from_the_cache(noisy_p
     pytest.importorskip("pycolmap", reason='posing photos needs pycolmap (pip install "splat-framework[process]")')
     photos = tmp_path / "photos"
     shutil.copytree(noisy_photos, photos)
-    env = cli_env(SPLAT_CACHE=str(tmp_path / "cache"))
+    env = cli_env(SPLAT_CACHE=str(seed_kernels(tmp_path / "cache")))
     left_out = ("IMG_4.jpg not registered (left out of the scene): verified matches with IMG_1.jpg 0, IMG_2.jpg 0, "
                 "IMG_3.jpg 0, IMG_5.jpg 0")
     for run, posing in (("run", "estimating the poses of 5 photos"), ("again", "poses from the cache")):

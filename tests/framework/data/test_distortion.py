@@ -27,6 +27,7 @@ from splat_framework.data import DataError, load_scene
 from splat_framework.data.datamanager import DataManager
 from splat_framework.data.parsers.colmap import CAMERA_MODELS, LENSES, ColmapCamera, _lens
 from splat_framework.data.undistort import Lens, undistortion
+from tiers import seed_kernels
 
 WIDTH, HEIGHT, N_VIEWS = 96, 72, 3
 SUBPIXELS = ((0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75))
@@ -323,7 +324,7 @@ def test_a_distorted_transforms_scene_trains_with_no_warning(world, tmp_path):
     run = tmp_path / "run"
     res = run_cli("train", "3dgs", "--data", root, "--steps", "3", "--output", run, "--no-progress",
                   "--no-save-renders", "--model.init.num-points", "300", code=0,
-                  env=cli_env(SPLAT_CACHE=str(tmp_path / "cache")))
+                  env=cli_env(SPLAT_CACHE=str(seed_kernels(tmp_path / "cache"))))
     out = res.stdout + res.stderr
     assert "warning" not in out.lower() and "distortion" not in out.lower(), out
     assert (run / "metrics.json").is_file()

@@ -11,6 +11,7 @@ import pytest
 from splat_framework.data import DataError, load_scene
 from splat_framework.data.run_data import held_out_views
 from support import make_blender, make_dtu, make_llff
+from tiers import seed_kernels
 
 
 def test_llff_and_dtu_validate_on_every_view_neither_trained_nor_tested(tmp_path):
@@ -49,7 +50,7 @@ def test_a_run_scored_on_validation_views_says_so_and_eval_repeats_it(tmp_path, 
     and in metrics.json; config.json records them, so ``splat-eval`` of the run scores the same views."""
     from cli_harness import run_cli
 
-    monkeypatch.setenv("SPLAT_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("SPLAT_CACHE", str(seed_kernels(tmp_path / "cache")))
     run = tmp_path / "run"
     run_cli("train", "3dgs", "--data", "synthetic/forward-tiny", "--steps", "5", "--eval-split", "val",
             "--model.init.num-points", "300", "--output", run, "--no-progress", "--no-save-renders", code=0)

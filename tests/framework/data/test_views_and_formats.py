@@ -23,6 +23,7 @@ from splat_framework.data.splits import default_views
 from splat_framework.pipeline.scene import load_config_scene
 from splat_framework.runtime.io import read_json
 from support import make_blender, make_colmap, make_dtu, make_llff
+from tiers import seed_kernels
 
 FLIP_YZ = np.diag([1.0, -1.0, -1.0, 1.0])
 N_VIEWS = 10
@@ -205,7 +206,7 @@ def test_a_transforms_scene_trains_on_every_view_by_default(built_in, tmp_path):
     run = tmp_path / "run"
     res = run_cli("train", "3dgs", "--data", root, "--steps", "2", "--output", run, "--no-progress",
                   "--no-save-renders", "--model.init.num-points", "300", code=0,
-                  env=cli_env(SPLAT_CACHE=str(tmp_path / "cache")))
+                  env=cli_env(SPLAT_CACHE=str(seed_kernels(tmp_path / "cache"))))
     line = ("training on all 8 views of a transforms.json scene (its default; --views N for a few-shot split): "
             "image001, image002, image003, image004, image005, image006, image007, image009; "
             "2 test views held out (every 8th image): image000, image008")

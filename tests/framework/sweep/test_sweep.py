@@ -17,15 +17,19 @@ from splat_framework import sweep
 from splat_framework.cli import sweep as cli_sweep
 from splat_framework.sweep import Grid, SweepError, run_sweep
 from support import REPO
+from tiers import seed_kernels
 
 TINY = {"model": {"init": {"num_points": 300}}, "save_renders": False, "compile": False}
 """Keeps the end-to-end runs to about a second of training each (eager kernels: Ray's workers do not
-see the test environment's SPLAT_COMPILE=0, and compiling there took minutes)."""
+see the test environment's SPLAT_COMPILE, and compiling there took minutes)."""
 
 
 @pytest.fixture(autouse=True)
-def _private_cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("SPLAT_CACHE", str(tmp_path / "cache"))
+def _own_cache(tmp_path, monkeypatch):
+    """Each test's sweeps have a cache of their own, holding the machine's native kernels; after
+    conftest's ``_private_cache``, whose SPLAT_COMPILE the sweeps' worker processes inherit (under
+    that fixture's name this one replaced it, and each end-to-end sweep built the kernels: 45 s)."""
+    monkeypatch.setenv("SPLAT_CACHE", str(seed_kernels(tmp_path / "cache")))
 
 
 def fake_metrics(path: Path, method: str, data: str, psnr: float, ssim: float, lpips=None, steps=10, digest=None,
