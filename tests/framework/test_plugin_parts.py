@@ -165,6 +165,23 @@ def test_a_broken_photo_matcher_is_one_line_before_the_photos_are_posed(bad_part
     assert "poses" not in "".join(capsys.readouterr())  # neither estimated nor read from the cache
 
 
+def test_an_unknown_photo_matcher_names_the_flag_it_was_given_by(tmp_path):
+    """splat-train's photo matcher is ``--photos.matcher`` (splat-process's is ``--matcher``): an
+    unknown name is one line naming that flag and the choices."""
+    import numpy as np
+    from PIL import Image
+
+    from splat_framework.cli.train import main
+    from splat_framework.errors import DataError
+
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for i in range(2):
+        Image.fromarray(np.full((16, 16, 3), 40 * i, np.uint8)).save(photos / f"{i}.png")
+    with pytest.raises(DataError, match=r"^--photos\.matcher must be one of auto, sift, .*got 'nope'$"):
+        main(["3dgs", "--data", str(photos), "--photos.matcher", "nope", "--no-progress"])
+
+
 def test_a_part_is_checked_for_its_kind():
     """``Ref.load``: a class of the base named, or any callable for a function; else one line."""
     from splat_framework.model.gaussians import GaussianModel

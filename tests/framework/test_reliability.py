@@ -574,8 +574,10 @@ def test_sigterm_during_the_evaluation_says_what_is_saved_and_the_command_that_c
     out = tmp_path / "run"
     args = ["3dgs", "--data", "synthetic/forward-tiny", "--steps", "4", "--model.init.num-points", "200",
             "--no-progress", "--no-save-renders", "--test-pose-steps", "60", "--output", str(out)]
-    proc = subprocess.Popen([sys.executable, "-m", "splat_framework.cli.train", *args], env=cli_env(), text=True,
-                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    # the eager kernels: with the native ones, under a loaded CI, this run once printed its line and
+    # then died of SIGINT (exit -2, not 130); not understood yet (docs/history/2026-12-07.md)
+    proc = subprocess.Popen([sys.executable, "-m", "splat_framework.cli.train", *args], env=cli_env(SPLAT_COMPILE="0"),
+                            text=True, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.time() + 240
     while not list((out / "checkpoints").glob("step-0000004.ckpt")):  # the last step's checkpoint: evaluation follows
         assert proc.poll() is None and time.time() < deadline, proc.communicate()

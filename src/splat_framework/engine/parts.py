@@ -94,7 +94,7 @@ def _photo_matcher(config) -> Callable | None:
     if builtin_scene_name(config.data) is not None or photo_source(locate_data(config.data)) is None:
         return None
     plugins = photo_matchers()
-    name = choose_matcher(config.photos.matcher, plugins)
+    name = choose_matcher(config.photos.matcher, plugins, flag="--photos.matcher")
     return load_matcher(name, plugins[name])
 
 

@@ -31,13 +31,14 @@ def photo_matchers() -> dict[str, object]:
     return {name: entry for name, entry in parts.parts.items() if entry is not None}
 
 
-def choose_matcher(matcher: str, plugins: dict[str, object]) -> str:
+def choose_matcher(matcher: str, plugins: dict[str, object], flag: str = "--matcher") -> str:
     """The matcher that ``matcher`` names ("auto" resolved against the registered ``plugins``); a
-    one-line DataError listing the choices when it names none."""
+    one-line DataError naming ``flag`` (the command's, e.g. splat-train's ``--photos.matcher``) and
+    listing the choices when it names none."""
     if matcher == AUTO_MATCHER:
         return AUTO_PREFERRED if AUTO_PREFERRED in plugins else "sift"
     if matcher != "sift" and matcher not in plugins:
-        raise DataError(f"--matcher must be one of {', '.join(['auto', 'sift', *sorted(plugins)])}, got {matcher!r}")
+        raise DataError(f"{flag} must be one of {', '.join(['auto', 'sift', *sorted(plugins)])}, got {matcher!r}")
     return matcher
 
 
