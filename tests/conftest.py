@@ -84,7 +84,7 @@ def _native_kernels_loaded(request, tmp_path_factory) -> bool:
     return True
 
 
-def compile_setting(native_loaded: bool) -> str:
+def compile_env(native_loaded: bool) -> str:
     """The tests' SPLAT_COMPILE: "1" (the native kernels, a CPU run's default: training tests took
     2-6x as long on the eager torch kernels) where they are loaded; else "0", the eager kernels,
     never torch.compile's minutes (the tests that compile ask for it)."""
@@ -95,7 +95,7 @@ def compile_setting(native_loaded: bool) -> str:
 def _private_cache(tmp_path_factory, monkeypatch, _native_kernels_loaded):
     """Generated scenes and match caches go to this session's temp folder, never ~/.cache."""
     monkeypatch.setenv("SPLAT_CACHE", str(tmp_path_factory.getbasetemp() / "splatcache"))
-    monkeypatch.setenv("SPLAT_COMPILE", compile_setting(_native_kernels_loaded))
+    monkeypatch.setenv("SPLAT_COMPILE", compile_env(_native_kernels_loaded))
 
 
 def _tiny_run(tmp_path_factory) -> Path:
@@ -121,5 +121,5 @@ def run_dir(tmp_path_factory, _native_kernels_loaded):
     """Folder of a finished tiny 3dgs run (shared by the export, evaluation and render tests)."""
     with pytest.MonkeyPatch.context() as mp:  # module fixtures run before the autouse one above
         mp.setenv("SPLAT_CACHE", str(tmp_path_factory.getbasetemp() / "splatcache"))
-        mp.setenv("SPLAT_COMPILE", compile_setting(_native_kernels_loaded))
+        mp.setenv("SPLAT_COMPILE", compile_env(_native_kernels_loaded))
         yield _tiny_run(tmp_path_factory)

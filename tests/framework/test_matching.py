@@ -629,6 +629,7 @@ def test_learned_matcher_verified_matches_on_two_views(name, plane_scene):
     assert ms.meta["config"]["kind"] == name
 
 
+@pytest.mark.slow  # builds the learned matchers on a CPU (1.3 s idle, 6 s under the fast tier's load)
 @needs_packaged
 def test_matching_leaves_torch_random_state_alone(plane_scene, monkeypatch):
     """Building a learned matcher draws random initial weights; matching must not move the run's
